@@ -1,0 +1,65 @@
+"""Entry point of the ``bimscan`` console script.
+
+Commands live in one module per area (``cli/ifc_commands.py``, ...) and are registered here.
+User errors (``BimscanError``) become one line on stderr and a non-zero exit, never a traceback.
+Heavy libraries (Open3D, torch, Ray) are imported inside commands so ``--help`` stays fast.
+"""
+
+from __future__ import annotations
+
+import errno
+import sys
+
+import click
+
+from bimscan import __version__
+from bimscan.errors import BimscanError
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.version_option(__version__, prog_name="bimscan")
+def cli() -> None:
+    """Labelled synthetic terrestrial laser scans from BIM (IFC) models.
+
+    IFC -> components -> semantic classes -> virtual TLS -> labelled clouds -> datasets ->
+    statistics -> segmentation baseline.
+    """
+
+
+def _register() -> None:
+    from bimscan.cli import ifc_commands
+
+    for command in ifc_commands.COMMANDS:
+        cli.add_command(command)
+
+
+_register()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the CLI; returns the exit status."""
+    try:
+        status = cli.main(args=argv, prog_name="bimscan", standalone_mode=False)
+    except click.exceptions.Abort:
+        click.echo("error: interrupted", err=True)
+        return 130
+    except click.ClickException as exc:
+        exc.show()
+        return exc.exit_code
+    except BimscanError as exc:
+        click.echo(f"error: {exc}", err=True)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        click.echo("error: interrupted; finished work is kept, run the same command to resume", err=True)
+        return 130
+    except OSError as exc:
+        if exc.errno == errno.ENOSPC:
+            click.echo(f"error: disk full while writing {exc.filename or 'output'}; free space and run again", err=True)
+        else:
+            click.echo(f"error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "), err=True)
+        return 1
+    return status if isinstance(status, int) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

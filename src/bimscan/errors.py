@@ -1,0 +1,53 @@
+"""One exception hierarchy for everything a user can get wrong.
+
+Every message says what was wrong (with the offending value) and what to do about it, in one
+line: the CLI prints ``error: <message>`` and exits non-zero, never a traceback.
+"""
+
+from __future__ import annotations
+
+
+class BimscanError(Exception):
+    """Base of all user-facing errors."""
+
+    exit_code: int = 1
+
+
+class InputFileError(BimscanError):
+    """A file given by the user is missing, unreadable or of the wrong kind."""
+
+
+class IfcError(BimscanError):
+    """An IFC file could not be parsed or holds nothing scannable."""
+
+
+class EmptyModelError(IfcError):
+    """An IFC model parsed, but no element produced geometry."""
+
+
+class ConfigError(BimscanError):
+    """A configuration file or value (TOML, scheme, spec) is invalid."""
+
+
+class SchemeError(ConfigError):
+    """A label scheme is invalid."""
+
+
+class ScannerSettingsError(ConfigError):
+    """Scanner settings are impossible, or outside the device's limits under --strict."""
+
+
+class StationError(BimscanError):
+    """A scan station is unusable: inside a solid, outside the building, or none could be planned."""
+
+
+class OutputError(BimscanError):
+    """An output could not be written (bad path, existing file, full disk)."""
+
+
+class DatasetError(BimscanError):
+    """A dataset build or dataset folder is inconsistent."""
+
+
+class LearnError(BimscanError):
+    """A training, evaluation or prediction input is invalid."""

@@ -1,0 +1,280 @@
+"""Small typed data passed between pipeline stages.
+
+Frozen dataclasses of NumPy columns; shapes and dtypes are checked once, on construction. Field
+names are the same everywhere in the package (``xyz``, ``label``, ``component``, ``station``,
+``intensity``, ``time``); only the format edges rename them (LAS names in ``io/las.py``,
+Pointcept names in ``io/npdir.py``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+NO_COMPONENT = -1  # component id of points that belong to no BIM component (real scans)
+
+
+def _check(name: str, array: np.ndarray | None, dtype: str, shape: tuple[int | None, ...]) -> None:
+    if array is None:
+        return
+    if not isinstance(array, np.ndarray):
+        raise TypeError(f"{name} must be a NumPy array, got {type(array).__name__}")
+    if array.dtype != np.dtype(dtype):
+        raise TypeError(f"{name} must have dtype {dtype}, got {array.dtype}")
+    if array.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, array.shape)):
+        want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
+        raise ValueError(f"{name} must have shape {want}, got {array.shape}")
+
+
+def _check_rows(owner: str, n: int, **columns: np.ndarray | None) -> None:
+    for name, column in columns.items():
+        if column is not None and len(column) != n:
+            raise ValueError(f"{owner}.{name} has {len(column)} rows, expected {n}")
+
+
+@dataclass(frozen=True)
+class SceneMesh:
+    """All scannable triangles of a model merged into one mesh.
+
+    vertices: (V, 3) float64, world coordinates in metres, Z up.
+    faces: (F, 3) int32, indices into ``vertices``.
+    face_component: (F,) int32, the dense component id of each triangle.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    face_component: np.ndarray
+
+    def __post_init__(self) -> None:
+        _check("vertices", self.vertices, "float64", (None, 3))
+        _check("faces", self.faces, "int32", (None, 3))
+        _check("face_component", self.face_component, "int32", (None,))
+        _check_rows("SceneMesh", len(self.faces), face_component=self.face_component)
+        if len(self.faces) and (self.faces.min() < 0 or self.faces.max() >= len(self.vertices)):
+            raise ValueError("faces index vertices out of range")
+
+    @property
+    def n_triangles(self) -> int:
+        return int(len(self.faces))
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(min xyz, max xyz) in metres of the vertices that faces use."""
+        used = self.vertices[np.unique(self.faces)] if len(self.faces) else self.vertices
+        if len(used) == 0:
+            return np.zeros(3), np.zeros(3)
+        return used.min(axis=0), used.max(axis=0)
+
+
+@dataclass(frozen=True)
+class ComponentTable:
+    """One row per component (a building element with geometry), indexed by dense component id.
+
+    All columns are (C,) arrays; strings are NumPy unicode arrays. ``label`` holds the semantic
+    class id under ``scheme_name``. ``class_ancestry`` maps every IFC class present to its chain
+    of supertypes in the file's schema, nearest first and starting with the class itself.
+    """
+
+    global_id: np.ndarray
+    ifc_class: np.ndarray
+    predefined_type: np.ndarray
+    name: np.ndarray
+    storey: np.ndarray
+    parent_class: np.ndarray
+    label: np.ndarray
+    class_ancestry: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        n = len(self.global_id)
+        for column in ("global_id", "ifc_class", "predefined_type", "name", "storey", "parent_class"):
+            array = getattr(self, column)
+            if not isinstance(array, np.ndarray) or array.dtype.kind != "U" or array.ndim != 1:
+                raise TypeError(f"ComponentTable.{column} must be a 1-D NumPy unicode array")
+        _check("label", self.label, "uint8", (None,))
+        _check_rows(
+            "ComponentTable", n, ifc_class=self.ifc_class, predefined_type=self.predefined_type,
+            name=self.name, storey=self.storey, parent_class=self.parent_class, label=self.label,
+        )
+
+    def __len__(self) -> int:
+        return int(len(self.global_id))
+
+    def rows(self) -> list[dict[str, object]]:
+        """The table as a list of plain dicts (for JSON, CSV and index files)."""
+        return [
+            {
+                "component": i,
+                "global_id": str(self.global_id[i]),
+                "ifc_class": str(self.ifc_class[i]),
+                "predefined_type": str(self.predefined_type[i]),
+                "name": str(self.name[i]),
+                "storey": str(self.storey[i]),
+                "parent_class": str(self.parent_class[i]),
+                "label": int(self.label[i]),
+            }
+            for i in range(len(self))
+        ]
+
+
+@dataclass(frozen=True)
+class LabelClass:
+    """One semantic class of a label scheme."""
+
+    id: int
+    name: str
+    color: str  # "#rrggbb", used by renders and plots
+
+
+@dataclass(frozen=True)
+class LabelRule:
+    """Map elements of ``ifc_class`` (and its subclasses) to the class named ``label``.
+
+    Optional filters: ``predefined_types`` (any of, upper case), ``parent_class`` (the IFC class
+    of the aggregate the element is part of, subclasses included).
+    """
+
+    ifc_class: str
+    label: str
+    predefined_types: tuple[str, ...] = ()
+    parent_class: str | None = None
+
+
+@dataclass(frozen=True)
+class LabelScheme:
+    """Semantic classes and the rules mapping IFC classes onto them; data, not code."""
+
+    name: str
+    classes: tuple[LabelClass, ...]
+    rules: tuple[LabelRule, ...]
+    default_label: str
+
+    def class_by_name(self, name: str) -> LabelClass:
+        for cls in self.classes:
+            if cls.name == name:
+                return cls
+        raise KeyError(name)
+
+    @property
+    def names(self) -> dict[int, str]:
+        return {c.id: c.name for c in self.classes}
+
+
+@dataclass(frozen=True)
+class Storey:
+    """A building storey: its name and the elevation of its placement in metres (world Z)."""
+
+    name: str
+    elevation_m: float
+
+
+@dataclass(frozen=True)
+class Space:
+    """A room volume (IfcSpace), kept aside from the scannable mesh for station planning.
+
+    vertices: (V, 3) float64 metres; faces: (F, 3) int32.
+    """
+
+    global_id: str
+    name: str
+    storey: str
+    vertices: np.ndarray
+    faces: np.ndarray
+
+    def __post_init__(self) -> None:
+        _check("vertices", self.vertices, "float64", (None, 3))
+        _check("faces", self.faces, "int32", (None, 3))
+
+
+@dataclass(frozen=True)
+class FailedElement:
+    """An element whose geometry could not be triangulated; reported and skipped."""
+
+    global_id: str
+    ifc_class: str
+    reason: str
+
+
+@dataclass(frozen=True)
+class BimScene:
+    """A parsed IFC model: scannable mesh, component table, storeys, spaces and failures."""
+
+    source: str
+    file_sha256: str
+    schema: str
+    mesh: SceneMesh
+    components: ComponentTable
+    scheme: LabelScheme
+    storeys: tuple[Storey, ...]
+    spaces: tuple[Space, ...]
+    failed: tuple[FailedElement, ...]
+    unmapped_classes: Mapping[str, int]  # IFC class -> components that fell to the default class
+
+    def __post_init__(self) -> None:
+        if len(self.mesh.face_component) and self.mesh.face_component.max() >= len(self.components):
+            raise ValueError("mesh.face_component refers to components beyond the component table")
+
+
+@dataclass(frozen=True)
+class Station:
+    """A scan station: the laser's beam origin in world metres, heading and floor height.
+
+    ``position`` is where the beam leaves the instrument (floor + tripod + beam offset).
+    """
+
+    id: int
+    position: tuple[float, float, float]
+    heading_deg: float = 0.0
+    floor_z: float | None = None
+    storey: str = ""
+    room: str = ""
+
+
+@dataclass(frozen=True)
+class PointCloud:
+    """A (chunk of a) labelled point cloud; every column has N rows.
+
+    xyz: (N, 3) float64 metres. label: (N,) uint8 semantic class id. component: (N,) int32
+    component id (NO_COMPONENT for none). station: (N,) uint16. intensity: (N,) uint16.
+    time: (N,) float64 seconds since the start of the survey. Only ``xyz`` is required (real scans
+    may lack the rest).
+    """
+
+    xyz: np.ndarray
+    label: np.ndarray | None = None
+    component: np.ndarray | None = None
+    station: np.ndarray | None = None
+    intensity: np.ndarray | None = None
+    time: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        _check("xyz", self.xyz, "float64", (None, 3))
+        _check("label", self.label, "uint8", (None,))
+        _check("component", self.component, "int32", (None,))
+        _check("station", self.station, "uint16", (None,))
+        _check("intensity", self.intensity, "uint16", (None,))
+        _check("time", self.time, "float64", (None,))
+        _check_rows(
+            "PointCloud", len(self.xyz), label=self.label, component=self.component,
+            station=self.station, intensity=self.intensity, time=self.time,
+        )
+
+    def __len__(self) -> int:
+        return int(len(self.xyz))
+
+    COLUMNS = ("xyz", "label", "component", "station", "intensity", "time")
+
+    def take(self, index: np.ndarray) -> PointCloud:
+        """The rows selected by a boolean mask or an index array."""
+        return PointCloud(**{c: None if getattr(self, c) is None else getattr(self, c)[index] for c in self.COLUMNS})
+
+    @staticmethod
+    def concatenate(parts: list[PointCloud]) -> PointCloud:
+        """Join chunks that carry the same columns."""
+        if not parts:
+            return PointCloud(xyz=np.empty((0, 3)))
+        columns = {}
+        for c in PointCloud.COLUMNS:
+            values = [getattr(p, c) for p in parts]
+            columns[c] = None if any(v is None for v in values) else np.concatenate(values)
+        return PointCloud(**columns)
