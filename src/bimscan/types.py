@@ -278,3 +278,19 @@ class PointCloud:
             values = [getattr(p, c) for p in parts]
             columns[c] = None if any(v is None for v in values) else np.concatenate(values)
         return PointCloud(**columns)
+
+
+@dataclass(frozen=True)
+class CloudHeader:
+    """What a cloud writer stores beside the points, so a file explains itself.
+
+    ``origin`` (metres) is the local origin for formats that store coordinates relative to it
+    (the LAS offset, the NumPy folder's float32 ``coord``); choose it from the model's bounds.
+    ``metadata`` is JSON-able (scanner, settings, seed, software version, ...).
+    """
+
+    scheme: LabelScheme
+    components: ComponentTable | None = None
+    stations: tuple[Station, ...] = ()
+    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    metadata: Mapping[str, object] = field(default_factory=dict)

@@ -1,0 +1,1 @@
+"""Stage 1: IFC parsing. The only subpackage that imports ifcopenshell."""
