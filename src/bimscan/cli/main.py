@@ -27,9 +27,11 @@ def cli() -> None:
 
 
 def _register() -> None:
-    from bimscan.cli import ifc_commands
+    from bimscan.cli import ifc_commands, learn_commands
 
     for command in ifc_commands.COMMANDS:
+        cli.add_command(command)
+    for command in learn_commands.COMMANDS:
         cli.add_command(command)
 
 
