@@ -1,4 +1,5 @@
-"""Small synthetic labelled rooms for the learn tests, made with a seeded generator.
+"""Fixtures for the learn tests: small synthetic labelled rooms made with a seeded generator,
+tiny training configurations, and one tiny trained checkpoint shared by the session.
 
 A room is a box: floor slab (Slab, 3) at z = 0, ceiling covering (Covering, 2) at the room
 height, four walls (Wall&Column, 0), a downstand beam (Beam, 1) across the ceiling and two
@@ -8,8 +9,14 @@ so the classes are separable from geometry alone, like a scanned room.
 
 from __future__ import annotations
 
-import numpy as np
+from collections.abc import Callable
+from pathlib import Path
 
+import numpy as np
+import pytest
+import torch
+
+from bimscan.io.text import write_text_cloud
 from bimscan.types import PointCloud
 
 WALL, BEAM, COVERING, SLAB, OTHERS = range(5)
@@ -64,3 +71,96 @@ def make_room(seed: int, *, size_m: tuple[float, float] = (6.0, 4.0), height_m: 
     xyz = xyz + rng.normal(scale=0.002, size=xyz.shape)
     order = rng.permutation(len(xyz))  # scans are not sorted by class
     return PointCloud(xyz=np.ascontiguousarray(xyz[order]), label=label[order])
+
+
+TINY_CONFIG = """\
+[data]
+train = [{train}]
+val = [{val}]
+
+[blocks]
+size_m = 2.0
+eval_stride_m = 1.0
+points = {points}
+min_points = 32
+cache_points = {cache}
+
+[model]
+embed_dim = 16
+attention_layers = 2
+fuse_dim = 32
+head_dims = [32, 16]
+dropout = 0.1
+
+[train]
+epochs = {epochs}
+batch_size = 2
+accumulation_steps = {accumulation}
+max_lr = 0.01
+num_workers = 0
+seed = {seed}
+out_dir = "{out_dir}"
+"""
+
+
+def write_tiny_config(
+    folder: Path, *, train: list[str], val: list[str], epochs: int = 2, accumulation: int = 2,
+    out_dir: str = "run", points: int = 128, seed: int = 0, name: str = "train.toml",
+) -> Path:
+    """A tiny-model training TOML (CPU-fast) in ``folder``; scene paths relative to it."""
+    quoted = lambda paths: ", ".join(f'"{p}"' for p in paths)  # noqa: E731
+    path = folder / name
+    path.write_text(TINY_CONFIG.format(
+        train=quoted(train), val=quoted(val), epochs=epochs, accumulation=accumulation, out_dir=out_dir,
+        points=points, cache=2 * points, seed=seed,
+    ), encoding="utf-8")
+    return path
+
+
+@pytest.fixture(autouse=True)
+def single_thread_torch() -> None:
+    """One torch thread: the 2-core CI machine is shared, and oversubscribed OpenMP threads
+    slow the tiny models by an order of magnitude (results do not depend on it)."""
+    torch.set_num_threads(1)
+
+
+@pytest.fixture
+def room() -> Callable[..., PointCloud]:
+    """The room generator (see ``make_room``)."""
+    return make_room
+
+
+@pytest.fixture
+def room_files(tmp_path: Path) -> dict[str, list[str]]:
+    """Three training rooms and one validation room as text clouds in ``tmp_path``."""
+    train = []
+    for i in range(3):
+        name = f"room{i}.txt"
+        write_text_cloud(tmp_path / name, make_room(i, size_m=(4.0 + i, 3.0), origin=(20.0 * i, 5.0), points_per_m2=40))
+        train.append(name)
+    write_text_cloud(tmp_path / "real.txt", make_room(100, size_m=(4.0, 4.0), points_per_m2=40))
+    return {"train": train, "val": ["real.txt"]}
+
+
+@pytest.fixture(scope="session")
+def trained_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One tiny model trained for 3 epochs on three rooms (shared; read-only for tests)."""
+    from bimscan.learn.config import load_train_config
+    from bimscan.learn.train import train_model
+
+    torch.set_num_threads(1)
+    folder = tmp_path_factory.mktemp("trained")
+    train = []
+    for i in range(3):
+        write_text_cloud(folder / f"room{i}.txt", make_room(i, size_m=(4.0 + i, 3.0), points_per_m2=40))
+        train.append(f"room{i}.txt")
+    write_text_cloud(folder / "real.txt", make_room(100, size_m=(4.0, 4.0), points_per_m2=40))
+    config, base = load_train_config(write_tiny_config(folder, train=train, val=["real.txt"], epochs=3))
+    train_model(config, base_dir=base, log=lambda text: None)
+    return folder
+
+
+@pytest.fixture
+def tiny_config() -> Callable[..., Path]:
+    """The tiny-config writer (see ``write_tiny_config``)."""
+    return write_tiny_config
