@@ -106,3 +106,26 @@ class TinyModel:
 def tiny_model():
     """Factory for TinyModel: ``tiny_model(schema="IFC2X3")``."""
     return TinyModel
+
+
+BOX_ROOM = {"size": (8.0, 6.0, 3.5), "wall": 0.25, "slab": 0.3}
+
+
+def build_box_room(path: Path, *, schema: str = "IFC4") -> Path:
+    """A closed room 8 x 6 x 3.5 m (inside), floor top at z = 0: 2 slabs and 4 walls."""
+    sx, sy, sz = BOX_ROOM["size"]
+    w, s = BOX_ROOM["wall"], BOX_ROOM["slab"]
+    model = TinyModel(schema)
+    model.add_box("IfcSlab", origin=(-w, -w, -s), size=(sx + 2 * w, sy + 2 * w, s), predefined_type="FLOOR", name="floor")
+    model.add_box("IfcSlab", origin=(-w, -w, sz), size=(sx + 2 * w, sy + 2 * w, s), predefined_type="ROOF", name="roof")
+    model.add_box("IfcWall", origin=(-w, -w, 0.0), size=(sx + 2 * w, w, sz), name="south")
+    model.add_box("IfcWall", origin=(-w, sy, 0.0), size=(sx + 2 * w, w, sz), name="north")
+    model.add_box("IfcWall", origin=(-w, 0.0, 0.0), size=(w, sy, sz), name="west")
+    model.add_box("IfcWall", origin=(sx, 0.0, 0.0), size=(w, sy, sz), name="east")
+    return model.write(path)
+
+
+@pytest.fixture(scope="session")
+def box_room_ifc(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Path of the closed box room IFC (built once per test session)."""
+    return build_box_room(tmp_path_factory.mktemp("box") / "box_room.ifc")

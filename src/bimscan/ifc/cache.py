@@ -90,8 +90,7 @@ def store_parsed(key: str, parsed: ParsedModel) -> None:
                 with os.fdopen(fd, "wb") as handle:
                     write(handle)
                 os.replace(tmp, folder / f"{key}{suffix}")
-            except BaseException:
-                Path(tmp).unlink(missing_ok=True)
-                raise
+            finally:
+                Path(tmp).unlink(missing_ok=True)  # gone already when the rename succeeded
     except OSError:
         return
