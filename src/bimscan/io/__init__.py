@@ -88,6 +88,17 @@ def open_cloud_writer(
     return WRITERS[key](Path(path), header=header, overwrite=overwrite, checksum=checksum)
 
 
+def check_cloud_output(path: str | Path, *, overwrite: bool = False) -> None:
+    """Raise OutputError now for an output ``open_cloud_writer`` would refuse (unknown suffix,
+    missing folder, existing output), so a long job fails before it starts rather than at the end."""
+    from bimscan.io._writer import check_output_path
+
+    key = output_format(path)
+    if key not in WRITERS:
+        raise OutputError(f"{path}: unknown cloud format {key!r}; write {_SUPPORTED}")
+    check_output_path(Path(path), overwrite=overwrite)
+
+
 def read_cloud(path: str | Path, *, label_field: str | None = None) -> PointCloud:
     """Read a whole cloud (bimscan's own or another tool's) as one ``PointCloud``.
 
@@ -115,6 +126,6 @@ def read_cloud_header(path: str | Path) -> CloudHeader | None:
 
 __all__ = [
     "CHUNK_READERS", "HEADER_READERS", "READERS", "WRITERS", "CloudWriter", "ObjExport", "WrittenCloud",
-    "export_obj", "iter_cloud_chunks", "open_cloud_writer", "output_format", "read_cloud",
+    "check_cloud_output", "export_obj", "iter_cloud_chunks", "open_cloud_writer", "output_format", "read_cloud",
     "read_cloud_header", "read_obj",
 ]
