@@ -12,10 +12,12 @@ from typing import Any
 from tqdm import tqdm
 
 
-def progress_bar(*, total: float | None, desc: str, unit: str = "it", **kwargs: Any) -> tqdm:
+def progress_bar(*, total: float | None, desc: str, unit: str = "it", enabled: bool = True, **kwargs: Any) -> tqdm:
     """A tqdm bar on stderr; use as a context manager and call ``update(n)``."""
     setting = os.environ.get("BIMSCAN_PROGRESS", "")
     disable: bool | None = None if setting == "" else setting == "0"
+    if not enabled:
+        disable = True
     return tqdm(
         total=total, desc=desc, unit=unit, file=sys.stderr, disable=disable, dynamic_ncols=True,
         unit_scale=unit not in ("it", "unit", "scene", "station", "epoch"), leave=False, **kwargs,

@@ -27,12 +27,11 @@ def cli() -> None:
 
 
 def _register() -> None:
-    from bimscan.cli import ifc_commands, learn_commands
+    from bimscan.cli import generate_commands, ifc_commands, learn_commands, scan_commands
 
-    for command in ifc_commands.COMMANDS:
-        cli.add_command(command)
-    for command in learn_commands.COMMANDS:
-        cli.add_command(command)
+    for module in (ifc_commands, generate_commands, scan_commands, learn_commands):
+        for command in module.COMMANDS:
+            cli.add_command(command)
 
 
 _register()

@@ -1,0 +1,17 @@
+"""Stage 3: semantic mapping of IFC classes onto label schemes (data files, not code)."""
+
+from bimscan.semantics.scheme import (
+    DEFAULT_SCHEME,
+    LabelMapping,
+    builtin_schemes,
+    check_rule_classes,
+    load_scheme,
+    map_labels,
+    parse_scheme,
+    relabel,
+)
+
+__all__ = [
+    "DEFAULT_SCHEME", "LabelMapping", "builtin_schemes", "check_rule_classes", "load_scheme",
+    "map_labels", "parse_scheme", "relabel",
+]

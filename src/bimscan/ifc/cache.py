@@ -1,0 +1,96 @@
+"""On-disk cache of parsed IFC geometry, so the six scans of one scene parse it once.
+
+Entries are keyed by the file's SHA-256 plus the loader version; each is one uncompressed
+``.npz`` (arrays) and one ``.json`` (everything else), written atomically. The folder is
+``$BIMSCAN_CACHE_DIR`` or ``~/.cache/bimscan``; deleting it is always safe.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from bimscan.types import ComponentTable, FailedElement, SceneMesh, Space, Storey
+
+if TYPE_CHECKING:
+    from bimscan.ifc.load import ParsedModel
+
+_TABLE_COLUMNS = ("global_id", "ifc_class", "predefined_type", "name", "storey", "parent_class")
+
+
+def cache_dir() -> Path:
+    """Where parsed geometry is kept."""
+    root = os.environ.get("BIMSCAN_CACHE_DIR")
+    return Path(root) if root else Path.home() / ".cache" / "bimscan"
+
+
+def load_parsed(key: str) -> ParsedModel | None:
+    """The cached parse for ``key``, or None when absent or unreadable (then it is re-parsed)."""
+    from bimscan.ifc.load import ParsedModel
+
+    folder = cache_dir() / "ifc"
+    arrays_path, meta_path = folder / f"{key}.npz", folder / f"{key}.json"
+    if not (arrays_path.is_file() and meta_path.is_file()):
+        return None
+    try:
+        meta = json.loads(meta_path.read_text("utf-8"))
+        with np.load(arrays_path, allow_pickle=False) as arrays:
+            mesh = SceneMesh(vertices=arrays["vertices"], faces=arrays["faces"], face_component=arrays["face_component"])
+            table = ComponentTable(
+                **{c: arrays[f"component_{c}"] for c in _TABLE_COLUMNS},
+                label=np.zeros(len(arrays["component_global_id"]), dtype=np.uint8),
+                class_ancestry={k: tuple(v) for k, v in meta["class_ancestry"].items()},
+            )
+            v_split = np.cumsum(meta["space_vertex_counts"])[:-1]
+            f_split = np.cumsum(meta["space_face_counts"])[:-1]
+            space_vertices = np.split(arrays["space_vertices"], v_split) if meta["spaces"] else []
+            space_faces = np.split(arrays["space_faces"], f_split) if meta["spaces"] else []
+        spaces = tuple(
+            Space(vertices=np.ascontiguousarray(v), faces=np.ascontiguousarray(f), **s)
+            for s, v, f in zip(meta["spaces"], space_vertices, space_faces)
+        )
+        return ParsedModel(
+            schema=meta["schema"], mesh=mesh, components=table,
+            storeys=tuple(Storey(**s) for s in meta["storeys"]), spaces=spaces,
+            failed=tuple(FailedElement(**f) for f in meta["failed"]),
+        )
+    except (OSError, ValueError, KeyError, TypeError):
+        return None  # a damaged entry is simply parsed again
+
+
+def store_parsed(key: str, parsed: ParsedModel) -> None:
+    """Write a cache entry atomically; a cache that cannot be written is skipped silently."""
+    folder = cache_dir() / "ifc"
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        spaces = parsed.spaces
+        arrays = {
+            "vertices": parsed.mesh.vertices, "faces": parsed.mesh.faces, "face_component": parsed.mesh.face_component,
+            **{f"component_{c}": getattr(parsed.components, c) for c in _TABLE_COLUMNS},
+            "space_vertices": np.concatenate([s.vertices for s in spaces]) if spaces else np.empty((0, 3)),
+            "space_faces": np.concatenate([s.faces for s in spaces]) if spaces else np.empty((0, 3), np.int32),
+        }
+        meta = {
+            "schema": parsed.schema,
+            "class_ancestry": dict(parsed.components.class_ancestry),
+            "storeys": [{"name": s.name, "elevation_m": s.elevation_m} for s in parsed.storeys],
+            "failed": [{"global_id": f.global_id, "ifc_class": f.ifc_class, "reason": f.reason} for f in parsed.failed],
+            "spaces": [{"global_id": s.global_id, "name": s.name, "storey": s.storey} for s in spaces],
+            "space_vertex_counts": [len(s.vertices) for s in spaces],
+            "space_face_counts": [len(s.faces) for s in spaces],
+        }
+        for suffix, write in ((".npz", lambda h: np.savez(h, **arrays)), (".json", lambda h: h.write(json.dumps(meta).encode()))):
+            fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{key}", suffix=suffix + ".tmp")
+            try:
+                with os.fdopen(fd, "wb") as handle:
+                    write(handle)
+                os.replace(tmp, folder / f"{key}{suffix}")
+            finally:
+                Path(tmp).unlink(missing_ok=True)  # gone already when the rename succeeded
+    except OSError:
+        return

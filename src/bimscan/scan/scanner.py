@@ -1,0 +1,221 @@
+"""Scanner models (device definitions as data) and scan settings (what one station does).
+
+``SCANNERS`` maps a name to a ``ScannerModel`` read from the TOML files in ``scan/scanners``;
+users pass their own file with ``load_scanner(path)``. ``PRESETS`` are the paper's six
+configurations (``presets.toml``). ``check_settings`` separates nonsense (an error naming the
+parameter and its allowed range) from settings outside the device's limits (a warning, or an
+error under ``strict``).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, replace
+from importlib import resources
+from pathlib import Path
+
+from bimscan.config import build_dataclass, load_toml
+from bimscan.errors import ConfigError, ScannerSettingsError
+
+
+@dataclass(frozen=True)
+class ScannerModel:
+    """A rotating-mirror terrestrial laser scanner.
+
+    The polygon mirror sweeps ``mirror_sweep_deg`` per line (centred on the horizon) at the line
+    rate; pulses are emitted only while the beam is inside [elevation_min_deg, elevation_max_deg).
+    The head turns about the vertical axis. The beam leaves ``tripod_height_m +
+    beam_origin_height_m`` above the floor.
+    """
+
+    name: str
+    description: str = ""
+    range_accuracy_m: float = 0.005
+    angle_accuracy_deg: float = 0.03
+    beam_divergence_rad: float = 0.0003
+    pulse_freqs_hz: tuple[float, ...] = ()
+    min_range_m: float = 1.5
+    max_range_m: float = 600.0
+    mirror_sweep_deg: float = 240.0
+    elevation_min_deg: float = -40.0
+    elevation_max_deg: float = 60.0
+    scan_freq_min_hz: float = 3.0
+    scan_freq_max_hz: float = 120.0
+    head_deg_per_s_max: float = 60.0
+    tripod_height_m: float = 1.5
+    beam_origin_height_m: float = 0.2
+
+    def __post_init__(self) -> None:
+        problems = []
+        if not 0 < self.mirror_sweep_deg <= 360:
+            problems.append(f"mirror_sweep_deg must be in (0, 360], got {self.mirror_sweep_deg}")
+        half = self.mirror_sweep_deg / 2
+        if not -half <= self.elevation_min_deg < self.elevation_max_deg <= half:
+            problems.append(
+                f"the elevation window [{self.elevation_min_deg}, {self.elevation_max_deg}) must be non-empty "
+                f"and inside the mirror sweep [-{half}, {half}]")
+        if not 0 <= self.min_range_m < self.max_range_m:
+            problems.append(f"need 0 <= min_range_m < max_range_m, got {self.min_range_m} and {self.max_range_m}")
+        if problems:
+            raise ScannerSettingsError(f"scanner {self.name!r}: " + "; ".join(problems))
+
+    @property
+    def instrument_height_m(self) -> float:
+        """Height of the beam origin above the floor the tripod stands on."""
+        return self.tripod_height_m + self.beam_origin_height_m
+
+
+@dataclass(frozen=True)
+class ScanSettings:
+    """What one station does: pulse rate, line rate, head rotation, elevation window.
+
+    ``elevation_min_deg``/``elevation_max_deg`` default to the scanner's window. ``head_start_deg``
+    and ``head_stop_deg`` bound the head rotation (a full 360 degree station by default).
+    """
+
+    pulse_freq_hz: float
+    scan_freq_hz: float
+    head_deg_per_s: float
+    head_start_deg: float = 0.0
+    head_stop_deg: float = 360.0
+    elevation_min_deg: float | None = None
+    elevation_max_deg: float | None = None
+
+    @staticmethod
+    def from_resolution(*, pulse_freq_hz: float, vertical_resolution_deg: float,
+                        horizontal_resolution_deg: float, scanner: ScannerModel) -> ScanSettings:
+        """Settings from angular resolutions, converted as HELIOS++ does.
+
+        line rate = pulse rate * vertical resolution / mirror sweep;
+        head speed = horizontal resolution * line rate.
+        """
+        if pulse_freq_hz <= 0 or vertical_resolution_deg <= 0 or horizontal_resolution_deg <= 0:
+            raise ScannerSettingsError(
+                "pulse_freq_hz, vertical_resolution_deg and horizontal_resolution_deg must be > 0, got "
+                f"{pulse_freq_hz}, {vertical_resolution_deg}, {horizontal_resolution_deg}")
+        scan_freq = pulse_freq_hz * vertical_resolution_deg / scanner.mirror_sweep_deg
+        return ScanSettings(pulse_freq_hz=pulse_freq_hz, scan_freq_hz=scan_freq,
+                            head_deg_per_s=horizontal_resolution_deg * scan_freq)
+
+    def window(self, scanner: ScannerModel) -> tuple[float, float]:
+        """The emitting elevation window in degrees."""
+        low = scanner.elevation_min_deg if self.elevation_min_deg is None else self.elevation_min_deg
+        high = scanner.elevation_max_deg if self.elevation_max_deg is None else self.elevation_max_deg
+        return low, high
+
+    def vertical_step_deg(self, scanner: ScannerModel) -> float:
+        """Elevation step between consecutive pulses of one line."""
+        return scanner.mirror_sweep_deg * self.scan_freq_hz / self.pulse_freq_hz
+
+    def horizontal_step_deg(self) -> float:
+        """Azimuth step between consecutive lines."""
+        return self.head_deg_per_s / self.scan_freq_hz
+
+    def duration_s(self) -> float:
+        """Seconds one station takes."""
+        return (self.head_stop_deg - self.head_start_deg) / self.head_deg_per_s
+
+    def expected_pulses(self, scanner: ScannerModel) -> float:
+        """pulse_freq * duration * window / sweep: the emitted pulse count of one station."""
+        low, high = self.window(scanner)
+        return self.pulse_freq_hz * self.duration_s() * (high - low) / scanner.mirror_sweep_deg
+
+
+def _scanner_files() -> dict[str, str]:
+    folder = resources.files("bimscan.scan") / "scanners"
+    return {p.name.removesuffix(".toml"): p.read_text("utf-8") for p in folder.iterdir() if p.name.endswith(".toml")}
+
+
+def _parse_scanner(data: dict, where: str) -> ScannerModel:
+    return build_dataclass(ScannerModel, data, where=where)
+
+
+SCANNERS: dict[str, ScannerModel] = {
+    name: _parse_scanner(tomllib.loads(text), f"built-in scanner {name}") for name, text in sorted(_scanner_files().items())
+}
+
+DEFAULT_SCANNER = "riegl_vz400"
+
+
+def load_scanner(source: str | Path | None = None) -> ScannerModel:
+    """A scanner by registry name, or from a TOML file (same keys as scanners/riegl_vz400.toml)."""
+    if source is None:
+        return SCANNERS[DEFAULT_SCANNER]
+    if isinstance(source, str) and source in SCANNERS:
+        return SCANNERS[source]
+    path = Path(source)
+    if not path.is_file():
+        raise ConfigError(f"scanner {str(source)!r} is neither a file nor a known scanner ({', '.join(SCANNERS)}); "
+                          "pass a scanner TOML file")
+    return _parse_scanner(load_toml(path), str(path))
+
+
+PRESETS: dict[str, ScanSettings] = {
+    name: build_dataclass(ScanSettings, table, where=f"presets.toml [{name}]")
+    for name, table in tomllib.loads((resources.files("bimscan.scan") / "presets.toml").read_text("utf-8")).items()
+}
+
+
+def load_settings(preset: str | Path) -> ScanSettings:
+    """Settings by preset name (exp1..exp6) or from a TOML file with the ScanSettings keys."""
+    if isinstance(preset, str) and preset in PRESETS:
+        return PRESETS[preset]
+    path = Path(preset)
+    if not path.is_file():
+        raise ConfigError(f"preset {str(preset)!r} is neither a file nor a known preset ({', '.join(PRESETS)})")
+    return build_dataclass(ScanSettings, load_toml(path), where=str(path))
+
+
+def check_settings(settings: ScanSettings, scanner: ScannerModel, *, strict: bool = False) -> list[str]:
+    """Validate settings against physics and the device.
+
+    Raises ScannerSettingsError for impossible values (naming the parameter and its allowed
+    range). Returns warnings for values outside the device's limits; under ``strict`` those
+    raise instead.
+    """
+    def bad(name: str, value: float, allowed: str) -> ScannerSettingsError:
+        return ScannerSettingsError(f"{name} = {value:g} is impossible; allowed: {allowed}")
+
+    for name in ("pulse_freq_hz", "scan_freq_hz", "head_deg_per_s"):
+        value = getattr(settings, name)
+        if not math.isfinite(value) or value <= 0:
+            raise bad(name, value, "a number > 0")
+    if not 0 < settings.head_stop_deg - settings.head_start_deg <= 360:
+        raise ScannerSettingsError(
+            f"head_start_deg = {settings.head_start_deg:g} and head_stop_deg = {settings.head_stop_deg:g} are impossible; "
+            "allowed: head_start_deg < head_stop_deg <= head_start_deg + 360")
+    low, high = settings.window(scanner)
+    half = scanner.mirror_sweep_deg / 2
+    if not max(-half, -90.0) <= low < high <= min(half, 90.0):
+        raise ScannerSettingsError(
+            f"elevation window [{low:g}, {high:g}) is impossible; allowed: a non-empty window inside the mirror sweep "
+            f"[-{half:g}, {half:g}] of {scanner.name} and within -90..90 degrees")
+    pulses_per_line = settings.pulse_freq_hz / settings.scan_freq_hz * (high - low) / scanner.mirror_sweep_deg
+    if pulses_per_line < 1:
+        raise ScannerSettingsError(
+            f"scan_freq_hz = {settings.scan_freq_hz:g} with pulse_freq_hz = {settings.pulse_freq_hz:g} leaves "
+            f"{pulses_per_line:.2f} pulses per line; allowed: scan_freq_hz <= "
+            f"{settings.pulse_freq_hz * (high - low) / scanner.mirror_sweep_deg:g}")
+    warnings = []
+    if scanner.pulse_freqs_hz and settings.pulse_freq_hz not in scanner.pulse_freqs_hz:
+        warnings.append(f"pulse_freq_hz = {settings.pulse_freq_hz:g} is not a pulse rate of {scanner.name} "
+                        f"({', '.join(f'{f:g}' for f in scanner.pulse_freqs_hz)} Hz)")
+    if not scanner.scan_freq_min_hz <= settings.scan_freq_hz <= scanner.scan_freq_max_hz:
+        warnings.append(f"scan_freq_hz = {settings.scan_freq_hz:g} is outside {scanner.name}'s line rates "
+                        f"{scanner.scan_freq_min_hz:g}..{scanner.scan_freq_max_hz:g} Hz")
+    if settings.head_deg_per_s > scanner.head_deg_per_s_max:
+        warnings.append(f"head_deg_per_s = {settings.head_deg_per_s:g} exceeds {scanner.name}'s "
+                        f"{scanner.head_deg_per_s_max:g} deg/s")
+    if (settings.elevation_min_deg is not None and settings.elevation_min_deg < scanner.elevation_min_deg) or (
+            settings.elevation_max_deg is not None and settings.elevation_max_deg > scanner.elevation_max_deg):
+        warnings.append(f"elevation window [{low:g}, {high:g}) exceeds {scanner.name}'s "
+                        f"[{scanner.elevation_min_deg:g}, {scanner.elevation_max_deg:g})")
+    if warnings and strict:
+        raise ScannerSettingsError("outside the device's limits (--strict): " + "; ".join(warnings))
+    return warnings
+
+
+def with_overrides(settings: ScanSettings, **overrides: float | None) -> ScanSettings:
+    """A copy with the given fields replaced (None values ignored)."""
+    return replace(settings, **{k: v for k, v in overrides.items() if v is not None})

@@ -1,0 +1,152 @@
+"""The virtual scanner over one scene: pulses -> rays -> engine -> labelled point chunks."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator
+
+import numba
+import numpy as np
+
+from bimscan.scan.engine import RayEngine, face_normals, make_engine
+from bimscan.scan.kernels import finish_hits, generate_rays, noise_key
+from bimscan.scan.noise import NoiseModel
+from bimscan.scan.pattern import PulsePattern
+from bimscan.scan.scanner import ScannerModel, ScanSettings
+from bimscan.types import PointCloud, SceneMesh, Station
+
+DEFAULT_CHUNK_PULSES = 1 << 20  # ~70 MB of working arrays per chunk
+DEFAULT_REFLECTANCE = 0.5
+INTENSITY_REFERENCE_M = 5.0  # intensity falls with (5 m / range)^2 beyond 5 m
+
+
+class VirtualScanner:
+    """A scanner model placed in one scene mesh; scans stations into labelled point chunks.
+
+    mesh: the merged scene mesh; component_label: (C,) uint8 class of each component.
+    reflectance: (C,) float32 in [0, 1] for the intensity model (default 0.5 everywhere).
+    threads: cores for the engine and the fused kernels (0 = all).
+    """
+
+    def __init__(self, mesh: SceneMesh, component_label: np.ndarray, *, scanner: ScannerModel,
+                 engine: str | RayEngine = "open3d", threads: int = 0, reflectance: np.ndarray | None = None) -> None:
+        self.mesh = mesh
+        self.scanner = scanner
+        self.engine = engine if not isinstance(engine, str) else make_engine(mesh, name=engine, threads=threads)
+        self.threads = threads
+        self.component_label = np.ascontiguousarray(component_label, dtype=np.uint8)
+        n_components = len(self.component_label)
+        self.reflectance = (np.full(n_components, DEFAULT_REFLECTANCE, dtype=np.float32) if reflectance is None
+                            else np.ascontiguousarray(reflectance, dtype=np.float32))
+        self.face_component = np.ascontiguousarray(mesh.face_component, dtype=np.int32)
+        self.face_normal = face_normals(mesh)
+
+    def _set_threads(self) -> None:
+        if self.threads:
+            numba.set_num_threads(min(self.threads, numba.config.NUMBA_NUM_THREADS))
+
+    def scan_station(self, station: Station, settings: ScanSettings, *, noise: NoiseModel, seed: int,
+                     time0_s: float = 0.0, chunk_pulses: int = DEFAULT_CHUNK_PULSES,
+                     on_pulses: Callable[[int], None] | None = None) -> Iterator[PointCloud]:
+        """Stream the labelled points of one station, chunk by chunk.
+
+        Chunks follow mirror lines and hold about ``chunk_pulses`` pulses; output points are the
+        same whatever the chunk size (noise is indexed by pulse number). ``on_pulses(n)`` is
+        called with each chunk's pulse count (for progress bars).
+        """
+        self._set_threads()
+        pattern = PulsePattern.of(settings, self.scanner)
+        origin_world = np.asarray(station.position, dtype=np.float64)
+        origin_local = origin_world - self.engine.centre
+        key = np.uint64(noise_key(seed, station.id))
+        angle_sigma = math.radians(noise.angle_sigma_deg)
+        station_column = np.uint16(station.id)
+        ray_buffer = np.empty((0, 6), dtype=np.float32)
+        pulse_buffer = np.empty(0, dtype=np.int64)
+        for first_line, stop_line in pattern.chunks(chunk_pulses):
+            start, stop = pattern.line_pulses(first_line, stop_line)
+            counts = stop - start
+            offsets = np.zeros(len(counts), dtype=np.int64)
+            np.cumsum(counts[:-1], out=offsets[1:])
+            n = int(counts.sum())
+            if n == 0:
+                continue
+            if len(ray_buffer) < n:  # working buffers reused across chunks (outputs are fresh)
+                ray_buffer = np.empty((n, 6), dtype=np.float32)
+                pulse_buffer = np.empty(n, dtype=np.int64)
+            rays, pulse = ray_buffer[:n], pulse_buffer[:n]
+            generate_rays(start, stop, offsets, first_line, pattern.dphase, pattern.sweep_deg, pattern.head_start_deg,
+                          pattern.head_deg_per_pulse, station.heading_deg, origin_local.astype(np.float32), rays, pulse)
+            t_hit, triangle = self.engine.cast(rays)
+            xyz = np.empty((n, 3), dtype=np.float64)
+            label = np.empty(n, dtype=np.uint8)
+            component = np.empty(n, dtype=np.int32)
+            intensity = np.empty(n, dtype=np.uint16)
+            time = np.empty(n, dtype=np.float64)
+            if on_pulses is not None:
+                on_pulses(n)
+            kept = finish_hits(t_hit, triangle, rays, pulse, self.face_component, self.component_label,
+                               self.face_normal, self.reflectance, origin_world, self.scanner.min_range_m,
+                               self.scanner.max_range_m, key, noise.range_sigma_m, angle_sigma, time0_s,
+                               1.0 / pattern.pulse_freq_hz, INTENSITY_REFERENCE_M, xyz, label, component, intensity, time)
+            if kept == 0:
+                continue
+            yield PointCloud(xyz=xyz[:kept], label=label[:kept], component=component[:kept],
+                             station=np.full(kept, station_column, dtype=np.uint16),
+                             intensity=intensity[:kept], time=time[:kept])
+
+    def cast_from(self, origin_world: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Cast unit ``directions`` (N, 3) from one world point: (distance (N,) f4, component (N,) i4, -1 = miss)."""
+        rays = np.empty((len(directions), 6), dtype=np.float32)
+        rays[:, :3] = np.asarray(origin_world, dtype=np.float64) - self.engine.centre
+        rays[:, 3:] = directions
+        t_hit, triangle = self.engine.cast(rays)
+        hit = triangle < len(self.face_component)
+        component = np.where(hit, self.face_component[np.minimum(triangle, len(self.face_component) - 1)], -1)
+        return t_hit, component.astype(np.int32)
+
+    def solid_containing(self, point_world: np.ndarray, *, n_rays: int = 96) -> int | None:
+        """The component whose closed surface encloses ``point_world``, or None.
+
+        Counts the crossings of each component along rays in all directions: from inside a
+        closed solid nearly every ray crosses it an odd number of times. Unlike a test on
+        triangle normals this does not trust the winding of the model's triangles.
+        """
+        from bimscan.scan.engine import Open3DEngine
+
+        if not hasattr(self.engine, "list_intersections"):
+            if getattr(self, "_probe", None) is None:
+                self._probe = Open3DEngine(self.mesh, threads=self.threads)
+            probe = self._probe
+        else:
+            probe = self.engine
+        i = np.arange(n_rays) + 0.5
+        z = 1 - 2 * i / n_rays
+        phi = math.pi * (1 + 5**0.5) * i
+        directions = np.stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], axis=1)
+        rays = np.empty((n_rays, 6), dtype=np.float32)
+        rays[:, :3] = np.asarray(point_world, dtype=np.float64) - probe.centre
+        rays[:, 3:] = directions
+        ray_ids, triangle = probe.list_intersections(rays)
+        valid = triangle < len(self.face_component)
+        if not valid.any():
+            return None
+        component = self.face_component[triangle[valid]].astype(np.int64)
+        pairs, counts = np.unique(ray_ids[valid] * len(self.component_label) + component, return_counts=True)
+        odd = pairs[counts % 2 == 1] % len(self.component_label)
+        if len(odd) == 0:
+            return None
+        candidates, rays_odd = np.unique(odd, return_counts=True)
+        best = int(np.argmax(rays_odd))
+        return int(candidates[best]) if rays_odd[best] >= 0.8 * n_rays else None
+
+    def facing(self, origin_world: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Like ``cast_from`` but also the cosine between each ray and the hit triangle's normal (>0 = back face)."""
+        rays = np.empty((len(directions), 6), dtype=np.float32)
+        rays[:, :3] = np.asarray(origin_world, dtype=np.float64) - self.engine.centre
+        rays[:, 3:] = directions
+        t_hit, triangle = self.engine.cast(rays)
+        hit = triangle < len(self.face_component)
+        safe = np.minimum(triangle, len(self.face_component) - 1)
+        cosine = np.where(hit, np.einsum("ij,ij->i", directions, self.face_normal[safe]), 0.0)
+        return t_hit, cosine
