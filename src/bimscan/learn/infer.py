@@ -39,6 +39,7 @@ from bimscan.learn.blocks import Block, pad_block, plan_passes
 from bimscan.learn.config import IGNORE_LABEL, BlockConfig
 from bimscan.learn.data import CHUNK_POINTS, SceneSource, iter_raw_chunks, iter_scene_chunks
 from bimscan.learn.metrics import compute_confusion
+from bimscan.learn.model import flush_denormals
 from bimscan.progress import progress_bar
 from bimscan.types import PointCloud
 
@@ -123,9 +124,20 @@ def label_scene(
     int64 original point indices and (M,) uint8 classes, stripe by stripe. Temporary stripe
     files go to ``work_dir`` (default: the system's temporary folder).
     """
+    with flush_denormals():
+        return _label_scene(
+            model, source, class_names=class_names, blocks=blocks, device=torch.device(device),
+            batch_size=batch_size, amp=amp, seed=seed, max_passes=max_passes, use_labels=use_labels,
+            work_dir=work_dir, on_labels=on_labels, chunk_points=chunk_points,
+        )
+
+
+def _label_scene(
+    model: nn.Module, source: SceneSource, *, class_names: Sequence[str], blocks: BlockConfig,
+    device: torch.device, batch_size: int, amp: str, seed: int, max_passes: int, use_labels: bool,
+    work_dir: Path | None, on_labels: Callable[[np.ndarray, np.ndarray], None] | None, chunk_points: int,
+) -> SceneLabels:
     started = time.perf_counter()
-    torch.set_flush_denormal(True)  # denormals slow CPU kernels about tenfold (see train.py)
-    device = torch.device(device)
     stride = blocks.eval_stride_m
     k = blocks.stride_ratio
     classes = len(class_names)

@@ -17,11 +17,10 @@ from bimscan.learn.evaluate import pick_device
 from bimscan.learn.infer import label_scene, to_labelled_cloud
 from bimscan.types import CloudHeader, LabelClass, LabelScheme
 
-# colours of the five default classes in renders and plots; other schemes cycle a palette
-CLASS_COLORS = {
-    "Wall&Column": "#b0b0b0", "Beam": "#d62728", "Covering": "#1f77b4", "Slab": "#2ca02c", "Others": "#ff7f0e",
-}
-PALETTE = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf")
+# Tableau 10, the palette of the built-in spc5 scheme: the five default classes get the same
+# colours as in bimscan's synthetic clouds; other class lists cycle through it
+PALETTE = ("#4e79a7", "#f28e2b", "#e15759", "#76b7b2", "#59a14f", "#edc948", "#b07aa1", "#ff9da7", "#9c755f", "#bab0ac")
+CLASS_COLORS = {"Wall&Column": "#4e79a7", "Beam": "#f28e2b", "Covering": "#59a14f", "Slab": "#9c755f", "Others": "#e15759"}
 
 
 @dataclass(frozen=True)
@@ -36,8 +35,15 @@ class PredictionResult:
     seconds: float
 
 
-def prediction_scheme(class_names: tuple[str, ...]) -> LabelScheme:
-    """The label scheme stored with predicted clouds: the checkpoint's classes, no IFC rules."""
+def prediction_scheme(class_names: tuple[str, ...], stored: LabelScheme | None = None) -> LabelScheme:
+    """The label scheme stored with predicted clouds: the checkpoint's classes.
+
+    The input cloud's own scheme (``stored``) is kept when it lists the same classes in the
+    same order (its colours and rules stay meaningful); otherwise a rule-less scheme is made.
+    """
+    if stored is not None and tuple(c.name for c in sorted(stored.classes, key=lambda c: c.id)) == class_names \
+            and [c.id for c in sorted(stored.classes, key=lambda c: c.id)] == list(range(len(class_names))):
+        return stored
     classes = tuple(
         LabelClass(id=i, name=name, color=CLASS_COLORS.get(name, PALETTE[i % len(PALETTE)]))
         for i, name in enumerate(class_names)
@@ -91,7 +97,7 @@ def predict_cloud(
         stored = read_cloud_header(source.path) if source.kind in ("cloud", "npdir") else None
         centre = np.round((result.lower + result.upper) / 2.0)
         header = CloudHeader(
-            scheme=prediction_scheme(trained.class_names),
+            scheme=prediction_scheme(trained.class_names, None if stored is None else stored.scheme),
             components=None if stored is None else stored.components,
             stations=() if stored is None else stored.stations,
             origin=tuple(float(v) for v in (centre if stored is None else stored.origin)),  # type: ignore[arg-type]
