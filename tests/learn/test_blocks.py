@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bimscan.learn.blocks import (
-    column_index, column_key, normalize_block, pad_block, plan_passes, sample_block, split_column_key,
+    locate_columns, encode_column_key, normalize_block, pad_block, plan_passes, sample_block, decode_column_key,
 )
 
 
@@ -79,10 +79,10 @@ def test_plan_passes_with_a_cap_returns_at_most_that_many_groups() -> None:
        st.sampled_from([0.5, 2.0, 4.0]))
 def test_column_keys_round_trip_and_sort_by_x_then_y(points: list[tuple[float, float]], size: float) -> None:
     xy = np.array(points, dtype=np.float64)
-    ix, iy = column_index(xy, size_m=size)
+    ix, iy = locate_columns(xy, size_m=size)
 
-    key = column_key(ix, iy)
-    back_x, back_y = split_column_key(key)
+    key = encode_column_key(ix, iy)
+    back_x, back_y = decode_column_key(key)
 
     np.testing.assert_array_equal(back_x, ix)
     np.testing.assert_array_equal(back_y, iy)

@@ -12,7 +12,7 @@ import pytest
 
 from bimscan.errors import InputFileError, LearnError
 from bimscan.io.text import write_text_cloud
-from bimscan.learn.blocks import column_index, column_key
+from bimscan.learn.blocks import locate_columns, encode_column_key
 from bimscan.learn.config import DEFAULT_CLASS_NAMES, BlockConfig
 from bimscan.learn.data import (
     TileDataset, collect_scene_tiles, list_scenes, load_or_collect_tiles, load_scene,
@@ -72,8 +72,8 @@ def test_tiles_keep_a_random_subset_per_column_whatever_the_chunking(
 
     np.testing.assert_array_equal(small.xyz, large.xyz)
     np.testing.assert_array_equal(small.offsets, large.offsets)
-    ix, iy = column_index(scene.xyz[:, :2], size_m=2.0)
-    keys, counts = np.unique(column_key(ix, iy), return_counts=True)
+    ix, iy = locate_columns(scene.xyz[:, :2], size_m=2.0)
+    keys, counts = np.unique(encode_column_key(ix, iy), return_counts=True)
     full = dict(zip(keys.tolist(), counts.tolist(), strict=True))
     for t in range(len(small)):
         kept = int(small.offsets[t + 1] - small.offsets[t])

@@ -11,7 +11,7 @@ import pytest
 
 from bimscan.errors import LearnError
 from bimscan.io.text import write_text_cloud
-from bimscan.learn.evaluate import evaluate_checkpoint, format_csv, format_markdown, summary_rows
+from bimscan.learn.evaluate import evaluate_checkpoint, format_csv, format_markdown, summarize_results
 from bimscan.learn.metrics import compute_metrics
 from bimscan.types import PointCloud
 
@@ -33,7 +33,7 @@ def test_each_scene_is_scored_on_every_point_with_mean_and_pooled_rows(
         assert result.labels.confusion.sum() == len(cloud)
         np.testing.assert_array_equal(result.labels.confusion.sum(axis=1), np.bincount(cloud.label, minlength=5))
         assert result.metrics.oa > 0.4  # trained three epochs on rooms like these
-    rows = dict(summary_rows(results))
+    rows = dict(summarize_results(results))
     assert rows["mean"]["miou"] == pytest.approx((results[0].metrics.miou + results[1].metrics.miou) / 2)
     pooled = compute_metrics(results[0].labels.confusion + results[1].labels.confusion)
     assert rows["all points"]["kappa"] == pytest.approx(pooled.kappa)

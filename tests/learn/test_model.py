@@ -11,8 +11,10 @@ import torch
 
 from bimscan.learn.blocks import sample_block
 from bimscan.learn.config import ModelConfig
-from bimscan.learn.model import MaskedBatchNorm1d, build_model, commit_batch_statistics, count_parameters
-from bimscan.learn.train import masked_cross_entropy
+from bimscan.learn.model import (
+    MaskedBatchNorm1d, OffsetAttention, build_model, commit_batch_statistics, count_parameters,
+)
+from bimscan.learn.train import compute_loss
 from bimscan.types import PointCloud
 
 TINY = ModelConfig(embed_dim=16, attention_layers=2, fuse_dim=32, head_dims=(32, 16), dropout=0.0)
@@ -36,6 +38,21 @@ def test_default_model_is_the_paper_size() -> None:
     assert 2.3e6 < count_parameters(model) < 2.5e6
     assert len(model.attention) == 4
     assert model.attention[0].qk.out_channels == 128 // 4  # shared q/k projection to d/4
+
+
+def test_offset_attention_equals_the_reference_formula() -> None:
+    torch.manual_seed(3)
+    layer = OffsetAttention(16).eval()
+    x = torch.randn(2, 16, 50)
+
+    # Guo et al.'s layer written out: softmax over keys, then L1 over queries, then the offset
+    q = layer.qk(x)
+    attention = torch.softmax(torch.bmm(q.transpose(1, 2), q), dim=-1)
+    attention = attention / (1e-9 + attention.sum(dim=1, keepdim=True))
+    attended = torch.bmm(layer.v(x), attention)
+    expected = x + layer.act(layer.norm(layer.trans(x - attended), None))
+
+    torch.testing.assert_close(layer(x, None), expected, atol=1e-5, rtol=1e-5)
 
 
 @pytest.mark.parametrize("mode", ["eval", "train"])
@@ -85,7 +102,7 @@ def test_tiny_model_overfits_one_block(room: Callable[..., PointCloud]) -> None:
     start_accuracy = accuracy = 0.0
     for step in range(200):
         model.train()
-        loss, _ = masked_cross_entropy(model(xyz), label)
+        loss, _ = compute_loss(model(xyz), label)
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()

@@ -24,19 +24,19 @@ from bimscan.learn.config import IGNORE_LABEL
 _KEY_OFFSET = 1 << 31
 
 
-def column_index(xy: np.ndarray, *, size_m: float) -> tuple[np.ndarray, np.ndarray]:
+def locate_columns(xy: np.ndarray, *, size_m: float) -> tuple[np.ndarray, np.ndarray]:
     """Integer column indices (ix, iy), each (N,) int64, of (N, 2) float64 x/y in metres."""
     cells = np.floor(np.asarray(xy, dtype=np.float64) / size_m).astype(np.int64)
     return cells[:, 0], cells[:, 1]
 
 
-def column_key(ix: np.ndarray, iy: np.ndarray) -> np.ndarray:
+def encode_column_key(ix: np.ndarray, iy: np.ndarray) -> np.ndarray:
     """One sortable int64 key per (ix, iy) pair; valid for |ix|, |iy| < 2**30."""
     return ix * (1 << 32) + (iy + _KEY_OFFSET)
 
 
-def split_column_key(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Inverse of :func:`column_key`."""
+def decode_column_key(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of :func:`encode_column_key`."""
     iy = key % (1 << 32) - _KEY_OFFSET
     ix = (key - (iy + _KEY_OFFSET)) // (1 << 32)
     return ix, iy

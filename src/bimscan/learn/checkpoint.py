@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from bimscan.errors import InputFileError, LearnError
-from bimscan.learn.config import TrainRunConfig, config_from_dict
+from bimscan.learn.config import TrainRunConfig, parse_config
 from bimscan.learn.model import PCTSegmentation, build_model
 
 CHECKPOINT_FORMAT = "bimscan-pct-checkpoint"
@@ -104,7 +104,7 @@ def load_trained_model(
 ) -> TrainedModel:
     """Rebuild the network of a checkpoint; ``weights="ema"`` (default, as Table 2) or "live"."""
     payload = read_checkpoint(path)
-    config = config_from_dict(payload["config"], where=f"{path} [config]")
+    config = parse_config(payload["config"], where=f"{path} [config]")
     class_names = tuple(payload["class_names"])
     model = build_model(len(class_names), config.model)
     key = "ema" if weights == "ema" else "model"

@@ -174,15 +174,15 @@ def resolve_path(base: Path, value: str) -> Path:
     return candidate if candidate.is_absolute() else base / candidate
 
 
-def config_to_dict(config: TrainRunConfig) -> dict[str, object]:
+def dump_config(config: TrainRunConfig) -> dict[str, object]:
     """The config as plain data (for the checkpoint and the run log)."""
     from dataclasses import asdict
 
     return asdict(config)
 
 
-def config_from_dict(data: dict[str, object], *, where: str) -> TrainRunConfig:
-    """Rebuild a config stored by :func:`config_to_dict` (tuples come back as lists)."""
+def parse_config(data: dict[str, object], *, where: str) -> TrainRunConfig:
+    """Rebuild a config stored by :func:`dump_config` (tuples come back as lists)."""
     try:
         return build_dataclass(TrainRunConfig, data, where=where)
     except ConfigError as exc:

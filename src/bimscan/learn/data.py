@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.errors import InputFileError, LearnError
-from bimscan.learn.blocks import column_index, column_key, sample_block, split_column_key
+from bimscan.learn.blocks import locate_columns, encode_column_key, sample_block, decode_column_key
 from bimscan.learn.config import DEFAULT_CLASS_NAMES, IGNORE_LABEL, BlockConfig
 from bimscan.learn.mapping import (
     LabelMapping, apply_label_table, build_label_table, load_s3dis_mapping,
@@ -138,7 +138,7 @@ def list_scenes(
     return scenes
 
 
-def scene_label_table(source: SceneSource, *, class_names: Sequence[str]) -> np.ndarray:
+def build_scene_label_table(source: SceneSource, *, class_names: Sequence[str]) -> np.ndarray:
     """The (256,) int16 table mapping this scene's label ids to training ids."""
     from bimscan.io.s3dis import S3DIS_CLASSES
 
@@ -184,7 +184,7 @@ def iter_scene_chunks(
 
     Every chunk carries ``label`` (N,) uint8; coordinates are checked to be finite.
     """
-    table = scene_label_table(source, class_names=class_names)
+    table = build_scene_label_table(source, class_names=class_names)
     for chunk in iter_raw_chunks(source, chunk_points=chunk_points):
         if not np.isfinite(chunk.xyz).all():
             bad = int((~np.isfinite(chunk.xyz)).any(axis=1).sum())
@@ -289,8 +289,8 @@ def collect_scene_tiles(
     full_prio = np.empty(0, np.float64)
     counts: dict[int, int] = {}
     for chunk in iter_scene_chunks(source, class_names=class_names, chunk_points=chunk_points):
-        ix, iy = column_index(chunk.xyz[:, :2], size_m=blocks.size_m)
-        key = column_key(ix, iy)
+        ix, iy = locate_columns(chunk.xyz[:, :2], size_m=blocks.size_m)
+        key = encode_column_key(ix, iy)
         prio = rng.random(len(key))
         unique, unique_counts = np.unique(key, return_counts=True)
         for k, c in zip(unique.tolist(), unique_counts.tolist(), strict=True):
@@ -333,7 +333,7 @@ def _tiles_from_points(
         labels = label[start:end]
         if counts[column] < blocks.min_points or not (labels != IGNORE_LABEL).any():
             continue
-        ix, iy = split_column_key(np.array([column]))
+        ix, iy = decode_column_key(np.array([column]))
         origin = np.array([ix[0] * blocks.size_m, iy[0] * blocks.size_m, float(xyz[start:end, 2].min())])
         parts_xyz.append((xyz[start:end] - origin).astype(np.float32))
         parts_label.append(labels)
@@ -365,7 +365,7 @@ def _fingerprint(path: Path) -> list[object]:
     return rows
 
 
-def tile_cache_name(source: SceneSource, *, blocks: BlockConfig, class_names: Sequence[str], seed: int) -> str:
+def name_tile_cache(source: SceneSource, *, blocks: BlockConfig, class_names: Sequence[str], seed: int) -> str:
     """File name of a scene's cached tiles: a digest of everything the tiles depend on."""
     recipe = {
         "version": 1, "scene": _fingerprint(source.path), "name": source.name, "kind": source.kind,
@@ -386,7 +386,7 @@ def load_or_collect_tiles(
     """
     if cache_dir is None:
         return collect_scene_tiles(source, blocks=blocks, class_names=class_names, seed=seed)
-    path = cache_dir / tile_cache_name(source, blocks=blocks, class_names=class_names, seed=seed)
+    path = cache_dir / name_tile_cache(source, blocks=blocks, class_names=class_names, seed=seed)
     if path.is_file():
         with np.load(path) as data:
             return TileSet(

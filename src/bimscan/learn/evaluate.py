@@ -81,7 +81,7 @@ def _percent(value: float) -> str:
     return "-" if math.isnan(value) else f"{100.0 * value:.1f}"
 
 
-def summary_rows(results: Sequence[SceneEvaluation]) -> list[tuple[str, dict[str, float]]]:
+def summarize_results(results: Sequence[SceneEvaluation]) -> list[tuple[str, dict[str, float]]]:
     """(name, metrics) rows: one per scene, then ``mean`` and ``all points``."""
     rows = [(r.scene, r.metrics.scalars()) for r in results]
     if results:
@@ -95,7 +95,7 @@ def format_markdown(results: Sequence[SceneEvaluation]) -> str:
     """The per-scene table (percent, one decimal) as Markdown."""
     lines = ["| Scene | " + " | ".join(HEADINGS[n] for n in METRIC_NAMES) + " |",
              "|---|" + "---:|" * len(METRIC_NAMES)]
-    for name, values in summary_rows(results):
+    for name, values in summarize_results(results):
         label = f"**{name}**" if name in ("mean", "all points") and name not in {r.scene for r in results} else name
         lines.append(f"| {label} | " + " | ".join(_percent(values[n]) for n in METRIC_NAMES) + " |")
     return "\n".join(lines) + "\n"
@@ -108,7 +108,7 @@ def format_csv(results: Sequence[SceneEvaluation], class_names: Sequence[str]) -
     writer.writerow(["scene", *METRIC_NAMES, "points", "labelled_points", "nearest_filled",
                      *(f"iou_{c}" for c in class_names), "present_classes"])
     by_name = {r.scene: r for r in results}
-    for name, values in summary_rows(results):
+    for name, values in summarize_results(results):
         result = by_name.get(name) if name not in ("mean", "all points") else None
         cells = [name, *("" if math.isnan(values[n]) else f"{values[n]:.6f}" for n in METRIC_NAMES)]
         if result is not None:

@@ -276,7 +276,7 @@ def _decide(
     return prediction, int(unseen.sum())
 
 
-def to_labelled_cloud(chunk: PointCloud, label: np.ndarray) -> PointCloud:
+def replace_labels(chunk: PointCloud, label: np.ndarray) -> PointCloud:
     """``chunk`` with its label column replaced by (N,) uint8 ``label``."""
     return PointCloud(
         xyz=chunk.xyz, label=label, component=chunk.component, station=chunk.station,

@@ -51,21 +51,26 @@ class MaskedBatchNorm1d(nn.Module):
         # float64 sums of the valid points since the last commit: count, sum, sum of squares
         self.register_buffer("pending", torch.zeros(2 * channels + 1, dtype=torch.float64), persistent=False)
 
-    def forward(self, x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        """x (B, C, N) float, mask (B, N) bool -> (B, C, N) in x's dtype."""
+    def forward(self, x: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+        """x (B, C, N) float, mask (B, N) bool or None (all valid) -> (B, C, N) in x's dtype."""
         dtype = x.dtype
         x = x.float()
         if self.training:
-            weight = mask.to(x.dtype).unsqueeze(1)  # (B, 1, N)
-            count = weight.sum().clamp_min(1.0)
-            mean = (x * weight).sum(dim=(0, 2)) / count
-            centred = (x - mean[None, :, None]) * weight
-            var = (centred * centred).sum(dim=(0, 2)) / count
-            with torch.no_grad():
-                xd = x.detach().double() * weight.double()
-                self.pending[0] += weight.sum().double()
-                self.pending[1:1 + self.channels] += xd.sum(dim=(0, 2))
-                self.pending[1 + self.channels:] += (xd * x.detach().double()).sum(dim=(0, 2))
+            if mask is None:
+                var, mean = torch.var_mean(x, dim=(0, 2), unbiased=False)
+                count = torch.tensor(float(x.shape[0] * x.shape[2]), device=x.device)
+            else:
+                weight = mask.to(x.dtype).unsqueeze(1)  # (B, 1, N)
+                count = weight.sum().clamp_min(1.0)
+                mean = (x * weight).sum(dim=(0, 2)) / count
+                centred = (x - mean[None, :, None]) * weight
+                var = (centred * centred).sum(dim=(0, 2)) / count
+            with torch.no_grad():  # sums for the running statistics, from this batch's moments
+                n = count.double()
+                mean_d = mean.detach().double()
+                self.pending[0] += n
+                self.pending[1:1 + self.channels] += mean_d * n
+                self.pending[1 + self.channels:] += (var.detach().double() + mean_d * mean_d) * n
         else:
             mean, var = self.running_mean, self.running_var
         out = (x - mean[None, :, None]) * torch.rsqrt(var[None, :, None] + self.eps)
@@ -96,12 +101,20 @@ class ConvBlock(nn.Module):
         self.norm = MaskedBatchNorm1d(c_out)
         self.act = activation
 
-    def forward(self, x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
         return self.act(self.norm(self.conv(x), mask))
 
 
 class OffsetAttention(nn.Module):
-    """PCT's offset-attention layer on (B, D, N) features with a (B, N) validity mask."""
+    """PCT's offset-attention layer on (B, D, N) features with a (B, N) validity mask.
+
+    A = softmax_rows(q^T k) with q = k = W x (shared, D/4 channels); each column of A is then
+    divided by its sum over the queries (L1) and the layer adds LBR(x - x_v A) to x. The
+    column division is applied to x_v A instead of to A (the same numbers: it scales columns),
+    which saves two N x N tensors per layer; at N = 8192 one is 256 MiB per block in float32.
+    Padded points are masked out as keys (-inf energy) and as queries (zero values, and left
+    out of the column sums).
+    """
 
     def __init__(self, channels: int) -> None:
         super().__init__()
@@ -111,14 +124,21 @@ class OffsetAttention(nn.Module):
         self.norm = MaskedBatchNorm1d(channels)
         self.act = nn.ReLU()
 
-    def forward(self, x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
         q = self.qk(x)  # (B, D/4, N)
         energy = torch.bmm(q.transpose(1, 2), q)  # (B, N_query, N_key)
-        energy = energy.masked_fill(~mask[:, None, :], float("-inf"))  # padded keys get no weight
-        attention = torch.softmax(energy.float(), dim=-1)
-        attention = attention * mask[:, :, None].to(attention.dtype)  # padded queries send nothing
-        attention = attention / (1e-9 + attention.sum(dim=1, keepdim=True))  # L1 over the queries
-        attended = torch.bmm(self.v(x), attention.to(x.dtype))  # (B, D, N): output j sums over i
+        if mask is not None:
+            energy.masked_fill_(~mask[:, None, :], float("-inf"))  # padded keys get no weight
+        attention = torch.softmax(energy, dim=-1, dtype=torch.float32)
+        del energy  # not needed by backward: free it before the next N x N tensor
+        values = self.v(x)
+        if mask is None:
+            column_sum = attention.sum(dim=1, keepdim=True)  # (B, 1, N_key)
+        else:
+            query_weight = mask[:, None, :].to(values.dtype)
+            values = values * query_weight  # padded queries send nothing ...
+            column_sum = torch.bmm(query_weight.to(attention.dtype), attention)  # ... nor count in the L1
+        attended = torch.bmm(values, attention.to(values.dtype)) / (1e-9 + column_sum.to(values.dtype))
         offset = self.act(self.norm(self.trans(x - attended), mask))
         return x + offset
 
@@ -150,8 +170,8 @@ class PCTSegmentation(nn.Module):
 
         Returns logits (B, N, C). Without a mask every point is real.
         """
-        if mask is None:
-            mask = torch.ones(xyz.shape[:2], dtype=torch.bool, device=xyz.device)
+        if mask is not None and bool(mask.all()):
+            mask = None  # blocks without padding take the cheaper unmasked path
         x = xyz.transpose(1, 2)
         x = self.embed2(self.embed1(x, mask), mask)
         layers = []
@@ -159,10 +179,14 @@ class PCTSegmentation(nn.Module):
             x = layer(x, mask)
             layers.append(x)
         fused = self.fuse(torch.cat(layers, dim=1), mask)  # (B, F, N)
-        valid = mask[:, None, :]
-        pooled_max = fused.masked_fill(~valid, float("-inf")).amax(dim=2, keepdim=True)
-        count = valid.sum(dim=2, keepdim=True).clamp_min(1).to(fused.dtype)
-        pooled_mean = fused.masked_fill(~valid, 0.0).sum(dim=2, keepdim=True) / count
+        if mask is None:
+            pooled_max = fused.amax(dim=2, keepdim=True)
+            pooled_mean = fused.mean(dim=2, keepdim=True)
+        else:
+            valid = mask[:, None, :]
+            pooled_max = fused.masked_fill(~valid, float("-inf")).amax(dim=2, keepdim=True)
+            count = valid.sum(dim=2, keepdim=True).clamp_min(1).to(fused.dtype)
+            pooled_mean = fused.masked_fill(~valid, 0.0).sum(dim=2, keepdim=True) / count
         n = fused.shape[2]
         x = torch.cat([fused, pooled_max.expand(-1, -1, n), pooled_mean.expand(-1, -1, n)], dim=1)
         for i, block in enumerate(self.head):

@@ -14,7 +14,7 @@ from bimscan.errors import LearnError, OutputError
 from bimscan.learn.checkpoint import load_trained_model
 from bimscan.learn.data import CHUNK_POINTS, SceneSource, iter_raw_chunks, list_scenes
 from bimscan.learn.evaluate import pick_device
-from bimscan.learn.infer import label_scene, to_labelled_cloud
+from bimscan.learn.infer import label_scene, replace_labels
 from bimscan.types import CloudHeader, LabelClass, LabelScheme
 
 # Tableau 10, the palette of the built-in spc5 scheme: the five default classes get the same
@@ -35,7 +35,7 @@ class PredictionResult:
     seconds: float
 
 
-def prediction_scheme(class_names: tuple[str, ...], stored: LabelScheme | None = None) -> LabelScheme:
+def build_prediction_scheme(class_names: tuple[str, ...], stored: LabelScheme | None = None) -> LabelScheme:
     """The label scheme stored with predicted clouds: the checkpoint's classes.
 
     The input cloud's own scheme (``stored``) is kept when it lists the same classes in the
@@ -97,7 +97,7 @@ def predict_cloud(
         stored = read_cloud_header(source.path) if source.kind in ("cloud", "npdir") else None
         centre = np.round((result.lower + result.upper) / 2.0)
         header = CloudHeader(
-            scheme=prediction_scheme(trained.class_names, None if stored is None else stored.scheme),
+            scheme=build_prediction_scheme(trained.class_names, None if stored is None else stored.scheme),
             components=None if stored is None else stored.components,
             stations=() if stored is None else stored.stations,
             origin=tuple(float(v) for v in (centre if stored is None else stored.origin)),  # type: ignore[arg-type]
@@ -117,7 +117,7 @@ def predict_cloud(
             for chunk in iter_raw_chunks(source, chunk_points=chunk_points):
                 label = np.asarray(labels[start:start + len(chunk)])
                 counts += np.bincount(label, minlength=len(counts))[: len(counts)]
-                writer.write(to_labelled_cloud(chunk, label))
+                writer.write(replace_labels(chunk, label))
                 start += len(chunk)
         del labels  # release the memory map before the folder goes
     return PredictionResult(

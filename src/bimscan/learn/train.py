@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import datetime
 import math
 import os
 import sys
@@ -40,7 +41,7 @@ from bimscan.errors import LearnError
 from bimscan.learn.checkpoint import (
     capture_rng_state, read_checkpoint, restore_rng_state, save_checkpoint,
 )
-from bimscan.learn.config import IGNORE_LABEL, TrainRunConfig, config_to_dict, resolve_path
+from bimscan.learn.config import IGNORE_LABEL, TrainRunConfig, dump_config, resolve_path
 from bimscan.learn.data import SceneSource, TileDataset, TileSet, list_scenes, load_or_collect_tiles
 from bimscan.learn.mapping import load_label_mapping
 from bimscan.learn.metrics import METRIC_NAMES, compute_metrics
@@ -83,7 +84,8 @@ def init_distributed(device_setting: str) -> DistributedContext:
     if use_cuda:
         torch.cuda.set_device(local_rank)
     if not dist.is_initialized():
-        dist.init_process_group(backend="nccl" if use_cuda else "gloo")
+        # generous timeout: processes wait at a barrier while the others read their scenes
+        dist.init_process_group(backend="nccl" if use_cuda else "gloo", timeout=datetime.timedelta(hours=2))
         owns = True
     device = torch.device("cuda", local_rank) if use_cuda else torch.device("cpu")
     return DistributedContext(world, rank, local_rank, device, owns)
@@ -170,7 +172,7 @@ class WeightEMA:
         self.steps = steps
 
 
-def masked_cross_entropy(logits: torch.Tensor, label: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def compute_loss(logits: torch.Tensor, label: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Mean cross entropy over labelled points (label != 255; padding carries 255).
 
     logits (B, N, C) float, label (B, N) int64. Returns (mean loss, number of points counted).
@@ -180,6 +182,37 @@ def masked_cross_entropy(logits: torch.Tensor, label: torch.Tensor) -> tuple[tor
     total = F.cross_entropy(flat_logits, flat_label, ignore_index=IGNORE_LABEL, reduction="sum")
     count = (flat_label != IGNORE_LABEL).sum()
     return total / count.clamp_min(1).to(total.dtype), count
+
+
+def run_micro_batch(
+    model: nn.Module, xyz: torch.Tensor, label: torch.Tensor, mask: torch.Tensor, *,
+    scaler: torch.amp.GradScaler, amp: str, accumulation: int,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """One micro-batch: forward (autocast on CUDA), masked loss, scaled backward of loss / A.
+
+    xyz (B, N, 3) float32, label (B, N) int64, mask (B, N) bool on the model's device.
+    Returns (logits (B, N, C), mean loss, labelled points). The benchmark times this too.
+    """
+    with _autocast(xyz.device, amp):
+        logits = model(xyz, mask)
+    loss, count = compute_loss(logits, label)
+    scaler.scale(loss / accumulation).backward()
+    return logits, loss, count
+
+
+def finish_step(
+    model: nn.Module, *, optimizer: torch.optim.Optimizer, scaler: torch.amp.GradScaler,
+    scheduler: torch.optim.lr_scheduler.LRScheduler | None, ema: WeightEMA | None,
+) -> None:
+    """The optimizer step after the last micro-batch of a global batch."""
+    scaler.step(optimizer)
+    scaler.update()
+    optimizer.zero_grad(set_to_none=True)
+    if scheduler is not None:
+        scheduler.step()
+    commit_batch_statistics(model)
+    if ema is not None:
+        ema.update(model)
 
 
 def _update_confusion(confusion: torch.Tensor, logits: torch.Tensor, label: torch.Tensor) -> None:
@@ -238,26 +271,27 @@ def _resolve_sources(
 def _collect_tiles(
     sources: list[SceneSource], *, config: TrainRunConfig, cache_dir: Path, ctx: DistributedContext,
 ) -> TileSet:
-    parts = []
-    # rank 0 builds the tile cache, the others read it after the barrier: one pass over the data
-    if ctx.is_main:
-        with progress_bar(total=len(sources), desc="reading scenes", unit="scene") as bar:
-            for source in sources:
-                parts.append(load_or_collect_tiles(
-                    source, blocks=config.blocks, class_names=config.data.class_names,
-                    seed=config.train.seed, cache_dir=cache_dir,
-                ))
-                bar.update(1)
+    """Tiles of every scene. Under DDP each process reads every P-th scene into the on-disk
+    tile cache, then all read the whole cache: one pass over the data, spread over processes."""
+    mine = [s for i, s in enumerate(sources) if i % ctx.world == ctx.rank]
+    built: dict[Path, TileSet] = {}
+    bar = progress_bar(total=len(mine), desc="reading scenes", unit="scene") if ctx.is_main else _NoBar()
+    with bar:
+        for source in mine:
+            built[source.path] = load_or_collect_tiles(
+                source, blocks=config.blocks, class_names=config.data.class_names, seed=config.train.seed,
+                cache_dir=cache_dir,
+            )
+            bar.update(1)
     if ctx.world > 1:
         dist.barrier()
-    if not ctx.is_main:
-        parts = [
-            load_or_collect_tiles(
-                source, blocks=config.blocks, class_names=config.data.class_names,
-                seed=config.train.seed, cache_dir=cache_dir, build=False,
-            )
-            for source in sources
-        ]
+    parts = [
+        built[source.path] if source.path in built else load_or_collect_tiles(
+            source, blocks=config.blocks, class_names=config.data.class_names, seed=config.train.seed,
+            cache_dir=cache_dir, build=False,
+        )
+        for source in sources
+    ]
     return TileSet.concatenate(parts)
 
 
@@ -289,7 +323,7 @@ def _validate(
         mask = torch.from_numpy(np.stack([it["mask"] for it in items])).to(ctx.device)
         with _autocast(ctx.device, amp):
             logits = model(xyz, mask)
-        loss, count = masked_cross_entropy(logits, label)
+        loss, count = compute_loss(logits, label)
         sums += torch.stack([loss.double() * count, count.double()])
         _update_confusion(confusion, logits, label)
     _all_reduce(confusion, ctx)
@@ -374,7 +408,7 @@ def _train(
     history: list[dict[str, float]] = []
     start_epoch = 0
     best_miou = -math.inf
-    config_dict = config_to_dict(config)
+    config_dict = dump_config(config)
     if resume:
         state = read_checkpoint(last_path)
         _check_resumable(state["config"], config_dict, last_path)
@@ -433,21 +467,15 @@ def _train(
                 last_micro = k == accumulation - 1
                 sync = contextlib.nullcontext() if (last_micro or ctx.world == 1) else ddp_model.no_sync()
                 with sync:
-                    with _autocast(ctx.device, settings.amp):
-                        logits = ddp_model(xyz, mask)
-                    loss, count = masked_cross_entropy(logits, label)
-                    scaler.scale(loss / accumulation).backward()
+                    logits, loss, count = run_micro_batch(
+                        ddp_model, xyz, label, mask, scaler=scaler, amp=settings.amp, accumulation=accumulation,
+                    )
                 with torch.no_grad():
                     sums += torch.stack([loss.detach().double() * count, count.double()])
                     _update_confusion(confusion, logits.detach(), label)
                 if not last_micro:
                     continue
-                scaler.step(optimizer)
-                scaler.update()
-                optimizer.zero_grad(set_to_none=True)
-                scheduler.step()
-                commit_batch_statistics(model)
-                ema.update(model)
+                finish_step(model, optimizer=optimizer, scaler=scaler, scheduler=scheduler, ema=ema)
                 bar.update(1)
                 if on_step_end is not None:
                     on_step_end(epoch, step)
