@@ -106,3 +106,25 @@ def test_stripe_files_are_removed_afterwards(
     _label(model, scene[0], work_dir=work)
 
     assert list(work.iterdir()) == []
+
+
+def test_labelling_memory_does_not_grow_with_the_scene_length(tmp_path: Path, model: torch.nn.Module) -> None:
+    import tracemalloc
+
+    rng = np.random.default_rng(0)
+    peaks = {}
+    for length in (10.0, 40.0, 160.0):  # a corridor 4x longer: 4x the points; the first warms up
+        n = int(length * 2500)
+        xyz = rng.random((n, 3)) * [length, 3.0, 3.0]
+        write_text_cloud(tmp_path / f"corridor{length:.0f}.txt", PointCloud(xyz=xyz, label=rng.integers(0, 5, n).astype(np.uint8)))
+        source = list_scenes([tmp_path / f"corridor{length:.0f}.txt"])[0]
+        tracemalloc.start()
+        result = label_scene(model, source, class_names=DEFAULT_CLASS_NAMES, blocks=BLOCKS, max_passes=1,
+                             chunk_points=5000)
+        peaks[length] = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        assert result.points == n
+
+    # only the stripes under the current column are in memory, not the scene (reading the
+    # whole 160 m scene in one chunk instead peaks at about 4x the 40 m one)
+    assert peaks[160.0] < 1.3 * peaks[40.0], peaks

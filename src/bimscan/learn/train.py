@@ -41,7 +41,7 @@ from bimscan.errors import LearnError
 from bimscan.learn.checkpoint import (
     capture_rng_state, read_checkpoint, restore_rng_state, save_checkpoint,
 )
-from bimscan.learn.config import IGNORE_LABEL, TrainRunConfig, dump_config, resolve_path
+from bimscan.learn.config import IGNORE_LABEL, TrainConfig, TrainRunConfig, dump_config, resolve_path
 from bimscan.learn.data import SceneSource, TileDataset, TileSet, list_scenes, load_or_collect_tiles
 from bimscan.learn.mapping import load_label_mapping
 from bimscan.learn.metrics import METRIC_NAMES, compute_metrics
@@ -363,7 +363,7 @@ def train_model(
 
 
 def _train(
-    config: TrainRunConfig, *, settings: Any, ctx: DistributedContext, base_dir: Path, out_dir: Path | None,
+    config: TrainRunConfig, *, settings: TrainConfig, ctx: DistributedContext, base_dir: Path, out_dir: Path | None,
     resume: bool, on_step_end: Callable[[int, int], None] | None, log: Callable[[str], None] | None,
 ) -> TrainResult:
     emit = log or (lambda text: print(text, file=sys.stderr, flush=True))
@@ -443,15 +443,16 @@ def _train(
         ddp_model = nn.parallel.DistributedDataParallel(
             model, device_ids=[ctx.local_rank] if ctx.device.type == "cuda" else None, forward_sync_buffers=False,
         )
-    loader_args: dict[str, Any] = {"num_workers": settings.num_workers, "pin_memory": ctx.device.type == "cuda"}
-    if settings.num_workers > 0:
-        loader_args["persistent_workers"] = False
+    # the sampler runs in this process (keys carry the epoch), so workers can persist across epochs
+    loader = torch.utils.data.DataLoader(
+        train_set, batch_sampler=sampler, num_workers=settings.num_workers,
+        pin_memory=ctx.device.type == "cuda", persistent_workers=settings.num_workers > 0,
+    )
     accumulation = settings.accumulation_steps
 
     for epoch in range(start_epoch, settings.epochs):
         started = time.perf_counter()
         sampler.set_epoch(epoch)
-        loader = torch.utils.data.DataLoader(train_set, batch_sampler=sampler, **loader_args)
         model.train()
         confusion = torch.zeros(classes, classes, dtype=torch.int64, device=ctx.device)
         sums = torch.zeros(2, dtype=torch.float64, device=ctx.device)
