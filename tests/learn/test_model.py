@@ -72,6 +72,33 @@ def test_padded_points_do_not_change_outputs_at_valid_points(mode: str) -> None:
     torch.testing.assert_close(masked[:, :90], plain, atol=2e-5, rtol=1e-4)
 
 
+@pytest.mark.parametrize(("dtype", "tolerance"), [(torch.float16, 5e-3), (torch.bfloat16, 5e-2)])
+def test_mixed_precision_keeps_padded_blocks_finite_and_close_to_float32(dtype: torch.dtype, tolerance: float) -> None:
+    # CUDA training autocasts the same way; CPU autocast runs the same code on this machine
+    torch.manual_seed(4)
+    model = build_model(5, TINY)
+    xyz = torch.randn(2, 128, 3)
+    mask = torch.ones(2, 128, dtype=torch.bool)
+    mask[:, 100:] = False
+    xyz[:, 100:] = 0.0
+    label = torch.randint(0, 5, (2, 128))
+    label[:, 100:] = 255
+
+    model.eval()
+    reference = model(xyz, mask)
+    with torch.autocast("cpu", dtype=dtype):
+        mixed = model(xyz, mask)
+    model.train()
+    with torch.autocast("cpu", dtype=dtype):
+        loss, _ = compute_loss(model(xyz, mask), label)
+    loss.backward()
+
+    assert mixed.dtype == dtype and torch.isfinite(mixed).all()
+    torch.testing.assert_close(mixed[:, :100].float(), reference[:, :100], atol=tolerance, rtol=tolerance)
+    assert torch.isfinite(loss)
+    assert all(torch.isfinite(p.grad).all() for p in model.parameters() if p.grad is not None)
+
+
 def test_padded_points_stay_out_of_batch_statistics() -> None:
     torch.manual_seed(2)
     norm_plain, norm_padded = MaskedBatchNorm1d(4), MaskedBatchNorm1d(4)

@@ -57,13 +57,14 @@ class MaskedBatchNorm1d(nn.Module):
         x = x.float()
         if self.training:
             if mask is None:
-                var, mean = torch.var_mean(x, dim=(0, 2), unbiased=False)
+                var, mean = torch.var_mean(x, dim=(0, 2), correction=0)
                 count = torch.tensor(float(x.shape[0] * x.shape[2]), device=x.device)
             else:
-                weight = mask.to(x.dtype).unsqueeze(1)  # (B, 1, N)
-                count = weight.sum().clamp_min(1.0)
-                mean = (x * weight).sum(dim=(0, 2)) / count
-                centred = (x - mean[None, :, None]) * weight
+                # masked_fill, not a product with the mask: padded values may be anything
+                padded = ~mask.unsqueeze(1)  # (B, 1, N)
+                count = mask.sum().to(x.dtype).clamp_min(1.0)
+                mean = x.masked_fill(padded, 0.0).sum(dim=(0, 2)) / count
+                centred = (x - mean[None, :, None]).masked_fill(padded, 0.0)
                 var = (centred * centred).sum(dim=(0, 2)) / count
             with torch.no_grad():  # sums for the running statistics, from this batch's moments
                 n = count.double()
@@ -126,19 +127,24 @@ class OffsetAttention(nn.Module):
 
     def forward(self, x: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
         q = self.qk(x)  # (B, D/4, N)
-        energy = torch.bmm(q.transpose(1, 2), q)  # (B, N_query, N_key)
-        if mask is not None:
-            energy.masked_fill_(~mask[:, None, :], float("-inf"))  # padded keys get no weight
-        attention = torch.softmax(energy, dim=-1, dtype=torch.float32)
-        del energy  # not needed by backward: free it before the next N x N tensor
+        # energy, softmax and column sums in float32 even under AMP: float16 energies overflow
+        # (max 65504) and 1e-9 + 0 is 0 in float16, so padded columns would divide 0 by 0
+        with torch.autocast(device_type=x.device.type, enabled=False):
+            qf = q.float()
+            energy = torch.bmm(qf.transpose(1, 2), qf)  # (B, N_query, N_key)
+            if mask is not None:
+                energy.masked_fill_(~mask[:, None, :], float("-inf"))  # padded keys get no weight
+            attention = torch.softmax(energy, dim=-1)
+            del energy  # not needed by backward: free it before the next N x N tensor
+            if mask is None:
+                column_sum = attention.sum(dim=1, keepdim=True)  # (B, 1, N_key)
+            else:  # padded queries do not count in the L1 either
+                column_sum = torch.bmm(mask[:, None, :].float(), attention)
         values = self.v(x)
-        if mask is None:
-            column_sum = attention.sum(dim=1, keepdim=True)  # (B, 1, N_key)
-        else:
-            query_weight = mask[:, None, :].to(values.dtype)
-            values = values * query_weight  # padded queries send nothing ...
-            column_sum = torch.bmm(query_weight.to(attention.dtype), attention)  # ... nor count in the L1
-        attended = torch.bmm(values, attention.to(values.dtype)) / (1e-9 + column_sum.to(values.dtype))
+        if mask is not None:
+            values = values.masked_fill(~mask[:, None, :], 0.0)  # padded queries send nothing
+        attended = torch.bmm(values, attention.to(values.dtype))  # (B, D, N): output j sums over i
+        attended = (attended.float() / (1e-9 + column_sum)).to(x.dtype)
         offset = self.act(self.norm(self.trans(x - attended), mask))
         return x + offset
 
