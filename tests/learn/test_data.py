@@ -140,3 +140,38 @@ def test_load_scene_maps_a_stored_scheme_free_text_cloud_as_is(tmp_path: Path) -
     assert load_scene(tmp_path / "a.txt").label.tolist() == [0, 4, 255, 2]
     with pytest.raises(LearnError, match="labels 5, 6 are not training classes"):
         load_scene(tmp_path / "b.txt")
+
+
+@pytest.mark.parametrize("name", ["scene.laz", "scene.las", "scene.ply", "scene"])
+def test_every_bimscan_cloud_format_loads_with_its_labels(
+    tmp_path: Path, room: Callable[..., PointCloud], name: str,
+) -> None:
+    from bimscan.io import open_cloud_writer
+    from bimscan.semantics.scheme import load_scheme
+    from bimscan.types import CloudHeader
+
+    cloud = room(3, points_per_m2=10)
+    with open_cloud_writer(tmp_path / name, header=CloudHeader(scheme=load_scheme())) as writer:
+        writer.write(cloud)
+
+    back = load_scene(tmp_path / name)
+
+    np.testing.assert_array_equal(back.label, cloud.label)
+    np.testing.assert_allclose(back.xyz, cloud.xyz, atol=1e-4)
+
+
+def test_a_stored_scheme_in_another_order_is_mapped_by_class_name(
+    tmp_path: Path, room: Callable[..., PointCloud],
+) -> None:
+    from bimscan.io import open_cloud_writer
+    from bimscan.types import CloudHeader, LabelClass, LabelScheme
+
+    reversed_names = list(reversed(DEFAULT_CLASS_NAMES))  # id 0 = Others ... id 4 = Wall&Column
+    scheme = LabelScheme(name="reversed", classes=tuple(LabelClass(i, n, "#000000") for i, n in enumerate(reversed_names)),
+                         rules=(), default_label="Others")
+    cloud = room(8, points_per_m2=10)
+    stored = PointCloud(xyz=cloud.xyz, label=(4 - cloud.label).astype(np.uint8))
+    with open_cloud_writer(tmp_path / "scene.laz", header=CloudHeader(scheme=scheme)) as writer:
+        writer.write(stored)
+
+    np.testing.assert_array_equal(load_scene(tmp_path / "scene.laz").label, cloud.label)
