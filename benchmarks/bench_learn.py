@@ -29,9 +29,9 @@ import numpy as np
 import torch
 
 from bimscan.learn.blocks import pad_block
-from bimscan.learn.config import BlockConfig, ModelConfig, load_train_config
+from bimscan.learn.config import ModelConfig, load_train_config
 from bimscan.learn.data import TileDataset, TileSet
-from bimscan.learn.infer import _BlockRunner
+from bimscan.learn.infer import BlockRunner
 from bimscan.learn.model import build_model, count_parameters, flush_denormals
 from bimscan.learn.train import WeightEMA, finish_step, run_micro_batch
 
@@ -96,7 +96,7 @@ def measure(name: str, config: ModelConfig, device: torch.device, amp: str, repe
         run_micro_batch(model, xyz, label, mask, scaler=scaler, amp=amp, accumulation=1)
         finish_step(model, optimizer=optimizer, scaler=scaler, scheduler=None, ema=ema)
 
-    runner = _BlockRunner(ema.module.eval(), device=device, batch_size=BATCH, amp=amp)
+    runner = BlockRunner(ema.module.eval(), device=device, batch_size=BATCH, amp=amp)
     blocks = [pad_block(np.asarray(b["xyz"], np.float64), None, np.arange(N), points=N)
               for b in synthetic_blocks(BATCH, seed=1)]
 

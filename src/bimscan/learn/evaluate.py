@@ -95,8 +95,8 @@ def format_markdown(results: Sequence[SceneEvaluation]) -> str:
     """The per-scene table (percent, one decimal) as Markdown."""
     lines = ["| Scene | " + " | ".join(HEADINGS[n] for n in METRIC_NAMES) + " |",
              "|---|" + "---:|" * len(METRIC_NAMES)]
-    for name, values in summarize_results(results):
-        label = f"**{name}**" if name in ("mean", "all points") and name not in {r.scene for r in results} else name
+    for i, (name, values) in enumerate(summarize_results(results)):
+        label = name if i < len(results) else f"**{name}**"  # summary rows in bold
         lines.append(f"| {label} | " + " | ".join(_percent(values[n]) for n in METRIC_NAMES) + " |")
     return "\n".join(lines) + "\n"
 
@@ -107,9 +107,8 @@ def format_csv(results: Sequence[SceneEvaluation], class_names: Sequence[str]) -
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(["scene", *METRIC_NAMES, "points", "labelled_points", "nearest_filled",
                      *(f"iou_{c}" for c in class_names), "present_classes"])
-    by_name = {r.scene: r for r in results}
-    for name, values in summarize_results(results):
-        result = by_name.get(name) if name not in ("mean", "all points") else None
+    for i, (name, values) in enumerate(summarize_results(results)):
+        result = results[i] if i < len(results) else None
         cells = [name, *("" if math.isnan(values[n]) else f"{values[n]:.6f}" for n in METRIC_NAMES)]
         if result is not None:
             m = result.metrics

@@ -22,13 +22,11 @@ caller writes labels to disk (prediction) or only counts them (evaluation).
 
 from __future__ import annotations
 
-import contextlib
 import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -39,7 +37,7 @@ from bimscan.learn.blocks import Block, pad_block, plan_passes
 from bimscan.learn.config import IGNORE_LABEL, BlockConfig
 from bimscan.learn.data import CHUNK_POINTS, SceneSource, iter_raw_chunks, iter_scene_chunks
 from bimscan.learn.metrics import compute_confusion
-from bimscan.learn.model import flush_denormals
+from bimscan.learn.model import autocast_context, flush_denormals
 from bimscan.progress import progress_bar
 from bimscan.types import PointCloud
 
@@ -67,18 +65,13 @@ class SceneLabels:
     seconds: float
 
 
-def _autocast(device: torch.device, amp: str) -> contextlib.AbstractContextManager[Any]:
-    if device.type != "cuda" or amp == "off":
-        return contextlib.nullcontext()
-    return torch.autocast(device_type="cuda", dtype=torch.float16 if amp == "float16" else torch.bfloat16)
-
-
 def _seed(*parts: int) -> np.random.SeedSequence:
     return np.random.SeedSequence([p % (1 << 64) for p in parts])  # column indices may be negative
 
 
-class _BlockRunner:
-    """Batches blocks through the network and adds their softmax to a vote array."""
+class BlockRunner:
+    """Batches blocks through the network and adds their softmax to ``votes`` (M, C) float32,
+    indexed by the blocks' ``index`` (set ``votes`` before adding blocks)."""
 
     def __init__(self, model: nn.Module, *, device: torch.device, batch_size: int, amp: str) -> None:
         self.model = model
@@ -100,10 +93,11 @@ class _BlockRunner:
             return
         xyz = torch.from_numpy(np.stack([b.xyz for b in self.queue])).to(self.device)
         mask = torch.from_numpy(np.stack([b.mask for b in self.queue])).to(self.device)
-        with _autocast(self.device, self.amp):
+        with autocast_context(self.device, self.amp):
             logits = self.model(xyz, mask)
         probs = torch.softmax(logits.float(), dim=-1).cpu().numpy()
-        assert self.votes is not None  # set by the caller before any block is added
+        if self.votes is None:
+            raise RuntimeError("BlockRunner.votes must be set before blocks are added")
         for block, prob in zip(self.queue, probs, strict=True):
             # indices are unique within one pass, so plain fancy-index addition is exact
             self.votes[block.index[block.mask]] += prob[block.mask]
@@ -141,7 +135,7 @@ def _label_scene(
     stride = blocks.eval_stride_m
     k = blocks.stride_ratio
     classes = len(class_names)
-    runner = _BlockRunner(model, device=device, batch_size=batch_size, amp=amp)
+    runner = BlockRunner(model, device=device, batch_size=batch_size, amp=amp)
     confusion = np.zeros((classes, classes), dtype=np.int64)
     labelled = 0
     nearest_filled = 0

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator
+from typing import Any
 
 import torch
 import torch.distributed as dist
@@ -239,3 +240,14 @@ def flush_denormals() -> Iterator[None]:
         yield
     finally:
         torch.set_flush_denormal(False)
+
+
+def autocast_context(device: torch.device, amp: str) -> contextlib.AbstractContextManager[Any]:
+    """Mixed precision for ``amp`` ("float16", "bfloat16", "off") on CUDA; float32 elsewhere.
+
+    CPU runs stay in float32: CPU autocast would run bfloat16 kernels that are slower on
+    ordinary CPUs and change the numbers the CPU tests compare bit for bit.
+    """
+    if device.type != "cuda" or amp == "off":
+        return contextlib.nullcontext()
+    return torch.autocast(device_type="cuda", dtype=torch.float16 if amp == "float16" else torch.bfloat16)

@@ -46,7 +46,7 @@ from bimscan.learn.data import SceneSource, TileDataset, TileSet, list_scenes, l
 from bimscan.learn.mapping import load_label_mapping
 from bimscan.learn.metrics import METRIC_NAMES, compute_metrics
 from bimscan.learn.model import (
-    PCTSegmentation, build_model, commit_batch_statistics, count_parameters, flush_denormals,
+    PCTSegmentation, autocast_context, build_model, commit_batch_statistics, count_parameters, flush_denormals,
 )
 from bimscan.learn.plots import plot_training_curves, write_history_csv
 from bimscan.progress import progress_bar
@@ -193,7 +193,7 @@ def run_micro_batch(
     xyz (B, N, 3) float32, label (B, N) int64, mask (B, N) bool on the model's device.
     Returns (logits (B, N, C), mean loss, labelled points). The benchmark times this too.
     """
-    with _autocast(xyz.device, amp):
+    with autocast_context(xyz.device, amp):
         logits = model(xyz, mask)
     loss, count = compute_loss(logits, label)
     scaler.scale(loss / accumulation).backward()
@@ -220,14 +220,6 @@ def _update_confusion(confusion: torch.Tensor, logits: torch.Tensor, label: torc
     valid = label != IGNORE_LABEL
     pairs = label[valid] * classes + logits.argmax(dim=-1)[valid]
     confusion += torch.bincount(pairs, minlength=classes * classes).view(classes, classes)
-
-
-def _autocast(device: torch.device, amp: str) -> contextlib.AbstractContextManager[Any]:
-    # AMP on CUDA only: CPU autocast would run bfloat16 kernels that are slower there and
-    # change the numbers the CPU tests rely on
-    if device.type != "cuda" or amp == "off":
-        return contextlib.nullcontext()
-    return torch.autocast(device_type="cuda", dtype=torch.float16 if amp == "float16" else torch.bfloat16)
 
 
 def _all_reduce(tensor: torch.Tensor, ctx: DistributedContext) -> torch.Tensor:
@@ -321,7 +313,7 @@ def _validate(
         xyz = torch.from_numpy(np.stack([it["xyz"] for it in items])).to(ctx.device)
         label = torch.from_numpy(np.stack([it["label"] for it in items])).to(ctx.device)
         mask = torch.from_numpy(np.stack([it["mask"] for it in items])).to(ctx.device)
-        with _autocast(ctx.device, amp):
+        with autocast_context(ctx.device, amp):
             logits = model(xyz, mask)
         loss, count = compute_loss(logits, label)
         sums += torch.stack([loss.double() * count, count.double()])
