@@ -24,7 +24,7 @@ from types import TracebackType
 from typing import BinaryIO, Protocol, Self
 
 from bimscan.errors import InputFileError, OutputError
-from bimscan.io._header import present_columns
+from bimscan.io._header import dump_json, header_to_document, present_columns
 from bimscan.types import CloudHeader, PointCloud
 
 BLOCK_POINTS = 1_000_000  # rows encoded per step: bounds a writer's memory whatever the chunk size
@@ -167,6 +167,7 @@ class StreamingCloudWriter:
         self._result: WrittenCloud | None = None
         self._handles: list[WatchedFile] = []
         check_output_path(self.path, overwrite=overwrite, extra=self._outputs()[1:])
+        dump_json(header_to_document(header, columns=(), n_points=0))  # fail now, not after the points
 
     def _outputs(self) -> tuple[Path, ...]:
         """Every path this writer creates, the main output first (PLY adds its sidecar)."""
@@ -272,6 +273,7 @@ class StreamingCloudWriter:
                 raise
             raise error from exc
         self._state = "closed"
+        files.sort(key=lambda f: not (f == self.path or self.path in f.parents))  # main output first
         self._result = WrittenCloud(
             path=self.path, n_points=self.n_points, files=tuple(files), sha256=sha256, n_bytes=n_bytes
         )

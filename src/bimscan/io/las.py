@@ -28,6 +28,7 @@ import unicodedata
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import laspy
 import numpy as np
@@ -177,7 +178,11 @@ class LasCloudWriter(StreamingCloudWriter):
         if self._fill and self._writer is not None and self._block is not None:
             # Straight to laspy's point writer: LasWriter.write_points would recompute the bounds
             # (known from _encode) and the return counts (all 1) with a sort of every block.
-            self._writer.point_writer.write_points(PackedPointRecord(self._block[: self._fill], self._point_format))
+            record = PackedPointRecord(self._block[: self._fill], self._point_format)
+            try:
+                self._writer.point_writer.write_points(record)
+            except (LaspyException, RuntimeError) as exc:  # lazrs raises LazrsError(RuntimeError)
+                raise OutputError(f"could not write {self.path} ({exc}); check the disk and run again") from exc
         self._fill = 0
 
     def _finish(self) -> None:
@@ -195,8 +200,8 @@ class LasCloudWriter(StreamingCloudWriter):
         try:
             self._writer.write_evlrs(VLRList([evlr]))
             self._writer.close()
-        except LaspyException as exc:
-            raise OutputError(f"{self.path}: laspy could not finish the file ({exc}); report this") from exc
+        except (LaspyException, RuntimeError) as exc:
+            raise OutputError(f"could not finish {self.path} ({exc}); check the disk and run again") from exc
         self._writer = None
 
     def _release(self) -> None:
@@ -225,7 +230,7 @@ def _open(path: Path) -> laspy.LasReader:
         raise InputFileError(f"{path}: not a readable LAS/LAZ file ({exc}); check the file") from exc
 
 
-def _stored_document(las_header: laspy.LasHeader, path: Path) -> dict | None:
+def _stored_document(las_header: laspy.LasHeader, path: Path) -> dict[str, Any] | None:
     for evlr in las_header.evlrs or ():
         if evlr.user_id == BIMSCAN_USER_ID and evlr.record_id == BIMSCAN_RECORD_ID:
             return parse_document(evlr.record_data_bytes(), where=str(path))
