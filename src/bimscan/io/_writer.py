@@ -95,10 +95,11 @@ def file_sha256(path: Path) -> str:
 
 
 class WatchedFile:
-    """A binary file that remembers the OSError its ``write`` raised.
+    """A binary file that remembers the OSError any of its methods raised.
 
-    lazrs turns a failing ``write`` of the Python file it writes to into ``LazrsError: IoError``
-    and drops the OSError (and with it ENOSPC); the writers look the original up here.
+    lazrs turns a failing ``write``/``seek`` of the Python file it writes to into
+    ``LazrsError: IoError`` and drops the OSError (and with it ENOSPC); the writers look the
+    original up here. Buffered data may also fail only at ``flush``/``seek``/``close`` time.
     """
 
     def __init__(self, raw: BinaryIO) -> None:
@@ -113,7 +114,18 @@ class WatchedFile:
             raise
 
     def __getattr__(self, name: str) -> object:
-        return getattr(self.raw, name)
+        attribute = getattr(self.raw, name)
+        if not callable(attribute):
+            return attribute
+
+        def watched(*args: object, **kwargs: object) -> object:
+            try:
+                return attribute(*args, **kwargs)
+            except OSError as exc:
+                self.error = exc
+                raise
+
+        return watched
 
 
 def temp_name(final: Path) -> Path:

@@ -8,8 +8,9 @@ Layout of a bimscan LAS/LAZ file:
 - ``label`` -> ``classification``; ``intensity`` -> ``intensity``; ``time`` -> ``gps_time``
   (seconds since the start of the survey, not GPS time); ``station`` -> ``point_source_id``
   and the extra dimension ``station`` (uint16); ``component`` -> extra dimension ``component``
-  (int32). Every point is return 1 of 1. Columns the cloud lacks are stored as zeros and read
-  back as None (the header document lists the columns that were written).
+  (int32). Every point is return 1 of 1. Of the columns a cloud lacks, the extra dimensions are
+  left out and the standard fields stay zero; all read back as None (the header document lists
+  the columns that were written).
 - VLR ``LASF_Spec``/0, the LAS 1.4 classification lookup: 256 x (uint8 class, char[15] name),
   the scheme's class names cut to 15 ASCII bytes, so CloudCompare and friends show them.
 - EVLR ``bimscan``/1: the full header document as JSON (scheme, component table, stations,
@@ -17,7 +18,9 @@ Layout of a bimscan LAS/LAZ file:
 - Reproducible header: creation date from ``SOURCE_DATE_EPOCH`` (else 1970-01-01), project GUID
   derived from the header document, fixed system identifier and generating software. Chunks are
   re-blocked into ``BLOCK_POINTS`` rows (a multiple of the LAZ chunk of ``LAZ_CHUNK_POINTS``)
-  before laspy sees them, so the bytes do not depend on how the caller chunked the stream.
+  before laspy sees them, so the bytes do not depend on how the caller chunked the stream (lazrs
+  happens to buffer partial LAZ chunks itself; the re-blocking does not rely on it) and the
+  writer holds one block, about 40 MB, whatever the point count.
 """
 
 from __future__ import annotations
@@ -46,7 +49,7 @@ from bimscan.io._header import (
     header_to_document,
     parse_document,
 )
-from bimscan.io._writer import BLOCK_POINTS, StreamingCloudWriter, check_input_path
+from bimscan.io._writer import BLOCK_POINTS, StreamingCloudWriter, WatchedFile, check_input_path
 from bimscan.types import CloudHeader, LabelScheme, PointCloud
 
 LAS_SCALE_M = 1e-4  # 0.1 mm coordinate step
@@ -113,10 +116,14 @@ class LasCloudWriter(StreamingCloudWriter):
     ) -> None:
         super().__init__(path, header=header, overwrite=overwrite, checksum=checksum)
         self.compress = compress
-        self._file = None
+        self._file: WatchedFile | None = None
         self._writer: laspy.LasWriter | None = None
-        self._block: np.ndarray | None = None
+        self._point_format: laspy.PointFormat | None = None
+        self._block: np.ndarray | None = None  # (BLOCK_POINTS,) packed point records being filled
+        self._scratch: np.ndarray | None = None  # (BLOCK_POINTS,) f8 work space for quantising
         self._fill = 0
+        self._low = np.full(3, np.inf)  # bounds in coordinate steps, for the LAS header
+        self._high = np.full(3, -np.inf)
 
     def _begin(self, columns: tuple[str, ...]) -> None:
         las_header = _las_header(self.header, columns)
@@ -129,11 +136,10 @@ class LasCloudWriter(StreamingCloudWriter):
         self._block = np.zeros(BLOCK_POINTS, dtype=self._point_format.dtype())
         self._block["bit_fields"] = 0b0001_0001  # return 1 of 1 (LAS 1.4 forbids return number 0)
         self._scratch = np.empty(BLOCK_POINTS, dtype=np.float64)
-        self._low = np.full(3, np.inf)  # bounds in coordinate steps, for the LAS header
-        self._high = np.full(3, -np.inf)
 
     def _encode(self, chunk: PointCloud, out: np.ndarray) -> None:
         """Quantise and pack ``chunk`` into ``out`` (rows of the point record block)."""
+        assert self._scratch is not None
         origin = self.header.origin
         steps = self._scratch[: len(chunk)]
         for axis, name in enumerate("XYZ"):
