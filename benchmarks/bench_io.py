@@ -1,6 +1,7 @@
 """Cloud writer throughput and memory, measured side by side in one run.
 
-    python benchmarks/bench_io.py                 # 5 M points, 3 repeats, memory at 2 M and 20 M
+    python benchmarks/bench_io.py                 # 5 M points, 3 repeats, memory at 2 M and 20 M,
+                                                  # OBJ export of 2.4 M triangles
     python benchmarks/bench_io.py --points 1000000 --repeats 1 --memory 1000000 4000000
 
 The points are scan-like, not random: a TLS station in the middle of a 30 x 20 x 3.5 m hall
@@ -31,8 +32,17 @@ from pathlib import Path
 
 import numpy as np
 
-from bimscan.io import open_cloud_writer
-from bimscan.types import CloudHeader, LabelClass, LabelScheme, PointCloud, Station
+from bimscan.io import export_obj, open_cloud_writer, read_obj
+from bimscan.types import (
+    BimScene,
+    CloudHeader,
+    ComponentTable,
+    LabelClass,
+    LabelScheme,
+    PointCloud,
+    SceneMesh,
+    Station,
+)
 
 HALL_HALF_M = np.array([15.0, 10.0])
 HALL_HEIGHT_M = 3.5
@@ -201,11 +211,56 @@ def memory(sizes: list[int], out: Path) -> None:
         remove(out / f"mem{n_points}.laz")
 
 
+def grid_scene(n_triangles: int, n_components: int) -> BimScene:
+    """A BIM-like scene: n_components wall panels, each a triangulated grid with shared vertices."""
+    per = max(2, n_triangles // n_components // 2 * 2)  # triangles per component (even)
+    cells_x = max(d for d in range(1, int(np.sqrt(per // 2)) + 1) if (per // 2) % d == 0)
+    cells_y = per // 2 // cells_x
+    gx, gy = np.meshgrid(np.linspace(0.0, 4.0, cells_x + 1), np.linspace(0.0, 2.8, cells_y + 1), indexing="ij")
+    panel = np.stack([gx.ravel(), np.zeros(gx.size), gy.ravel()], axis=1)
+    i, j = np.meshgrid(np.arange(cells_x), np.arange(cells_y), indexing="ij")
+    a = (i * (cells_y + 1) + j).ravel()
+    quads = np.stack([a, a + cells_y + 1, a + cells_y + 2, a + 1], axis=1)
+    panel_faces = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    offsets = np.stack([np.arange(n_components) % 100 * 5.0, np.arange(n_components) // 100 * 0.3, np.zeros(n_components)], 1)
+    vertices = (panel[None, :, :] + offsets[:, None, :]).reshape(-1, 3) + np.array([512_300.0, 5_403_100.0, 41.0])
+    faces = (panel_faces[None, :, :] + (np.arange(n_components) * len(panel))[:, None, None]).reshape(-1, 3)
+    face_component = np.repeat(np.arange(n_components), len(panel_faces))
+    text = np.array([f"{c:022d}" for c in range(n_components)])
+    table = ComponentTable(
+        global_id=text, ifc_class=np.full(n_components, "IfcWall"), predefined_type=np.full(n_components, ""),
+        name=text, storey=np.full(n_components, "EG"), parent_class=np.full(n_components, ""),
+        label=np.zeros(n_components, dtype=np.uint8),
+    )
+    return BimScene(
+        source="bench.ifc", file_sha256="", schema="IFC4",
+        mesh=SceneMesh(vertices, faces.astype(np.int32), face_component.astype(np.int32)),
+        components=table, scheme=bench_header().scheme, storeys=(), spaces=(), failed=(), unmapped_classes={},
+    )
+
+
+def obj_export(n_triangles: int, n_components: int, out: Path) -> None:
+    scene = grid_scene(n_triangles, n_components)
+    print(f"\nOBJ export of {scene.mesh.n_triangles:,} triangles, {len(scene.mesh.vertices):,} vertices, "
+          f"{n_components:,} components (one file each), HELIOS++ scene included")
+    start = time.perf_counter()
+    export = export_obj(scene, out / "obj", helios=True)
+    written = time.perf_counter() - start
+    start = time.perf_counter()
+    groups = read_obj(export.model_obj)
+    read = time.perf_counter() - start
+    size = sum(p.stat().st_size for p in (out / "obj").rglob("*") if p.is_file())
+    print(f"export_obj {written:.2f} s ({size / 1e6:.0f} MB written), read_obj(model.obj) {read:.2f} s, {len(groups):,} groups")
+    shutil.rmtree(out / "obj")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--points", type=int, default=5_000_000)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--memory", type=int, nargs="*", default=[2_000_000, 20_000_000])
+    parser.add_argument("--obj-triangles", type=int, default=2_400_000, help="0 skips the OBJ export")
+    parser.add_argument("--obj-components", type=int, default=20_000)
     parser.add_argument("--out", type=Path, default=None, help="scratch folder (default: a new temporary one)")
     parser.add_argument("--memory-child", nargs=3, help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -217,6 +272,8 @@ def main() -> None:
         rates(args.points, args.repeats, Path(scratch))
         if args.memory:
             memory(args.memory, Path(scratch))
+        if args.obj_triangles:
+            obj_export(args.obj_triangles, args.obj_components, Path(scratch))
 
 
 if __name__ == "__main__":
