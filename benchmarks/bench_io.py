@@ -11,7 +11,8 @@ an intensity falling with range and incidence, and the pulse time. Real scans co
 (neighbouring points are close), random points do not.
 
 Rates: best of ``--repeats`` rounds (each round runs every writer once, in turn) of writing the
-same in-memory chunks of 1 M points; outputs are deleted between runs outside the timing. The laspy rows time plain laspy writing
+same in-memory chunks of 1 M points; outputs are deleted and the page cache written back
+(``os.sync``) between runs, outside the timing. The laspy rows time plain laspy writing
 the same points already packed in one ``LasData`` (``LasData.write`` only, as the figures of
 shared/PERFORMANCE.md), so they leave out the quantising and packing that bimscan's rows include.
 Memory: peak RSS of a fresh process that generates the chunks on the fly, with and without the
@@ -21,6 +22,7 @@ LAZ writer, so the difference is what the writer holds; it must not grow with th
 from __future__ import annotations
 
 import argparse
+import os
 import resource
 import shutil
 import subprocess
@@ -104,6 +106,7 @@ def time_rounds(runs: dict[str, tuple[Callable[[], None], Callable[[], None]]], 
     for _ in range(repeats):
         for label, (run, cleanup) in runs.items():
             cleanup()
+            os.sync()  # write back the previous run's files now, not while this run is timed
             start = time.perf_counter()
             run()
             best[label] = min(best[label], time.perf_counter() - start)
