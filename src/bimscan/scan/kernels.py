@@ -19,6 +19,9 @@ from scipy.special import ndtri
 nb.config.THREADING_LAYER_PRIORITY = ["omp", "workqueue", "tbb"]
 
 _BLOCK = 16384  # rays per parallel block; fixed, so outputs never depend on thread count
+# Let LLVM contract, reassociate and use reciprocals (about 15 % faster); not "nnan"/"ninf":
+# misses arrive as inf and must compare as such. Results stay deterministic on one machine.
+_FAST = {"nsz", "arcp", "contract", "afn", "reassoc"}
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _STREAM = np.uint64(0xD1B54A32D192ED03)
@@ -83,12 +86,18 @@ _INV_STEP = _TABLE_SIZE / (1.0 - 2.0 * _P_LOW)
 
 @nb.njit(cache=True, inline="always")
 def _fast_normal(p: float) -> float:
-    """Standard normal quantile of p: table in the centre, rational approximation in the tails."""
-    if p < _P_LOW or p > 1.0 - _P_LOW:
-        return _normal(p)
+    """Standard normal quantile of p: table in the centre, rational approximation in the tails.
+
+    The table value is computed branch-free for every p (clamped into the table) and replaced
+    only for the 5 % of draws in the tails; that keeps the common path free of jumps.
+    """
     x = (p - _P_LOW) * _INV_STEP
-    i = min(int(x), _TABLE_SIZE - 1)
-    return _QUANTILES[i] + (x - i) * (_QUANTILES[i + 1] - _QUANTILES[i])
+    xc = min(max(x, 0.0), _TABLE_SIZE - 1e-9)
+    i = int(xc)
+    value = _QUANTILES[i] + (xc - i) * (_QUANTILES[i + 1] - _QUANTILES[i])
+    if x < 0.0 or x >= _TABLE_SIZE:
+        value = _normal(p)
+    return value
 
 
 @nb.njit(cache=True, inline="always")
@@ -162,14 +171,14 @@ def _keep(t: float, triangle: np.uint32, n_faces: int, min_range: float, max_ran
     return t >= min_range and t <= max_range and triangle < n_faces
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, parallel=True, fastmath=_FAST)
 def finish_hits(t_hit: np.ndarray, triangle: np.ndarray, rays: np.ndarray, pulse: np.ndarray,
                 face_component: np.ndarray, component_label: np.ndarray, face_normal: np.ndarray,
                 component_reflectance: np.ndarray, origin_world: np.ndarray, min_range: float,
                 max_range: float, key: np.uint64, range_sigma_m: float, angle_sigma_rad: float,
-                time0_s: float, pulse_period_s: float, intensity_ref_m: float,
-                xyz: np.ndarray, label: np.ndarray, component: np.ndarray, intensity: np.ndarray,
-                time: np.ndarray) -> int:
+                time0_s: float, pulse_period_s: float, intensity_ref_m: float, station_id: int,
+                xyz: np.ndarray, label: np.ndarray, component: np.ndarray, station: np.ndarray,
+                intensity: np.ndarray, time: np.ndarray) -> int:
     """Turn hits into points; returns how many of the first rows of the outputs were filled.
 
     A ray yields a point when it hits a triangle at a true range in [min_range, max_range].
@@ -205,20 +214,17 @@ def finish_hits(t_hit: np.ndarray, triangle: np.ndarray, rays: np.ndarray, pulse
             if noisy:
                 n_range, n_az, n_el = _pulse_normals(key, p)
                 r += range_sigma_m * n_range
-                ce = math.sqrt(dx * dx + dy * dy)
-                se = dz
-                if ce > 1e-12:
-                    inv_ce = 1.0 / ce
-                    ca = dx * inv_ce
-                    sa = dy * inv_ce
-                else:  # straight up or down: azimuth is undefined, any will do
-                    ca, sa = 1.0, 0.0
-                sde, cde = _small_sincos(angle_sigma_rad * n_el)
+                # turn the azimuth (no division needed), then the elevation
                 sda, cda = _small_sincos(angle_sigma_rad * n_az)
-                ce2 = ce * cde - se * sde
-                mx = ce2 * (ca * cda - sa * sda)
-                my = ce2 * (sa * cda + ca * sda)
-                mz = se * cde + ce * sde
+                hx = dx * cda - dy * sda
+                hy = dy * cda + dx * sda
+                sde, cde = _small_sincos(angle_sigma_rad * n_el)
+                ce = math.sqrt(dx * dx + dy * dy)
+                # horizontal length goes from ce to ce*cde - dz*sde; straight up/down keeps it
+                scale = cde - dz * sde / ce if ce > 1e-12 else 1.0
+                mx = hx * scale
+                my = hy * scale
+                mz = dz * cde + ce * sde
             else:
                 mx, my, mz = dx, dy, dz
             xyz[out, 0] = ox + r * mx
@@ -228,9 +234,10 @@ def finish_hits(t_hit: np.ndarray, triangle: np.ndarray, rays: np.ndarray, pulse
             component[out] = comp
             label[out] = component_label[comp]
             cos_inc = abs(dx * face_normal[tri, 0] + dy * face_normal[tri, 1] + dz * face_normal[tri, 2])
-            fall = intensity_ref_m / t if t > intensity_ref_m else 1.0
+            fall = min(1.0, intensity_ref_m / t)
             value = 65535.0 * component_reflectance[comp] * cos_inc * fall * fall
             intensity[out] = np.uint16(min(65535.0, max(0.0, value + 0.5)))
+            station[out] = station_id
             time[out] = time0_s + p * pulse_period_s
             out += 1
     return counts[n_blocks]

@@ -40,6 +40,10 @@ class VirtualScanner:
                             else np.ascontiguousarray(reflectance, dtype=np.float32))
         self.face_component = np.ascontiguousarray(mesh.face_component, dtype=np.int32)
         self.face_normal = face_normals(mesh)
+        # Working buffers of scan_station, reused (outputs are fresh arrays): one scan at a time
+        # per VirtualScanner.
+        self._ray_buffer = np.empty((0, 6), dtype=np.float32)
+        self._pulse_buffer = np.empty(0, dtype=np.int64)
 
     def _set_threads(self) -> None:
         if self.threads:
@@ -60,9 +64,6 @@ class VirtualScanner:
         origin_local = origin_world - self.engine.centre
         key = np.uint64(noise_key(seed, station.id))
         angle_sigma = math.radians(noise.angle_sigma_deg)
-        station_column = np.uint16(station.id)
-        ray_buffer = np.empty((0, 6), dtype=np.float32)
-        pulse_buffer = np.empty(0, dtype=np.int64)
         for first_line, stop_line in pattern.chunks(chunk_pulses):
             start, stop = pattern.line_pulses(first_line, stop_line)
             counts = stop - start
@@ -71,16 +72,17 @@ class VirtualScanner:
             n = int(counts.sum())
             if n == 0:
                 continue
-            if len(ray_buffer) < n:  # working buffers reused across chunks (outputs are fresh)
-                ray_buffer = np.empty((n, 6), dtype=np.float32)
-                pulse_buffer = np.empty(n, dtype=np.int64)
-            rays, pulse = ray_buffer[:n], pulse_buffer[:n]
+            if len(self._ray_buffer) < n:  # working buffers reused across chunks and stations
+                self._ray_buffer = np.empty((n, 6), dtype=np.float32)
+                self._pulse_buffer = np.empty(n, dtype=np.int64)
+            rays, pulse = self._ray_buffer[:n], self._pulse_buffer[:n]
             generate_rays(start, stop, offsets, first_line, pattern.dphase, pattern.sweep_deg, pattern.head_start_deg,
                           pattern.head_deg_per_pulse, station.heading_deg, origin_local.astype(np.float32), rays, pulse)
             t_hit, triangle = self.engine.cast(rays)
             xyz = np.empty((n, 3), dtype=np.float64)
             label = np.empty(n, dtype=np.uint8)
             component = np.empty(n, dtype=np.int32)
+            station_column = np.empty(n, dtype=np.uint16)
             intensity = np.empty(n, dtype=np.uint16)
             time = np.empty(n, dtype=np.float64)
             if on_pulses is not None:
@@ -88,12 +90,12 @@ class VirtualScanner:
             kept = finish_hits(t_hit, triangle, rays, pulse, self.face_component, self.component_label,
                                self.face_normal, self.reflectance, origin_world, self.scanner.min_range_m,
                                self.scanner.max_range_m, key, noise.range_sigma_m, angle_sigma, time0_s,
-                               1.0 / pattern.pulse_freq_hz, INTENSITY_REFERENCE_M, xyz, label, component, intensity, time)
+                               1.0 / pattern.pulse_freq_hz, INTENSITY_REFERENCE_M, station.id, xyz, label, component,
+                               station_column, intensity, time)
             if kept == 0:
                 continue
             yield PointCloud(xyz=xyz[:kept], label=label[:kept], component=component[:kept],
-                             station=np.full(kept, station_column, dtype=np.uint16),
-                             intensity=intensity[:kept], time=time[:kept])
+                             station=station_column[:kept], intensity=intensity[:kept], time=time[:kept])
 
     def cast_from(self, origin_world: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Cast unit ``directions`` (N, 3) from one world point: (distance (N,) f4, component (N,) i4, -1 = miss)."""
@@ -139,14 +141,3 @@ class VirtualScanner:
         candidates, rays_odd = np.unique(odd, return_counts=True)
         best = int(np.argmax(rays_odd))
         return int(candidates[best]) if rays_odd[best] >= 0.8 * n_rays else None
-
-    def facing(self, origin_world: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Like ``cast_from`` but also the cosine between each ray and the hit triangle's normal (>0 = back face)."""
-        rays = np.empty((len(directions), 6), dtype=np.float32)
-        rays[:, :3] = np.asarray(origin_world, dtype=np.float64) - self.engine.centre
-        rays[:, 3:] = directions
-        t_hit, triangle = self.engine.cast(rays)
-        hit = triangle < len(self.face_component)
-        safe = np.minimum(triangle, len(self.face_component) - 1)
-        cosine = np.where(hit, np.einsum("ij,ij->i", directions, self.face_normal[safe]), 0.0)
-        return t_hit, cosine
