@@ -96,6 +96,17 @@ def _pulse_normals(key: np.uint64, pulse: np.int64) -> tuple[float, float, float
             _normal_from_bits(h1 >> np.uint64(32)))
 
 
+@nb.njit(cache=True)
+def station_normals(key: np.uint64) -> np.ndarray:
+    """Four standard normal deviates drawn once per station (registration error: x, y, z, yaw)."""
+    out = np.empty(4)
+    for j in range(2):
+        h = _mix64(np.uint64(key) ^ (np.uint64(0xFFFFFFFFFFFFFFFF) - np.uint64(j)))
+        out[2 * j] = _normal_from_bits(h >> np.uint64(32))
+        out[2 * j + 1] = _normal_from_bits(h & np.uint64(0xFFFFFFFF))
+    return out
+
+
 @nb.njit(cache=True, inline="always")
 def _small_sincos(a: float) -> tuple[float, float]:
     """sin and cos of an angle; Taylor series for the tiny angles of angular noise (|a| < 0.05 rad)."""

@@ -9,7 +9,7 @@ import numba
 import numpy as np
 
 from bimscan.scan.engine import RayEngine, face_normals, make_engine
-from bimscan.scan.kernels import finish_hits, generate_rays, noise_key
+from bimscan.scan.kernels import finish_hits, generate_rays, noise_key, station_normals
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.pattern import PulsePattern
 from bimscan.scan.scanner import ScannerModel, ScanSettings
@@ -18,6 +18,15 @@ from bimscan.types import PointCloud, SceneMesh, Station
 DEFAULT_CHUNK_PULSES = 1 << 20  # ~70 MB of working arrays per chunk
 DEFAULT_REFLECTANCE = 0.5
 INTENSITY_REFERENCE_M = 5.0  # intensity falls with (5 m / range)^2 beyond 5 m
+
+
+def registration_error(noise: NoiseModel, key: np.uint64) -> tuple[np.ndarray, np.ndarray]:
+    """The station's rigid registration error: rotation (3, 3) about the vertical and shift (3,) metres."""
+    draws = station_normals(key)
+    yaw = math.radians(noise.registration_sigma_deg) * draws[3]
+    c, s = math.cos(yaw), math.sin(yaw)
+    rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return rotation, noise.registration_sigma_m * draws[:3]
 
 
 class VirtualScanner:
@@ -64,6 +73,7 @@ class VirtualScanner:
         origin_local = origin_world - self.engine.centre
         key = np.uint64(noise_key(seed, station.id))
         angle_sigma = math.radians(noise.angle_sigma_deg)
+        registration = registration_error(noise, key) if noise.registers_with_error else None
         for first_line, stop_line in pattern.chunks(chunk_pulses):
             start, stop = pattern.line_pulses(first_line, stop_line)
             counts = stop - start
@@ -94,6 +104,10 @@ class VirtualScanner:
                                station_column, intensity, time)
             if kept == 0:
                 continue
+            if registration is not None:
+                rotation, shift = registration
+                local = xyz[:kept] - origin_world
+                xyz[:kept] = local @ rotation.T + origin_world + shift
             yield PointCloud(xyz=xyz[:kept], label=label[:kept], component=component[:kept],
                              station=station_column[:kept], intensity=intensity[:kept], time=time[:kept])
 
