@@ -220,13 +220,6 @@ def commit_batch_statistics(model: nn.Module) -> None:
             module.commit_statistics()
 
 
-def discard_batch_statistics(model: nn.Module) -> None:
-    """Drop pending BatchNorm sums (after forwards that must not count, e.g. a probe)."""
-    for module in model.modules():
-        if isinstance(module, MaskedBatchNorm1d):
-            module.pending.zero_()
-
-
 @contextlib.contextmanager
 def flush_denormals() -> Iterator[None]:
     """Flush denormal floats to zero on the CPU while the block runs, then turn it off again.
