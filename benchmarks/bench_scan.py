@@ -72,9 +72,9 @@ def main() -> None:
     stations, _ = plan_stations(scene, scanner)
     # the station whose rays most often give a point (a room, not a narrow corridor where the
     # 1.5 m minimum range drops most returns): "labelled points/s" then means most of the rays
-    from bimscan.survey.stations import _useful_fraction
+    from bimscan.survey.stations import useful_return_fraction
 
-    useful = _useful_fraction(scanner, np.array([s.position for s in stations]))
+    useful = useful_return_fraction(scanner, np.array([s.position for s in stations]))
     station = stations[int(np.argmax(useful))]
     settings = ScanSettings(pulse_freq_hz=300000, scan_freq_hz=120, head_deg_per_s=30)  # 1.5M pulses
     pattern = PulsePattern.of(settings, vz400)

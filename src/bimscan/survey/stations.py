@@ -257,7 +257,7 @@ def _choose(scanner: VirtualScanner, spots: np.ndarray, rooms, instrument: float
             continue
         # the spot that sees most of the room beyond the minimum range (narrow rooms and
         # corridors lose what is closer than that); ties go to the spot nearest the middle
-        useful = _useful_fraction(scanner, heads[inside])
+        useful = useful_return_fraction(scanner, heads[inside])
         centre = heads[inside, :2].mean(axis=0)
         distance = np.linalg.norm(heads[inside, :2] - centre, axis=1)
         chosen.append(int(inside[np.lexsort((distance, -np.round(useful, 2)))[0]]))
@@ -278,7 +278,7 @@ def _choose(scanner: VirtualScanner, spots: np.ndarray, rooms, instrument: float
     return chosen
 
 
-def _useful_fraction(scanner: VirtualScanner, heads: np.ndarray, n_rays: int = 256) -> np.ndarray:
+def useful_return_fraction(scanner: VirtualScanner, heads: np.ndarray, n_rays: int = 256) -> np.ndarray:
     """Per instrument position, the fraction of rays (in the scanner's window) that would give a point."""
     model = scanner.scanner
     directions = sphere_directions(4 * n_rays)
