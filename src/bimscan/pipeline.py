@@ -184,7 +184,10 @@ def scan_model(model: str | Path, out: str | Path, options: ScanOptions = ScanOp
     from bimscan.ifc.load import load_ifc
     from bimscan.semantics import load_scheme
 
-    resolve_settings(options)  # settings errors before the (slow) parse
+    from bimscan.io import check_cloud_output
+
+    check_cloud_output(out, overwrite=overwrite)  # output and settings errors before the (slow) parse
+    resolve_settings(options)
     scene = load_ifc(model, scheme=load_scheme(scheme))
     survey = prepare_survey(scene, options)
     return scan_survey(survey, out, options, overwrite=overwrite, progress=progress)

@@ -43,3 +43,30 @@ def test_every_command_has_help(capsys):
         assert main([name, "--help"]) == 0
     assert main(["--help"]) == 0
     assert "Usage" in capsys.readouterr().out
+
+
+def test_export_obj_round_trips_triangles_per_component(shared_ifc, tmp_path, capsys):
+    import csv
+
+    import numpy as np
+
+    from bimscan.ifc.load import load_ifc
+    from bimscan.io import read_obj
+
+    model = shared_ifc("AC20-FZK-Haus.ifc")
+    out = tmp_path / "obj"
+    assert main(["export-obj", str(model), str(out), "--helios"]) == 0
+    scene = load_ifc(model)
+    groups = read_obj(out / "model.obj")
+    per_component = np.bincount(scene.mesh.face_component, minlength=len(scene.components))
+    assert len(groups) == len(scene.components)
+    for name, (_, faces) in groups.items():
+        component = int(name.split("_")[0][1:])
+        assert len(faces) == per_component[component]
+        _, alone = next(iter(read_obj(out / "components" / f"c{component}.obj").values()))
+        assert len(alone) == per_component[component]
+    rows = list(csv.DictReader((out / "index.csv").open()))
+    assert [r["global_id"] for r in rows] == scene.components.global_id.tolist()
+    assert (out / "helios" / "scene.xml").is_file()
+    assert main(["export-obj", str(model), str(out)]) == 1  # refuses to overwrite silently
+    assert "already holds" in capsys.readouterr().err

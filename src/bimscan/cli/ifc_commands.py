@@ -1,4 +1,4 @@
-"""IFC commands: ``info`` (parse and summarise a model)."""
+"""IFC commands: ``info`` (parse and summarise) and ``export-obj`` (OBJ + component index, HELIOS++ scene)."""
 
 from __future__ import annotations
 
@@ -26,4 +26,24 @@ def info(model: Path, as_json: bool, scheme: str | None, no_cache: bool) -> None
     click.echo(json.dumps(summary, indent=2) if as_json else format_summary(summary))
 
 
-COMMANDS: list[click.Command] = [info]
+@click.command("export-obj")
+@click.argument("model", type=click.Path(path_type=Path))
+@click.argument("out_dir", type=click.Path(path_type=Path))
+@click.option("--helios", is_flag=True, help="Also write a HELIOS++ scene XML (one <part> per component file).")
+@click.option("--scheme", default=None, help=SCHEME_HELP)
+@click.option("--overwrite", is_flag=True, help="Replace files already in OUT_DIR.")
+def export_obj_command(model: Path, out_dir: Path, helios: bool, scheme: str | None, overwrite: bool) -> None:
+    """Export MODEL.ifc as OBJ: model.obj (one group per component), components/c<id>.obj
+    (one file per component, as HELIOS++ wants), classes.mtl and index.csv (component id,
+    GlobalId, IFC class, label)."""
+    from bimscan.ifc.load import load_ifc
+    from bimscan.io import export_obj
+    from bimscan.semantics import load_scheme
+
+    scene = load_ifc(model, scheme=load_scheme(scheme))
+    result = export_obj(scene, out_dir, helios=helios, overwrite=overwrite)
+    click.echo(f"{result.out_dir}: {len(result.component_files)} component files, {result.n_triangles:,} triangles; "
+               f"index {result.index_csv.name}" + (f"; HELIOS++ scene {result.helios_scene}" if result.helios_scene else ""))
+
+
+COMMANDS: list[click.Command] = [info, export_obj_command]

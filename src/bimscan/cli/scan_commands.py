@@ -38,19 +38,25 @@ def scan(model: Path, out: Path, preset: str, stations: str, seed: int, no_noise
     in the Pointcept layout. Class ids go to LAS classification; component and station are
     extra dimensions; class names and the component table are stored with the file.
     """
-    from bimscan.pipeline import ScanOptions, scan_model
+    from bimscan.ifc.load import load_ifc
+    from bimscan.io import check_cloud_output
+    from bimscan.pipeline import ScanOptions, prepare_survey, resolve_settings, scan_survey
     from bimscan.scan.noise import NoiseModel
+    from bimscan.semantics import load_scheme
 
     noise = NoiseModel.off() if no_noise else NoiseModel(range_sigma_m=range_sigma_m, angle_sigma_deg=angle_sigma_deg)
     options = ScanOptions(preset=preset, scanner=scanner, stations=stations, seed=seed, noise=noise, strict=strict,
                           head_deg_per_s=head_deg_per_s, engine=engine, threads=threads)
-    result = scan_model(model, out, options, scheme=scheme, overwrite=overwrite)
-    survey = result.survey
-    for warning in survey.warnings:
+    check_cloud_output(out, overwrite=overwrite)  # output, settings: errors before the slow parts
+    _, _, warnings = resolve_settings(options)
+    for warning in warnings:
         click.echo(f"warning: {warning}", err=True)
+    scene = load_ifc(model, scheme=load_scheme(scheme))
+    survey = prepare_survey(scene, options)
     if survey.plan is not None and survey.plan.rooms_without_station:
         click.echo("warning: rooms without a station (too small for a tripod or no floor): "
                    + ", ".join(survey.plan.rooms_without_station), err=True)
+    result = scan_survey(survey, out, options, overwrite=overwrite)
     extents = result.summary.extents()
     names = survey.scene.scheme.names
     click.echo(f"{result.path}: {result.points:,} points from {len(survey.stations)} stations in {result.seconds:.1f} s "

@@ -1,0 +1,131 @@
+"""Cloud and mesh files: streamed, atomic, reproducible writers and readers.
+
+Clouds: LAS 1.4 / LAZ (``las``), binary PLY (``ply``) and Pointcept-style NumPy folders
+(``npdir``), chosen by the path's suffix (no suffix, or a trailing ``/``: a NumPy folder). Every
+writer takes ``PointCloud`` chunks as they come, keeps its memory bounded whatever the point
+count, writes under a temporary name renamed at close, stores the ``CloudHeader`` (label scheme,
+component table, stations, metadata) with the points, and gives the same bytes for the same
+points however they were chunked. Meshes: ``export_obj`` (OBJ with one group per component,
+one OBJ per component, an index CSV, optionally a HELIOS++ scene) and ``read_obj``.
+
+::
+
+    with open_cloud_writer("scan.laz", header=header) as writer:
+        for chunk in chunks:
+            writer.write(chunk)
+    written = writer.close()          # path, n_points, files, sha256
+    cloud = read_cloud("scan.laz")
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+from bimscan.errors import InputFileError, OutputError
+from bimscan.io._writer import CloudWriter, WrittenCloud, check_input_path
+from bimscan.io.las import iter_las_chunks, open_las_writer, open_laz_writer, read_las, read_las_header
+from bimscan.io.npdir import iter_npdir_chunks, open_npdir_writer, read_npdir, read_npdir_header
+from bimscan.io.obj import ObjExport, export_obj, read_obj
+from bimscan.io.ply import iter_ply_chunks, open_ply_writer, read_ply, read_ply_header
+from bimscan.types import CloudHeader, PointCloud
+
+# Format key: the lower-case suffix; "" is a NumPy folder.
+WRITERS: dict[str, Callable[..., CloudWriter]] = {
+    ".las": open_las_writer,
+    ".laz": open_laz_writer,
+    ".ply": open_ply_writer,
+    "": open_npdir_writer,
+}
+READERS: dict[str, Callable[..., PointCloud]] = {
+    ".las": read_las,
+    ".laz": read_las,
+    ".ply": read_ply,
+    "": read_npdir,
+}
+CHUNK_READERS: dict[str, Callable[..., Iterator[PointCloud]]] = {
+    ".las": iter_las_chunks,
+    ".laz": iter_las_chunks,
+    ".ply": iter_ply_chunks,
+    "": iter_npdir_chunks,
+}
+HEADER_READERS: dict[str, Callable[[str | Path], CloudHeader | None]] = {
+    ".las": read_las_header,
+    ".laz": read_las_header,
+    ".ply": read_ply_header,
+    "": read_npdir_header,
+}
+_SUPPORTED = ".las, .laz, .ply, or a folder path without suffix (NumPy)"
+
+
+def output_format(path: str | Path) -> str:
+    """The WRITERS key for an output path: its lower-case suffix, "" for a folder."""
+    text = str(path)
+    if text.endswith("/"):
+        return ""
+    return Path(text).suffix.lower()
+
+
+def _input_format(path: Path) -> str:
+    key = "" if path.is_dir() else path.suffix.lower()
+    if key not in READERS:
+        raise InputFileError(f"{path}: unknown cloud format {path.suffix!r}; bimscan reads {_SUPPORTED}")
+    return key
+
+
+def open_cloud_writer(
+    path: str | Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True
+) -> CloudWriter:
+    """A streamed writer for ``path``, its format chosen by suffix (see ``WRITERS``).
+
+    Raises OutputError for an unknown suffix, a missing parent folder, or an existing output
+    (file, folder, or PLY sidecar) without ``overwrite``. ``checksum`` makes ``close()`` report
+    the SHA-256 of every file written (one extra read of the output, from the page cache).
+    """
+    key = output_format(path)
+    if key not in WRITERS:
+        raise OutputError(f"{path}: unknown cloud format {key!r}; write {_SUPPORTED}")
+    return WRITERS[key](Path(path), header=header, overwrite=overwrite, checksum=checksum)
+
+
+def check_cloud_output(path: str | Path, *, overwrite: bool = False) -> None:
+    """Raise OutputError now for an output ``open_cloud_writer`` would refuse (unknown suffix,
+    missing folder, existing output), so a long job fails before it starts rather than at the end."""
+    from bimscan.io._writer import check_output_path
+
+    key = output_format(path)
+    if key not in WRITERS:
+        raise OutputError(f"{path}: unknown cloud format {key!r}; write {_SUPPORTED}")
+    check_output_path(Path(path), overwrite=overwrite)
+
+
+def read_cloud(path: str | Path, *, label_field: str | None = None) -> PointCloud:
+    """Read a whole cloud (bimscan's own or another tool's) as one ``PointCloud``.
+
+    ``label_field`` names the field holding labels; None: bimscan files -> their labels,
+    foreign files -> ``classification`` (LAS) or a label-like property (PLY) when present.
+    Columns a file lacks are None.
+    """
+    path = check_input_path(path)
+    return READERS[_input_format(path)](path, label_field=label_field)
+
+
+def iter_cloud_chunks(
+    path: str | Path, *, chunk_points: int = 2_000_000, label_field: str | None = None
+) -> Iterator[PointCloud]:
+    """Stream a cloud as ``PointCloud`` chunks of at most ``chunk_points`` rows (see read_cloud)."""
+    path = check_input_path(path)
+    return CHUNK_READERS[_input_format(path)](path, chunk_points=chunk_points, label_field=label_field)
+
+
+def read_cloud_header(path: str | Path) -> CloudHeader | None:
+    """The ``CloudHeader`` bimscan stored with a cloud, or None for a foreign file."""
+    path = check_input_path(path)
+    return HEADER_READERS[_input_format(path)](path)
+
+
+__all__ = [
+    "CHUNK_READERS", "HEADER_READERS", "READERS", "WRITERS", "CloudWriter", "ObjExport", "WrittenCloud",
+    "check_cloud_output", "export_obj", "iter_cloud_chunks", "open_cloud_writer", "output_format", "read_cloud",
+    "read_cloud_header", "read_obj",
+]

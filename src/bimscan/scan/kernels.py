@@ -13,6 +13,7 @@ import math
 
 import numba as nb
 import numpy as np
+from scipy.special import ndtri
 
 # TBB in the wheels is often too old for Numba (it warns and falls back); ask for OpenMP first.
 nb.config.THREADING_LAYER_PRIORITY = ["omp", "workqueue", "tbb"]
@@ -71,12 +72,31 @@ def _normal(p: float) -> float:
           + 6.680131188771972e01) * r - 1.328068155288572e01) * r + 1.0)
 
 
+# Standard normal quantiles tabulated over the central 95 % of probabilities, linearly
+# interpolated (error < 2e-6 sigma): several times faster than a rational approximation with its
+# division, which matters for three draws per pulse. Tails use Acklam's approximation.
+_P_LOW = 0.02425
+_TABLE_SIZE = 8192
+_QUANTILES = ndtri(np.linspace(_P_LOW, 1.0 - _P_LOW, _TABLE_SIZE + 1))
+_INV_STEP = _TABLE_SIZE / (1.0 - 2.0 * _P_LOW)
+
+
+@nb.njit(cache=True, inline="always")
+def _fast_normal(p: float) -> float:
+    """Standard normal quantile of p: table in the centre, rational approximation in the tails."""
+    if p < _P_LOW or p > 1.0 - _P_LOW:
+        return _normal(p)
+    x = (p - _P_LOW) * _INV_STEP
+    i = min(int(x), _TABLE_SIZE - 1)
+    return _QUANTILES[i] + (x - i) * (_QUANTILES[i + 1] - _QUANTILES[i])
+
+
 @nb.njit(cache=True, inline="always")
 def _pulse_normals(key: np.uint64, pulse: np.int64) -> tuple[float, float, float]:
     """The three standard normal deviates of one pulse: range, azimuth, elevation."""
     u0, u1 = _uniform_pair(key, pulse, np.uint64(0))
     u2, _ = _uniform_pair(key, pulse, np.uint64(1))
-    return _normal(u0), _normal(u1), _normal(u2)
+    return _fast_normal(u0), _fast_normal(u1), _fast_normal(u2)
 
 
 @nb.njit(cache=True, inline="always")
@@ -188,8 +208,9 @@ def finish_hits(t_hit: np.ndarray, triangle: np.ndarray, rays: np.ndarray, pulse
                 ce = math.sqrt(dx * dx + dy * dy)
                 se = dz
                 if ce > 1e-12:
-                    ca = dx / ce
-                    sa = dy / ce
+                    inv_ce = 1.0 / ce
+                    ca = dx * inv_ce
+                    sa = dy * inv_ce
                 else:  # straight up or down: azimuth is undefined, any will do
                     ca, sa = 1.0, 0.0
                 sde, cde = _small_sincos(angle_sigma_rad * n_el)

@@ -73,10 +73,16 @@ class PulsePattern:
             total += int((stop - start).sum())
         return total
 
+    def phase(self, pulse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(line, fraction of the sweep) of pulse indices, with the same boundary rule as line_pulses."""
+        shifted = pulse * self.dphase + _EPS * self.dphase
+        line = np.floor(shifted)
+        return line.astype(np.int64), shifted - line
+
     def elevation_deg(self, pulse: np.ndarray) -> np.ndarray:
         """Elevation of pulse indices (degrees), from the mirror angle."""
-        phase = pulse * self.dphase
-        return -self.sweep_deg / 2 + self.sweep_deg * (phase - np.floor(phase + _EPS))
+        _, fraction = self.phase(pulse)
+        return -self.sweep_deg / 2 + self.sweep_deg * fraction
 
     def chunks(self, pulses_per_chunk: int) -> list[tuple[int, int]]:
         """Line ranges holding about ``pulses_per_chunk`` emitted pulses each (fixed by the pattern alone)."""

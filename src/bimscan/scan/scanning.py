@@ -61,6 +61,8 @@ class VirtualScanner:
         key = np.uint64(noise_key(seed, station.id))
         angle_sigma = math.radians(noise.angle_sigma_deg)
         station_column = np.uint16(station.id)
+        ray_buffer = np.empty((0, 6), dtype=np.float32)
+        pulse_buffer = np.empty(0, dtype=np.int64)
         for first_line, stop_line in pattern.chunks(chunk_pulses):
             start, stop = pattern.line_pulses(first_line, stop_line)
             counts = stop - start
@@ -69,8 +71,10 @@ class VirtualScanner:
             n = int(counts.sum())
             if n == 0:
                 continue
-            rays = np.empty((n, 6), dtype=np.float32)
-            pulse = np.empty(n, dtype=np.int64)
+            if len(ray_buffer) < n:  # working buffers reused across chunks (outputs are fresh)
+                ray_buffer = np.empty((n, 6), dtype=np.float32)
+                pulse_buffer = np.empty(n, dtype=np.int64)
+            rays, pulse = ray_buffer[:n], pulse_buffer[:n]
             generate_rays(start, stop, offsets, first_line, pattern.dphase, pattern.sweep_deg, pattern.head_start_deg,
                           pattern.head_deg_per_pulse, station.heading_deg, origin_local.astype(np.float32), rays, pulse)
             t_hit, triangle = self.engine.cast(rays)

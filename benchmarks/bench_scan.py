@@ -1,0 +1,137 @@
+"""Scan throughput: the whole scan path next to the raw ray engine on the same rays.
+
+Run: python benchmarks/bench_scan.py [--model MODEL.ifc] [--memory]
+
+1. Engines: rays/s of Open3D (Embree, all cores and one core) and embreex (one core; it holds
+   the GIL) on the same rays of one station.
+2. Scan path: pulses/s and labelled points/s of VirtualScanner.scan_station (ray generation,
+   casting, noise, labels, intensity, compaction) against Open3D's raw cast of exactly the rays
+   it generates, measured side by side (best of several rounds, interleaved).
+3. With --memory: peak resident memory of whole `bimscan scan` runs to LAZ of about 10M and
+   100M points (in subprocesses), to show it stays flat as the point count grows.
+
+Default model: a generated demo building if bimscan.ifc.generate is available, else the duplex
+sample from ../shared/data/ifc.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+SHARED = HERE.parent.parent / "shared" / "data" / "ifc"
+
+
+def default_model(folder: Path) -> Path:
+    try:
+        from bimscan.ifc.generate import make_building
+    except ImportError:
+        return SHARED / "duplex.ifc"
+    path = folder / "bench_building.ifc"
+    make_building(path, seed=1, storeys=2)
+    return path
+
+
+def best_of(fn, rounds: int = 5) -> float:
+    best = float("inf")
+    for _ in range(rounds):
+        start = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - start)
+    return best
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--model", type=Path)
+    parser.add_argument("--memory", action="store_true", help="also measure peak memory of 10M/100M point scans")
+    args = parser.parse_args()
+    os.environ.setdefault("BIMSCAN_CACHE_DIR", tempfile.mkdtemp(prefix="bimscan-bench-"))
+    from bimscan.ifc.load import load_ifc
+    from bimscan.scan.engine import make_engine
+    from bimscan.scan.kernels import generate_rays
+    from bimscan.scan.noise import NoiseModel
+    from bimscan.scan.pattern import PulsePattern
+    from bimscan.scan.scanner import SCANNERS, ScanSettings
+    from bimscan.scan.scanning import VirtualScanner
+    from bimscan.survey.stations import plan_stations
+
+    work = Path(tempfile.mkdtemp(prefix="bimscan-bench-scan-"))
+    model = args.model or default_model(work)
+    scene = load_ifc(model)
+    vz400 = SCANNERS["riegl_vz400"]
+    scanner = VirtualScanner(scene.mesh, scene.components.label, scanner=vz400)
+    stations, _ = plan_stations(scene, scanner)
+    station = stations[0]
+    settings = ScanSettings(pulse_freq_hz=300000, scan_freq_hz=120, head_deg_per_s=30)  # 1.5M pulses
+    pattern = PulsePattern.of(settings, vz400)
+    start, stop = pattern.line_pulses(0, pattern.n_lines)
+    counts = stop - start
+    offsets = np.zeros(len(counts), dtype=np.int64)
+    np.cumsum(counts[:-1], out=offsets[1:])
+    n = int(counts.sum())
+    rays = np.empty((n, 6), dtype=np.float32)
+    pulse = np.empty(n, dtype=np.int64)
+    origin = (np.asarray(station.position) - scanner.engine.centre).astype(np.float32)
+    generate_rays(start, stop, offsets, 0, pattern.dphase, pattern.sweep_deg, pattern.head_start_deg,
+                  pattern.head_deg_per_pulse, 0.0, origin, rays, pulse)
+    print(f"model {model.name}: {len(scene.components)} components, {scene.mesh.n_triangles} triangles; "
+          f"station 0 of {len(stations)}; {n:,} rays (300 kHz, 120 Hz, 30 deg/s); {os.cpu_count()} cores")
+
+    print("\n1. ray engines on the same rays")
+    engines = [("open3d, all cores", make_engine(scene.mesh, name="open3d")),
+               ("open3d, 1 core", make_engine(scene.mesh, name="open3d", threads=1))]
+    try:
+        engines.append(("embreex, 1 core (GIL)", make_engine(scene.mesh, name="embreex")))
+    except Exception as exc:  # optional engine
+        print(f"   embreex unavailable: {exc}")
+    for name, engine in engines:
+        engine.cast(rays)
+        seconds = best_of(lambda: engine.cast(rays))
+        print(f"   {name:<24} {n / seconds / 1e6:7.2f} Mrays/s")
+
+    print("\n2. whole scan path vs raw engine (interleaved rounds, best of each)")
+    for label, noise in (("noise on ", NoiseModel()), ("noise off", NoiseModel.off())):
+        points = sum(len(c) for c in scanner.scan_station(station, settings, noise=noise, seed=1))  # JIT warm-up
+        raw, path = float("inf"), float("inf")
+        for _ in range(5):
+            raw = min(raw, best_of(lambda: scanner.engine.cast(rays), 1))
+            path = min(path, best_of(lambda: sum(len(c) for c in scanner.scan_station(station, settings, noise=noise, seed=1)), 1))
+        print(f"   {label}: raw {n / raw / 1e6:6.2f} Mrays/s | path {n / path / 1e6:6.2f} Mpulses/s "
+              f"({points / path / 1e6:5.2f} M labelled points/s, {points / n:.1%} of pulses hit) | "
+              f"path/raw = {raw / path:.1%} (target >= 85 %)")
+
+    if args.memory:
+        print("\n3. peak memory of whole scans written to LAZ (subprocess max RSS)")
+        for target in (10_000_000, 100_000_000):
+            # pulse count per station at 500 kHz: 500000 * 360/head * 100/240
+            per_station_at_1dps = 500000 * 360 * 100 / 240
+            head = per_station_at_1dps * len(stations) / target
+            out = work / f"scan_{target}.laz"
+            argv = ["scan", str(model), str(out), "--preset", "exp5", "--head-speed", f"{head:.6f}", "--seed", "1",
+                    "--overwrite"]
+            code = ("import resource, sys; from bimscan.cli.main import main; rc = main(sys.argv[1:]); "
+                    "print('PEAK_KIB', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr); sys.exit(rc)")
+            start_time = time.perf_counter()
+            result = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True,
+                                    env=os.environ | {"BIMSCAN_PROGRESS": "0"})
+            seconds = time.perf_counter() - start_time
+            if result.returncode != 0:
+                print(f"   {target:>11,}: failed: {result.stderr.strip()}")
+                continue
+            peak_kib = int(next(line.split()[1] for line in result.stderr.splitlines() if line.startswith("PEAK_KIB")))
+            summary = result.stdout.splitlines()[0]
+            print(f"   target {target:>11,}: peak RSS {peak_kib / 1024:7.0f} MiB, {seconds:6.1f} s | {summary}")
+            out.unlink(missing_ok=True)
+
+
+if __name__ == "__main__":
+    main()

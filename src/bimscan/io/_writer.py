@@ -1,0 +1,304 @@
+"""What every cloud writer shares: temporary outputs renamed at close, column checks, errors.
+
+A writer stages its output under a hidden temporary name in the destination folder
+(``.<name>.<random>.tmp``), streams chunks into it and, at ``close()``, finishes the headers and
+renames it into place with ``os.replace`` (atomic for a file on one file system). Any failure,
+and ``abort()``, removes the temporary output; a reader never sees a half-written cloud. The
+temporary name is random but never part of the output bytes.
+
+Outputs are not fsync'ed: the rename protects against interrupted and failed runs, not against
+power loss before the operating system has written its cache.
+"""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import os
+import secrets
+import shutil
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import TracebackType
+from typing import BinaryIO, Protocol, Self
+
+from bimscan.errors import InputFileError, OutputError
+from bimscan.io._header import present_columns
+from bimscan.types import CloudHeader, PointCloud
+
+BLOCK_POINTS = 1_000_000  # rows encoded per step: bounds a writer's memory whatever the chunk size
+
+
+@dataclass(frozen=True)
+class WrittenCloud:
+    """A finished cloud output.
+
+    path: the file or folder written. n_points: rows written. files: every file written (the
+    folder's members for a NumPy folder, the sidecar for PLY). sha256: hex digest per file, keyed
+    by the path relative to ``path.parent`` (empty when the writer ran with ``checksum=False``).
+    n_bytes: total size of ``files``.
+    """
+
+    path: Path
+    n_points: int
+    files: tuple[Path, ...]
+    sha256: Mapping[str, str] = field(default_factory=dict)
+    n_bytes: int = 0
+
+
+class CloudWriter(Protocol):
+    """A streamed cloud writer; use it as a context manager (an exception inside aborts)."""
+
+    def write(self, chunk: PointCloud) -> None: ...
+    def close(self) -> WrittenCloud: ...
+    def abort(self) -> None: ...
+    def __enter__(self) -> Self: ...
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None: ...
+
+
+def output_error(exc: OSError, path: Path) -> OutputError:
+    """The one-line OutputError for an OSError met while writing ``path``."""
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return OutputError(f"disk full while writing {path}; free space and run again")
+    reason = exc.strerror or str(exc)
+    return OutputError(f"could not write {path} ({reason}); check the folder and its permissions and run again")
+
+
+def check_output_path(path: Path, *, overwrite: bool, extra: tuple[Path, ...] = ()) -> None:
+    """Refuse outputs that cannot be written: missing parent folder, existing output."""
+    parent = path.parent
+    if not parent.is_dir():
+        raise OutputError(f"output folder {parent} does not exist; create it first or choose another path")
+    for target in (path, *extra):
+        if not overwrite and (target.exists() or target.is_symlink()):
+            raise OutputError(f"{target} already exists; pass overwrite=True (--overwrite) or choose another path")
+
+
+def check_input_path(path: str | Path) -> Path:
+    """``path`` as a Path that exists, or an InputFileError."""
+    path = Path(path)
+    if not path.exists():
+        raise InputFileError(f"{path}: no such file or folder; check the path")
+    return path
+
+
+def file_sha256(path: Path) -> str:
+    """Hex SHA-256 of a file, read in 8 MiB blocks."""
+    digest = hashlib.sha256()
+    with path.open("rb") as handle:
+        while block := handle.read(8 << 20):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+class WatchedFile:
+    """A binary file that remembers the OSError its ``write`` raised.
+
+    lazrs turns a failing ``write`` of the Python file it writes to into ``LazrsError: IoError``
+    and drops the OSError (and with it ENOSPC); the writers look the original up here.
+    """
+
+    def __init__(self, raw: BinaryIO) -> None:
+        self.raw = raw
+        self.error: OSError | None = None
+
+    def write(self, data: bytes | memoryview) -> int:
+        try:
+            return self.raw.write(data)
+        except OSError as exc:
+            self.error = exc
+            raise
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self.raw, name)
+
+
+def temp_name(final: Path) -> Path:
+    return final.with_name(f".{final.name}.{secrets.token_hex(6)}.tmp")
+
+
+def _remove(path: Path) -> None:
+    try:
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path)
+        else:
+            path.unlink()
+    except FileNotFoundError:
+        pass
+
+
+def commit_output(temp: Path, final: Path, *, overwrite: bool) -> None:
+    """Move ``temp`` to ``final``; an existing ``final`` is replaced only with ``overwrite``."""
+    exists = final.exists() or final.is_symlink()
+    if exists and not overwrite:
+        raise OutputError(f"{final} appeared while writing it; pass overwrite=True (--overwrite) or choose another path")
+    if exists and (temp.is_dir() or final.is_dir()):
+        # os.replace cannot put a folder over a non-empty folder (or a file over a folder): move
+        # the old output aside first, then drop it once the new one is in place.
+        trash = temp_name(final)
+        os.replace(final, trash)
+        os.replace(temp, final)
+        _remove(trash)
+    else:
+        os.replace(temp, final)
+
+
+class StreamingCloudWriter:
+    """Base of the format writers: staging, column checks, error handling, context manager.
+
+    Subclasses implement ``_begin(columns)`` (open temporary outputs once the first chunk shows
+    which columns the cloud has), ``_append(chunk)`` (at most ``BLOCK_POINTS`` rows at a time),
+    ``_finish()`` (complete headers and sidecars) and may extend ``_release()`` (drop buffers;
+    must be idempotent). They stage outputs with ``_open_file``/``_stage_dir`` + ``_watch``.
+    """
+
+    def __init__(self, path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True) -> None:
+        self.path = Path(path)
+        self.header = header
+        self.overwrite = overwrite
+        self.checksum = checksum
+        self.columns: tuple[str, ...] | None = None
+        self.n_points = 0
+        self._staged: list[tuple[Path, Path]] = []  # (temporary, final), committed in order
+        self._state = "open"
+        self._result: WrittenCloud | None = None
+        self._handles: list[WatchedFile] = []
+        check_output_path(self.path, overwrite=overwrite, extra=self._outputs()[1:])
+
+    def _outputs(self) -> tuple[Path, ...]:
+        """Every path this writer creates, the main output first (PLY adds its sidecar)."""
+        return (self.path,)
+
+    # -- staging helpers for subclasses -------------------------------------------------------
+    def _stage_file(self, final: Path) -> Path:
+        temp = temp_name(final)
+        os.close(os.open(temp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
+        self._staged.append((temp, final))
+        return temp
+
+    def _open_file(self, final: Path) -> WatchedFile:
+        """Stage ``final`` and open its temporary file for binary writing (and seeking)."""
+        return self._watch(self._stage_file(final))
+
+    def _watch(self, path: Path) -> WatchedFile:
+        """Open ``path`` (inside a staged output) for binary writing; its errors are tracked."""
+        handle = WatchedFile(path.open("w+b"))
+        self._handles.append(handle)
+        return handle
+
+    def _failure(self, exc: Exception) -> Exception:
+        """Abort and return the exception to raise for ``exc`` (an OutputError for I/O errors)."""
+        self.abort()
+        cause = exc if isinstance(exc, OSError) else next((h.error for h in self._handles if h.error), None)
+        return output_error(cause, self.path) if cause is not None else exc
+
+    def _stage_dir(self, final: Path) -> Path:
+        temp = temp_name(final)
+        temp.mkdir()
+        self._staged.append((temp, final))
+        return temp
+
+    # -- hooks ----------------------------------------------------------------------------------
+    def _begin(self, columns: tuple[str, ...]) -> None:
+        raise NotImplementedError
+
+    def _append(self, chunk: PointCloud) -> None:
+        raise NotImplementedError
+
+    def _finish(self) -> None:
+        raise NotImplementedError
+
+    def _release(self) -> None:
+        """Close every file opened through ``_watch``; subclasses also drop their buffers."""
+        for handle in self._handles:
+            handle.close()
+
+    # -- public API ----------------------------------------------------------------------------
+    def write(self, chunk: PointCloud) -> None:
+        """Append a chunk; every chunk must carry the same columns as the first."""
+        if self._state != "open":
+            raise OutputError(f"the writer of {self.path} is already {self._state}; open a new writer")
+        columns = present_columns(chunk)
+        try:
+            if self.columns is None:
+                self.columns = columns
+                self._begin(columns)
+            elif columns != self.columns:
+                raise OutputError(
+                    f"a chunk for {self.path} carries columns {', '.join(columns)} but earlier chunks "
+                    f"carried {', '.join(self.columns)}; pass the same columns in every chunk"
+                )
+            for start in range(0, len(chunk), BLOCK_POINTS):
+                stop = min(start + BLOCK_POINTS, len(chunk))
+                self._append(chunk if (start, stop) == (0, len(chunk)) else chunk.take(slice(start, stop)))
+                self.n_points += stop - start
+        except Exception as exc:
+            error = self._failure(exc)
+            if error is exc:
+                raise
+            raise error from exc
+
+    def close(self) -> WrittenCloud:
+        """Finish the output and move it into place; returns what was written."""
+        if self._result is not None:
+            return self._result
+        if self._state != "open":
+            raise OutputError(f"the writer of {self.path} was {self._state}; nothing to close")
+        try:
+            if self.columns is None:  # no chunk at all: an empty cloud with xyz only
+                self.columns = ("xyz",)
+                self._begin(self.columns)
+            self._finish()
+            self._release()
+            files: list[Path] = []
+            sha256: dict[str, str] = {}
+            n_bytes = 0
+            for temp, final in self._staged:
+                members = sorted(p for p in temp.rglob("*") if p.is_file()) if temp.is_dir() else [temp]
+                for member in members:
+                    name = (final / member.relative_to(temp)) if temp.is_dir() else final
+                    files.append(name)
+                    n_bytes += member.stat().st_size
+                    if self.checksum:
+                        sha256[name.relative_to(self.path.parent).as_posix()] = file_sha256(member)
+            for temp, final in self._staged:
+                commit_output(temp, final, overwrite=self.overwrite)
+        except Exception as exc:
+            error = self._failure(exc)
+            if error is exc:
+                raise
+            raise error from exc
+        self._state = "closed"
+        self._result = WrittenCloud(
+            path=self.path, n_points=self.n_points, files=tuple(files), sha256=sha256, n_bytes=n_bytes
+        )
+        return self._result
+
+    def abort(self) -> None:
+        """Drop the temporary output; a no-op after a successful close."""
+        if self._state == "closed":
+            return
+        self._state = "aborted"
+        try:
+            self._release()
+        except (OSError, ValueError):
+            pass  # the output is being discarded; a failing close changes nothing
+        for temp, _ in self._staged:
+            try:
+                _remove(temp)
+            except OSError:
+                pass  # best effort: an undeletable temporary must not hide the original error
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        if exc_type is not None:
+            self.abort()
+        elif self._state == "open":
+            self.close()

@@ -1,0 +1,312 @@
+"""LAS 1.4 / LAZ clouds through laspy (LAZ compressed by lazrs, in parallel when available).
+
+Layout of a bimscan LAS/LAZ file:
+
+- Point format 6. Coordinates are int32 steps of ``LAS_SCALE_M`` = 0.0001 m (0.1 mm) around the
+  header offset, which is ``CloudHeader.origin``: a file reaches about +-214 km from its origin.
+  Points farther out are refused (``OutputError``) rather than wrapped.
+- ``label`` -> ``classification``; ``intensity`` -> ``intensity``; ``time`` -> ``gps_time``
+  (seconds since the start of the survey, not GPS time); ``station`` -> ``point_source_id``
+  and the extra dimension ``station`` (uint16); ``component`` -> extra dimension ``component``
+  (int32). Every point is return 1 of 1. Columns the cloud lacks are stored as zeros and read
+  back as None (the header document lists the columns that were written).
+- VLR ``LASF_Spec``/0, the LAS 1.4 classification lookup: 256 x (uint8 class, char[15] name),
+  the scheme's class names cut to 15 ASCII bytes, so CloudCompare and friends show them.
+- EVLR ``bimscan``/1: the full header document as JSON (scheme, component table, stations,
+  origin, metadata; see ``bimscan.io._header``).
+- Reproducible header: creation date from ``SOURCE_DATE_EPOCH`` (else 1970-01-01), project GUID
+  derived from the header document, fixed system identifier and generating software. Chunks are
+  re-blocked into ``BLOCK_POINTS`` rows (a multiple of the LAZ chunk of ``LAZ_CHUNK_POINTS``)
+  before laspy sees them, so the bytes do not depend on how the caller chunked the stream.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import os
+import unicodedata
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+import laspy
+import numpy as np
+from laspy.errors import LaspyException
+from laspy.point.record import PackedPointRecord
+from laspy.vlrs.known import ClassificationLookupVlr
+from laspy.vlrs.vlrlist import VLRList
+
+from bimscan import __version__
+from bimscan.errors import InputFileError, OutputError
+from bimscan.io._header import (
+    as_labels,
+    dump_json,
+    header_from_document,
+    header_to_document,
+    parse_document,
+)
+from bimscan.io._writer import BLOCK_POINTS, StreamingCloudWriter, check_input_path
+from bimscan.types import CloudHeader, LabelScheme, PointCloud
+
+LAS_SCALE_M = 1e-4  # 0.1 mm coordinate step
+LAZ_CHUNK_POINTS = 50_000  # lazrs' default LAZ chunk; BLOCK_POINTS must stay a multiple of it
+BIMSCAN_USER_ID = "bimscan"
+BIMSCAN_RECORD_ID = 1
+SYSTEM_IDENTIFIER = "bimscan virtual TLS"
+_INT32 = (float(np.iinfo(np.int32).min), float(np.iinfo(np.int32).max))
+_GUID_NAMESPACE = uuid.UUID("6f3c1d2e-8a4b-5c7d-9e0f-b1a2c3d4e5f6")
+
+if BLOCK_POINTS % LAZ_CHUNK_POINTS:  # pragma: no cover - a guard for whoever edits the constants
+    raise ImportError("BLOCK_POINTS must be a multiple of LAZ_CHUNK_POINTS")
+
+
+def _creation_date() -> dt.date:
+    epoch = os.environ.get("SOURCE_DATE_EPOCH", "").strip()
+    if epoch:
+        try:
+            return dt.datetime.fromtimestamp(int(epoch), tz=dt.UTC).date()
+        except (ValueError, OverflowError, OSError) as exc:
+            raise OutputError(f"SOURCE_DATE_EPOCH={epoch!r} is not a Unix time in seconds; fix or unset it") from exc
+    return dt.date(1970, 1, 1)
+
+
+def lookup_name(name: str) -> str:
+    """A class name as the classification lookup VLR stores it: ASCII, at most 15 bytes."""
+    ascii_name = unicodedata.normalize("NFKD", name).encode("ascii", "ignore").decode("ascii")
+    return ascii_name[:15]
+
+
+def _classification_lookup(scheme: LabelScheme) -> ClassificationLookupVlr:
+    vlr = ClassificationLookupVlr()
+    names = {c.id: lookup_name(c.name) for c in scheme.classes if 0 <= c.id <= 255}
+    for class_id in range(256):  # the LAS 1.4 record is always 256 entries long
+        vlr[class_id] = names.get(class_id, "")
+    return vlr
+
+
+def _las_header(header: CloudHeader, columns: tuple[str, ...]) -> laspy.LasHeader:
+    las_header = laspy.LasHeader(version="1.4", point_format=6)
+    extra = []
+    if "component" in columns:
+        extra.append(laspy.ExtraBytesParams(name="component", type=np.int32, description="BIM component id"))
+    if "station" in columns:
+        extra.append(laspy.ExtraBytesParams(name="station", type=np.uint16, description="scan station id"))
+    if extra:
+        las_header.add_extra_dims(extra)
+    las_header.offsets = np.asarray(header.origin, dtype=np.float64)
+    las_header.scales = np.full(3, LAS_SCALE_M)
+    las_header.creation_date = _creation_date()
+    las_header.system_identifier = SYSTEM_IDENTIFIER
+    las_header.generating_software = f"bimscan {__version__}"[:31]
+    digest = dump_json(header_to_document(header, columns=columns, n_points=0))
+    las_header.uuid = uuid.uuid5(_GUID_NAMESPACE, digest.decode("utf-8"))
+    las_header.vlrs.append(_classification_lookup(header.scheme))
+    return las_header
+
+
+class LasCloudWriter(StreamingCloudWriter):
+    """Streams ``PointCloud`` chunks into a LAS 1.4 (``compress=False``) or LAZ file."""
+
+    def __init__(
+        self, path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True, compress: bool
+    ) -> None:
+        super().__init__(path, header=header, overwrite=overwrite, checksum=checksum)
+        self.compress = compress
+        self._file = None
+        self._writer: laspy.LasWriter | None = None
+        self._block: np.ndarray | None = None
+        self._fill = 0
+
+    def _begin(self, columns: tuple[str, ...]) -> None:
+        las_header = _las_header(self.header, columns)
+        self._file = self._open_file(self.path)
+        backend = (laspy.LazBackend.LazrsParallel, laspy.LazBackend.Lazrs) if self.compress else None
+        self._writer = laspy.LasWriter(
+            self._file, las_header, do_compress=self.compress, laz_backend=backend, closefd=False
+        )
+        self._point_format = self._writer.header.point_format
+        self._block = np.zeros(BLOCK_POINTS, dtype=self._point_format.dtype())
+        self._block["bit_fields"] = 0b0001_0001  # return 1 of 1 (LAS 1.4 forbids return number 0)
+        self._scratch = np.empty(BLOCK_POINTS, dtype=np.float64)
+        self._low = np.full(3, np.inf)  # bounds in coordinate steps, for the LAS header
+        self._high = np.full(3, -np.inf)
+
+    def _encode(self, chunk: PointCloud, out: np.ndarray) -> None:
+        """Quantise and pack ``chunk`` into ``out`` (rows of the point record block)."""
+        origin = self.header.origin
+        steps = self._scratch[: len(chunk)]
+        for axis, name in enumerate("XYZ"):
+            np.subtract(chunk.xyz[:, axis], origin[axis], out=steps)
+            np.divide(steps, LAS_SCALE_M, out=steps)
+            np.rint(steps, out=steps)
+            low, high = steps.min(), steps.max()
+            if not (low >= _INT32[0] and high <= _INT32[1]):  # also catches NaN
+                worst = chunk.xyz[np.argmax(np.abs(np.nan_to_num(steps, nan=np.inf))), axis]
+                raise OutputError(
+                    f"{self.path}: {'xyz'[axis]} = {worst} m does not fit LAS 0.1 mm steps around the "
+                    f"origin {origin[axis]} m (+-214 km); use finite coordinates and set CloudHeader.origin near the data"
+                )
+            self._low[axis] = min(self._low[axis], low)
+            self._high[axis] = max(self._high[axis], high)
+            out[name] = steps
+        if chunk.label is not None:
+            out["classification"] = chunk.label
+        if chunk.intensity is not None:
+            out["intensity"] = chunk.intensity
+        if chunk.time is not None:
+            out["gps_time"] = chunk.time
+        if chunk.component is not None:
+            out["component"] = chunk.component
+        if chunk.station is not None:
+            out["station"] = chunk.station
+            out["point_source_id"] = chunk.station
+
+    def _append(self, chunk: PointCloud) -> None:
+        assert self._block is not None
+        start = 0
+        while start < len(chunk):
+            take = min(len(chunk) - start, BLOCK_POINTS - self._fill)
+            part = chunk if take == len(chunk) else chunk.take(slice(start, start + take))
+            self._encode(part, self._block[self._fill : self._fill + take])
+            self._fill += take
+            start += take
+            if self._fill == BLOCK_POINTS:
+                self._flush()
+
+    def _flush(self) -> None:
+        if self._fill and self._writer is not None and self._block is not None:
+            # Straight to laspy's point writer: LasWriter.write_points would recompute the bounds
+            # (known from _encode) and the return counts (all 1) with a sort of every block.
+            self._writer.point_writer.write_points(PackedPointRecord(self._block[: self._fill], self._point_format))
+        self._fill = 0
+
+    def _finish(self) -> None:
+        assert self._writer is not None and self.columns is not None
+        self._flush()
+        las_header = self._writer.header
+        las_header.point_count = self.n_points
+        las_header.number_of_points_by_return[:] = 0
+        las_header.number_of_points_by_return[0] = self.n_points
+        if self.n_points:
+            las_header.mins = self._low * las_header.scales + las_header.offsets
+            las_header.maxs = self._high * las_header.scales + las_header.offsets
+        document = header_to_document(self.header, columns=self.columns, n_points=self.n_points)
+        evlr = laspy.VLR(BIMSCAN_USER_ID, BIMSCAN_RECORD_ID, "bimscan cloud header (JSON)", dump_json(document))
+        try:
+            self._writer.write_evlrs(VLRList([evlr]))
+            self._writer.close()
+        except LaspyException as exc:
+            raise OutputError(f"{self.path}: laspy could not finish the file ({exc}); report this") from exc
+        self._writer = None
+
+    def _release(self) -> None:
+        self._block = None
+        self._scratch = None
+        self._writer = None
+        super()._release()
+
+
+def open_las_writer(path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True) -> LasCloudWriter:
+    """An uncompressed LAS 1.4 writer (registered as ``WRITERS[".las"]``)."""
+    return LasCloudWriter(path, header=header, overwrite=overwrite, checksum=checksum, compress=False)
+
+
+def open_laz_writer(path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True) -> LasCloudWriter:
+    """A LAZ writer (registered as ``WRITERS[".laz"]``)."""
+    return LasCloudWriter(path, header=header, overwrite=overwrite, checksum=checksum, compress=True)
+
+
+# -- reading ------------------------------------------------------------------------------------
+
+def _open(path: Path) -> laspy.LasReader:
+    try:
+        return laspy.open(path)
+    except (LaspyException, OSError, ValueError, EOFError) as exc:
+        raise InputFileError(f"{path}: not a readable LAS/LAZ file ({exc}); check the file") from exc
+
+
+def _stored_document(las_header: laspy.LasHeader, path: Path) -> dict | None:
+    for evlr in las_header.evlrs or ():
+        if evlr.user_id == BIMSCAN_USER_ID and evlr.record_id == BIMSCAN_RECORD_ID:
+            return parse_document(evlr.record_data_bytes(), where=str(path))
+    return None
+
+
+def read_las_header(path: str | Path) -> CloudHeader | None:
+    """The ``CloudHeader`` bimscan stored in a LAS/LAZ file, or None for a foreign file."""
+    path = check_input_path(path)
+    with _open(path) as reader:
+        document = _stored_document(reader.header, path)
+    return None if document is None else header_from_document(document, where=str(path))
+
+
+def iter_las_chunks(
+    path: str | Path, *, chunk_points: int = 2_000_000, label_field: str | None = None
+) -> Iterator[PointCloud]:
+    """Stream a LAS/LAZ file as ``PointCloud`` chunks of at most ``chunk_points`` rows.
+
+    Labels come from ``label_field`` (any dimension, e.g. an extra dimension ``"gt"``), else from
+    ``classification``. Files bimscan wrote give back the columns that were written; foreign
+    files give xyz, label, intensity and time (``gps_time`` when the point format has it).
+    """
+    path = check_input_path(path)
+    if chunk_points < 1:
+        raise ValueError(f"chunk_points must be positive, got {chunk_points}")
+    with _open(path) as reader:
+        las_header = reader.header
+        document = _stored_document(las_header, path)
+        names = list(las_header.point_format.dimension_names)
+        if label_field is not None and label_field not in names:
+            raise InputFileError(
+                f"{path}: no dimension {label_field!r} to read labels from; the file has {', '.join(names)}"
+            )
+        if document is not None:
+            columns = set(document["columns"])
+        else:
+            columns = {"xyz", "label", "intensity"} | ({"time"} if "gps_time" in names else set())
+        if label_field is not None:
+            columns.add("label")
+        label_source = label_field or "classification"
+        scales, offsets = las_header.scales, las_header.offsets
+
+        def to_cloud(points: laspy.ScaleAwarePointRecord) -> PointCloud:
+            raw = points.array
+            xyz = np.empty((len(raw), 3), dtype=np.float64)
+            for axis, name in enumerate("XYZ"):
+                xyz[:, axis] = raw[name] * scales[axis] + offsets[axis]
+            return PointCloud(
+                xyz=xyz,
+                label=as_labels(np.asarray(points[label_source]), field=label_source, where=str(path))
+                if "label" in columns else None,
+                component=np.asarray(raw["component"], dtype=np.int32)
+                if "component" in columns and "component" in names else None,
+                station=np.asarray(raw["station"], dtype=np.uint16)
+                if "station" in columns and "station" in names else None,
+                intensity=np.asarray(raw["intensity"], dtype=np.uint16) if "intensity" in columns else None,
+                time=np.asarray(raw["gps_time"], dtype=np.float64)
+                if "time" in columns and "gps_time" in names else None,
+            )
+
+        try:
+            if las_header.point_count == 0:  # one empty chunk still tells which columns exist
+                yield to_cloud(reader.read_points(0))
+                return
+            for points in reader.chunk_iterator(chunk_points):
+                yield to_cloud(points)
+        except (LaspyException, EOFError) as exc:
+            raise InputFileError(f"{path}: the point data is damaged ({exc}); check the file") from exc
+
+
+def read_las(path: str | Path, *, label_field: str | None = None) -> PointCloud:
+    """Read a whole LAS/LAZ file as one ``PointCloud`` (see ``iter_las_chunks`` for the columns)."""
+    path = check_input_path(path)
+    with _open(path) as reader:
+        n_points = int(reader.header.point_count)
+    chunks = list(iter_las_chunks(path, chunk_points=max(n_points, 1), label_field=label_field))
+    return chunks[0] if len(chunks) == 1 else PointCloud.concatenate(chunks)
+
+
+__all__ = [
+    "LAS_SCALE_M", "LAZ_CHUNK_POINTS", "LasCloudWriter", "iter_las_chunks", "lookup_name",
+    "open_las_writer", "open_laz_writer", "read_las", "read_las_header",
+]

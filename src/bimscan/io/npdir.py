@@ -1,0 +1,192 @@
+"""NumPy folder clouds in the Pointcept scene layout, written incrementally.
+
+Layout of a bimscan NumPy folder (``scan/``):
+
+====================  ==========  =====================================================
+file                  dtype       content
+====================  ==========  =====================================================
+``coord.npy``         (N, 3) f4   xyz - origin, metres (float32 keeps ~1e-5 m within 100 m)
+``origin.npy``        (3,) f8     the origin (``CloudHeader.origin``), metres
+``segment.npy``       (N,) i4     label (semantic class id)
+``instance.npy``      (N,) i4     component id (-1: none)
+``station.npy``       (N,) u2     station id
+``intensity.npy``     (N,) u2     intensity
+``time.npy``          (N,) f8     seconds since the start of the survey
+``meta.json``                     the header document (``bimscan.io._header``), origin included
+====================  ==========  =====================================================
+
+Files of columns the cloud lacks are not written. Each ``.npy`` is streamed: its header is
+written first with a fixed size (``NPY_HEADER_BYTES``) and rewritten at close with the final
+shape, padded with spaces as the format allows, so ``np.load`` reads it (memory-mapped too).
+The folder is built under a temporary name and renamed into place at close.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from bimscan.errors import InputFileError
+from bimscan.io._header import as_labels, dump_json, header_from_document, header_to_document, parse_document
+from bimscan.io._writer import StreamingCloudWriter, WatchedFile, check_input_path
+from bimscan.types import CloudHeader, PointCloud
+
+# column -> (file stem, dtype, row shape)
+NPDIR_FILES: dict[str, tuple[str, str, tuple[int, ...]]] = {
+    "xyz": ("coord", "<f4", (3,)),
+    "label": ("segment", "<i4", ()),
+    "component": ("instance", "<i4", ()),
+    "station": ("station", "<u2", ()),
+    "intensity": ("intensity", "<u2", ()),
+    "time": ("time", "<f8", ()),
+}
+META_NAME = "meta.json"
+ORIGIN_NAME = "origin.npy"
+NPY_HEADER_BYTES = 128  # magic + version + length + dict padded; fits a 20-digit row count
+_NPY_MAGIC = b"\x93NUMPY\x01\x00"
+
+
+def npy_header(dtype: str, shape: tuple[int, ...]) -> bytes:
+    """A version 1.0 ``.npy`` header of exactly ``NPY_HEADER_BYTES`` bytes."""
+    text = f"{{'descr': '{dtype}', 'fortran_order': False, 'shape': {shape!r}, }}"
+    size = NPY_HEADER_BYTES - len(_NPY_MAGIC) - 2
+    if len(text) + 1 > size:  # pragma: no cover - shapes here are at most 2-D with 20 digits
+        raise ValueError(f"npy header {text!r} does not fit {NPY_HEADER_BYTES} bytes")
+    body = text.ljust(size - 1) + "\n"
+    return _NPY_MAGIC + size.to_bytes(2, "little") + body.encode("latin1")
+
+
+class NpdirCloudWriter(StreamingCloudWriter):
+    """Streams ``PointCloud`` chunks into a Pointcept-style NumPy folder."""
+
+    def __init__(self, path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True) -> None:
+        super().__init__(path, header=header, overwrite=overwrite, checksum=checksum)
+        self._files: dict[str, WatchedFile] = {}
+        self._origin = np.asarray(header.origin, dtype=np.float64)
+
+    def _begin(self, columns: tuple[str, ...]) -> None:
+        self._folder = self._stage_dir(self.path)
+        for column in columns:
+            stem, dtype, row_shape = NPDIR_FILES[column]
+            handle = self._watch(self._folder / f"{stem}.npy")
+            handle.write(npy_header(dtype, (0, *row_shape)))
+            self._files[column] = handle
+
+    def _append(self, chunk: PointCloud) -> None:
+        for column, handle in self._files.items():
+            _, dtype, _ = NPDIR_FILES[column]
+            if column == "xyz":
+                values = (chunk.xyz - self._origin).astype(dtype)
+            else:
+                values = np.ascontiguousarray(getattr(chunk, column), dtype=dtype)
+            handle.write(memoryview(values).cast("B"))
+
+    def _finish(self) -> None:
+        assert self.columns is not None
+        for column, handle in self._files.items():
+            _, dtype, row_shape = NPDIR_FILES[column]
+            handle.seek(0)
+            handle.write(npy_header(dtype, (self.n_points, *row_shape)))
+        np.save(self._watch(self._folder / ORIGIN_NAME), self._origin)
+        document = header_to_document(self.header, columns=self.columns, n_points=self.n_points)
+        self._watch(self._folder / META_NAME).write(dump_json(document, indent=1))
+
+    def _release(self) -> None:
+        self._files = {}
+        super()._release()
+
+
+def open_npdir_writer(path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True) -> NpdirCloudWriter:
+    """A NumPy folder writer (registered as ``WRITERS[""]``)."""
+    return NpdirCloudWriter(path, header=header, overwrite=overwrite, checksum=checksum)
+
+
+# -- reading ------------------------------------------------------------------------------------
+
+def _stored_document(folder: Path) -> dict | None:
+    meta = folder / META_NAME
+    if not meta.is_file():
+        return None
+    return parse_document(meta.read_bytes(), where=str(meta))
+
+
+def read_npdir_header(path: str | Path) -> CloudHeader | None:
+    """The ``CloudHeader`` bimscan stored in a NumPy folder's ``meta.json``, or None."""
+    folder = check_input_path(path)
+    document = _stored_document(folder)
+    return None if document is None else header_from_document(document, where=str(folder / META_NAME))
+
+
+def _load(path: Path) -> np.ndarray:
+    try:
+        return np.load(path, mmap_mode="r", allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise InputFileError(f"{path}: not a readable .npy file ({exc}); check the file") from exc
+
+
+def iter_npdir_chunks(
+    path: str | Path, *, chunk_points: int = 2_000_000, label_field: str | None = None
+) -> Iterator[PointCloud]:
+    """Stream a NumPy folder as ``PointCloud`` chunks of at most ``chunk_points`` rows.
+
+    ``label_field`` names the ``.npy`` file holding labels (e.g. ``"segment20"``); by default
+    ``segment.npy``. Foreign Pointcept folders without ``origin.npy`` have their origin at 0.
+    """
+    folder = check_input_path(path)
+    if not folder.is_dir():
+        raise InputFileError(f"{folder}: not a folder; a NumPy cloud is a folder holding coord.npy")
+    if chunk_points < 1:
+        raise ValueError(f"chunk_points must be positive, got {chunk_points}")
+    if not (folder / "coord.npy").is_file():
+        raise InputFileError(f"{folder}: no coord.npy; not a Pointcept-style NumPy cloud folder")
+    coord = _load(folder / "coord.npy")
+    if coord.ndim != 2 or coord.shape[1] < 3:
+        raise InputFileError(f"{folder / 'coord.npy'}: shape {coord.shape}, expected (N, 3)")
+    origin = np.zeros(3)
+    if (folder / ORIGIN_NAME).is_file():
+        origin = np.asarray(_load(folder / ORIGIN_NAME), dtype=np.float64)
+        if origin.shape != (3,):
+            raise InputFileError(f"{folder / ORIGIN_NAME}: shape {origin.shape}, expected (3,); the folder is damaged")
+    stems = {"label": label_field or "segment", "component": "instance", "station": "station",
+             "intensity": "intensity", "time": "time"}
+    if label_field is not None and not (folder / f"{label_field}.npy").is_file():
+        present = sorted(p.stem for p in folder.glob("*.npy"))
+        raise InputFileError(f"{folder}: no {label_field}.npy to read labels from; the folder has {', '.join(present)}")
+    arrays = {}
+    for column, stem in stems.items():
+        file = folder / f"{stem}.npy"
+        if file.is_file():
+            array = _load(file)
+            if array.shape[0] != coord.shape[0]:
+                raise InputFileError(f"{file}: {array.shape[0]} rows but coord.npy has {coord.shape[0]}; the folder is inconsistent")
+            arrays[column] = array.reshape(len(array), -1)[:, 0] if array.ndim > 1 else array
+    where = str(folder)
+    for start in range(0, max(len(coord), 1), chunk_points):
+        stop = min(start + chunk_points, len(coord))
+        xyz = np.asarray(coord[start:stop, :3], dtype=np.float64) + origin
+        columns: dict[str, np.ndarray] = {}
+        for column, array in arrays.items():
+            values = np.asarray(array[start:stop])
+            if column == "label":
+                columns[column] = as_labels(values, field=f"{stems['label']}.npy", where=where)
+            elif column == "component":
+                columns[column] = values.astype(np.int32)
+            elif column in ("station", "intensity"):
+                columns[column] = values.astype(np.uint16)
+            else:
+                columns[column] = values.astype(np.float64)
+        yield PointCloud(xyz=xyz, **columns)
+
+
+def read_npdir(path: str | Path, *, label_field: str | None = None) -> PointCloud:
+    """Read a whole NumPy folder as one ``PointCloud`` (see ``iter_npdir_chunks``)."""
+    chunks = list(iter_npdir_chunks(path, chunk_points=1 << 62, label_field=label_field))
+    return chunks[0] if len(chunks) == 1 else PointCloud.concatenate(chunks)
+
+
+__all__ = [
+    "NPDIR_FILES", "NpdirCloudWriter", "iter_npdir_chunks", "npy_header", "open_npdir_writer",
+    "read_npdir", "read_npdir_header",
+]

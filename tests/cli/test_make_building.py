@@ -1,0 +1,62 @@
+"""bimscan make-building: writes a seeded IFC4 building, one summary line, one-line errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import ifcopenshell
+import pytest
+
+from bimscan.cli.main import main
+
+
+def test_make_building_writes_the_file_and_prints_a_one_line_summary(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "demo.ifc"
+    assert main(["make-building", str(out), "--seed", "7", "--storeys", "2"]) == 0
+    stdout = capsys.readouterr().out
+    assert stdout.count("\n") == 1 and str(out) in stdout
+    model = ifcopenshell.open(str(out))
+    spaces = len(model.by_type("IfcSpace"))
+    assert f"{spaces} rooms" in stdout
+    assert f"IfcWall {len(model.by_type('IfcWall'))}" in stdout
+    assert len(model.by_type("IfcBuildingStorey")) == 2
+
+
+def test_make_building_with_the_same_seed_twice_gives_the_same_bytes(tmp_path: Path) -> None:
+    for name in ("a.ifc", "b.ifc"):
+        assert main(["make-building", str(tmp_path / name), "--seed", "11", "--storeys", "1"]) == 0
+    assert (tmp_path / "a.ifc").read_bytes() == (tmp_path / "b.ifc").read_bytes()
+
+
+def test_make_building_replaces_an_existing_file_without_leaving_temporary_files(tmp_path: Path) -> None:
+    out = tmp_path / "demo.ifc"
+    out.write_text("old content")
+    assert main(["make-building", str(out), "--storeys", "1"]) == 0
+    assert out.read_text().startswith("ISO-10303-21;")
+    assert [p.name for p in tmp_path.iterdir()] == ["demo.ifc"]
+
+
+def test_make_building_help_names_its_options(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["make-building", "--help"]) == 0
+    text = capsys.readouterr().out
+    assert "--seed" in text and "--storeys" in text and "1..10" in text
+
+
+@pytest.mark.parametrize("storeys", ["0", "50"])
+def test_bad_storeys_give_a_one_line_error_and_a_non_zero_exit(
+    storeys: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "demo.ifc"
+    assert main(["make-building", str(out), "--storeys", storeys]) != 0
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1
+    assert "1..10" in err and storeys in err
+    assert not out.exists()
+
+
+def test_missing_output_folder_gives_a_one_line_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "missing" / "demo.ifc"
+    assert main(["make-building", str(out)]) != 0
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and "does not exist" in err
+    assert not out.parent.exists()

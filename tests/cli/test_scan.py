@@ -1,0 +1,118 @@
+"""``bimscan scan`` end to end: IFC in, labelled cloud file out; errors leave nothing behind."""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import pytest
+
+from bimscan.cli.main import main
+from bimscan.io import read_cloud, read_cloud_header
+from bimscan.pipeline import ScanOptions, scan_model
+from bimscan.scan.noise import NoiseModel
+
+FAST = ["--preset", "exp1", "--head-speed", "60"]
+
+
+def sha(path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_scan_writes_a_labelled_laz_that_explains_itself(box_room_ifc, tmp_path, capsys):
+    out = tmp_path / "room.laz"
+    assert main(["scan", str(box_room_ifc), str(out), *FAST, "--seed", "1"]) == 0
+    report = capsys.readouterr()
+    assert "points from 1 stations" in report.out
+    assert "warning: pulse_freq_hz = 50000 is not a pulse rate" in report.err
+    cloud = read_cloud(out)
+    header = read_cloud_header(out)
+    assert len(cloud) > 50_000
+    assert [c.name for c in header.scheme.classes] == ["Wall&Column", "Beam", "Covering", "Slab", "Others"]
+    assert np.array_equal(cloud.label, header.components.label[cloud.component])
+    assert set(np.unique(cloud.label)) == {0, 3}  # walls and slabs only in the box room
+    assert len(header.stations) == 1 and header.metadata["seed"] == 1
+    assert header.metadata["settings"]["pulse_freq_hz"] == 50000
+    assert not list(tmp_path.glob(".*tmp*"))
+
+
+def test_same_seed_same_bytes_different_seed_different_bytes(box_room_ifc, tmp_path):
+    paths = []
+    for name, seed in (("a", 1), ("b", 1), ("c", 2)):
+        paths.append(tmp_path / f"{name}.laz")
+        assert main(["scan", str(box_room_ifc), str(paths[-1]), *FAST, "--seed", str(seed)]) == 0
+    assert sha(paths[0]) == sha(paths[1]) != sha(paths[2])
+
+
+@pytest.mark.parametrize("suffix", [".laz", ".ply", ""])
+def test_output_bytes_do_not_depend_on_chunk_size(box_room_ifc, tmp_path, suffix):
+    options = dict(preset="exp1", head_deg_per_s=60.0, seed=4, noise=NoiseModel())
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    a = scan_model(box_room_ifc, tmp_path / "a" / f"cloud{suffix}", ScanOptions(**options), progress=False).path
+    b = scan_model(box_room_ifc, tmp_path / "b" / f"cloud{suffix}", ScanOptions(**options, chunk_pulses=20_000),
+                   progress=False).path
+    files_a = sorted(p.relative_to(a.parent) for p in a.parent.rglob("*") if p.is_file())
+    files_b = sorted(p.relative_to(b.parent) for p in b.parent.rglob("*") if p.is_file())
+    assert files_a == files_b and files_a
+    for name in files_a:
+        assert sha(a.parent / name) == sha(b.parent / name), name
+
+
+def test_a_station_file_drives_the_survey(box_room_ifc, tmp_path):
+    stations = tmp_path / "st.csv"
+    stations.write_text("x,y,height\n2,2,1.7\n6,4,1.7\n")
+    out = tmp_path / "two.laz"
+    assert main(["scan", str(box_room_ifc), str(out), *FAST, "--stations", str(stations), "--no-noise"]) == 0
+    cloud = read_cloud(out)
+    assert set(np.unique(cloud.station)) == {0, 1}
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--preset", "exp9"], "neither a file nor a known preset"),
+    (["--strict"], "outside the device's limits"),
+    (["--head-speed", "0"], "head_deg_per_s = 0 is impossible"),
+    (["--range-sigma", "-1"], "range_sigma_m = -1"),
+    (["--scanner", "nope"], "neither a file nor a known scanner"),
+])
+def test_bad_settings_fail_with_one_line_and_no_output(box_room_ifc, tmp_path, capsys, args, message):
+    out = tmp_path / "x.laz"
+    assert main(["scan", str(box_room_ifc), str(out), *args]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("error: ") and message in err[-1]
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_a_station_inside_a_wall_fails_clearly(box_room_ifc, tmp_path, capsys):
+    stations = tmp_path / "st.csv"
+    stations.write_text("x,y,z\n8.1,3,1.7\n")
+    assert main(["scan", str(box_room_ifc), str(tmp_path / "x.laz"), *FAST, "--stations", str(stations)]) == 1
+    assert "inside a solid (IfcWall" in capsys.readouterr().err
+    assert not (tmp_path / "x.laz").exists()
+
+
+def test_an_interrupted_scan_leaves_no_file(box_room_ifc, tmp_path, monkeypatch):
+    import bimscan.pipeline as pipeline
+
+    real = pipeline.run_survey
+
+    def interrupted(*args, **kwargs):
+        for i, chunk in enumerate(real(*args, **kwargs)):
+            if i == 1:
+                raise KeyboardInterrupt
+            yield chunk
+
+    monkeypatch.setattr(pipeline, "run_survey", interrupted)
+    out = tmp_path / "cut.laz"
+    with pytest.raises(KeyboardInterrupt):
+        scan_model(box_room_ifc, out, ScanOptions(preset="exp3", head_deg_per_s=60.0, chunk_pulses=20_000), progress=False)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_existing_output_is_kept_unless_overwrite(box_room_ifc, tmp_path, capsys):
+    out = tmp_path / "keep.laz"
+    out.write_bytes(b"precious")
+    assert main(["scan", str(box_room_ifc), str(out), *FAST]) == 1
+    assert out.read_bytes() == b"precious"
+    assert main(["scan", str(box_room_ifc), str(out), *FAST, "--overwrite"]) == 0
+    assert out.read_bytes() != b"precious"

@@ -1,0 +1,288 @@
+"""make_building: seeded demo buildings as IFC4, checked through IfcOpenShell's own geometry."""
+
+from __future__ import annotations
+
+import hashlib
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+
+import ifcopenshell
+import ifcopenshell.geom
+import ifcopenshell.util.element
+import ifcopenshell.util.placement
+import numpy as np
+import pytest
+
+from bimscan.errors import ConfigError, OutputError
+from bimscan.ifc.generate import GeneratedBuilding, build_building_model, make_building
+
+TOLERANCE_M = 0.03  # door casings stand 5 mm proud of the walls; anything more is a bug
+
+
+@dataclass(frozen=True)
+class Triangulated:
+    model: ifcopenshell.file
+    building: GeneratedBuilding
+    expected: tuple[ifcopenshell.entity_instance, ...]  # elements with a body, spaces/openings excluded
+    shapes: dict[int, tuple[np.ndarray, np.ndarray]]  # element id -> (vertices (V,3) f8, faces (F,3) i4)
+
+
+def triangulate(model: ifcopenshell.file, elements: list) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """World-coordinate triangles of ``elements`` from ifcopenshell.geom.iterator."""
+    settings = ifcopenshell.geom.settings()
+    settings.set("use-world-coords", True)
+    iterator = ifcopenshell.geom.iterator(settings, model, 2, include=elements)
+    shapes: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    assert iterator.initialize(), "the geometry iterator found nothing to triangulate"
+    while True:
+        shape = iterator.get()
+        vertices = np.frombuffer(shape.geometry.verts_buffer, dtype=np.float64).reshape(-1, 3).copy()
+        faces = np.frombuffer(shape.geometry.faces_buffer, dtype=np.int32).reshape(-1, 3).copy()
+        if len(faces):
+            shapes[shape.id] = (vertices, faces)
+        if not iterator.next():
+            break
+    return shapes
+
+
+def scannable(model: ifcopenshell.file) -> list:
+    return [
+        p
+        for p in model.by_type("IfcProduct")
+        if p.Representation is not None and not p.is_a("IfcSpace") and not p.is_a("IfcOpeningElement")
+    ]
+
+
+@pytest.fixture(scope="module")
+def two_storeys() -> Triangulated:
+    model, building = build_building_model(seed=0, storeys=2)
+    expected = tuple(scannable(model))
+    return Triangulated(model, building, expected, triangulate(model, list(expected)))
+
+
+def world_matrix(element) -> np.ndarray:
+    return ifcopenshell.util.placement.get_local_placement(element.ObjectPlacement)
+
+
+def ray_hits(vertices: np.ndarray, faces: np.ndarray, origins: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """Distance to the first hit of each ray on the mesh (inf where it passes), via Open3D."""
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(faces.astype(np.uint32)))
+    rays = np.hstack([origins, np.broadcast_to(direction, origins.shape)]).astype(np.float32)
+    return scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+
+
+def test_same_seed_gives_byte_identical_files(tmp_path: Path) -> None:
+    first = make_building(tmp_path / "a.ifc", seed=3, storeys=2)
+    second = make_building(tmp_path / "b.ifc", seed=3, storeys=2)
+    assert (tmp_path / "a.ifc").read_bytes() == (tmp_path / "b.ifc").read_bytes()
+    assert first.path == tmp_path / "a.ifc" and second.path == tmp_path / "b.ifc"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.ifc", "b.ifc"]  # no temporary files left
+
+
+def test_file_header_holds_no_clock_time(tmp_path: Path) -> None:
+    make_building(tmp_path / "a.ifc", seed=1, storeys=1)
+    model = ifcopenshell.open(str(tmp_path / "a.ifc"))
+    assert model.schema == "IFC4"
+    assert model.header.file_name.time_stamp == "2024-01-01T00:00:00"
+
+
+def test_different_seeds_give_different_files_and_room_layouts() -> None:
+    layouts, texts = [], []
+    for seed in (0, 1):
+        model, _ = build_building_model(seed=seed, storeys=1)
+        texts.append(model.to_string())
+        spaces = triangulate(model, model.by_type("IfcSpace"))
+        boxes = sorted(tuple(np.round(np.r_[v.min(0), v.max(0)], 2)) for v, _ in spaces.values())
+        layouts.append(boxes)
+    assert texts[0] != texts[1]
+    assert layouts[0] != layouts[1]
+
+
+def test_global_ids_are_unique_and_follow_the_seed() -> None:
+    ids = {}
+    for seed in (0, 1):
+        model, _ = build_building_model(seed=seed, storeys=1)
+        ids[seed] = [e.GlobalId for e in model.by_type("IfcRoot")]
+        assert len(set(ids[seed])) == len(ids[seed])
+        assert all(len(g) == 22 for g in ids[seed])
+    assert not set(ids[0]) & set(ids[1])
+
+
+def test_every_placed_element_triangulates_and_counts_match_placed(two_storeys: Triangulated) -> None:
+    failed = [(e.is_a(), e.Name) for e in two_storeys.expected if e.id() not in two_storeys.shapes]
+    assert failed == []
+    counts = Counter(two_storeys.model.by_id(i).is_a() for i in two_storeys.shapes)
+    assert dict(counts) == dict(two_storeys.building.placed)
+
+
+def test_triangle_bounds_match_footprint_and_height(two_storeys: Triangulated) -> None:
+    vertices = np.concatenate([v for v, _ in two_storeys.shapes.values()])
+    xmin, ymin, xmax, ymax = two_storeys.building.footprint_m
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    np.testing.assert_allclose(lo[:2], (xmin, ymin), atol=TOLERANCE_M)
+    np.testing.assert_allclose(hi[:2], (xmax, ymax), atol=TOLERANCE_M)
+    assert hi[2] == pytest.approx(two_storeys.building.height_m, abs=TOLERANCE_M)
+    assert -0.3 <= lo[2] < 0.0  # only the ground slab lies below the ground floor level
+    assert 12.0 <= xmax - xmin <= 30.0 and 8.0 <= ymax - ymin <= 20.0
+
+
+def test_storeys_are_3_to_3_6_m_apart_and_hold_one_space_per_room(two_storeys: Triangulated) -> None:
+    model, building = two_storeys.model, two_storeys.building
+    storeys = sorted(model.by_type("IfcBuildingStorey"), key=lambda s: s.Elevation)
+    assert tuple(s.Elevation for s in storeys) == building.storey_elevations_m
+    spaces = [[p for p in ifcopenshell.util.element.get_parts(s) if p.is_a("IfcSpace")] for s in storeys]
+    assert tuple(len(s) for s in spaces) == building.rooms_per_storey
+    assert all(4 <= n <= 12 for n in building.rooms_per_storey)
+    assert 3.0 <= np.diff(building.storey_elevations_m)[0] <= 3.6
+    assert all(space.Representation is not None for group in spaces for space in group)
+
+
+def test_every_class_of_the_five_class_scheme_is_present(two_storeys: Triangulated) -> None:
+    model, placed = two_storeys.model, two_storeys.building.placed
+    for cls in ("IfcWall", "IfcColumn", "IfcBeam", "IfcCovering", "IfcSlab"):
+        assert placed.get(cls, 0) > 0, cls
+    for cls in ("IfcDoor", "IfcWindow", "IfcFurniture", "IfcStairFlight", "IfcRailing"):
+        assert placed.get(cls, 0) > 0, cls
+    slab_types = {s.PredefinedType for s in model.by_type("IfcSlab")}
+    assert {"BASESLAB", "FLOOR", "ROOF", "LANDING"} <= slab_types
+    assert {c.PredefinedType for c in model.by_type("IfcCovering")} == {"CEILING"}
+    assert len(model.by_type("IfcStair")) == 1
+
+
+def test_exterior_walls_are_thicker_than_interior_walls(two_storeys: Triangulated) -> None:
+    thickness = {}
+    for wall in two_storeys.model.by_type("IfcWall"):
+        vertices, _ = two_storeys.shapes[wall.id()]
+        extent = np.ptp(vertices[:, :2], axis=0)
+        thickness[wall.Name] = float(extent.min())
+    exterior = [t for name, t in thickness.items() if name.split()[1] in ("south", "north", "west", "east")]
+    interior = [t for name, t in thickness.items() if name.split()[1] not in ("south", "north", "west", "east")]
+    assert exterior and interior
+    assert all(t == pytest.approx(0.3, abs=1e-6) for t in exterior)
+    assert all(0.1 - 1e-6 <= t <= 0.15 + 1e-6 for t in interior)
+
+
+def test_window_and_door_openings_are_cut_through_their_walls(two_storeys: Triangulated) -> None:
+    model = two_storeys.model
+    checked = Counter()
+    for filling in [*model.by_type("IfcDoor"), *model.by_type("IfcWindow")]:
+        opening = filling.FillsVoids[0].RelatingOpeningElement
+        wall = opening.VoidsElements[0].RelatingBuildingElement
+        vertices, faces = two_storeys.shapes[wall.id()]
+        m = world_matrix(filling)
+        across = m[:3, 1]  # the filling's local y crosses the wall
+        centre = m[:3, 3] + m[:3, 0] * filling.OverallWidth / 2 + np.array([0, 0, filling.OverallHeight / 2])
+        above = m[:3, 3] + m[:3, 0] * filling.OverallWidth / 2 + np.array([0, 0, filling.OverallHeight + 0.15])
+        start = np.stack([centre, above]) - across * 1.0
+        t_hit = ray_hits(vertices, faces, start, across)
+        assert np.isinf(t_hit[0]), f"a ray through {filling.Name} hits its wall {wall.Name} at {t_hit[0]:.3f} m"
+        assert t_hit[1] == pytest.approx(1.0, abs=0.01), f"the wall {wall.Name} is missing above {filling.Name}"
+        checked[filling.is_a()] += 1
+    assert checked["IfcDoor"] >= 5 and checked["IfcWindow"] >= 5
+
+
+def test_every_room_has_a_door(two_storeys: Triangulated) -> None:
+    model = two_storeys.model
+    doors = model.by_type("IfcDoor")
+    door_points = np.array(
+        [world_matrix(d)[:3, 3] + world_matrix(d)[:3, 0] * d.OverallWidth / 2 for d in doors]
+    )
+    spaces = model.by_type("IfcSpace")
+    shapes = triangulate(model, spaces)
+    for space in spaces:
+        vertices, _ = shapes[space.id()]
+        lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+        # A door sits in a wall of the room: within half a wall thickness (plus slack) of its edge.
+        near = (
+            (door_points[:, 0] > lo[0] - 0.4)
+            & (door_points[:, 0] < hi[0] + 0.4)
+            & (door_points[:, 1] > lo[1] - 0.4)
+            & (door_points[:, 1] < hi[1] + 0.4)
+            & (np.abs(door_points[:, 2] - lo[2]) < 0.01)
+        )
+        assert near.any(), f"room {space.Name} ({space.LongName}) has no door"
+
+
+def test_stair_climbs_one_storey_through_an_opening_in_the_slab_above(two_storeys: Triangulated) -> None:
+    model, building = two_storeys.model, two_storeys.building
+    flights = model.by_type("IfcStairFlight")
+    z = np.concatenate([two_storeys.shapes[f.id()][0][:, 2] for f in flights])
+    bottom, top = building.storey_elevations_m
+    # The first riser starts on the lower floor; the last one is the upper slab's edge.
+    assert z.min() == pytest.approx(bottom, abs=1e-6)
+    assert top - 0.19 <= z.max() < top - 0.15
+    landing = next(s for s in model.by_type("IfcSlab") if s.PredefinedType == "LANDING")
+    assert two_storeys.shapes[landing.id()][0][:, 2].max() == pytest.approx((bottom + top) / 2, abs=1e-6)
+    upper = next(s for s in model.by_type("IfcSlab") if s.PredefinedType == "FLOOR")
+    voids = [r.RelatedOpeningElement for r in upper.HasOpenings]
+    assert len(voids) == 1
+    # A vertical ray above the upper flight's foot passes the upper slab.
+    flight_vertices = np.concatenate([two_storeys.shapes[f.id()][0] for f in flights])
+    x, y = flight_vertices[:, :2].mean(axis=0)
+    vertices, faces = two_storeys.shapes[upper.id()]
+    t_hit = ray_hits(vertices, faces, np.array([[x, y, building.storey_elevations_m[1] + 1.0]]), np.array([0.0, 0.0, -1.0]))
+    assert np.isinf(t_hit[0])
+
+
+def test_steps_have_treads_and_risers(two_storeys: Triangulated) -> None:
+    flight = two_storeys.model.by_type("IfcStairFlight")[0]
+    vertices, _ = two_storeys.shapes[flight.id()]
+    levels = np.unique(np.round(vertices[:, 2], 4))
+    # Nine or more risers per half storey: ten or more step levels (plus the soffit's corner),
+    # most of them one riser, 0.15 to 0.19 m, apart.
+    assert len(levels) >= 10
+    assert 0.15 <= float(np.median(np.diff(levels))) <= 0.19
+
+
+def test_beams_hang_below_the_ceilings(two_storeys: Triangulated) -> None:
+    model = two_storeys.model
+    beam_bottoms = [two_storeys.shapes[b.id()][0][:, 2].min() for b in model.by_type("IfcBeam")]
+    ceiling_bottoms = [two_storeys.shapes[c.id()][0][:, 2].min() for c in model.by_type("IfcCovering")]
+    ceiling_tops = [two_storeys.shapes[c.id()][0][:, 2].max() for c in model.by_type("IfcCovering")]
+    lowest_ceiling_on_ground_floor = min(z for z in ceiling_bottoms if z < two_storeys.building.storey_elevations_m[1])
+    assert min(beam_bottoms) < lowest_ceiling_on_ground_floor - 0.3
+    assert max(ceiling_tops) <= two_storeys.building.height_m - 0.19
+
+
+def test_one_storey_building_has_no_stair() -> None:
+    model, building = build_building_model(seed=4, storeys=1)
+    assert building.storeys == 1 and len(building.rooms_per_storey) == 1
+    assert "IfcStairFlight" not in building.placed and not model.by_type("IfcStair")
+    assert {s.PredefinedType for s in model.by_type("IfcSlab")} == {"BASESLAB", "ROOF"}
+
+
+@pytest.mark.parametrize("storeys", [0, 11, 50, -1])
+def test_storeys_outside_1_to_10_raise_config_error_naming_the_range(storeys: int, tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"1\.\.10") as info:
+        make_building(tmp_path / "b.ifc", seed=0, storeys=storeys)
+    assert "\n" not in str(info.value)
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("seed", [-1, 1.5, "3"])
+def test_a_seed_that_is_not_a_non_negative_integer_raises_config_error(seed: object) -> None:
+    with pytest.raises(ConfigError, match="seed"):
+        make_building(None, seed=seed, storeys=1)  # type: ignore[arg-type]
+
+
+def test_missing_output_folder_raises_output_error(tmp_path: Path) -> None:
+    with pytest.raises(OutputError, match="does not exist"):
+        make_building(tmp_path / "missing" / "b.ifc", seed=0, storeys=1)
+    assert not (tmp_path / "missing").exists()
+
+
+def test_output_without_ifc_suffix_raises_output_error(tmp_path: Path) -> None:
+    with pytest.raises(OutputError, match=r"\.ifc"):
+        make_building(tmp_path / "b.txt", seed=0, storeys=1)
+    assert not any(tmp_path.iterdir())
+
+
+def test_in_memory_building_matches_the_written_file(tmp_path: Path) -> None:
+    written = make_building(tmp_path / "b.ifc", seed=2, storeys=1)
+    model, in_memory = build_building_model(seed=2, storeys=1)
+    assert hashlib.sha256(model.to_string().encode()).digest() == hashlib.sha256((tmp_path / "b.ifc").read_bytes()).digest()
+    assert in_memory.path is None and written.placed == in_memory.placed
