@@ -507,7 +507,7 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
         staged = staging_dir(out, job.unit)
         writers = {fmt: open_cloud_writer(staged / FORMAT_FILES[fmt], header=header) for fmt in job.formats}
         scanned = CloudSummary()
-        kept = CloudSummary()
+        kept = CloudSummary() if job.voxel_size_m else scanned  # without subsampling, what is kept is what was scanned
         by_component = np.zeros(256, dtype=np.int64)  # class counts derived from components
         subsampler = VoxelSubsampler(job.voxel_size_m, origin=header.origin) if job.voxel_size_m else None
         scan_start = time.perf_counter()
@@ -516,7 +516,7 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
                 raise DatasetError("the build driver is gone; unit abandoned (run the build again to finish it)")
             if subsampler is not None:
                 chunk = subsampler.filter(chunk)
-            kept.add(chunk)
+                kept.add(chunk)
             if chunk.component is not None and len(chunk):
                 by_component += np.bincount(scene.components.label[chunk.component], minlength=256)[:256]
             for writer in writers.values():

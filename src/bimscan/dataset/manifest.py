@@ -54,15 +54,20 @@ def dump_json(document: Mapping[str, Any]) -> bytes:
     return (json.dumps(document, sort_keys=True, indent=1, ensure_ascii=False, allow_nan=False) + "\n").encode("utf-8")
 
 
-def write_json(path: Path, document: Mapping[str, Any]) -> None:
-    """Write ``document`` to ``path`` atomically (a temporary file in the same folder, renamed)."""
+def write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically (a temporary file in the same folder, renamed)."""
     temp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
     try:
         with temp.open("wb") as handle:
-            handle.write(dump_json(document))
+            handle.write(data)
         os.replace(temp, path)
     finally:
         temp.unlink(missing_ok=True)  # gone already when the rename succeeded
+
+
+def write_json(path: Path, document: Mapping[str, Any]) -> None:
+    """Write ``document`` to ``path`` as canonical JSON, atomically."""
+    write_bytes(path, dump_json(document))
 
 
 def read_json(path: Path) -> dict[str, Any]:
