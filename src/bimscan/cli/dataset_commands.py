@@ -141,11 +141,14 @@ def figure(model: Path, cloud: Path, out: Path, real: Path | None, scheme: str |
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--workers", type=int, default=None, help="Units built at once (default: half the cores).")
 @click.option("--executor", type=click.Choice(EXECUTOR_CHOICES), default="local", show_default=True)
-def demo(out_dir: Path, workers: int | None, executor: str) -> None:
+@click.option("--head-speed", "head_deg_per_s", type=float, default=60.0, show_default=True,
+              help="Head rotation in deg/s for every configuration (the presets turn at 10; faster: fewer points).")
+def demo(out_dir: Path, workers: int | None, executor: str, head_deg_per_s: float) -> None:
     """The whole pipeline on generated buildings: dataset, statistics, pictures, in OUT_DIR.
 
     Two demo buildings x the paper's six configurations (at a faster head speed, so it runs in
     minutes), then `bimscan stats` and pictures of each scene. Run it again to resume.
+    OUT_DIR/dataset.toml is the spec: change it and run `bimscan build` on it for your own.
     """
     from bimscan.dataset.build import build_dataset
     from bimscan.dataset.demo import RENDER_CONFIG, write_demo_spec
@@ -159,7 +162,7 @@ def demo(out_dir: Path, workers: int | None, executor: str) -> None:
     from bimscan.stats.report import write_stats
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    spec_path = write_demo_spec(out_dir / "dataset.toml")
+    spec_path = write_demo_spec(out_dir / "dataset.toml", head_deg_per_s=head_deg_per_s)
     spec = load_spec(spec_path)
     dataset = out_dir / "dataset"
     click.echo(f"building {len(spec.scenes)} scenes x {len(spec.configs)} configurations into {dataset}")

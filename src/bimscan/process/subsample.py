@@ -70,13 +70,13 @@ class VoxelSubsampler:
             raise ConfigError(f"voxel_size_m = {voxel_size_m!r} is impossible; give a voxel edge > 0 in metres")
         self.voxel_size_m = float(voxel_size_m)
         self.origin = np.asarray(origin, dtype=np.float64)
-        # Keys are offset by half the span so points a little below the origin still fit.
         self._seen = _SortedKeySet()
         self.points_in = 0
         self.points_out = 0
 
     def voxel_keys(self, xyz: np.ndarray) -> np.ndarray:
         """(N,) int64 voxel key of each point of ``xyz`` (N, 3) float64 metres."""
+        # offset by half the span: points below the origin (noise, a foreign origin) still fit
         index = np.floor((xyz - self.origin) / self.voxel_size_m).astype(np.int64) + _SPAN // 2
         if len(index) and (index.min() < 0 or index.max() >= _SPAN):
             far = float(np.abs(xyz - self.origin).max())

@@ -86,8 +86,9 @@ def find_section(z: np.ndarray, *, bin_m: float = 0.05, plan_above_floor_m: floa
 
     Horizontal surfaces (floors, ceilings) are heights where points pile up (at least three
     times the median count of a 5 cm height bin). The top storey's floor is the highest such
-    layer at least 2 m below the highest one; its ceiling the lowest layer at least 2 m above
-    the floor.
+    layer at least 2 m below the highest one that holds at least 30 % of the points of the
+    fullest of them (table tops are layers too, but small ones); its ceiling is the lowest layer
+    at least 2 m above the floor.
     """
     z = np.asarray(z, dtype=np.float64)
     z = z[np.isfinite(z)]
@@ -101,9 +102,12 @@ def find_section(z: np.ndarray, *, bin_m: float = 0.05, plan_above_floor_m: floa
     if len(dense) == 0:
         return None
     layers = ((edges[:-1] + edges[1:]) / 2)[dense]
-    floors = layers[layers <= layers[-1] - 2.0]
-    if len(floors) == 0:
+    weights = counts[dense]
+    low_enough = layers <= layers[-1] - 2.0
+    if not low_enough.any():
         return None
+    # a floor spans a storey: furniture tops pile up points too, but far fewer
+    floors = layers[low_enough & (weights >= 0.3 * weights[low_enough].max())]
     floor = float(floors.max())
     ceiling = float(layers[layers >= floor + 2.0].min())
     return Section(floor_z=floor, plan_z=min(floor + plan_above_floor_m, ceiling - 0.3), ceiling_z=ceiling - 2 * bin_m)
