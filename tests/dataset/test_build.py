@@ -122,33 +122,57 @@ def test_a_changed_spec_rebuilds_the_units_it_changes(reference_dataset: BuiltDa
     assert meta["inputs"]["config"]["preset"] == "exp4"
 
 
+def _children(pid: int) -> list[int]:
+    """Process ids whose parent is ``pid`` (Linux /proc)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue  # the process ended while we looked
+        if int(fields[1]) == pid:
+            found.append(int(stat.parent.name))
+    return found
+
+
 @pytest.mark.slow
 def test_a_build_killed_mid_way_resumes_to_identical_outputs(reference_dataset: BuiltDataset, tmp_path: Path) -> None:
     out = tmp_path / "killed"
     command = [sys.executable, "-m", "bimscan.cli.main", "build", str(reference_dataset.spec), str(out), "--workers", "1"]
     process = subprocess.Popen(command, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 240
+    workers: list[int] = []
     try:
-        # wait until one unit is in place and the next one is being written, then kill -9 the whole build
+        # wait until one unit is in place and the next one is being written, then kill -9 the driver
         while time.monotonic() < deadline and process.poll() is None:
             units = out / "units"
             finished = [p for p in units.iterdir() if not p.name.startswith(".")] if units.is_dir() else []
             staging = [p for p in units.iterdir() if p.name.endswith(".tmp")] if units.is_dir() else []
             if finished and staging:
+                workers = _children(process.pid)
+                process.send_signal(signal.SIGKILL)
                 break
             time.sleep(0.005)
     finally:
-        if process.poll() is None:
+        if process.poll() is None and not workers:  # stopped waiting without killing: end the whole build
             os.killpg(process.pid, signal.SIGKILL)
-        process.wait()
+        process.wait(timeout=60)
     assert process.returncode == -signal.SIGKILL, f"the build ended before it could be killed: {process.stderr.read()}"
+    assert workers  # the spawned worker (and multiprocessing's resource tracker)
+    # the orphaned worker notices its driver is gone and ends itself, mid-unit
+    end = time.monotonic() + 10
+    while time.monotonic() < end and any(Path(f"/proc/{pid}").exists() for pid in workers):
+        time.sleep(0.05)
+    alive = [pid for pid in workers if Path(f"/proc/{pid}").exists()]
+    for pid in alive:
+        os.kill(pid, signal.SIGKILL)  # do not leave them behind if the test fails
+    assert not alive, "worker processes outlived their killed driver"
     statuses = [u["status"] for u in _manifest(out)["units"]]
     assert "pending" in statuses and "done" in statuses
-    leftovers = [p.name for p in (out / "units").iterdir() if p.name.startswith(".")]
-    assert leftovers  # the unit being written when the build died
+    assert [p.name for p in (out / "units").iterdir() if p.name.startswith(".")]  # the unit being written
 
     report = build_dataset(load_spec(reference_dataset.spec), out, workers=1, progress=False)
-    assert report.ok and report.reused == statuses.count("done")
+    assert report.ok and report.reused >= statuses.count("done")
     assert not [p for p in (out / "units").iterdir() if p.name.startswith(".")]
     assert reproducible_files(out) == reproducible_files(reference_dataset.out)
 
@@ -235,3 +259,17 @@ def test_voxel_subsampling_thins_a_unit_and_is_recorded(tmp_path: Path, session_
     # one point per 10 cm voxel of the grid anchored at the cloud's origin (float32 storage can move
     # a point sitting on a voxel face by a micrometre)
     assert len(np.unique(keys, axis=0)) >= len(cloud) - 10
+
+
+def test_the_build_command_exits_non_zero_with_a_summary_when_a_unit_failed(
+        tmp_path: Path, session_env: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from bimscan.cli.main import main
+
+    (tmp_path / "broken.ifc").write_text("this is not a model\n")
+    spec = _small_spec(tmp_path, scenes='[[scenes]]\nname = "broken"\nifc = "broken.ifc"\n')
+    assert main(["build", str(spec), str(tmp_path / "out"), "--workers", "1"]) == 1
+    captured = capsys.readouterr()
+    assert "2 units: 1 built, 0 already done, 1 failed" in captured.out
+    lines = captured.err.strip().splitlines()
+    assert lines[0].startswith("failed: broken__fast: ") and "not an IFC file" in lines[0]
+    assert lines[-1].startswith("error: 1 of 2 units failed;") and "run the same command again" in lines[-1]

@@ -4,8 +4,8 @@ Every executor runs plain functions on picklable task objects and hands back res
 finish; the build driver does not care where. ``EXECUTORS`` maps the names of ``--executor``:
 
 - ``local``: a pool of ``workers`` processes started with ``spawn`` (Open3D and OpenMP are not
-  fork-safe). Workers report scanned pulses through a queue for the progress bar, and stop
-  themselves mid-task when the driver dies (a killed build leaves no writer behind).
+  fork-safe). Workers report scanned pulses through a queue for the progress bar, and end
+  themselves within a second when the driver dies (a killed build leaves no process behind).
 - ``ray``: one Ray task per job on a local Ray instance, or on a running cluster with
   ``address`` (the dataset folder must then be on storage every node sees). Ray is imported
   only here, inside the functions.
@@ -17,6 +17,8 @@ from __future__ import annotations
 import multiprocessing
 import os
 import queue
+import threading
+import time
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor
 from concurrent.futures import wait as wait_futures
@@ -47,6 +49,17 @@ def _init_worker(channel: Any, parent: int, environment: dict[str, str]) -> None
     _WORKER_STATE["queue"] = channel
     _WORKER_STATE["parent"] = parent
     os.environ.update(environment)
+    threading.Thread(target=_exit_with_driver, args=(parent,), name="bimscan-driver-watch", daemon=True).start()
+
+
+def _exit_with_driver(parent: int) -> None:
+    """End this worker when the driver dies (kill -9): an idle worker would wait on its queue forever.
+
+    A task it is running is cut short; its staging folder is swept by the next build.
+    """
+    while os.getppid() == parent:
+        time.sleep(0.5)
+    os._exit(1)
 
 
 class TaskExecutor(Protocol):

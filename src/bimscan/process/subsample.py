@@ -102,7 +102,9 @@ class UniformSampler:
     """A uniform random sample of at most ``k`` points of a stream whose length is not known.
 
     Every point draws a key from a seeded generator in stream order; the ``k`` smallest keys
-    win. ``result()`` returns the sample in stream order. Memory: O(k) rows.
+    win. Points whose key cannot make the sample any more are dropped on arrival, the rest are
+    buffered and merged into the sample when the buffer reaches ``k`` rows. ``result()`` returns
+    the sample in stream order. Memory: at most 2k rows.
     """
 
     def __init__(self, k: int, *, seed: int = 0) -> None:
@@ -110,9 +112,9 @@ class UniformSampler:
             raise ConfigError(f"sample size {k} is impossible; give at least 1 point")
         self.k = int(k)
         self._rng = np.random.default_rng(seed)
-        self._keys = np.empty(0, dtype=np.float64)
-        self._order = np.empty(0, dtype=np.int64)  # stream position, to restore stream order
-        self._parts: PointCloud | None = None
+        self._parts: list[tuple[PointCloud, np.ndarray, np.ndarray]] = []  # (rows, keys, stream positions)
+        self._buffered = 0
+        self._threshold = np.inf  # the largest key of a full sample: no larger key can enter
         self.seen = 0
 
     def add(self, chunk: PointCloud) -> None:
@@ -122,16 +124,34 @@ class UniformSampler:
         keys = self._rng.random(n)
         order = np.arange(self.seen, self.seen + n, dtype=np.int64)
         self.seen += n
-        merged = chunk if self._parts is None else PointCloud.concatenate([self._parts, chunk])
-        keys = np.concatenate([self._keys, keys])
-        order = np.concatenate([self._order, order])
+        if np.isfinite(self._threshold):
+            # about k * n / seen points pass: a long stream costs one comparison per point
+            enter = np.flatnonzero(keys < self._threshold)  # indices: cheaper than a mask for few rows
+            if len(enter) == 0:
+                return
+            chunk, keys, order = chunk.take(enter), keys[enter], order[enter]
+        self._parts.append((chunk, keys, order))
+        self._buffered += len(keys)
+        if self._buffered >= 2 * self.k:
+            self._merge()
+
+    def _merge(self) -> None:
+        if len(self._parts) == 1 and self._buffered <= self.k:
+            return
+        rows = PointCloud.concatenate([p[0] for p in self._parts])
+        keys = np.concatenate([p[1] for p in self._parts])
+        order = np.concatenate([p[2] for p in self._parts])
         if len(keys) > self.k:
             best = np.argpartition(keys, self.k - 1)[: self.k]
-            merged, keys, order = merged.take(best), keys[best], order[best]
-        self._parts, self._keys, self._order = merged, keys, order
+            rows, keys, order = rows.take(best), keys[best], order[best]
+            self._threshold = float(keys.max())
+        self._parts = [(rows, keys, order)]
+        self._buffered = len(keys)
 
     def result(self) -> PointCloud:
         """The sample (at most k points) in stream order; an empty xyz-only cloud if nothing came."""
-        if self._parts is None:
+        if not self._parts:
             return PointCloud(xyz=np.empty((0, 3)))
-        return self._parts.take(np.argsort(self._order, kind="stable"))
+        self._merge()
+        rows, _, order = self._parts[0]
+        return rows.take(np.argsort(order, kind="stable"))
