@@ -6,14 +6,18 @@ import errno
 import hashlib
 import subprocess
 import sys
+import tempfile
 import textwrap
 import tracemalloc
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
-from bimscan.errors import OutputError
+from bimscan.errors import InputFileError, OutputError
 from bimscan.io import (
     WRITERS,
     iter_cloud_chunks,
@@ -251,3 +255,50 @@ def test_paths_without_suffix_or_with_a_trailing_slash_are_numpy_folders():
     assert output_format("out/scene.exp1/") == ""
     assert output_format("out/scan.LAZ") == ".laz"
     assert output_format("out/scene.exp1") == ".exp1"
+
+
+def test_metadata_that_is_not_json_is_refused_before_any_point_is_written(tmp_path, header):
+    bad = CloudHeader(scheme=header.scheme, metadata={"when": object()})
+    with pytest.raises(OutputError, match="not JSON-able"):
+        open_cloud_writer(tmp_path / "cloud.laz", header=bad)
+    assert folder_listing(tmp_path) == []
+
+
+def test_a_closed_writer_refuses_more_chunks_and_keeps_its_output(tmp_path, header, cloud_factory):
+    path = tmp_path / "cloud.laz"
+    with open_cloud_writer(path, header=header) as writer:
+        writer.write(cloud_factory(10, seed=15))
+    with pytest.raises(OutputError, match="already closed"):
+        writer.write(cloud_factory(10, seed=15))
+    writer.abort()  # a no-op once closed
+    assert len(read_cloud(path)) == 10
+
+
+def test_reading_an_unknown_format_or_a_missing_path_is_an_input_error(tmp_path):
+    (tmp_path / "cloud.e57").write_bytes(b"")
+    (tmp_path / "README").write_text("not a cloud")
+    with pytest.raises(InputFileError, match="unknown cloud format '.e57'"):
+        read_cloud(tmp_path / "cloud.e57")
+    with pytest.raises(InputFileError, match="unknown cloud format"):
+        read_cloud(tmp_path / "README")
+    with pytest.raises(InputFileError, match="no such file"):
+        read_cloud(tmp_path / "missing.laz")
+
+
+@pytest.mark.parametrize("key", [".las", ".ply", ""])
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(cuts=st.lists(st.integers(min_value=0, max_value=3_500), max_size=12))
+def test_any_chunking_gives_the_bytes_of_the_unchunked_stream(key, cuts, header, cloud_factory):
+    # Small re-blocking units, so hypothesis' cuts land on, before and after block boundaries
+    # (the fixtures are immutable, so sharing them between examples is safe).
+    cloud = cloud_factory(3_500, seed=16)
+    bounds = [0, *sorted(cuts), len(cloud)]
+    chunks = [cloud.take(slice(a, b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+    with tempfile.TemporaryDirectory() as scratch, \
+            mock.patch("bimscan.io._writer.BLOCK_POINTS", 1_000), mock.patch("bimscan.io.las.BLOCK_POINTS", 1_000):
+        one, many = Path(scratch, "one"), Path(scratch, "many")
+        one.mkdir()
+        many.mkdir()
+        write_chunks(one / NAMES[key], header, [cloud])
+        write_chunks(many / NAMES[key], header, chunks)
+        assert output_bytes(one / NAMES[key]) == output_bytes(many / NAMES[key])

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import csv
+import errno
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -132,3 +134,17 @@ def test_read_obj_refuses_faces_pointing_past_the_vertices(tmp_path):
     (tmp_path / "bad.obj").write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 9\n")
     with pytest.raises(InputFileError, match="outside the 3 vertices"):
         read_obj(tmp_path / "bad.obj")
+
+
+def test_a_disk_full_export_is_an_output_error_and_leaves_no_folder(tmp_path, scene, monkeypatch):
+    real_write_text = Path.write_text
+
+    def full(self: Path, *args: object, **kwargs: object) -> int:
+        if self.suffix == ".csv":
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_write_text(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "write_text", full)
+    with pytest.raises(OutputError, match="disk full while writing"):
+        export_obj(scene, tmp_path / "obj")
+    assert list(tmp_path.iterdir()) == []

@@ -173,3 +173,25 @@ def test_extents_stay_while_counts_grow_with_the_pulse_rate(box):
     assert counts["exp2"] < counts["exp4"] < counts["exp6"]
     for name in counts:
         np.testing.assert_allclose(extents[name], extents["exp6"], atol=0.05)
+
+
+def test_registration_error_moves_each_station_rigidly_by_the_configured_sigmas(box):
+    from bimscan.scan.kernels import noise_key
+    from bimscan.scan.scanning import registration_error
+
+    _, scanner = box
+    noise = NoiseModel(range_sigma_m=0.0, angle_sigma_deg=0.0, registration_sigma_m=0.01, registration_sigma_deg=0.05)
+    exact = scan(scanner)
+    moved = scan(scanner, noise=noise, seed=9)
+    assert np.array_equal(exact.time, moved.time)
+    rotation, shift = registration_error(noise, np.uint64(noise_key(9, 0)))
+    o = np.array(CENTRE.position)
+    np.testing.assert_allclose(moved.xyz, (exact.xyz - o) @ rotation.T + o + shift, atol=1e-9)
+    # rigid: distances between points are kept
+    i, j = np.arange(0, len(exact), 997), np.arange(5, len(exact), 997)[: len(np.arange(0, len(exact), 997))]
+    i = i[: len(j)]
+    np.testing.assert_allclose(np.linalg.norm(moved.xyz[i] - moved.xyz[j], axis=1),
+                               np.linalg.norm(exact.xyz[i] - exact.xyz[j], axis=1), atol=1e-9)
+    # over many stations the draws follow the sigmas
+    draws = np.array([registration_error(noise, np.uint64(noise_key(9, s)))[1] for s in range(4000)])
+    assert draws.std(axis=0) == pytest.approx([0.01] * 3, rel=0.06)

@@ -21,6 +21,10 @@ from bimscan.cli.ifc_commands import SCHEME_HELP
 @click.option("--range-sigma", "range_sigma_m", default=0.005, show_default=True, type=float, help="Range noise sigma, metres.")
 @click.option("--angle-sigma", "angle_sigma_deg", default=0.03, show_default=True, type=float,
               help="Azimuth and elevation noise sigma, degrees.")
+@click.option("--registration-sigma", "registration_sigma_m", default=0.0, show_default=True, type=float,
+              help="Per-station registration error: translation sigma per axis, metres (0 = perfect registration).")
+@click.option("--registration-sigma-deg", "registration_sigma_deg", default=0.0, show_default=True, type=float,
+              help="Per-station registration error: rotation sigma about the vertical, degrees.")
 @click.option("--strict", is_flag=True, help="Settings outside the device's limits are errors, not warnings.")
 @click.option("--scanner", default=None, help="Scanner: riegl_vz400 (default) or a scanner TOML file.")
 @click.option("--head-speed", "head_deg_per_s", type=float, default=None,
@@ -30,7 +34,7 @@ from bimscan.cli.ifc_commands import SCHEME_HELP
 @click.option("--threads", default=0, show_default=True, type=int, help="Cores to use (0 = all).")
 @click.option("--overwrite", is_flag=True, help="Replace OUT if it exists.")
 def scan(model: Path, out: Path, preset: str, stations: str, seed: int, no_noise: bool, range_sigma_m: float,
-         angle_sigma_deg: float, strict: bool, scanner: str | None, head_deg_per_s: float | None, scheme: str | None,
+         angle_sigma_deg: float, registration_sigma_m: float, registration_sigma_deg: float, strict: bool, scanner: str | None, head_deg_per_s: float | None, scheme: str | None,
          engine: str, threads: int, overwrite: bool) -> None:
     """Scan MODEL.ifc with a virtual TLS and write a labelled cloud to OUT.
 
@@ -44,7 +48,9 @@ def scan(model: Path, out: Path, preset: str, stations: str, seed: int, no_noise
     from bimscan.scan.noise import NoiseModel
     from bimscan.semantics import load_scheme
 
-    noise = NoiseModel.off() if no_noise else NoiseModel(range_sigma_m=range_sigma_m, angle_sigma_deg=angle_sigma_deg)
+    noise = NoiseModel.off() if no_noise else NoiseModel(
+        range_sigma_m=range_sigma_m, angle_sigma_deg=angle_sigma_deg,
+        registration_sigma_m=registration_sigma_m, registration_sigma_deg=registration_sigma_deg)
     options = ScanOptions(preset=preset, scanner=scanner, stations=stations, seed=seed, noise=noise, strict=strict,
                           head_deg_per_s=head_deg_per_s, engine=engine, threads=threads)
     check_cloud_output(out, overwrite=overwrite)  # output, settings: errors before the slow parts

@@ -68,7 +68,7 @@ def output_format(path: str | Path) -> str:
 
 def _input_format(path: Path) -> str:
     key = "" if path.is_dir() else path.suffix.lower()
-    if key not in READERS:
+    if key not in READERS or (key == "" and not path.is_dir()):
         raise InputFileError(f"{path}: unknown cloud format {path.suffix!r}; bimscan reads {_SUPPORTED}")
     return key
 

@@ -24,7 +24,7 @@ from types import TracebackType
 from typing import BinaryIO, Protocol, Self
 
 from bimscan.errors import InputFileError, OutputError
-from bimscan.io._header import present_columns
+from bimscan.io._header import dump_json, header_to_document, present_columns
 from bimscan.types import CloudHeader, PointCloud
 
 BLOCK_POINTS = 1_000_000  # rows encoded per step: bounds a writer's memory whatever the chunk size
@@ -95,10 +95,11 @@ def file_sha256(path: Path) -> str:
 
 
 class WatchedFile:
-    """A binary file that remembers the OSError its ``write`` raised.
+    """A binary file that remembers the OSError any of its methods raised.
 
-    lazrs turns a failing ``write`` of the Python file it writes to into ``LazrsError: IoError``
-    and drops the OSError (and with it ENOSPC); the writers look the original up here.
+    lazrs turns a failing ``write``/``seek`` of the Python file it writes to into
+    ``LazrsError: IoError`` and drops the OSError (and with it ENOSPC); the writers look the
+    original up here. Buffered data may also fail only at ``flush``/``seek``/``close`` time.
     """
 
     def __init__(self, raw: BinaryIO) -> None:
@@ -113,7 +114,18 @@ class WatchedFile:
             raise
 
     def __getattr__(self, name: str) -> object:
-        return getattr(self.raw, name)
+        attribute = getattr(self.raw, name)
+        if not callable(attribute):
+            return attribute
+
+        def watched(*args: object, **kwargs: object) -> object:
+            try:
+                return attribute(*args, **kwargs)
+            except OSError as exc:
+                self.error = exc
+                raise
+
+        return watched
 
 
 def temp_name(final: Path) -> Path:
@@ -167,6 +179,7 @@ class StreamingCloudWriter:
         self._result: WrittenCloud | None = None
         self._handles: list[WatchedFile] = []
         check_output_path(self.path, overwrite=overwrite, extra=self._outputs()[1:])
+        dump_json(header_to_document(header, columns=(), n_points=0))  # fail now, not after the points
 
     def _outputs(self) -> tuple[Path, ...]:
         """Every path this writer creates, the main output first (PLY adds its sidecar)."""
@@ -272,6 +285,7 @@ class StreamingCloudWriter:
                 raise
             raise error from exc
         self._state = "closed"
+        files.sort(key=lambda f: not (f == self.path or self.path in f.parents))  # main output first
         self._result = WrittenCloud(
             path=self.path, n_points=self.n_points, files=tuple(files), sha256=sha256, n_bytes=n_bytes
         )

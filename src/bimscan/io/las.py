@@ -8,8 +8,9 @@ Layout of a bimscan LAS/LAZ file:
 - ``label`` -> ``classification``; ``intensity`` -> ``intensity``; ``time`` -> ``gps_time``
   (seconds since the start of the survey, not GPS time); ``station`` -> ``point_source_id``
   and the extra dimension ``station`` (uint16); ``component`` -> extra dimension ``component``
-  (int32). Every point is return 1 of 1. Columns the cloud lacks are stored as zeros and read
-  back as None (the header document lists the columns that were written).
+  (int32). Every point is return 1 of 1. Of the columns a cloud lacks, the extra dimensions are
+  left out and the standard fields stay zero; all read back as None (the header document lists
+  the columns that were written).
 - VLR ``LASF_Spec``/0, the LAS 1.4 classification lookup: 256 x (uint8 class, char[15] name),
   the scheme's class names cut to 15 ASCII bytes, so CloudCompare and friends show them.
 - EVLR ``bimscan``/1: the full header document as JSON (scheme, component table, stations,
@@ -17,7 +18,9 @@ Layout of a bimscan LAS/LAZ file:
 - Reproducible header: creation date from ``SOURCE_DATE_EPOCH`` (else 1970-01-01), project GUID
   derived from the header document, fixed system identifier and generating software. Chunks are
   re-blocked into ``BLOCK_POINTS`` rows (a multiple of the LAZ chunk of ``LAZ_CHUNK_POINTS``)
-  before laspy sees them, so the bytes do not depend on how the caller chunked the stream.
+  before laspy sees them, so the bytes do not depend on how the caller chunked the stream (lazrs
+  happens to buffer partial LAZ chunks itself; the re-blocking does not rely on it) and the
+  writer holds one block, about 40 MB, whatever the point count.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ import unicodedata
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import laspy
 import numpy as np
@@ -45,7 +49,7 @@ from bimscan.io._header import (
     header_to_document,
     parse_document,
 )
-from bimscan.io._writer import BLOCK_POINTS, StreamingCloudWriter, check_input_path
+from bimscan.io._writer import BLOCK_POINTS, StreamingCloudWriter, WatchedFile, check_input_path
 from bimscan.types import CloudHeader, LabelScheme, PointCloud
 
 LAS_SCALE_M = 1e-4  # 0.1 mm coordinate step
@@ -112,10 +116,14 @@ class LasCloudWriter(StreamingCloudWriter):
     ) -> None:
         super().__init__(path, header=header, overwrite=overwrite, checksum=checksum)
         self.compress = compress
-        self._file = None
+        self._file: WatchedFile | None = None
         self._writer: laspy.LasWriter | None = None
-        self._block: np.ndarray | None = None
+        self._point_format: laspy.PointFormat | None = None
+        self._block: np.ndarray | None = None  # (BLOCK_POINTS,) packed point records being filled
+        self._scratch: np.ndarray | None = None  # (BLOCK_POINTS,) f8 work space for quantising
         self._fill = 0
+        self._low = np.full(3, np.inf)  # bounds in coordinate steps, for the LAS header
+        self._high = np.full(3, -np.inf)
 
     def _begin(self, columns: tuple[str, ...]) -> None:
         las_header = _las_header(self.header, columns)
@@ -128,11 +136,10 @@ class LasCloudWriter(StreamingCloudWriter):
         self._block = np.zeros(BLOCK_POINTS, dtype=self._point_format.dtype())
         self._block["bit_fields"] = 0b0001_0001  # return 1 of 1 (LAS 1.4 forbids return number 0)
         self._scratch = np.empty(BLOCK_POINTS, dtype=np.float64)
-        self._low = np.full(3, np.inf)  # bounds in coordinate steps, for the LAS header
-        self._high = np.full(3, -np.inf)
 
     def _encode(self, chunk: PointCloud, out: np.ndarray) -> None:
         """Quantise and pack ``chunk`` into ``out`` (rows of the point record block)."""
+        assert self._scratch is not None
         origin = self.header.origin
         steps = self._scratch[: len(chunk)]
         for axis, name in enumerate("XYZ"):
@@ -177,7 +184,11 @@ class LasCloudWriter(StreamingCloudWriter):
         if self._fill and self._writer is not None and self._block is not None:
             # Straight to laspy's point writer: LasWriter.write_points would recompute the bounds
             # (known from _encode) and the return counts (all 1) with a sort of every block.
-            self._writer.point_writer.write_points(PackedPointRecord(self._block[: self._fill], self._point_format))
+            record = PackedPointRecord(self._block[: self._fill], self._point_format)
+            try:
+                self._writer.point_writer.write_points(record)
+            except (LaspyException, RuntimeError) as exc:  # lazrs raises LazrsError(RuntimeError)
+                raise OutputError(f"could not write {self.path} ({exc}); check the disk and run again") from exc
         self._fill = 0
 
     def _finish(self) -> None:
@@ -195,8 +206,8 @@ class LasCloudWriter(StreamingCloudWriter):
         try:
             self._writer.write_evlrs(VLRList([evlr]))
             self._writer.close()
-        except LaspyException as exc:
-            raise OutputError(f"{self.path}: laspy could not finish the file ({exc}); report this") from exc
+        except (LaspyException, RuntimeError) as exc:
+            raise OutputError(f"could not finish {self.path} ({exc}); check the disk and run again") from exc
         self._writer = None
 
     def _release(self) -> None:
@@ -225,7 +236,7 @@ def _open(path: Path) -> laspy.LasReader:
         raise InputFileError(f"{path}: not a readable LAS/LAZ file ({exc}); check the file") from exc
 
 
-def _stored_document(las_header: laspy.LasHeader, path: Path) -> dict | None:
+def _stored_document(las_header: laspy.LasHeader, path: Path) -> dict[str, Any] | None:
     for evlr in las_header.evlrs or ():
         if evlr.user_id == BIMSCAN_USER_ID and evlr.record_id == BIMSCAN_RECORD_ID:
             return parse_document(evlr.record_data_bytes(), where=str(path))

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -105,7 +106,7 @@ def open_npdir_writer(path: Path, *, header: CloudHeader, overwrite: bool = Fals
 
 # -- reading ------------------------------------------------------------------------------------
 
-def _stored_document(folder: Path) -> dict | None:
+def _stored_document(folder: Path) -> dict[str, Any] | None:
     meta = folder / META_NAME
     if not meta.is_file():
         return None

@@ -112,20 +112,22 @@ def export_obj(scene: BimScene, out_dir: str | Path, *, helios: bool = False, ov
     mesh = scene.mesh
     if len(mesh.face_component) and mesh.face_component.min() < 0:
         raise OutputError(f"scene {scene.source}: some triangles have a negative component id; the scene mesh is invalid")
+    created = not out_dir.exists()
+    stage = temp_name(out_dir / "obj-export")
+    done = False
     try:
         out_dir.mkdir(exist_ok=True)
-        stage = temp_name(out_dir / "obj-export")
         stage.mkdir()
-    except OSError as exc:
-        raise output_error(exc, out_dir) from exc
-    try:
         files = _write_all(scene, stage, helios=helios)
         for name in names:
             commit_output(stage / name, out_dir / name, overwrite=True)
+        done = True
     except OSError as exc:
         raise output_error(exc, out_dir) from exc
     finally:
         shutil.rmtree(stage, ignore_errors=True)
+        if created and not done:
+            shutil.rmtree(out_dir, ignore_errors=True)  # a folder we made holds nothing finished
     return ObjExport(
         out_dir=out_dir,
         model_obj=out_dir / "model.obj",

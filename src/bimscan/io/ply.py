@@ -220,13 +220,17 @@ def _scheme_from_comments(comments: tuple[str, ...]) -> tuple[LabelScheme, tuple
     name, default, origin, classes = "", "", (0.0, 0.0, 0.0), []
     for comment in comments:
         words = comment.split(" ", 3)
-        if words[0] == "scheme":
-            head, _, tail = comment[len("scheme ") :].rpartition(" default ")
-            name, default = json.loads(head), json.loads(tail)
-        elif words[0] == "class" and len(words) == 4:
-            classes.append(LabelClass(id=int(words[1]), name=json.loads(words[3]), color=words[2]))
-        elif words[0] == "origin_m":
-            origin = tuple(float(v) for v in words[1:4])  # type: ignore[assignment]
+        try:
+            if words[0] == "scheme":
+                head, _, tail = comment[len("scheme ") :].rpartition(" default ")
+                name, default = str(json.loads(head)), str(json.loads(tail))
+            elif words[0] == "class" and len(words) == 4:
+                classes.append(LabelClass(id=int(words[1]), name=str(json.loads(words[3])), color=words[2]))
+            elif words[0] == "origin_m":
+                x, y, z = (float(v) for v in comment.split()[1:4])
+                origin = (x, y, z)
+        except ValueError as exc:  # json.JSONDecodeError is a ValueError
+            raise InputFileError(f"damaged bimscan PLY comment {comment!r} ({exc}); write the cloud again") from exc
     return LabelScheme(name=name, classes=tuple(classes), rules=(), default_label=default), origin
 
 

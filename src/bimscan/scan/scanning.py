@@ -9,7 +9,7 @@ import numba
 import numpy as np
 
 from bimscan.scan.engine import RayEngine, face_normals, make_engine
-from bimscan.scan.kernels import finish_hits, generate_rays, noise_key
+from bimscan.scan.kernels import finish_hits, generate_rays, noise_key, station_normals
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.pattern import PulsePattern
 from bimscan.scan.scanner import ScannerModel, ScanSettings
@@ -18,6 +18,15 @@ from bimscan.types import PointCloud, SceneMesh, Station
 DEFAULT_CHUNK_PULSES = 1 << 20  # ~70 MB of working arrays per chunk
 DEFAULT_REFLECTANCE = 0.5
 INTENSITY_REFERENCE_M = 5.0  # intensity falls with (5 m / range)^2 beyond 5 m
+
+
+def registration_error(noise: NoiseModel, key: np.uint64) -> tuple[np.ndarray, np.ndarray]:
+    """The station's rigid registration error: rotation (3, 3) about the vertical and shift (3,) metres."""
+    draws = station_normals(key)
+    yaw = math.radians(noise.registration_sigma_deg) * draws[3]
+    c, s = math.cos(yaw), math.sin(yaw)
+    rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return rotation, noise.registration_sigma_m * draws[:3]
 
 
 class VirtualScanner:
@@ -40,6 +49,10 @@ class VirtualScanner:
                             else np.ascontiguousarray(reflectance, dtype=np.float32))
         self.face_component = np.ascontiguousarray(mesh.face_component, dtype=np.int32)
         self.face_normal = face_normals(mesh)
+        # Working buffers of scan_station, reused (outputs are fresh arrays): one scan at a time
+        # per VirtualScanner.
+        self._ray_buffer = np.empty((0, 6), dtype=np.float32)
+        self._pulse_buffer = np.empty(0, dtype=np.int64)
 
     def _set_threads(self) -> None:
         if self.threads:
@@ -60,9 +73,7 @@ class VirtualScanner:
         origin_local = origin_world - self.engine.centre
         key = np.uint64(noise_key(seed, station.id))
         angle_sigma = math.radians(noise.angle_sigma_deg)
-        station_column = np.uint16(station.id)
-        ray_buffer = np.empty((0, 6), dtype=np.float32)
-        pulse_buffer = np.empty(0, dtype=np.int64)
+        registration = registration_error(noise, key) if noise.registers_with_error else None
         for first_line, stop_line in pattern.chunks(chunk_pulses):
             start, stop = pattern.line_pulses(first_line, stop_line)
             counts = stop - start
@@ -71,16 +82,17 @@ class VirtualScanner:
             n = int(counts.sum())
             if n == 0:
                 continue
-            if len(ray_buffer) < n:  # working buffers reused across chunks (outputs are fresh)
-                ray_buffer = np.empty((n, 6), dtype=np.float32)
-                pulse_buffer = np.empty(n, dtype=np.int64)
-            rays, pulse = ray_buffer[:n], pulse_buffer[:n]
+            if len(self._ray_buffer) < n:  # working buffers reused across chunks and stations
+                self._ray_buffer = np.empty((n, 6), dtype=np.float32)
+                self._pulse_buffer = np.empty(n, dtype=np.int64)
+            rays, pulse = self._ray_buffer[:n], self._pulse_buffer[:n]
             generate_rays(start, stop, offsets, first_line, pattern.dphase, pattern.sweep_deg, pattern.head_start_deg,
                           pattern.head_deg_per_pulse, station.heading_deg, origin_local.astype(np.float32), rays, pulse)
             t_hit, triangle = self.engine.cast(rays)
             xyz = np.empty((n, 3), dtype=np.float64)
             label = np.empty(n, dtype=np.uint8)
             component = np.empty(n, dtype=np.int32)
+            station_column = np.empty(n, dtype=np.uint16)
             intensity = np.empty(n, dtype=np.uint16)
             time = np.empty(n, dtype=np.float64)
             if on_pulses is not None:
@@ -88,12 +100,16 @@ class VirtualScanner:
             kept = finish_hits(t_hit, triangle, rays, pulse, self.face_component, self.component_label,
                                self.face_normal, self.reflectance, origin_world, self.scanner.min_range_m,
                                self.scanner.max_range_m, key, noise.range_sigma_m, angle_sigma, time0_s,
-                               1.0 / pattern.pulse_freq_hz, INTENSITY_REFERENCE_M, xyz, label, component, intensity, time)
+                               1.0 / pattern.pulse_freq_hz, INTENSITY_REFERENCE_M, station.id, xyz, label, component,
+                               station_column, intensity, time)
             if kept == 0:
                 continue
+            if registration is not None:
+                rotation, shift = registration
+                local = xyz[:kept] - origin_world
+                xyz[:kept] = local @ rotation.T + origin_world + shift
             yield PointCloud(xyz=xyz[:kept], label=label[:kept], component=component[:kept],
-                             station=np.full(kept, station_column, dtype=np.uint16),
-                             intensity=intensity[:kept], time=time[:kept])
+                             station=station_column[:kept], intensity=intensity[:kept], time=time[:kept])
 
     def cast_from(self, origin_world: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Cast unit ``directions`` (N, 3) from one world point: (distance (N,) f4, component (N,) i4, -1 = miss)."""
@@ -139,14 +155,3 @@ class VirtualScanner:
         candidates, rays_odd = np.unique(odd, return_counts=True)
         best = int(np.argmax(rays_odd))
         return int(candidates[best]) if rays_odd[best] >= 0.8 * n_rays else None
-
-    def facing(self, origin_world: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Like ``cast_from`` but also the cosine between each ray and the hit triangle's normal (>0 = back face)."""
-        rays = np.empty((len(directions), 6), dtype=np.float32)
-        rays[:, :3] = np.asarray(origin_world, dtype=np.float64) - self.engine.centre
-        rays[:, 3:] = directions
-        t_hit, triangle = self.engine.cast(rays)
-        hit = triangle < len(self.face_component)
-        safe = np.minimum(triangle, len(self.face_component) - 1)
-        cosine = np.where(hit, np.einsum("ij,ij->i", directions, self.face_normal[safe]), 0.0)
-        return t_hit, cosine

@@ -255,8 +255,12 @@ def _choose(scanner: VirtualScanner, spots: np.ndarray, rooms, instrument: float
         if len(inside) == 0:
             rooms_without.append(room.name)
             continue
+        # the spot that sees most of the room beyond the minimum range (narrow rooms and
+        # corridors lose what is closer than that); ties go to the spot nearest the middle
+        useful = _useful_fraction(scanner, heads[inside])
         centre = heads[inside, :2].mean(axis=0)
-        chosen.append(int(inside[np.argmin(np.linalg.norm(heads[inside, :2] - centre, axis=1))]))
+        distance = np.linalg.norm(heads[inside, :2] - centre, axis=1)
+        chosen.append(int(inside[np.lexsort((distance, -np.round(useful, 2)))[0]]))
     seen = np.zeros(len(spots), dtype=bool)
     for i in chosen:
         seen |= _visible_from(scanner, heads, i, max_spacing)
@@ -272,6 +276,18 @@ def _choose(scanner: VirtualScanner, spots: np.ndarray, rooms, instrument: float
         seen |= best_cover
         seen[best] = True
     return chosen
+
+
+def _useful_fraction(scanner: VirtualScanner, heads: np.ndarray, n_rays: int = 256) -> np.ndarray:
+    """Per instrument position, the fraction of rays (in the scanner's window) that would give a point."""
+    model = scanner.scanner
+    directions = sphere_directions(4 * n_rays)
+    low, high = np.sin(np.radians([model.elevation_min_deg, model.elevation_max_deg]))
+    directions = directions[(directions[:, 2] >= low) & (directions[:, 2] < high)][:n_rays]
+    origins = np.repeat(heads, len(directions), axis=0)
+    t, _ = _cast_many(scanner, origins, np.tile(directions, (len(heads), 1)))
+    ok = (t >= model.min_range_m) & (t <= model.max_range_m)
+    return ok.reshape(len(heads), len(directions)).mean(axis=1)
 
 
 def _visible_from(scanner: VirtualScanner, heads: np.ndarray, i: int, max_spacing: float) -> np.ndarray:
