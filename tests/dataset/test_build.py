@@ -51,7 +51,8 @@ def test_unit_metadata_records_inputs_counts_and_checksums_that_match_the_files(
         folder = out / "units" / entry["id"]
         meta = json.loads((folder / "unit.json").read_text())
         assert meta["scene"] == entry["scene"] and meta["config"] == entry["config"]
-        assert meta["inputs"]["seed"] == 3 and meta["inputs"]["noise"] == {"range_sigma_m": 0.005, "angle_sigma_deg": 0.03}
+        assert meta["inputs"]["seed"] == 3
+        assert meta["inputs"]["noise"]["range_sigma_m"] == 0.005 and meta["inputs"]["noise"]["angle_sigma_deg"] == 0.03
         assert meta["inputs"]["config"]["settings"]["head_deg_per_s"] == 360.0
         assert meta["inputs"]["scene"]["sha256"] == _sha256(out / "scenes" / f"{entry['scene']}.ifc")
         assert meta["ifc_schema"] == "IFC4" and meta["inputs"]["software"].startswith("bimscan ")
