@@ -60,7 +60,15 @@ from bimscan.dataset.manifest import (
     write_json,
     write_manifest,
 )
-from bimscan.dataset.spec import FORMAT_FILES, DatasetSpec, config_settings, resolve_scanner, resolve_scheme, unit_id
+from bimscan.dataset.spec import (
+    FORMAT_FILES,
+    ConfigSpec,
+    DatasetSpec,
+    config_settings,
+    resolve_scanner,
+    resolve_scheme,
+    unit_id,
+)
 from bimscan.errors import BimscanError, DatasetError, OutputError
 from bimscan.progress import progress_bar
 from bimscan.scan.noise import NoiseModel
@@ -254,21 +262,10 @@ def _scene_files(spec: DatasetSpec, out: Path) -> tuple[dict[str, Path], dict[st
     return files, errors
 
 
-def _unit_inputs(spec: DatasetSpec, scene_name: str, config_name: str, scene_file: Path) -> dict[str, Any]:
-    """Everything a unit's bytes depend on (JSON-able); its fingerprint decides reuse."""
-    scene = spec.scene(scene_name)
-    config = spec.config(config_name)
-    settings = config_settings(config)
-    stations: Any = "auto"
-    if scene.stations != "auto":
-        stations = {"file": Path(scene.stations).name, "sha256": sha256_file(Path(scene.stations))}
+def _shared_inputs(spec: DatasetSpec) -> dict[str, Any]:
+    """The inputs every unit of ``spec`` shares (JSON-able)."""
     return {
-        "scene": {"name": scene.name, "file": scene_file.name, "sha256": sha256_file(scene_file),
-                  "generated": None if scene.generate is None else dataclasses.asdict(scene.generate)},
-        "config": {"name": config.name, "preset": config.preset if config.settings is None else None,
-                   "head_deg_per_s_override": config.head_deg_per_s, "settings": dataclasses.asdict(settings)},
         "scanner": dataclasses.asdict(resolve_scanner(spec)),
-        "stations": stations,
         "scheme": dataclasses.asdict(resolve_scheme(spec)),
         "noise": dataclasses.asdict(spec.noise),
         "seed": spec.seed,
@@ -280,19 +277,41 @@ def _unit_inputs(spec: DatasetSpec, scene_name: str, config_name: str, scene_fil
     }
 
 
+def _scene_inputs(spec: DatasetSpec, scene_name: str, scene_file: Path) -> dict[str, Any]:
+    """The inputs of one scene: its file (by content) and how its stations are chosen."""
+    scene = spec.scene(scene_name)
+    stations: Any = "auto"
+    if scene.stations != "auto":
+        stations = {"file": Path(scene.stations).name, "sha256": sha256_file(Path(scene.stations))}
+    return {"scene": {"name": scene.name, "file": scene_file.name, "sha256": sha256_file(scene_file),
+                      "generated": None if scene.generate is None else dataclasses.asdict(scene.generate)},
+            "stations": stations}
+
+
+def _unit_inputs(shared: dict[str, Any], scene: dict[str, Any], config: ConfigSpec) -> dict[str, Any]:
+    """Everything a unit's bytes depend on (JSON-able); its fingerprint decides reuse."""
+    settings = config_settings(config)
+    return shared | scene | {
+        "config": {"name": config.name, "preset": config.preset if config.settings is None else None,
+                   "head_deg_per_s_override": config.head_deg_per_s, "settings": dataclasses.asdict(settings)},
+    }
+
+
 def _plan_units(spec: DatasetSpec, out: Path, scene_files: dict[str, Path], scene_errors: dict[str, str], *,
                 chunk_pulses: int) -> tuple[list[dict[str, Any]], dict[str, UnitJob]]:
     """Manifest rows for every unit (finished ones verified) and jobs for the rest."""
     entries: list[dict[str, Any]] = []
     jobs: dict[str, UnitJob] = {}
+    shared = _shared_inputs(spec)
     for scene in spec.scenes:
+        scene_inputs = None if scene.name in scene_errors else _scene_inputs(spec, scene.name, scene_files[scene.name])
         for config in spec.configs:
             uid = unit_id(scene.name, config.name)
-            if scene.name in scene_errors:
+            if scene_inputs is None:
                 entries.append(manifest_entry(unit=uid, scene=scene.name, config=config.name, status="failed",
                                               error=scene_errors[scene.name]))
                 continue
-            inputs = _unit_inputs(spec, scene.name, config.name, scene_files[scene.name])
+            inputs = _unit_inputs(shared, scene_inputs, config)
             key = fingerprint(inputs)
             folder = unit_dir(out, uid)
             if folder.exists():
