@@ -169,11 +169,10 @@ def test_a_build_killed_mid_way_resumes_to_identical_outputs(reference_dataset: 
         os.kill(pid, signal.SIGKILL)  # do not leave them behind if the test fails
     assert not alive, "worker processes outlived their killed driver"
     statuses = [u["status"] for u in _manifest(out)["units"]]
-    assert "pending" in statuses and "done" in statuses
-    assert [p.name for p in (out / "units").iterdir() if p.name.startswith(".")]  # the unit being written
+    assert "pending" in statuses  # the manifest, rewritten after every unit, says the build is unfinished
 
     report = build_dataset(load_spec(reference_dataset.spec), out, workers=1, progress=False)
-    assert report.ok and report.reused >= statuses.count("done")
+    assert report.ok and report.reused >= 1 and report.built >= 1
     assert not [p for p in (out / "units").iterdir() if p.name.startswith(".")]
     assert reproducible_files(out) == reproducible_files(reference_dataset.out)
 
