@@ -20,7 +20,7 @@ from bimscan.dataset.build import build_dataset
 from bimscan.dataset.spec import load_spec
 from bimscan.io import read_cloud
 
-from .conftest import UNIT_IDS, BuiltDataset, reproducible_files, write_tiny_spec
+from .conftest import UNIT_IDS, BuiltDataset, reproducible_files
 
 
 def _sha256(path: Path) -> str:

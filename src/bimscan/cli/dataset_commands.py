@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
@@ -10,6 +11,9 @@ from bimscan.cli.ifc_commands import SCHEME_HELP
 
 EXECUTOR_CHOICES = ["local", "ray"]
 SIZE_HELP = "Picture size in pixels, WIDTHxHEIGHT."
+
+if TYPE_CHECKING:
+    from bimscan.dataset.build import BuildReport
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -20,7 +24,8 @@ def _size(text: str) -> tuple[int, int]:
     return width, height
 
 
-def _report_build(report) -> None:  # report: bimscan.dataset.build.BuildReport
+def _report_build(report: BuildReport) -> None:
+    """Print the build's warnings, failures and summary; raise DatasetError if a unit failed."""
     from bimscan.errors import DatasetError
 
     for scene in report.scenes:

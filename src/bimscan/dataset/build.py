@@ -34,12 +34,12 @@ from contextlib import contextmanager
 from concurrent.futures import BrokenExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from bimscan import __version__
-from bimscan.dataset.executors import TaskExecutor, driver_alive, make_executor, report_pulses
+from bimscan.dataset.executors import TaskFunction, driver_alive, make_executor, report_pulses
 from bimscan.dataset.manifest import (
     DATASET_NAME,
     SCENES_DIR,
@@ -72,9 +72,13 @@ from bimscan.dataset.spec import (
 from bimscan.errors import BimscanError, DatasetError, OutputError
 from bimscan.progress import progress_bar
 from bimscan.scan.noise import NoiseModel
-from bimscan.scan.scanner import ScanSettings
+from bimscan.scan.scanner import ScannerModel, ScanSettings
 from bimscan.scan.scanning import DEFAULT_CHUNK_PULSES
 from bimscan.types import Station
+
+if TYPE_CHECKING:
+    from bimscan.io import CloudWriter, WrittenCloud
+    from bimscan.process.checks import CloudSummary
 
 STATIONS_VERSION = 1
 
@@ -366,7 +370,7 @@ def _run(spec: DatasetSpec, out: Path, entries: list[dict[str, Any]], jobs: dict
     pool = make_executor(executor, workers=workers, environment=environment, address=ray_address)
     handles: dict[Any, tuple[str, str]] = {}  # handle -> ("scene" | "unit", name)
 
-    def submit(kind: str, name: str, fn: Any, job: Any) -> None:
+    def submit(kind: str, name: str, fn: TaskFunction, job: SceneJob | UnitJob) -> None:
         nonlocal pool
         try:
             handle = pool.submit(fn, job, cpus=threads)
@@ -430,7 +434,7 @@ def _run(spec: DatasetSpec, out: Path, entries: list[dict[str, Any]], jobs: dict
     return result
 
 
-def _expected_pulses(job: UnitJob, scanner: Any, n_stations: int) -> int:
+def _expected_pulses(job: UnitJob, scanner: ScannerModel, n_stations: int) -> int:
     from bimscan.scan.pattern import PulsePattern
 
     return PulsePattern.of(job.settings, scanner).count() * n_stations
@@ -520,7 +524,7 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
     start = time.perf_counter()
     out = Path(job.out_dir)
     staged: Path | None = None
-    writers: dict[str, Any] = {}
+    writers: dict[str, CloudWriter] = {}
     try:
         scene = load_ifc(job.ifc, scheme=load_scheme(job.scheme), threads=job.threads)
         load_s = time.perf_counter() - start
@@ -585,7 +589,7 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
             shutil.rmtree(staged, ignore_errors=True)
 
 
-def _check_unit(kept: Any, by_component: np.ndarray, written: dict[str, Any]) -> None:
+def _check_unit(kept: CloudSummary, by_component: np.ndarray, written: dict[str, WrittenCloud]) -> None:
     """The post-processing checks: every output holds every point, histograms agree."""
     from bimscan.process.checks import SemanticError
 

@@ -6,13 +6,17 @@ Each function returns the PNG bytes; the caller writes them (atomically).
 from __future__ import annotations
 
 import io
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bimscan.stats.summary import AXES, DatasetStats
 
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
-def _figure(width_in: float, height_in: float):  # -> (Figure, Axes or array of Axes)
+
+def _figure(width_in: float, height_in: float) -> Figure:
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -21,7 +25,7 @@ def _figure(width_in: float, height_in: float):  # -> (Figure, Axes or array of 
     return Figure(figsize=(width_in, height_in), dpi=110, layout="constrained")
 
 
-def _png(figure) -> bytes:  # figure: matplotlib Figure
+def _png(figure: Figure) -> bytes:
     buffer = io.BytesIO()
     # Fixed metadata: the same statistics give the same bytes.
     figure.savefig(buffer, format="png", metadata={"Software": "bimscan"})
