@@ -133,7 +133,13 @@ def test_render_colours_by_station_and_reads_foreign_files(tmp_path: Path) -> No
     las.classification = cloud.label
     las.write(tmp_path / "foreign.las")
     render_cloud(tmp_path / "foreign.las", tmp_path / "foreign.png", width=600, height=400, max_points=50_000)
-    assert _pixels(tmp_path / "foreign.png").shape == (400, 600, 3)
+    image = _pixels(tmp_path / "foreign.png")
+    assert image.shape == (400, 600, 3)
+    colours = {tuple(int(v) for v in p) for panel in _panels(image, 2)
+               for p in np.unique(panel.reshape(-1, 3), axis=0)} - {WHITE}
+    # a foreign file's class ids are not bimscan's classes: one neutral colour per id (floor, walls, table
+    # under the cut), none of them a bimscan class colour
+    assert len(colours) == 3 and not colours & {hex_rgb(c.color) for c in load_scheme().classes}
     _write(cloud, tmp_path / "ours.ply")
     render_cloud(tmp_path / "ours.ply", tmp_path / "stations.png", color="station", width=600, height=400,
                  max_points=50_000, cut="none")

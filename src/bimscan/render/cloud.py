@@ -75,8 +75,9 @@ def _ramp(values: np.ndarray) -> np.ndarray:
 def point_colors(cloud: PointCloud, mode: str, scheme: LabelScheme | None) -> tuple[np.ndarray, list[tuple[str, tuple[int, int, int]]]]:
     """(N, 3) uint8 colours of ``cloud``'s points by ``mode`` and the legend entries (name, rgb).
 
-    label: the scheme's class colours (unknown class ids grey); station / component: distinct
-    colours per id; intensity / height: viridis from the 2nd to the 98th percentile.
+    label: the scheme's class colours (ids it lacks grey), or distinct colours per class id for a
+    foreign file (``scheme`` None); station / component: distinct colours per id; intensity /
+    height: viridis from the 2nd to the 98th percentile.
     Raises ConfigError when the cloud lacks the column ``mode`` needs.
     """
     if mode not in COLOR_MODES:
@@ -86,11 +87,13 @@ def point_colors(cloud: PointCloud, mode: str, scheme: LabelScheme | None) -> tu
               "component": cloud.component, "height": cloud.xyz[:, 2]}[mode]
     if column is None:
         raise ConfigError(f"the cloud has no {mode} column to colour by; use --color height (or another column it has)")
+    if mode == "label" and scheme is None:
+        # a foreign file: its class ids follow its own convention (ASPRS codes, ...), not ours
+        ids, inverse = np.unique(column, return_inverse=True)
+        palette = _palette(len(ids))
+        legend = [(f"class {int(i)}", tuple(int(v) for v in palette[k])) for k, i in enumerate(ids[:24])]
+        return palette[inverse], legend  # type: ignore[return-value]
     if mode == "label":
-        if scheme is None:
-            from bimscan.semantics import load_scheme
-
-            scheme = load_scheme()
         table = np.tile(np.array(UNKNOWN_RGB, dtype=np.uint8), (256, 1))
         for cls in scheme.classes:
             table[cls.id] = hex_rgb(cls.color)
