@@ -88,6 +88,14 @@ def test_a_bad_spec_raises_one_clear_error_naming_the_file(spec_folder: Path, ed
     assert str(path) in str(caught.value) and "\n" not in str(caught.value)
 
 
+def test_settings_outside_the_device_limits_are_listed_per_configuration(spec_folder: Path) -> None:
+    from bimscan.dataset.spec import device_warnings
+
+    warnings = device_warnings(load_spec(_write(spec_folder, GOOD)))
+    assert len(warnings) == 2 and all(w.startswith("configuration 'paper-exp2': ") for w in warnings)
+    assert any("scan_freq_hz = 360" in w for w in warnings) and any("pulse_freq_hz = 50000" in w for w in warnings)
+
+
 def test_build_refuses_a_bad_spec_before_any_work(spec_folder: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = _write(spec_folder, GOOD.replace('"exp2"', '"exp9"'))
     out = spec_folder / "out"

@@ -61,11 +61,14 @@ def build(spec: Path, out_dir: Path, workers: int | None, executor: str, ray_add
     again and only the missing units are built (finished ones are verified by checksum).
     """
     from bimscan.dataset.build import build_dataset
-    from bimscan.dataset.spec import load_spec
+    from bimscan.dataset.spec import device_warnings, load_spec
 
     if ray_address and executor != "ray":
         raise click.BadParameter("--ray-address needs --executor ray", param_hint="--ray-address")
-    report = build_dataset(load_spec(spec), out_dir, workers=workers, executor=executor, ray_address=ray_address)
+    dataset_spec = load_spec(spec)
+    for warning in device_warnings(dataset_spec):
+        click.echo(f"warning: {warning}", err=True)
+    report = build_dataset(dataset_spec, out_dir, workers=workers, executor=executor, ray_address=ray_address)
     _report_build(report)
 
 
@@ -158,7 +161,7 @@ def demo(out_dir: Path, workers: int | None, executor: str, head_deg_per_s: floa
     from bimscan.dataset.build import build_dataset
     from bimscan.dataset.demo import RENDER_CONFIG, write_demo_spec
     from bimscan.dataset.manifest import read_manifest
-    from bimscan.dataset.spec import load_spec, unit_id
+    from bimscan.dataset.spec import device_warnings, load_spec, unit_id
     from bimscan.errors import DatasetError
     from bimscan.ifc.load import load_ifc
     from bimscan.render.cloud import render_cloud
@@ -171,6 +174,10 @@ def demo(out_dir: Path, workers: int | None, executor: str, head_deg_per_s: floa
     spec = load_spec(spec_path)
     dataset = out_dir / "dataset"
     click.echo(f"building {len(spec.scenes)} scenes x {len(spec.configs)} configurations into {dataset}")
+    warnings = device_warnings(spec)
+    if warnings:
+        click.echo(f"note: {len(warnings)} settings of the paper's presets lie outside the scanner's limits, as in "
+                   f"the paper (`bimscan build {spec_path} ...` lists them)", err=True)
     report = build_dataset(spec, dataset, workers=workers, executor=executor)
     failure: DatasetError | None = None
     try:

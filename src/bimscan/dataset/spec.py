@@ -247,6 +247,13 @@ def resolve_scanner(spec: DatasetSpec) -> ScannerModel:
     return load_scanner(spec.scanner)
 
 
+def device_warnings(spec: DatasetSpec) -> list[str]:
+    """One line per configuration setting outside the scanner's limits (allowed unless ``strict``)."""
+    scanner = resolve_scanner(spec)
+    return [f"configuration {config.name!r}: {warning}" for config in spec.configs
+            for warning in check_settings(config_settings(config), scanner)]
+
+
 def config_settings(config: ConfigSpec) -> ScanSettings:
     """The scan settings of a configuration, head speed override applied."""
     if (config.preset is None) == (config.settings is None):
