@@ -1,0 +1,164 @@
+"""PCT throughput in blocks/s at N = 8192 points per block: training steps and inference.
+
+Run: python benchmarks/bench_learn.py [--full-cpu] [--steps K]
+
+Rows, measured side by side in one run:
+
+- CPU, tiny model (configs/train_tiny_cpu.toml's network): one training step (forward,
+  masked loss, backward, Adam, BatchNorm commit, EMA) at batch 2, and inference passes
+  (forward + softmax + vote accumulation, the code path of evaluate/predict) at batch 2.
+- CPU, full model (Table 2, 2.4M parameters) with --full-cpu: about 19 s per training step on
+  2 cores (PERFORMANCE.md), so off by default.
+- CUDA, full model, when a GPU is visible: AMP float16 with GradScaler as in training, and
+  bfloat16; the same functions the training loop and the block runner call.
+- Block sampling (TileDataset, data side) in blocks/s, to show the loader is not the limit.
+
+Throughput is the best of the timed repetitions after one warm-up (first calls allocate and
+pick kernels). Peak memory: CUDA max allocated, or the process's peak RSS on CPU.
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import sys
+import time
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+from bimscan.learn.blocks import pad_block
+from bimscan.learn.config import ModelConfig, load_train_config
+from bimscan.learn.data import TileDataset, TileSet
+from bimscan.learn.infer import BlockRunner
+from bimscan.learn.model import build_model, count_parameters, flush_denormals
+from bimscan.learn.train import WeightEMA, finish_step, run_micro_batch
+
+N = 8192
+BATCH = 2
+FULL = ModelConfig()
+
+
+def tiny_model_config() -> ModelConfig:
+    from pathlib import Path
+
+    config, _ = load_train_config(Path(__file__).resolve().parents[1] / "configs" / "train_tiny_cpu.toml")
+    return config.model
+
+
+def synthetic_blocks(count: int, seed: int = 0) -> list[dict[str, np.ndarray]]:
+    """Room-like blocks: points on a floor, a ceiling and two walls, labelled by surface."""
+    rng = np.random.default_rng(seed)
+    blocks = []
+    for _ in range(count):
+        surface = rng.integers(0, 4, N)
+        xyz = rng.random((N, 3)) * [4.0, 4.0, 3.0]
+        xyz[surface == 0, 2] = 0.0
+        xyz[surface == 1, 2] = 3.0
+        xyz[surface == 2, 0] = 0.0
+        xyz[surface == 3, 1] = 4.0
+        block = pad_block(xyz, surface.astype(np.uint8), np.arange(N), points=N)
+        blocks.append({"xyz": block.xyz, "label": block.label, "mask": block.mask})
+    return blocks
+
+
+def stack(items: list[dict[str, np.ndarray]], device: torch.device) -> tuple[torch.Tensor, ...]:
+    return tuple(torch.from_numpy(np.stack([it[k] for it in items])).to(device) for k in ("xyz", "label", "mask"))
+
+
+def timed(fn: Callable[[], None], *, repeats: int, device: torch.device) -> float:
+    fn()  # warm-up
+    best = float("inf")
+    for _ in range(repeats):
+        if device.type == "cuda":
+            torch.cuda.synchronize()
+        start = time.perf_counter()
+        fn()
+        if device.type == "cuda":
+            torch.cuda.synchronize()
+        best = min(best, time.perf_counter() - start)
+    return best
+
+
+def measure(name: str, config: ModelConfig, device: torch.device, amp: str, repeats: int) -> dict[str, object]:
+    torch.manual_seed(0)
+    model = build_model(5, config).to(device)
+    ema = WeightEMA(model, alpha=0.99)
+    optimizer = torch.optim.Adam(model.parameters(), lr=2e-3, weight_decay=5e-4)
+    scaler = torch.amp.GradScaler(device.type, enabled=device.type == "cuda" and amp == "float16")
+    xyz, label, mask = stack(synthetic_blocks(BATCH), device)
+    if device.type == "cuda":
+        torch.cuda.reset_peak_memory_stats(device)
+
+    def train_step() -> None:
+        model.train()
+        run_micro_batch(model, xyz, label, mask, scaler=scaler, amp=amp, accumulation=1)
+        finish_step(model, optimizer=optimizer, scaler=scaler, scheduler=None, ema=ema)
+
+    runner = BlockRunner(ema.module.eval(), device=device, batch_size=BATCH, amp=amp)
+    blocks = [pad_block(np.asarray(b["xyz"], np.float64), None, np.arange(N), points=N)
+              for b in synthetic_blocks(BATCH, seed=1)]
+
+    def infer_pass() -> None:
+        runner.votes = np.zeros((N, 5), dtype=np.float32)
+        for block in blocks:
+            runner.add(block)
+        runner.flush()
+
+    with flush_denormals():
+        train_s = timed(train_step, repeats=repeats, device=device)
+        infer_s = timed(infer_pass, repeats=repeats, device=device)
+    peak = (torch.cuda.max_memory_allocated(device) / 2**30 if device.type == "cuda"
+            else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20)
+    return {
+        "row": name, "device": device.type, "params": count_parameters(model), "amp": amp if device.type == "cuda" else "fp32",
+        "train_s": train_s, "train_bps": BATCH / train_s, "infer_bps": BATCH / infer_s, "peak_gib": peak,
+    }
+
+
+def sampling_rate(repeats: int = 200) -> float:
+    rng = np.random.default_rng(0)
+    points = 16384
+    tiles = TileSet(
+        xyz=(rng.random((points * 8, 3)) * 4).astype(np.float32), label=rng.integers(0, 5, points * 8).astype(np.uint8),
+        offsets=np.arange(9, dtype=np.int64) * points, origin=np.zeros((8, 3)), key=np.arange(8, dtype=np.int64),
+        count=np.full(8, points, dtype=np.int64), scene=np.zeros(8, dtype=np.int32), scene_names=("bench",),
+    )
+    dataset = TileDataset(tiles, points=N, seed=0)
+    start = time.perf_counter()
+    for i in range(repeats):
+        dataset[(i, i % 8)]
+    return repeats / (time.perf_counter() - start)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--full-cpu", action="store_true", help="also time the full model on the CPU (slow)")
+    parser.add_argument("--steps", type=int, default=3, help="timed repetitions per row (after a warm-up)")
+    args = parser.parse_args()
+    print(f"torch {torch.__version__}, {torch.get_num_threads()} CPU threads, N = {N}, batch {BATCH}", file=sys.stderr)
+    rows = [measure("tiny", tiny_model_config(), torch.device("cpu"), "off", args.steps)]
+    if args.full_cpu:
+        rows.append(measure("full (Table 2)", FULL, torch.device("cpu"), "off", max(1, args.steps // 3)))
+    if torch.cuda.is_available():
+        cuda = torch.device("cuda")
+        rows.append(measure("full (Table 2)", FULL, cuda, "float16", args.steps))
+        rows.append(measure("full (Table 2)", FULL, cuda, "bfloat16", args.steps))
+    else:
+        print("no CUDA device: the GPU rows (full model, AMP) are skipped", file=sys.stderr)
+    print(f"\n{'model':<16}{'device':<8}{'params':>10}{'precision':>11}{'s/step':>9}{'train blk/s':>13}"
+          f"{'infer blk/s':>13}{'peak GiB':>10}")
+    for r in rows:
+        print(f"{r['row']:<16}{r['device']:<8}{r['params']:>10,}{r['amp']:>11}{r['train_s']:>9.2f}"
+              f"{r['train_bps']:>13.2f}{r['infer_bps']:>13.2f}{r['peak_gib']:>10.2f}")
+    if len(rows) > 1:
+        base = rows[0]
+        for r in rows[1:]:
+            print(f"{r['row']} on {r['device']} ({r['amp']}) / tiny on cpu: training {r['train_bps'] / base['train_bps']:.1f}x, "
+                  f"inference {r['infer_bps'] / base['infer_bps']:.1f}x")
+    print(f"\nblock sampling (TileDataset, 8192 of 16384 cached points): {sampling_rate():.0f} blocks/s")
+
+
+if __name__ == "__main__":
+    main()

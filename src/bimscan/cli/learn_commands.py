@@ -1,0 +1,108 @@
+"""Segmentation baseline commands: train, evaluate, predict (PCT, the paper's Table 2/3)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import click
+
+DEVICES = click.Choice(["auto", "cpu", "cuda"])
+
+
+@click.command("train")
+@click.argument("config", type=click.Path(path_type=Path, dir_okay=False))
+@click.option("--resume", is_flag=True, help="Continue the run in the output folder from its last checkpoint.")
+@click.option("--out", "out_dir", type=click.Path(path_type=Path, file_okay=False), default=None,
+              help="Output folder (default: [train] out_dir of the config, relative to the config file).")
+def train(config: Path, resume: bool, out_dir: Path | None) -> None:
+    """Train PCT on synthetic scenes as CONFIG.toml says (Table 2 defaults).
+
+    Writes last.pt (every epoch), best.pt (best validation mIoU), metrics.csv and curves.png.
+    For DDP start it with torchrun, e.g.
+    `torchrun --nproc_per_node 4 -m bimscan.cli.main train CONFIG.toml`.
+    """
+    from bimscan.learn.config import load_train_config
+    from bimscan.learn.train import train_model
+
+    settings, base = load_train_config(config)
+    result = train_model(settings, base_dir=base, out_dir=out_dir, resume=resume,
+                         log=lambda text: click.echo(text, err=True))
+    if int(os.environ.get("RANK", "0")) == 0:
+        click.echo(f"trained {result.epochs_done} epoch(s); checkpoint {result.checkpoint}; "
+                   f"metrics {result.out_dir / 'metrics.csv'}; curves {result.out_dir / 'curves.png'}")
+
+
+@click.command("evaluate")
+@click.argument("checkpoint", type=click.Path(path_type=Path, dir_okay=False))
+@click.argument("scenes", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--out", "out_dir", type=click.Path(path_type=Path, file_okay=False), default=None,
+              help="Folder for evaluation.md and evaluation.csv.")
+@click.option("--label-field", default=None, help="LAS/PLY dimension holding the ground truth (default: classification/label).")
+@click.option("--mapping", type=click.Path(path_type=Path, dir_okay=False), default=None,
+              help="Mapping TOML from the scenes' classes to the checkpoint's (S3DIS rooms: built in).")
+@click.option("--device", type=DEVICES, default="auto", show_default=True)
+@click.option("--batch-size", type=click.IntRange(min=1), default=8, show_default=True, help="Blocks per forward pass.")
+@click.option("--max-passes", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Passes per block at most (0: every point seen; else the rest from nearest neighbours).")
+@click.option("--weights", type=click.Choice(["ema", "live"]), default="ema", show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True)
+def evaluate(
+    checkpoint: Path, scenes: tuple[Path, ...], out_dir: Path | None, label_field: str | None, mapping: Path | None,
+    device: str, batch_size: int, max_passes: int, weights: str, seed: int,
+) -> None:
+    """Score CHECKPOINT on labelled SCENE... (every point): OA, mIoU, mAcc, FWIoU, kappa per scene.
+
+    SCENE: clouds (.las .laz .ply .txt ...), NumPy cloud folders, bimscan dataset folders,
+    S3DIS rooms or areas. Prints the table (as the paper's Table 3) in Markdown.
+    """
+    from bimscan.learn.checkpoint import read_checkpoint
+    from bimscan.learn.evaluate import evaluate_checkpoint, format_markdown, write_evaluation
+    from bimscan.learn.mapping import load_label_mapping
+
+    label_mapping = None if mapping is None else load_label_mapping(mapping)
+    results = evaluate_checkpoint(
+        checkpoint, scenes, label_field=label_field, mapping=label_mapping, device=device, batch_size=batch_size,
+        max_passes=max_passes, weights=weights, seed=seed,
+    )
+    click.echo(format_markdown(results), nl=False)
+    if out_dir is not None:
+        class_names = tuple(read_checkpoint(checkpoint)["class_names"])
+        markdown, table = write_evaluation(results, out_dir, class_names)
+        click.echo(f"wrote {markdown} and {table}")
+
+
+@click.command("predict")
+@click.argument("checkpoint", type=click.Path(path_type=Path, dir_okay=False))
+@click.argument("in_path", metavar="IN", type=click.Path(path_type=Path))
+@click.argument("out_path", metavar="OUT", type=click.Path(path_type=Path))
+@click.option("--overwrite", is_flag=True, help="Replace OUT when it exists.")
+@click.option("--label-field", default=None, help="LAS/PLY dimension holding labels to replace (default: classification).")
+@click.option("--device", type=DEVICES, default="auto", show_default=True)
+@click.option("--batch-size", type=click.IntRange(min=1), default=8, show_default=True, help="Blocks per forward pass.")
+@click.option("--max-passes", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Passes per block at most (0: every point seen; else the rest from nearest neighbours).")
+@click.option("--weights", type=click.Choice(["ema", "live"]), default="ema", show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True)
+def predict(
+    checkpoint: Path, in_path: Path, out_path: Path, overwrite: bool, label_field: str | None, device: str,
+    batch_size: int, max_passes: int, weights: str, seed: int,
+) -> None:
+    """Label every point of the scan IN with CHECKPOINT and write OUT (.laz/.las/.ply or a folder).
+
+    The class goes to `classification` (LAS/LAZ) or `label` (PLY/NumPy); other columns are kept.
+    """
+    from bimscan.learn.predict import predict_cloud
+
+    result = predict_cloud(
+        checkpoint, in_path, out_path, label_field=label_field, device=device, batch_size=batch_size,
+        max_passes=max_passes, weights=weights, seed=seed, overwrite=overwrite,
+    )
+    shares = ", ".join(
+        f"{name} {100.0 * count / max(result.points, 1):.1f}%"
+        for name, count in zip(result.class_names, result.class_counts.tolist(), strict=True)
+    )
+    click.echo(f"wrote {result.path}: {result.points:,} points in {result.seconds:.1f} s ({shares})")
+
+
+COMMANDS: list[click.Command] = [train, evaluate, predict]

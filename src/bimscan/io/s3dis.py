@@ -1,0 +1,102 @@
+"""Stanford S3DIS rooms: ``<room>/Annotations/<class>_<n>.txt``, each line ``x y z r g b``.
+
+Every annotation file is one object instance of one of 13 classes (ceiling floor wall beam
+column window door table chair sofa bookcase board clutter). A room is read into one
+:class:`~bimscan.types.PointCloud`: ``label`` is the index of the class in ``S3DIS_CLASSES``
+(or in ``class_map`` when given), ``component`` is the index of the annotation file in sorted
+order (the instance), xyz in metres. Colours are dropped. Files are read in sorted name order
+so the same folder always gives the same point order.
+
+A few releases of S3DIS hold files of class ``stairs``; following common practice (the
+PointNet preparation scripts), they are read as ``clutter``.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from bimscan.errors import InputFileError
+from bimscan.types import PointCloud
+
+S3DIS_CLASSES = (
+    "ceiling", "floor", "wall", "beam", "column", "window", "door",
+    "table", "chair", "sofa", "bookcase", "board", "clutter",
+)
+ALIASES = {"stairs": "clutter"}
+_ANNOTATION = re.compile(r"^(?P<cls>[A-Za-z]+)_(?P<n>\d+)\.txt$")
+
+
+def is_s3dis_room(path: str | Path) -> bool:
+    """True when ``path`` is a folder holding ``Annotations/<class>_<n>.txt`` files."""
+    annotations = Path(path) / "Annotations"
+    return annotations.is_dir() and any(_ANNOTATION.match(p.name) for p in annotations.iterdir())
+
+
+def list_s3dis_rooms(path: str | Path) -> list[Path]:
+    """The room folders at ``path``: the room itself, or the rooms of an area or of the dataset root.
+
+    Searches two levels down (``Area_1/office_1`` from the root), sorted by path.
+    """
+    path = Path(path)
+    if is_s3dis_room(path):
+        return [path]
+    rooms = [p for p in sorted(path.glob("*")) if p.is_dir() and is_s3dis_room(p)]
+    rooms += [p for p in sorted(path.glob("*/*")) if p.is_dir() and is_s3dis_room(p)]
+    return sorted(rooms)
+
+
+def class_of_annotation(path: Path) -> str:
+    """The S3DIS class named by an annotation file name (``wall_3.txt`` -> ``wall``)."""
+    match = _ANNOTATION.match(path.name)
+    if match is None:
+        raise InputFileError(f"{path}: not an S3DIS annotation name '<class>_<n>.txt'; rename or remove it")
+    name = match.group("cls").lower()
+    name = ALIASES.get(name, name)
+    if name not in S3DIS_CLASSES:
+        raise InputFileError(
+            f"{path}: unknown S3DIS class {name!r}; expected one of {', '.join(S3DIS_CLASSES)}"
+        )
+    return name
+
+
+def read_s3dis_room(path: str | Path, *, class_map: Mapping[str, int] | None = None) -> PointCloud:
+    """Read one S3DIS room folder.
+
+    ``class_map`` maps S3DIS class names to label ids (values 0..255; 255 is "unlabelled" by
+    bimscan's convention); without it the label is the class's index in ``S3DIS_CLASSES``.
+    Returns xyz (N, 3) float64 metres, label (N,) uint8, component (N,) int32 instance index.
+    """
+    path = Path(path)
+    if not is_s3dis_room(path):
+        raise InputFileError(
+            f"{path}: not an S3DIS room (no Annotations/<class>_<n>.txt inside); pass a room folder"
+        )
+    files = sorted(p for p in (path / "Annotations").iterdir() if p.suffix == ".txt")
+    table = {name: i for i, name in enumerate(S3DIS_CLASSES)} if class_map is None else dict(class_map)
+    parts: list[PointCloud] = []
+    for instance, file in enumerate(files):
+        name = class_of_annotation(file)
+        if name not in table:
+            raise InputFileError(
+                f"{file}: class {name!r} is missing from the class map; add it to the mapping file"
+            )
+        label_id = table[name]
+        if not 0 <= label_id <= 255:
+            raise InputFileError(f"class map sends {name!r} to {label_id}; label ids must be in 0..255")
+        try:
+            xyz = np.loadtxt(file, dtype=np.float64, usecols=(0, 1, 2), ndmin=2)
+        except ValueError as exc:
+            raise InputFileError(f"{file}: unreadable point line ({exc}); fix or remove that line") from exc
+        parts.append(PointCloud(
+            xyz=np.ascontiguousarray(xyz),
+            label=np.full(len(xyz), label_id, dtype=np.uint8),
+            component=np.full(len(xyz), instance, dtype=np.int32),
+        ))
+    cloud = PointCloud.concatenate(parts)
+    if len(cloud) == 0:
+        raise InputFileError(f"{path}: the room's annotation files hold no points; check the download")
+    return cloud

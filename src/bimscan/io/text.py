@@ -1,0 +1,198 @@
+"""Plain-text point clouds: one point per line, ``x y z [r g b] [label]``.
+
+This is the lowest common denominator of real scans exchanged between tools (CloudCompare
+"ASCII cloud", S3DIS-style files, ``.xyz``/``.pts`` exports). Columns are separated by
+whitespace or commas; ``#`` and ``//`` start comment lines. The column meaning comes from the
+count on the first data line:
+
+==========  =====================
+columns     meaning
+==========  =====================
+3           x y z
+4           x y z label
+6           x y z r g b
+7           x y z r g b label
+==========  =====================
+
+or from a header line of names (``x,y,z,red,green,blue,classification``; ``label``, ``class``,
+``classification``, ``scalar_label`` and ``scalar_classification`` name the label). A first line
+holding one integer (the point count of Leica ``.pts`` files) is skipped. Colours are read past
+and dropped: :class:`~bimscan.types.PointCloud` carries no colour. Labels must be integers in
+0..255 (uint8, as everywhere in bimscan).
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import re
+import tempfile
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TextIO
+
+import numpy as np
+
+from bimscan.errors import InputFileError, OutputError
+from bimscan.types import PointCloud
+
+TEXT_SUFFIXES = (".txt", ".xyz", ".pts", ".csv", ".asc")
+LABEL_NAMES = ("label", "labels", "class", "classification", "scalar_label", "scalar_classification")
+_COMMENT = ("#", "//")
+_SPLIT = re.compile(r"[,\s]+")
+
+
+@dataclass(frozen=True)
+class _Layout:
+    delimiter: str | None  # None: any whitespace
+    xyz: tuple[int, int, int]
+    label: int | None
+    columns: int
+    data_start: int  # number of lines before the first data line
+
+
+def _is_number(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
+def _detect_layout(path: Path, handle: TextIO) -> _Layout:
+    consumed = 0
+    for line in handle:
+        consumed += 1
+        stripped = line.strip()
+        if not stripped or stripped.startswith(_COMMENT):
+            continue
+        delimiter = "," if "," in stripped else None
+        tokens = [t for t in _SPLIT.split(stripped) if t]
+        if len(tokens) == 1 and tokens[0].isdigit():
+            continue  # the point count line of .pts files
+        if not all(_is_number(t) for t in tokens):
+            names = [t.lower() for t in tokens]
+            missing = [axis for axis in ("x", "y", "z") if axis not in names]
+            if missing:
+                raise InputFileError(
+                    f"{path}: header line {consumed} {stripped!r} names no column {missing[0]!r}; "
+                    "name the coordinate columns x, y, z or drop the header"
+                )
+            label = next((names.index(n) for n in LABEL_NAMES if n in names), None)
+            xyz = (names.index("x"), names.index("y"), names.index("z"))
+            return _Layout(delimiter, xyz, label, len(names), consumed)
+        layouts = {3: None, 4: 3, 6: None, 7: 6}
+        if len(tokens) not in layouts:
+            raise InputFileError(
+                f"{path}: line {consumed} has {len(tokens)} columns; expected 3 (x y z), "
+                "4 (x y z label), 6 (x y z r g b) or 7 (x y z r g b label), or a header line naming them"
+            )
+        return _Layout(delimiter, (0, 1, 2), layouts[len(tokens)], len(tokens), consumed - 1)
+    raise InputFileError(f"{path}: holds no points; pass a text file with one 'x y z [r g b] [label]' per line")
+
+
+def _parse_lines(path: Path, lines: list[str], layout: _Layout, first_line: int) -> PointCloud:
+    try:
+        table = np.loadtxt(
+            lines, dtype=np.float64, delimiter=layout.delimiter, comments=_COMMENT, ndmin=2,
+        )
+    except ValueError as exc:
+        # numpy counts rows from 0 within this chunk; report the line in the file
+        row = re.search(r"row (\d+)", str(exc))
+        where = first_line + (int(row.group(1)) if row else 0)
+        raise InputFileError(
+            f"{path}: unreadable point line near line {where} ({str(exc).rstrip('.')}); fix or remove it"
+        ) from exc
+    if table.shape[0] == 0:
+        return PointCloud(xyz=np.empty((0, 3)), label=None if layout.label is None else np.empty(0, np.uint8))
+    if table.shape[1] != layout.columns:
+        raise InputFileError(
+            f"{path}: lines from {first_line} have {table.shape[1]} columns, the first data line had "
+            f"{layout.columns}; every line needs the same columns"
+        )
+    xyz = np.ascontiguousarray(table[:, list(layout.xyz)])
+    label = None
+    if layout.label is not None:
+        raw = table[:, layout.label]
+        bad = (raw != np.round(raw)) | (raw < 0) | (raw > 255) | ~np.isfinite(raw)
+        if bad.any():
+            row = int(np.argmax(bad))
+            raise InputFileError(
+                f"{path}: label {float(raw[row])!r} near line {first_line + row} is not an integer "
+                "in 0..255; labels must be class ids 0..255"
+            )
+        label = raw.astype(np.uint8)
+    return PointCloud(xyz=xyz, label=label)
+
+
+def iter_text_chunks(path: str | Path, *, chunk_points: int = 1_000_000) -> Iterator[PointCloud]:
+    """Stream a text cloud as :class:`PointCloud` chunks of at most ``chunk_points`` points.
+
+    xyz (N, 3) float64 in the file's units (metres expected); label (N,) uint8 when the file has
+    a label column, else None. Memory stays bounded by the chunk size.
+    """
+    path = Path(path)
+    if chunk_points < 1:
+        raise ValueError(f"chunk_points must be at least 1, got {chunk_points}")
+    if not path.is_file():
+        raise InputFileError(f"{path}: no such file; check the path")
+    with path.open("r", encoding="utf-8", errors="strict") as handle:
+        try:
+            layout = _detect_layout(path, handle)
+        except UnicodeDecodeError as exc:
+            raise InputFileError(f"{path}: not a text file ({exc.reason}); pass 'x y z [label]' text") from exc
+    with path.open("r", encoding="utf-8") as handle:
+        lines_iter = itertools.islice(handle, layout.data_start, None)
+        line_number = layout.data_start + 1
+        while True:
+            try:
+                lines = list(itertools.islice(lines_iter, chunk_points))
+            except UnicodeDecodeError as exc:
+                raise InputFileError(f"{path}: not UTF-8 text after line {line_number}; fix the file") from exc
+            if not lines:
+                return
+            chunk = _parse_lines(path, lines, layout, line_number)
+            line_number += len(lines)
+            if len(chunk):
+                yield chunk
+
+
+def read_text_cloud(path: str | Path) -> PointCloud:
+    """Read a whole text cloud (see the module docstring for the accepted layouts)."""
+    chunks = list(iter_text_chunks(path))
+    if not chunks:
+        raise InputFileError(f"{path}: holds no points; pass a text file with one 'x y z [label]' per line")
+    return PointCloud.concatenate(chunks)
+
+
+def write_text_cloud(path: str | Path, cloud: PointCloud, *, overwrite: bool = False) -> Path:
+    """Write ``x y z label`` lines (``x y z`` without labels); atomic, deterministic bytes.
+
+    Coordinates are written with 6 decimals (micrometres for metre units), so a round trip
+    keeps xyz within 5e-7 m and the labels exactly.
+    """
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise OutputError(f"{path}: already exists; pass overwrite=True (--overwrite) or choose another name")
+    if not path.parent.is_dir():
+        raise OutputError(f"{path}: folder {path.parent} does not exist; create it first")
+    handle, temp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    finished = False
+    try:
+        with os.fdopen(handle, "w", encoding="utf-8", newline="\n") as out:
+            out.write("# x y z" + (" label\n" if cloud.label is not None else "\n"))
+            step = 500_000  # bounded formatting memory for big clouds
+            for start in range(0, len(cloud), step):
+                xyz = cloud.xyz[start:start + step]
+                if cloud.label is None:
+                    np.savetxt(out, xyz, fmt="%.6f %.6f %.6f")
+                else:
+                    table = np.column_stack([xyz, cloud.label[start:start + step].astype(np.float64)])
+                    np.savetxt(out, table, fmt="%.6f %.6f %.6f %d")
+        os.replace(temp_name, path)
+        finished = True
+    finally:
+        if not finished:  # never leave a half-written file behind, whatever went wrong
+            Path(temp_name).unlink(missing_ok=True)
+    return path

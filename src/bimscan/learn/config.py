@@ -1,0 +1,189 @@
+"""Training configuration: one TOML file per experiment -> frozen dataclasses.
+
+Sections ``[data]``, ``[blocks]``, ``[model]`` and ``[train]``; unknown keys are errors, and
+every key has the paper's Table 2 value as its default where Table 2 gives one. Relative paths
+in the file are relative to the file's folder. See ``configs/train_table2.toml`` for a
+commented example.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+from bimscan.config import build_dataclass, load_toml
+from bimscan.errors import ConfigError
+
+DEFAULT_CLASS_NAMES = ("Wall&Column", "Beam", "Covering", "Slab", "Others")
+IGNORE_LABEL = 255  # "unlabelled": skipped by the loss and the metrics
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """Where the scenes are and how their labels read.
+
+    ``train``/``val``: bimscan dataset folders (``manifest.json``; the units with status
+    "done"), cloud files (``.las .laz .ply``, text ``.txt .xyz .pts .csv .asc``), NumPy cloud
+    folders, S3DIS room/area folders. ``train`` is the synthetic set, ``val`` the real set
+    (no fine-tuning: it is only evaluated). ``*_label_field`` names the LAS/PLY dimension that
+    holds the labels (None: ``classification``/``label``). ``*_mapping`` is a mapping TOML
+    (source class name or id -> one of ``class_names``); S3DIS rooms use the shipped
+    S3DIS->5-class mapping when none is given.
+    """
+
+    train: tuple[str, ...]
+    val: tuple[str, ...] = ()
+    class_names: tuple[str, ...] = DEFAULT_CLASS_NAMES
+    train_label_field: str | None = None
+    val_label_field: str | None = None
+    train_mapping: str | None = None
+    val_mapping: str | None = None
+
+    def __post_init__(self) -> None:
+        if not self.train:
+            raise ValueError("'train' lists no scenes; name at least one dataset folder or cloud")
+        if not 2 <= len(self.class_names) <= 255:
+            raise ValueError(f"'class_names' needs 2..255 names, got {len(self.class_names)}")
+        if len(set(self.class_names)) != len(self.class_names):
+            raise ValueError(f"'class_names' repeats a name: {list(self.class_names)}")
+
+
+@dataclass(frozen=True)
+class BlockConfig:
+    """How scenes are cut into network inputs (Table 2: N = 8192 points per block).
+
+    A block is a vertical column ``size_m`` x ``size_m`` over the scene's full height. Training
+    tiles are the non-overlapping columns of a grid anchored at multiples of ``size_m``; each
+    keeps a uniform random subset of at most ``cache_points`` points in memory, from which
+    every epoch draws ``points`` without replacement (zero padding with a validity mask when
+    the tile has fewer). Tiles with fewer than ``min_points`` points are skipped for training
+    and validation. Evaluation and prediction slide the same column with ``eval_stride_m``
+    (``size_m`` must be a whole multiple of it) and vote with the summed softmax.
+    """
+
+    size_m: float = 4.0
+    eval_stride_m: float = 2.0
+    points: int = 8192
+    min_points: int = 1024
+    cache_points: int = 16384
+
+    def __post_init__(self) -> None:
+        if not self.size_m > 0 or not self.eval_stride_m > 0:
+            raise ValueError(f"size_m and eval_stride_m must be positive, got {self.size_m}, {self.eval_stride_m}")
+        ratio = self.size_m / self.eval_stride_m
+        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+            raise ValueError(
+                f"size_m ({self.size_m}) must be a whole multiple of eval_stride_m ({self.eval_stride_m}); "
+                "e.g. 4.0 and 2.0"
+            )
+        if self.points < 16:
+            raise ValueError(f"points must be at least 16, got {self.points}")
+        if self.cache_points < self.points:
+            raise ValueError(f"cache_points ({self.cache_points}) must be >= points ({self.points})")
+        if not 1 <= self.min_points <= self.cache_points:
+            raise ValueError(f"min_points must be in 1..cache_points, got {self.min_points}")
+
+    @property
+    def stride_ratio(self) -> int:
+        """Blocks covering each point along x (and along y): size_m / eval_stride_m."""
+        return int(round(self.size_m / self.eval_stride_m))
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """PCT segmentation network size (defaults: Guo et al. 2021, about 2.4M parameters at C=5)."""
+
+    embed_dim: int = 128
+    attention_layers: int = 4
+    fuse_dim: int = 1024
+    head_dims: tuple[int, ...] = (512, 256)
+    dropout: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.embed_dim < 4 or self.embed_dim % 4:
+            raise ValueError(f"embed_dim must be a multiple of 4 (q/k project to embed_dim/4), got {self.embed_dim}")
+        if self.attention_layers < 1 or self.fuse_dim < 1 or any(d < 1 for d in self.head_dims):
+            raise ValueError("attention_layers, fuse_dim and head_dims must be positive")
+        if not 0.0 <= self.dropout < 1.0:
+            raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Optimisation (Table 2): Adam, OneCycleLR (cosine), EMA, AMP, accumulation, DDP.
+
+    The global batch is ``batch_size`` (per process) x processes x ``accumulation_steps``.
+    ``amp``: "float16" (Table 2's AMP with GradScaler; the default), "bfloat16" (no scaler
+    needed: bf16 has float32's range) or "off". AMP applies on CUDA only; CPU runs use float32.
+    ``device``: "auto" (CUDA when present), "cpu", "cuda". ``out_dir`` holds the checkpoints,
+    ``metrics.csv`` and ``curves.png``.
+    """
+
+    epochs: int = 100
+    batch_size: int = 2
+    accumulation_steps: int = 4
+    max_lr: float = 2e-3
+    weight_decay: float = 5e-4
+    pct_start: float = 0.3
+    div_factor: float = 25.0
+    final_div_factor: float = 1e4
+    ema_alpha: float = 0.99
+    amp: Literal["float16", "bfloat16", "off"] = "float16"
+    num_workers: int = 4
+    eval_batch_size: int = 8
+    seed: int = 0
+    device: Literal["auto", "cpu", "cuda"] = "auto"
+    out_dir: str = "runs/train"
+
+    def __post_init__(self) -> None:
+        for name in ("epochs", "batch_size", "accumulation_steps", "eval_batch_size"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if self.num_workers < 0:
+            raise ValueError(f"num_workers must be >= 0, got {self.num_workers}")
+        if not self.max_lr > 0 or self.weight_decay < 0:
+            raise ValueError(f"max_lr must be > 0 and weight_decay >= 0, got {self.max_lr}, {self.weight_decay}")
+        if not 0.0 < self.pct_start < 1.0:
+            raise ValueError(f"pct_start must be in (0, 1), got {self.pct_start}")
+        if not 0.0 <= self.ema_alpha < 1.0:
+            raise ValueError(f"ema_alpha must be in [0, 1), got {self.ema_alpha}")
+
+
+@dataclass(frozen=True)
+class TrainRunConfig:
+    """A whole training experiment: the four sections of the TOML file."""
+
+    data: DataConfig
+    blocks: BlockConfig = field(default_factory=BlockConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+
+
+def load_train_config(path: str | Path) -> tuple[TrainRunConfig, Path]:
+    """Load a training TOML file; returns the config and the folder relative paths start from."""
+    path = Path(path)
+    data = load_toml(path)
+    config = build_dataclass(TrainRunConfig, data, where=str(path))
+    return config, path.resolve().parent
+
+
+def resolve_path(base: Path, value: str) -> Path:
+    """``value`` as a path, relative to ``base`` unless absolute (``~`` expanded)."""
+    candidate = Path(value).expanduser()
+    return candidate if candidate.is_absolute() else base / candidate
+
+
+def dump_config(config: TrainRunConfig) -> dict[str, object]:
+    """The config as plain data (for the checkpoint and the run log)."""
+    from dataclasses import asdict
+
+    return asdict(config)
+
+
+def parse_config(data: dict[str, object], *, where: str) -> TrainRunConfig:
+    """Rebuild a config stored by :func:`dump_config` (tuples come back as lists)."""
+    try:
+        return build_dataclass(TrainRunConfig, data, where=where)
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: stored configuration is not readable by this version ({exc})") from exc

@@ -1,0 +1,438 @@
+"""Scenes for training and evaluation: discovery, label mapping, streamed reading, training tiles.
+
+A *scene* is one point cloud with (optional) labels: a bimscan cloud (LAS/LAZ/PLY/NumPy folder,
+read by :mod:`bimscan.io`), a real scan a user brings (the same formats, labels in
+``classification`` or a named dimension; or plain text, :mod:`bimscan.io.text`), or an S3DIS
+room (:mod:`bimscan.io.s3dis`). A bimscan dataset folder (``manifest.json``) stands for its
+finished units, an S3DIS area or root folder for its rooms.
+
+Labels are mapped to training ids 0..C-1 on reading (255 = unlabelled, skipped by loss and
+metrics): by a mapping file when given, else by class name when the cloud stores its scheme
+(bimscan clouds; S3DIS class names with the shipped mapping), else taken as they are.
+
+Training reads every scene once, streamed, and keeps for each column (see
+:mod:`bimscan.learn.blocks`) a uniform random subset of at most ``cache_points`` points (the
+points with the smallest random keys, merged chunk by chunk), so memory is bounded by
+columns x cache_points whatever the scene size. Those tiles can be cached on disk.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+import zlib
+from collections.abc import Iterator, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bimscan.errors import InputFileError, LearnError
+from bimscan.learn.blocks import locate_columns, encode_column_key, sample_block, decode_column_key
+from bimscan.learn.config import DEFAULT_CLASS_NAMES, IGNORE_LABEL, BlockConfig
+from bimscan.learn.mapping import (
+    LabelMapping, apply_label_table, build_label_table, load_s3dis_mapping,
+)
+from bimscan.types import PointCloud
+
+CLOUD_SUFFIXES = (".las", ".laz", ".ply")
+DATASET_FORMAT = "bimscan-dataset"
+DATASET_FILE_PREFERENCE = ("npy", "laz", "las", "ply")  # the NumPy folder reads fastest
+CHUNK_POINTS = 1_000_000
+
+
+@dataclass(frozen=True)
+class SceneSource:
+    """One scene to read: where, what kind, how its labels map.
+
+    ``kind``: "cloud" (LAS/LAZ/PLY), "npdir" (bimscan NumPy folder), "text", "s3dis" (a room).
+    """
+
+    path: Path
+    kind: str
+    name: str
+    label_field: str | None = None
+    mapping: LabelMapping | None = None
+
+
+def _text_suffixes() -> tuple[str, ...]:
+    from bimscan.io.text import TEXT_SUFFIXES
+
+    return TEXT_SUFFIXES
+
+
+def _is_npdir(path: Path) -> bool:
+    return path.is_dir() and (path / "coord.npy").is_file()
+
+
+def _dataset_units(path: Path) -> list[tuple[str, Path]]:
+    manifest_path = path / "manifest.json"
+    try:
+        manifest = json.loads(manifest_path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputFileError(f"{manifest_path}: unreadable dataset manifest ({exc}); rebuild the dataset") from exc
+    if not isinstance(manifest, dict) or manifest.get("format") != DATASET_FORMAT:
+        raise InputFileError(
+            f"{manifest_path}: 'format' is {manifest.get('format') if isinstance(manifest, dict) else None!r}, "
+            f"expected {DATASET_FORMAT!r}; pass a bimscan dataset folder"
+        )
+    if manifest.get("version") != 1:
+        raise InputFileError(f"{manifest_path}: dataset version {manifest.get('version')!r} is not supported (1 is)")
+    units = []
+    for unit in manifest.get("units", []):
+        if not isinstance(unit, dict) or unit.get("status") != "done":
+            continue
+        files = unit.get("files", {})
+        choice = next((files[k] for k in DATASET_FILE_PREFERENCE if isinstance(files.get(k), str)), None)
+        if choice is None:
+            raise InputFileError(
+                f"{manifest_path}: unit {unit.get('id')!r} lists no cloud among {', '.join(DATASET_FILE_PREFERENCE)}; "
+                "rebuild the unit"
+            )
+        unit_path = path / choice
+        if not unit_path.exists():
+            raise InputFileError(f"{manifest_path}: unit {unit.get('id')!r} cloud {unit_path} is missing; rebuild the unit")
+        units.append((str(unit.get("id")), unit_path))
+    if not units:
+        raise LearnError(f"{path}: the dataset has no unit with status 'done'; build it first (or resume the build)")
+    return units
+
+
+def list_scenes(
+    paths: Sequence[str | Path], *, label_field: str | None = None, mapping: LabelMapping | None = None,
+) -> list[SceneSource]:
+    """Expand user paths into scenes: datasets into their done units, S3DIS areas into rooms.
+
+    Raises InputFileError for paths that do not exist or hold no known kind of scene.
+    """
+    from bimscan.io.s3dis import is_s3dis_room, list_s3dis_rooms
+
+    scenes: list[SceneSource] = []
+    for raw in paths:
+        path = Path(raw)
+        if not path.exists():
+            raise InputFileError(f"{path}: no such file or folder; check the path")
+        suffix = path.suffix.lower()
+        if path.is_file() and suffix in CLOUD_SUFFIXES:
+            scenes.append(SceneSource(path, "cloud", path.stem, label_field, mapping))
+        elif path.is_file() and suffix in _text_suffixes():
+            scenes.append(SceneSource(path, "text", path.stem, label_field, mapping))
+        elif path.is_dir() and (path / "manifest.json").is_file():
+            for unit_id, unit_path in _dataset_units(path):
+                kind = "npdir" if _is_npdir(unit_path) or unit_path.suffix == "" else "cloud"
+                scenes.append(SceneSource(unit_path, kind, unit_id, label_field, mapping))
+        elif _is_npdir(path):
+            scenes.append(SceneSource(path, "npdir", path.name, label_field, mapping))
+        elif path.is_dir() and is_s3dis_room(path):
+            scenes.append(SceneSource(path, "s3dis", path.name, label_field, mapping))
+        elif path.is_dir() and list_s3dis_rooms(path):
+            for room in list_s3dis_rooms(path):
+                scenes.append(SceneSource(room, "s3dis", f"{room.parent.name}/{room.name}", label_field, mapping))
+        else:
+            raise InputFileError(
+                f"{path}: not a scene; pass a .las/.laz/.ply/.txt/.xyz/.pts/.csv cloud, a bimscan NumPy "
+                "cloud folder or dataset folder, or an S3DIS room/area folder"
+            )
+    return scenes
+
+
+def build_scene_label_table(source: SceneSource, *, class_names: Sequence[str]) -> np.ndarray:
+    """The (256,) int16 table mapping this scene's label ids to training ids."""
+    from bimscan.io.s3dis import S3DIS_CLASSES
+
+    if source.kind == "s3dis":
+        mapping = source.mapping or load_s3dis_mapping()
+        return build_label_table(
+            class_names=class_names, mapping=mapping, source_names=dict(enumerate(S3DIS_CLASSES)),
+        )
+    names = None
+    if source.kind in ("cloud", "npdir") and source.label_field is None:
+        from bimscan.io import read_cloud_header
+
+        header = read_cloud_header(source.path)
+        if header is not None:
+            names = header.scheme.names
+    return build_label_table(class_names=class_names, mapping=source.mapping, source_names=names)
+
+
+def iter_raw_chunks(source: SceneSource, *, chunk_points: int = CHUNK_POINTS) -> Iterator[PointCloud]:
+    """The scene's points as stored (labels unmapped), in a fixed order, chunk by chunk."""
+    if source.kind in ("cloud", "npdir"):
+        from bimscan.io import iter_cloud_chunks
+
+        yield from iter_cloud_chunks(source.path, chunk_points=chunk_points, label_field=source.label_field)
+    elif source.kind == "text":
+        from bimscan.io.text import iter_text_chunks
+
+        yield from iter_text_chunks(source.path, chunk_points=chunk_points)
+    elif source.kind == "s3dis":
+        from bimscan.io.s3dis import read_s3dis_room
+
+        room = read_s3dis_room(source.path)  # rooms are small (about 1M points); read whole
+        for start in range(0, len(room), chunk_points):
+            yield room.take(slice(start, start + chunk_points))
+    else:
+        raise LearnError(f"{source.path}: unknown scene kind {source.kind!r}")
+
+
+def iter_scene_chunks(
+    source: SceneSource, *, class_names: Sequence[str] = DEFAULT_CLASS_NAMES, chunk_points: int = CHUNK_POINTS,
+) -> Iterator[PointCloud]:
+    """The scene chunk by chunk with labels mapped to training ids (255 where unlabelled).
+
+    Every chunk carries ``label`` (N,) uint8; coordinates are checked to be finite.
+    """
+    table = build_scene_label_table(source, class_names=class_names)
+    for chunk in iter_raw_chunks(source, chunk_points=chunk_points):
+        if not np.isfinite(chunk.xyz).all():
+            bad = int((~np.isfinite(chunk.xyz)).any(axis=1).sum())
+            raise LearnError(f"{source.path}: {bad} points have non-finite coordinates; filter them out first")
+        if chunk.label is None:
+            label = np.full(len(chunk), IGNORE_LABEL, dtype=np.uint8)
+        else:
+            label = apply_label_table(chunk.label, table, where=str(source.path))
+        yield PointCloud(
+            xyz=chunk.xyz, label=label, component=chunk.component, station=chunk.station,
+            intensity=chunk.intensity, time=chunk.time,
+        )
+
+
+def load_scene(
+    path: str | Path, *, label_field: str | None = None, mapping: LabelMapping | None = None,
+    class_names: Sequence[str] = DEFAULT_CLASS_NAMES,
+) -> PointCloud:
+    """Read one scene whole, labels mapped to training ids (see the module docstring).
+
+    For big scenes prefer :func:`iter_scene_chunks`. ``path`` must name exactly one scene.
+    """
+    scenes = list_scenes([path], label_field=label_field, mapping=mapping)
+    if len(scenes) != 1:
+        raise LearnError(f"{path}: holds {len(scenes)} scenes; load them one by one (list_scenes)")
+    return PointCloud.concatenate(list(iter_scene_chunks(scenes[0], class_names=class_names)))
+
+
+# ---------------------------------------------------------------- training tiles
+
+
+@dataclass(frozen=True)
+class TileSet:
+    """Columns of one or more scenes, each holding a random subset of its points.
+
+    xyz (P, 3) float32 metres relative to the tile's ``origin``; label (P,) uint8 training ids;
+    offsets (T+1,) int64 into xyz/label; origin (T, 3) float64; key (T,) int64 column key;
+    count (T,) int64 points of the whole column; scene (T,) int32 index into ``scene_names``.
+    """
+
+    xyz: np.ndarray
+    label: np.ndarray
+    offsets: np.ndarray
+    origin: np.ndarray
+    key: np.ndarray
+    count: np.ndarray
+    scene: np.ndarray
+    scene_names: tuple[str, ...]
+
+    def __len__(self) -> int:
+        return int(len(self.offsets) - 1)
+
+    def tile_points(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """(M, 3) float64 relative coordinates and (M,) uint8 labels of one tile."""
+        lo, hi = int(self.offsets[index]), int(self.offsets[index + 1])
+        return self.xyz[lo:hi].astype(np.float64), self.label[lo:hi]
+
+    @staticmethod
+    def concatenate(parts: Sequence[TileSet]) -> TileSet:
+        """Join tile sets of different scenes (scene indices renumbered)."""
+        names: list[str] = []
+        scenes, offsets, total = [], [np.zeros(1, np.int64)], 0
+        for part in parts:
+            scenes.append(part.scene + len(names))
+            names.extend(part.scene_names)
+            offsets.append(part.offsets[1:] + total)
+            total += int(part.offsets[-1])
+        return TileSet(
+            xyz=np.concatenate([p.xyz for p in parts]) if parts else np.empty((0, 3), np.float32),
+            label=np.concatenate([p.label for p in parts]) if parts else np.empty(0, np.uint8),
+            offsets=np.concatenate(offsets),
+            origin=np.concatenate([p.origin for p in parts]) if parts else np.empty((0, 3)),
+            key=np.concatenate([p.key for p in parts]) if parts else np.empty(0, np.int64),
+            count=np.concatenate([p.count for p in parts]) if parts else np.empty(0, np.int64),
+            scene=np.concatenate(scenes).astype(np.int32) if parts else np.empty(0, np.int32),
+            scene_names=tuple(names),
+        )
+
+
+def _scene_seed(seed: int, source: SceneSource) -> np.random.SeedSequence:
+    # keyed by the scene's name so a scene samples the same whatever else is in the list
+    return np.random.SeedSequence([seed, zlib.crc32(source.name.encode("utf-8"))])
+
+
+def collect_scene_tiles(
+    source: SceneSource, *, blocks: BlockConfig, class_names: Sequence[str], seed: int,
+    chunk_points: int = CHUNK_POINTS,
+) -> TileSet:
+    """Stream one scene into its training columns, keeping <= ``blocks.cache_points`` each.
+
+    Each point gets a random key; each column keeps its points with the smallest keys, i.e. a
+    uniform random subset without replacement, independent of how the stream is chunked.
+    Columns with fewer than ``blocks.min_points`` points or no labelled point are dropped.
+    """
+    limit = blocks.cache_points
+    rng = np.random.default_rng(_scene_seed(seed, source))
+    kept_key = np.empty(0, np.int64)
+    kept_prio = np.empty(0, np.float64)
+    kept_xyz = np.empty((0, 3), np.float64)
+    kept_label = np.empty(0, np.uint8)
+    full_key = np.empty(0, np.int64)  # columns holding `limit` points, with their largest key
+    full_prio = np.empty(0, np.float64)
+    counts: dict[int, int] = {}
+    for chunk in iter_scene_chunks(source, class_names=class_names, chunk_points=chunk_points):
+        ix, iy = locate_columns(chunk.xyz[:, :2], size_m=blocks.size_m)
+        key = encode_column_key(ix, iy)
+        prio = rng.random(len(key))
+        unique, unique_counts = np.unique(key, return_counts=True)
+        for k, c in zip(unique.tolist(), unique_counts.tolist(), strict=True):
+            counts[k] = counts.get(k, 0) + c
+        if len(full_key):
+            # drop points that cannot enter an already full column: cheap, keeps merges small
+            pos = np.clip(np.searchsorted(full_key, key), 0, len(full_key) - 1)
+            threshold = np.where(full_key[pos] == key, full_prio[pos], np.inf)
+            take = prio < threshold
+            key, prio = key[take], prio[take]
+            xyz, label = chunk.xyz[take], chunk.label[take]
+        else:
+            xyz, label = chunk.xyz, chunk.label
+        all_key = np.concatenate([kept_key, key])
+        all_prio = np.concatenate([kept_prio, prio])
+        order = np.lexsort((all_prio, all_key))
+        all_key, all_prio = all_key[order], all_prio[order]
+        starts = np.flatnonzero(np.r_[True, all_key[1:] != all_key[:-1]])
+        sizes = np.diff(np.r_[starts, len(all_key)])
+        rank = np.arange(len(all_key)) - np.repeat(starts, sizes)
+        keep = rank < limit
+        kept_key, kept_prio = all_key[keep], all_prio[keep]
+        kept_xyz = np.concatenate([kept_xyz, xyz])[order][keep]
+        kept_label = np.concatenate([kept_label, label])[order][keep]
+        full = sizes >= limit
+        full_key = all_key[starts[full]]
+        full_prio = all_prio[starts[full] + limit - 1]
+    return _tiles_from_points(source, kept_key, kept_xyz, kept_label, counts, blocks=blocks)
+
+
+def _tiles_from_points(
+    source: SceneSource, key: np.ndarray, xyz: np.ndarray, label: np.ndarray, counts: dict[int, int],
+    *, blocks: BlockConfig,
+) -> TileSet:
+    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]]) if len(key) else np.empty(0, np.int64)
+    ends = np.r_[starts[1:], len(key)].astype(np.int64)
+    parts_xyz, parts_label, offsets, origins, keys, totals = [], [], [0], [], [], []
+    for start, end in zip(starts.tolist(), ends.tolist(), strict=True):
+        column = int(key[start])
+        labels = label[start:end]
+        if counts[column] < blocks.min_points or not (labels != IGNORE_LABEL).any():
+            continue
+        ix, iy = decode_column_key(np.array([column]))
+        origin = np.array([ix[0] * blocks.size_m, iy[0] * blocks.size_m, float(xyz[start:end, 2].min())])
+        parts_xyz.append((xyz[start:end] - origin).astype(np.float32))
+        parts_label.append(labels)
+        offsets.append(offsets[-1] + end - start)
+        origins.append(origin)
+        keys.append(column)
+        totals.append(counts[column])
+    return TileSet(
+        xyz=np.concatenate(parts_xyz) if parts_xyz else np.empty((0, 3), np.float32),
+        label=np.concatenate(parts_label) if parts_label else np.empty(0, np.uint8),
+        offsets=np.asarray(offsets, dtype=np.int64),
+        origin=np.asarray(origins, dtype=np.float64).reshape(-1, 3),
+        key=np.asarray(keys, dtype=np.int64),
+        count=np.asarray(totals, dtype=np.int64),
+        scene=np.zeros(len(keys), dtype=np.int32),
+        scene_names=(source.name,),
+    )
+
+
+def _fingerprint(path: Path) -> list[object]:
+    """Name, size and modification time of a file, or of every file in a folder tree."""
+    if path.is_file():
+        stat = path.stat()
+        return [str(path.resolve()), stat.st_size, stat.st_mtime_ns]
+    rows: list[object] = [str(path.resolve())]
+    for file in sorted(p for p in path.rglob("*") if p.is_file()):
+        stat = file.stat()
+        rows.append([str(file.relative_to(path)), stat.st_size, stat.st_mtime_ns])
+    return rows
+
+
+def name_tile_cache(source: SceneSource, *, blocks: BlockConfig, class_names: Sequence[str], seed: int) -> str:
+    """File name of a scene's cached tiles: a digest of everything the tiles depend on."""
+    recipe = {
+        "version": 1, "scene": _fingerprint(source.path), "name": source.name, "kind": source.kind,
+        "label_field": source.label_field, "mapping": None if source.mapping is None else asdict(source.mapping),
+        "blocks": asdict(blocks), "class_names": list(class_names), "seed": seed,
+    }
+    digest = hashlib.sha256(json.dumps(recipe, sort_keys=True, default=str).encode()).hexdigest()[:24]
+    return f"tiles-{digest}.npz"
+
+
+def load_or_collect_tiles(
+    source: SceneSource, *, blocks: BlockConfig, class_names: Sequence[str], seed: int,
+    cache_dir: Path | None = None, build: bool = True,
+) -> TileSet:
+    """Tiles of one scene, from ``cache_dir`` when cached there, else collected (and cached).
+
+    With ``build`` False a missing cache entry is an error (DDP ranks other than 0 only read).
+    """
+    if cache_dir is None:
+        return collect_scene_tiles(source, blocks=blocks, class_names=class_names, seed=seed)
+    path = cache_dir / name_tile_cache(source, blocks=blocks, class_names=class_names, seed=seed)
+    if path.is_file():
+        with np.load(path) as data:
+            return TileSet(
+                xyz=data["xyz"], label=data["label"], offsets=data["offsets"], origin=data["origin"],
+                key=data["key"], count=data["count"], scene=data["scene"], scene_names=(source.name,),
+            )
+    if not build:
+        raise LearnError(f"{path}: tile cache missing (rank 0 should have written it); rerun the training")
+    tiles = collect_scene_tiles(source, blocks=blocks, class_names=class_names, seed=seed)
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    handle, temp = tempfile.mkstemp(prefix=".tiles-", suffix=".npz", dir=cache_dir)
+    finished = False
+    try:
+        with os.fdopen(handle, "wb") as out:
+            np.savez(
+                out, xyz=tiles.xyz, label=tiles.label, offsets=tiles.offsets, origin=tiles.origin,
+                key=tiles.key, count=tiles.count, scene=tiles.scene,
+            )
+        os.replace(temp, path)
+        finished = True
+    finally:
+        if not finished:
+            Path(temp).unlink(missing_ok=True)
+    return tiles
+
+
+class TileDataset:
+    """Map-style dataset of training blocks drawn from a :class:`TileSet`.
+
+    Items are addressed by ``(epoch, tile)`` keys: the block of a tile in an epoch is a random
+    sample seeded by (seed, epoch, tile), so it is the same whatever process, worker or order
+    draws it (the basis of exact resume and of DDP = one process). Each item is a dict of
+    ``xyz`` (N, 3) float32, ``label`` (N,) int64 (255 = ignore/padding), ``mask`` (N,) bool.
+    """
+
+    def __init__(self, tiles: TileSet, *, points: int, seed: int) -> None:
+        self.tiles = tiles
+        self.points = points
+        self.seed = seed
+
+    def __len__(self) -> int:
+        return len(self.tiles)
+
+    def __getitem__(self, key: tuple[int, int]) -> dict[str, np.ndarray]:
+        epoch, index = key
+        rng = np.random.default_rng(np.random.SeedSequence([self.seed, epoch, index]))
+        xyz, label = self.tiles.tile_points(index)
+        block = sample_block(xyz, label, points=self.points, rng=rng)
+        return {"xyz": block.xyz, "label": block.label, "mask": block.mask}

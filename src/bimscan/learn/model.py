@@ -1,0 +1,246 @@
+"""PCT for semantic segmentation (Guo et al. 2021, "PCT: Point Cloud Transformer"), in plain PyTorch.
+
+Layout of the segmentation network, point features on channels (B, D, N):
+
+1. Point embedding: two 1x1 convolutions 3 -> d -> d (no bias) with BatchNorm and ReLU.
+2. ``attention_layers`` offset-attention layers of width d (d = 128 in the paper): q and k share
+   one projection to d/4; energy = q^T k; softmax over keys (last dim) then L1 re-normalisation
+   over queries; the offset (x - attended) goes through a 1x1 conv + BN + ReLU and is added back.
+3. The layer outputs concatenated (4 x 128 = 512) and fused by a 1x1 conv to 1024 + BN + LeakyReLU.
+4. Global max and mean of the fused features, broadcast back to every point: 3 x 1024 = 3072.
+5. Head 3072 -> 512 -> 256 -> C: conv + BN + ReLU (+ dropout after the first), then logits.
+
+Padding: blocks with fewer than N points are zero-padded and come with a validity mask (B, N).
+Padded points are masked out of the attention (as keys, and as contributors to every output),
+out of the global pooling and out of the batch statistics of every BatchNorm
+(:class:`MaskedBatchNorm1d`), so the outputs at valid points do not depend on the padding,
+in training as in evaluation. Their own outputs are meaningless and must be ignored.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+from typing import Any
+
+import torch
+import torch.distributed as dist
+from torch import nn
+
+from bimscan.learn.config import ModelConfig
+
+
+class MaskedBatchNorm1d(nn.Module):
+    """BatchNorm over (B, C, N) whose training statistics use the valid points only.
+
+    Normalisation in training uses the statistics of the current (micro-)batch, as usual.
+    The running statistics are not updated per forward: the layer accumulates the sums of
+    every training forward and :meth:`commit_statistics` folds them in once per optimizer
+    step (summed over processes under DDP), so the running statistics do not depend on how a
+    global batch was split into micro-batches and processes.
+    """
+
+    def __init__(self, channels: int, *, momentum: float = 0.1, eps: float = 1e-5) -> None:
+        super().__init__()
+        self.channels = channels
+        self.momentum = momentum
+        self.eps = eps
+        self.weight = nn.Parameter(torch.ones(channels))
+        self.bias = nn.Parameter(torch.zeros(channels))
+        self.register_buffer("running_mean", torch.zeros(channels))
+        self.register_buffer("running_var", torch.ones(channels))
+        # float64 sums of the valid points since the last commit: count, sum, sum of squares
+        self.register_buffer("pending", torch.zeros(2 * channels + 1, dtype=torch.float64), persistent=False)
+
+    def forward(self, x: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+        """x (B, C, N) float, mask (B, N) bool or None (all valid) -> (B, C, N) in x's dtype."""
+        dtype = x.dtype
+        x = x.float()
+        if self.training:
+            if mask is None:
+                var, mean = torch.var_mean(x, dim=(0, 2), correction=0)
+                count = torch.tensor(float(x.shape[0] * x.shape[2]), device=x.device)
+            else:
+                # masked_fill, not a product with the mask: padded values may be anything
+                padded = ~mask.unsqueeze(1)  # (B, 1, N)
+                count = mask.sum().to(x.dtype).clamp_min(1.0)
+                mean = x.masked_fill(padded, 0.0).sum(dim=(0, 2)) / count
+                centred = (x - mean[None, :, None]).masked_fill(padded, 0.0)
+                var = (centred * centred).sum(dim=(0, 2)) / count
+            with torch.no_grad():  # sums for the running statistics, from this batch's moments
+                n = count.double()
+                mean_d = mean.detach().double()
+                self.pending[0] += n
+                self.pending[1:1 + self.channels] += mean_d * n
+                self.pending[1 + self.channels:] += (var.detach().double() + mean_d * mean_d) * n
+        else:
+            mean, var = self.running_mean, self.running_var
+        out = (x - mean[None, :, None]) * torch.rsqrt(var[None, :, None] + self.eps)
+        out = out * self.weight[None, :, None] + self.bias[None, :, None]
+        return out.to(dtype)
+
+    @torch.no_grad()
+    def commit_statistics(self, group: dist.ProcessGroup | None = None) -> None:
+        """Fold the accumulated sums into the running statistics (all-reduced under DDP)."""
+        if dist.is_available() and dist.is_initialized():
+            dist.all_reduce(self.pending, group=group)
+        count = float(self.pending[0])
+        if count >= 2:
+            mean = self.pending[1:1 + self.channels] / count
+            var = (self.pending[1 + self.channels:] / count - mean * mean).clamp_min(0.0)
+            var = var * count / (count - 1.0)  # unbiased, as nn.BatchNorm's running_var
+            self.running_mean.mul_(1.0 - self.momentum).add_(self.momentum * mean.float())
+            self.running_var.mul_(1.0 - self.momentum).add_(self.momentum * var.float())
+        self.pending.zero_()
+
+
+class ConvBlock(nn.Module):
+    """1x1 conv + masked BN + activation on (B, C_in, N) -> (B, C_out, N)."""
+
+    def __init__(self, c_in: int, c_out: int, *, activation: nn.Module, bias: bool = False) -> None:
+        super().__init__()
+        self.conv = nn.Conv1d(c_in, c_out, 1, bias=bias)
+        self.norm = MaskedBatchNorm1d(c_out)
+        self.act = activation
+
+    def forward(self, x: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+        return self.act(self.norm(self.conv(x), mask))
+
+
+class OffsetAttention(nn.Module):
+    """PCT's offset-attention layer on (B, D, N) features with a (B, N) validity mask.
+
+    A = softmax_rows(q^T k) with q = k = W x (shared, D/4 channels); each column of A is then
+    divided by its sum over the queries (L1) and the layer adds LBR(x - x_v A) to x. The
+    column division is applied to x_v A instead of to A (the same numbers: it scales columns),
+    which saves two N x N tensors per layer; at N = 8192 one is 256 MiB per block in float32.
+    Padded points are masked out as keys (-inf energy) and as queries (zero values, and left
+    out of the column sums).
+    """
+
+    def __init__(self, channels: int) -> None:
+        super().__init__()
+        self.qk = nn.Conv1d(channels, channels // 4, 1, bias=False)  # shared query/key projection
+        self.v = nn.Conv1d(channels, channels, 1)
+        self.trans = nn.Conv1d(channels, channels, 1)
+        self.norm = MaskedBatchNorm1d(channels)
+        self.act = nn.ReLU()
+
+    def forward(self, x: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+        q = self.qk(x)  # (B, D/4, N)
+        # energy, softmax and column sums in float32 even under AMP: float16 energies overflow
+        # (max 65504) and 1e-9 + 0 is 0 in float16, so padded columns would divide 0 by 0
+        with torch.autocast(device_type=x.device.type, enabled=False):
+            qf = q.float()
+            energy = torch.bmm(qf.transpose(1, 2), qf)  # (B, N_query, N_key)
+            if mask is not None:
+                energy.masked_fill_(~mask[:, None, :], float("-inf"))  # padded keys get no weight
+            attention = torch.softmax(energy, dim=-1)
+            del energy  # not needed by backward: free it before the next N x N tensor
+            if mask is None:
+                column_sum = attention.sum(dim=1, keepdim=True)  # (B, 1, N_key)
+            else:  # padded queries do not count in the L1 either
+                column_sum = torch.bmm(mask[:, None, :].float(), attention)
+        values = self.v(x)
+        if mask is not None:
+            values = values.masked_fill(~mask[:, None, :], 0.0)  # padded queries send nothing
+        attended = torch.bmm(values, attention.to(values.dtype))  # (B, D, N): output j sums over i
+        attended = (attended.float() / (1e-9 + column_sum)).to(x.dtype)
+        offset = self.act(self.norm(self.trans(x - attended), mask))
+        return x + offset
+
+
+class PCTSegmentation(nn.Module):
+    """PCT segmentation network: (B, N, 3) xyz + (B, N) mask -> (B, N, C) logits."""
+
+    def __init__(self, num_classes: int, config: ModelConfig | None = None, *, in_dim: int = 3) -> None:
+        super().__init__()
+        config = config or ModelConfig()
+        d = config.embed_dim
+        self.config = config
+        self.num_classes = num_classes
+        self.embed1 = ConvBlock(in_dim, d, activation=nn.ReLU())
+        self.embed2 = ConvBlock(d, d, activation=nn.ReLU())
+        self.attention = nn.ModuleList(OffsetAttention(d) for _ in range(config.attention_layers))
+        self.fuse = ConvBlock(d * config.attention_layers, config.fuse_dim, activation=nn.LeakyReLU(0.2))
+        head: list[ConvBlock] = []
+        width = 3 * config.fuse_dim
+        for out in config.head_dims:
+            head.append(ConvBlock(width, out, activation=nn.ReLU()))
+            width = out
+        self.head = nn.ModuleList(head)
+        self.dropout = nn.Dropout(config.dropout)
+        self.classifier = nn.Conv1d(width, num_classes, 1)
+
+    def forward(self, xyz: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+        """xyz (B, N, 3) normalised coordinates; mask (B, N) bool, True = real point.
+
+        Returns logits (B, N, C). Without a mask every point is real.
+        """
+        if mask is not None and bool(mask.all()):
+            mask = None  # blocks without padding take the cheaper unmasked path
+        x = xyz.transpose(1, 2)
+        x = self.embed2(self.embed1(x, mask), mask)
+        layers = []
+        for layer in self.attention:
+            x = layer(x, mask)
+            layers.append(x)
+        fused = self.fuse(torch.cat(layers, dim=1), mask)  # (B, F, N)
+        if mask is None:
+            pooled_max = fused.amax(dim=2, keepdim=True)
+            pooled_mean = fused.mean(dim=2, keepdim=True)
+        else:
+            valid = mask[:, None, :]
+            pooled_max = fused.masked_fill(~valid, float("-inf")).amax(dim=2, keepdim=True)
+            count = valid.sum(dim=2, keepdim=True).clamp_min(1).to(fused.dtype)
+            pooled_mean = fused.masked_fill(~valid, 0.0).sum(dim=2, keepdim=True) / count
+        n = fused.shape[2]
+        x = torch.cat([fused, pooled_max.expand(-1, -1, n), pooled_mean.expand(-1, -1, n)], dim=1)
+        for i, block in enumerate(self.head):
+            x = block(x, mask)
+            if i == 0:
+                x = self.dropout(x)
+        return self.classifier(x).transpose(1, 2)
+
+
+def build_model(num_classes: int, config: ModelConfig | None = None) -> PCTSegmentation:
+    """A PCT segmentation network for ``num_classes`` classes (XYZ input, d = 3)."""
+    return PCTSegmentation(num_classes, config)
+
+
+def count_parameters(model: nn.Module) -> int:
+    """Number of trainable parameters."""
+    return sum(p.numel() for p in model.parameters() if p.requires_grad)
+
+
+def commit_batch_statistics(model: nn.Module) -> None:
+    """Fold every masked BatchNorm's pending sums into its running statistics (call per step)."""
+    for module in model.modules():
+        if isinstance(module, MaskedBatchNorm1d):
+            module.commit_statistics()
+
+
+@contextlib.contextmanager
+def flush_denormals() -> Iterator[None]:
+    """Flush denormal floats to zero on the CPU while the block runs, then turn it off again.
+
+    Attention weights near zero produce denormals that slow CPU kernels about tenfold; flushing
+    them changes no result measurably. The setting is process-wide (NumPy too), so it is
+    scoped, never left on (bimscan never turns it on elsewhere).
+    """
+    torch.set_flush_denormal(True)
+    try:
+        yield
+    finally:
+        torch.set_flush_denormal(False)
+
+
+def autocast_context(device: torch.device, amp: str) -> contextlib.AbstractContextManager[Any]:
+    """Mixed precision for ``amp`` ("float16", "bfloat16", "off") on CUDA; float32 elsewhere.
+
+    CPU runs stay in float32: CPU autocast would run bfloat16 kernels that are slower on
+    ordinary CPUs and change the numbers the CPU tests compare bit for bit.
+    """
+    if device.type != "cuda" or amp == "off":
+        return contextlib.nullcontext()
+    return torch.autocast(device_type="cuda", dtype=torch.float16 if amp == "float16" else torch.bfloat16)

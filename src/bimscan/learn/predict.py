@@ -1,0 +1,127 @@
+"""Label every point of a scan with a trained network and write it as a cloud (class in
+``classification`` for LAS/LAZ), streamed: labels go to a disk-backed array while blocks are
+voted on, then the input is streamed again into :func:`bimscan.io.open_cloud_writer`."""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bimscan.errors import LearnError, OutputError
+from bimscan.learn.checkpoint import load_trained_model
+from bimscan.learn.data import CHUNK_POINTS, SceneSource, iter_raw_chunks, list_scenes
+from bimscan.learn.evaluate import pick_device
+from bimscan.learn.infer import label_scene, replace_labels
+from bimscan.types import CloudHeader, LabelClass, LabelScheme
+
+# Tableau 10, the palette of the built-in spc5 scheme: the five default classes get the same
+# colours as in bimscan's synthetic clouds; other class lists cycle through it
+PALETTE = ("#4e79a7", "#f28e2b", "#e15759", "#76b7b2", "#59a14f", "#edc948", "#b07aa1", "#ff9da7", "#9c755f", "#bab0ac")
+CLASS_COLORS = {"Wall&Column": "#4e79a7", "Beam": "#f28e2b", "Covering": "#59a14f", "Slab": "#9c755f", "Others": "#e15759"}
+
+
+@dataclass(frozen=True)
+class PredictionResult:
+    """Where the labelled cloud went and what it holds: class_counts (C,) int64."""
+
+    path: Path
+    points: int
+    class_counts: np.ndarray
+    class_names: tuple[str, ...]
+    nearest_filled: int
+    seconds: float
+
+
+def build_prediction_scheme(class_names: tuple[str, ...], stored: LabelScheme | None = None) -> LabelScheme:
+    """The label scheme stored with predicted clouds: the checkpoint's classes.
+
+    The input cloud's own scheme (``stored``) is kept when it lists the same classes in the
+    same order (its colours and rules stay meaningful); otherwise a rule-less scheme is made.
+    """
+    if stored is not None and tuple(c.name for c in sorted(stored.classes, key=lambda c: c.id)) == class_names \
+            and [c.id for c in sorted(stored.classes, key=lambda c: c.id)] == list(range(len(class_names))):
+        return stored
+    classes = tuple(
+        LabelClass(id=i, name=name, color=CLASS_COLORS.get(name, PALETTE[i % len(PALETTE)]))
+        for i, name in enumerate(class_names)
+    )
+    return LabelScheme(name="pct-prediction", classes=classes, rules=(), default_label=class_names[-1])
+
+
+def predict_cloud(
+    checkpoint: str | Path, in_path: str | Path, out_path: str | Path, *, label_field: str | None = None,
+    device: str = "auto", batch_size: int = 8, max_passes: int = 0, weights: str = "ema", seed: int = 0,
+    overwrite: bool = False, chunk_points: int = CHUNK_POINTS,
+) -> PredictionResult:
+    """Label every point of ``in_path`` and write ``out_path`` (format by suffix, see bimscan.io).
+
+    The input's other columns (intensity, time, station, component) are kept; its own labels
+    are replaced. Nothing is left at ``out_path`` when anything fails.
+    """
+    from bimscan.io import open_cloud_writer, read_cloud_header
+
+    out_path = Path(out_path)
+    if out_path.exists() and not overwrite:
+        raise OutputError(f"{out_path}: already exists; pass --overwrite or choose another name")
+    if not out_path.parent.is_dir():
+        raise OutputError(f"{out_path}: folder {out_path.parent} does not exist; create it first")
+    torch_device = pick_device(device)
+    trained = load_trained_model(checkpoint, device=torch_device, weights="ema" if weights == "ema" else "live")
+    sources = list_scenes([in_path], label_field=label_field)
+    if len(sources) != 1:
+        raise LearnError(f"{in_path}: holds {len(sources)} scenes; predict one cloud at a time")
+    source: SceneSource = sources[0]
+    with tempfile.TemporaryDirectory(prefix=".bimscan-predict-", dir=out_path.parent) as temp:
+        folder = Path(temp)
+        index_file, label_file = folder / "index.i8", folder / "label.u1"
+        with index_file.open("wb") as index_out, label_file.open("wb") as label_out:
+
+            def keep(index: np.ndarray, prediction: np.ndarray) -> None:
+                # labels arrive stripe by stripe, in no point order: log them to disk
+                index.astype(np.int64).tofile(index_out)
+                prediction.astype(np.uint8).tofile(label_out)
+
+            result = label_scene(
+                trained.model, source, class_names=trained.class_names, blocks=trained.config.blocks,
+                device=torch_device, batch_size=batch_size, amp=trained.config.train.amp, seed=seed,
+                max_passes=max_passes, use_labels=False, work_dir=folder, on_labels=keep, chunk_points=chunk_points,
+            )
+        labels = np.memmap(folder / "labels.u1", dtype=np.uint8, mode="w+", shape=(result.points,))
+        for offset in range(0, result.points, chunk_points):
+            count = min(chunk_points, result.points - offset)
+            index = np.fromfile(index_file, dtype=np.int64, count=count, offset=offset * 8)
+            labels[index] = np.fromfile(label_file, dtype=np.uint8, count=count, offset=offset)
+        stored = read_cloud_header(source.path) if source.kind in ("cloud", "npdir") else None
+        centre = np.round((result.lower + result.upper) / 2.0)
+        header = CloudHeader(
+            scheme=build_prediction_scheme(trained.class_names, None if stored is None else stored.scheme),
+            components=None if stored is None else stored.components,
+            stations=() if stored is None else stored.stations,
+            origin=tuple(float(v) for v in (centre if stored is None else stored.origin)),  # type: ignore[arg-type]
+            metadata={
+                "prediction": {
+                    "checkpoint": str(checkpoint), "epoch": trained.epoch, "weights": trained.weights,
+                    "source": str(in_path), "seed": seed, "max_passes": max_passes,
+                    "block_size_m": trained.config.blocks.size_m, "block_stride_m": trained.config.blocks.eval_stride_m,
+                    "points_per_block": trained.config.blocks.points,
+                },
+                **({} if stored is None else {"source_metadata": dict(stored.metadata)}),
+            },
+        )
+        counts = np.zeros(len(trained.class_names), dtype=np.int64)
+        start = 0
+        with open_cloud_writer(out_path, header=header, overwrite=overwrite) as writer:
+            for chunk in iter_raw_chunks(source, chunk_points=chunk_points):
+                label = np.asarray(labels[start:start + len(chunk)])
+                counts += np.bincount(label, minlength=len(counts))[: len(counts)]
+                writer.write(replace_labels(chunk, label))
+                start += len(chunk)
+        del labels  # release the memory map before the folder goes
+    return PredictionResult(
+        path=out_path, points=result.points, class_counts=counts, class_names=trained.class_names,
+        nearest_filled=result.nearest_filled, seconds=result.seconds,
+    )
+

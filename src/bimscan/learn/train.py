@@ -1,0 +1,519 @@
+"""Training PCT on synthetic scenes, validated on real ones (the paper's Table 2 recipe).
+
+Adam with OneCycleLR (cosine annealing), weight decay, gradient accumulation, AMP with a
+GradScaler on CUDA (float32 on CPU), an EMA of the weights used for validation and saved for
+evaluation, DDP under ``torchrun`` (NCCL on CUDA, Gloo on CPU), a checkpoint per epoch, metric
+history as CSV and curves as PNG.
+
+Reproducibility and the DDP contract: the optimizer sees one *global batch* per step,
+``batch_size x processes x accumulation_steps`` blocks. Each epoch is a seeded permutation of
+the tiles, cut into global batches, each cut into micro-batches of ``batch_size``; process r
+runs micro-batches r*A .. r*A+A-1 of every global batch (A = accumulation steps). A block's
+points are drawn with a generator seeded by (seed, epoch, tile) and each micro-batch reseeds
+torch (dropout) from (seed, epoch, step, micro-batch), and BatchNorm running statistics are
+folded in once per optimizer step from sums over the whole global batch
+(:class:`~bimscan.learn.model.MaskedBatchNorm1d`). Hence one process with A' = A x P gives
+the same weights as P processes with A (up to floating-point summation order), and resuming
+from a checkpoint gives the same result as never stopping (bit for bit on CPU).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import datetime
+import math
+import os
+import sys
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.distributed as dist
+import torch.nn.functional as F
+from torch import nn
+
+from bimscan.errors import LearnError
+from bimscan.learn.checkpoint import (
+    capture_rng_state, read_checkpoint, restore_rng_state, save_checkpoint,
+)
+from bimscan.learn.config import IGNORE_LABEL, TrainConfig, TrainRunConfig, dump_config, resolve_path
+from bimscan.learn.data import SceneSource, TileDataset, TileSet, list_scenes, load_or_collect_tiles
+from bimscan.learn.mapping import load_label_mapping
+from bimscan.learn.metrics import METRIC_NAMES, compute_metrics
+from bimscan.learn.model import (
+    PCTSegmentation, autocast_context, build_model, commit_batch_statistics, count_parameters, flush_denormals,
+)
+from bimscan.learn.plots import plot_training_curves, write_history_csv
+from bimscan.progress import progress_bar
+
+VAL_EPOCH_KEY = 2**31  # validation blocks are drawn once, with this fixed "epoch"
+# settings a resumed run may change: they do not alter the computation
+RESUMABLE_CHANGES = {("train", "num_workers"), ("train", "device"), ("train", "eval_batch_size"), ("train", "out_dir")}
+
+
+@dataclass(frozen=True)
+class DistributedContext:
+    """This process's place in a (possibly single-process) run."""
+
+    world: int
+    rank: int
+    local_rank: int
+    device: torch.device
+    owns_group: bool  # we initialised the process group and must destroy it
+
+    @property
+    def is_main(self) -> bool:
+        return self.rank == 0
+
+
+def init_distributed(device_setting: str) -> DistributedContext:
+    """Join the ``torchrun`` process group when WORLD_SIZE > 1 and pick this process's device."""
+    if device_setting == "cuda" and not torch.cuda.is_available():
+        raise LearnError("device = 'cuda' but no CUDA device is visible; use device = 'auto' or 'cpu'")
+    use_cuda = device_setting == "cuda" or (device_setting == "auto" and torch.cuda.is_available())
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world <= 1:
+        return DistributedContext(1, 0, 0, torch.device("cuda", 0) if use_cuda else torch.device("cpu"), False)
+    rank, local_rank = int(os.environ["RANK"]), int(os.environ.get("LOCAL_RANK", "0"))
+    owns = False
+    if use_cuda:
+        torch.cuda.set_device(local_rank)
+    if not dist.is_initialized():
+        # generous timeout: processes wait at a barrier while the others read their scenes
+        dist.init_process_group(backend="nccl" if use_cuda else "gloo", timeout=datetime.timedelta(hours=2))
+        owns = True
+    device = torch.device("cuda", local_rank) if use_cuda else torch.device("cpu")
+    return DistributedContext(world, rank, local_rank, device, owns)
+
+
+def _seed_int(*parts: int) -> int:
+    return int(np.random.SeedSequence(list(parts)).generate_state(1, dtype=np.uint64)[0] % (2**63 - 1))
+
+
+class GlobalBatchSampler:
+    """This process's micro-batches of ``(epoch, tile)`` keys for one epoch (see module docs).
+
+    Replaces ``DistributedSampler``: that one deals indices to processes round-robin, so a
+    micro-batch would hold other blocks than in a one-process run and BatchNorm statistics,
+    dropout and the result would differ. Here global batch t holds permutation entries
+    t*G .. t*G+G-1 (wrapping around at the end of the epoch, so every tile is seen) and
+    process r takes its A contiguous micro-batches of it.
+    """
+
+    def __init__(self, size: int, *, batch_size: int, accumulation: int, world: int, rank: int, seed: int) -> None:
+        if size < 1:
+            raise LearnError("no training blocks: every tile was dropped; lower blocks.min_points or check the data")
+        self.size = size
+        self.batch_size = batch_size
+        self.accumulation = accumulation
+        self.world = world
+        self.rank = rank
+        self.seed = seed
+        self.epoch = 0
+        self.global_batch = batch_size * accumulation * world
+        self.steps_per_epoch = math.ceil(size / self.global_batch)
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def __len__(self) -> int:
+        return self.steps_per_epoch * self.accumulation
+
+    def __iter__(self) -> Iterator[list[tuple[int, int]]]:
+        rng = np.random.default_rng(np.random.SeedSequence([self.seed, 7, self.epoch]))
+        order = np.resize(rng.permutation(self.size), self.steps_per_epoch * self.global_batch)
+        for step in range(self.steps_per_epoch):
+            for k in range(self.accumulation):
+                micro = self.rank * self.accumulation + k
+                start = step * self.global_batch + micro * self.batch_size
+                yield [(self.epoch, int(i)) for i in order[start:start + self.batch_size]]
+
+
+class WeightEMA:
+    """Exponential moving average of the weights: ema = d * ema + (1 - d) * weights, per step.
+
+    d = min(alpha, (1 + t) / (10 + t)) at optimizer step t (the warm-up of timm's ModelEma):
+    Table 2's alpha = 0.99 from step 881 on, while early on the average is not dominated by
+    the random initial weights (with a fixed 0.99, 25 % of the EMA would still be the initial
+    weights after 138 steps). BatchNorm running statistics are averaged the same way, so they
+    match the averaged weights.
+    """
+
+    def __init__(self, model: nn.Module, *, alpha: float) -> None:
+        self.alpha = alpha
+        self.steps = 0
+        self.module = copy.deepcopy(model).eval()
+        for parameter in self.module.parameters():
+            parameter.requires_grad_(False)
+
+    def decay(self) -> float:
+        return min(self.alpha, (1.0 + self.steps) / (10.0 + self.steps))
+
+    @torch.no_grad()
+    def update(self, model: nn.Module) -> None:
+        weight = 1.0 - self.decay()
+        for ema_parameter, parameter in zip(self.module.parameters(), model.parameters(), strict=True):
+            ema_parameter.lerp_(parameter.detach(), weight)
+        for (name, ema_buffer), (_, buffer) in zip(self.module.named_buffers(), model.named_buffers(), strict=True):
+            if name.endswith("running_mean") or name.endswith("running_var"):
+                ema_buffer.lerp_(buffer, weight)
+        self.steps += 1
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        return self.module.state_dict()
+
+    def load_state_dict(self, state: dict[str, torch.Tensor], *, steps: int) -> None:
+        self.module.load_state_dict(state)
+        self.steps = steps
+
+
+def compute_loss(logits: torch.Tensor, label: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Mean cross entropy over labelled points (label != 255; padding carries 255).
+
+    logits (B, N, C) float, label (B, N) int64. Returns (mean loss, number of points counted).
+    """
+    flat_logits = logits.reshape(-1, logits.shape[-1]).float()
+    flat_label = label.reshape(-1)
+    total = F.cross_entropy(flat_logits, flat_label, ignore_index=IGNORE_LABEL, reduction="sum")
+    count = (flat_label != IGNORE_LABEL).sum()
+    return total / count.clamp_min(1).to(total.dtype), count
+
+
+def run_micro_batch(
+    model: nn.Module, xyz: torch.Tensor, label: torch.Tensor, mask: torch.Tensor, *,
+    scaler: torch.amp.GradScaler, amp: str, accumulation: int,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """One micro-batch: forward (autocast on CUDA), masked loss, scaled backward of loss / A.
+
+    xyz (B, N, 3) float32, label (B, N) int64, mask (B, N) bool on the model's device.
+    Returns (logits (B, N, C), mean loss, labelled points). The benchmark times this too.
+    """
+    with autocast_context(xyz.device, amp):
+        logits = model(xyz, mask)
+    loss, count = compute_loss(logits, label)
+    scaler.scale(loss / accumulation).backward()
+    return logits, loss, count
+
+
+def finish_step(
+    model: nn.Module, *, optimizer: torch.optim.Optimizer, scaler: torch.amp.GradScaler,
+    scheduler: torch.optim.lr_scheduler.LRScheduler | None, ema: WeightEMA | None,
+) -> None:
+    """The optimizer step after the last micro-batch of a global batch."""
+    scaler.step(optimizer)
+    scaler.update()
+    optimizer.zero_grad(set_to_none=True)
+    if scheduler is not None:
+        scheduler.step()
+    commit_batch_statistics(model)
+    if ema is not None:
+        ema.update(model)
+
+
+def _update_confusion(confusion: torch.Tensor, logits: torch.Tensor, label: torch.Tensor) -> None:
+    classes = confusion.shape[0]
+    valid = label != IGNORE_LABEL
+    pairs = label[valid] * classes + logits.argmax(dim=-1)[valid]
+    confusion += torch.bincount(pairs, minlength=classes * classes).view(classes, classes)
+
+
+def _all_reduce(tensor: torch.Tensor, ctx: DistributedContext) -> torch.Tensor:
+    if ctx.world > 1:
+        dist.all_reduce(tensor)
+    return tensor
+
+
+class _NoBar:
+    def __enter__(self) -> _NoBar:
+        return self
+
+    def __exit__(self, *args: object) -> None:
+        return None
+
+    def update(self, n: int = 1) -> None:
+        return None
+
+    def set_postfix_str(self, text: str) -> None:
+        return None
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """What a training run left behind."""
+
+    out_dir: Path
+    checkpoint: Path
+    epochs_done: int
+    history: list[dict[str, float]]
+    parameters: int
+
+
+def _resolve_sources(
+    paths: tuple[str, ...], *, base: Path, label_field: str | None, mapping_path: str | None,
+) -> list[SceneSource]:
+    mapping = None if mapping_path is None else load_label_mapping(resolve_path(base, mapping_path))
+    return list_scenes([resolve_path(base, p) for p in paths], label_field=label_field, mapping=mapping)
+
+
+def _collect_tiles(
+    sources: list[SceneSource], *, config: TrainRunConfig, cache_dir: Path, ctx: DistributedContext,
+) -> TileSet:
+    """Tiles of every scene. Under DDP each process reads every P-th scene into the on-disk
+    tile cache, then all read the whole cache: one pass over the data, spread over processes."""
+    mine = [s for i, s in enumerate(sources) if i % ctx.world == ctx.rank]
+    built: dict[Path, TileSet] = {}
+    bar = progress_bar(total=len(mine), desc="reading scenes", unit="scene") if ctx.is_main else _NoBar()
+    with bar:
+        for source in mine:
+            built[source.path] = load_or_collect_tiles(
+                source, blocks=config.blocks, class_names=config.data.class_names, seed=config.train.seed,
+                cache_dir=cache_dir,
+            )
+            bar.update(1)
+    if ctx.world > 1:
+        dist.barrier()
+    parts = [
+        built[source.path] if source.path in built else load_or_collect_tiles(
+            source, blocks=config.blocks, class_names=config.data.class_names, seed=config.train.seed,
+            cache_dir=cache_dir, build=False,
+        )
+        for source in sources
+    ]
+    return TileSet.concatenate(parts)
+
+
+def _check_resumable(stored: dict[str, Any], current: dict[str, Any], where: Path) -> None:
+    for section, values in current.items():
+        for key, value in values.items():
+            old = stored.get(section, {}).get(key)
+            if (section, key) in RESUMABLE_CHANGES:
+                continue
+            if (list(old) if isinstance(old, tuple | list) else old) != (list(value) if isinstance(value, tuple | list) else value):
+                raise LearnError(
+                    f"{where}: [{section}] {key} was {old!r} in the interrupted run and is {value!r} now; "
+                    "resume with the same configuration or start a new run in another out_dir"
+                )
+
+
+@torch.no_grad()
+def _validate(
+    model: nn.Module, dataset: TileDataset, *, ctx: DistributedContext, batch_size: int, amp: str, classes: int,
+) -> tuple[torch.Tensor, float, float]:
+    confusion = torch.zeros(classes, classes, dtype=torch.int64, device=ctx.device)
+    sums = torch.zeros(2, dtype=torch.float64, device=ctx.device)  # loss x points, points
+    model.eval()
+    mine = list(range(ctx.rank, len(dataset), ctx.world))
+    for start in range(0, len(mine), batch_size):
+        items = [dataset[(VAL_EPOCH_KEY, i)] for i in mine[start:start + batch_size]]
+        xyz = torch.from_numpy(np.stack([it["xyz"] for it in items])).to(ctx.device)
+        label = torch.from_numpy(np.stack([it["label"] for it in items])).to(ctx.device)
+        mask = torch.from_numpy(np.stack([it["mask"] for it in items])).to(ctx.device)
+        with autocast_context(ctx.device, amp):
+            logits = model(xyz, mask)
+        loss, count = compute_loss(logits, label)
+        sums += torch.stack([loss.double() * count, count.double()])
+        _update_confusion(confusion, logits, label)
+    _all_reduce(confusion, ctx)
+    _all_reduce(sums, ctx)
+    return confusion, float(sums[0]), float(sums[1])
+
+
+def _metric_row(prefix: str, confusion: torch.Tensor | None, loss_sum: float, points: float) -> dict[str, float]:
+    if confusion is None:
+        return {f"{prefix}_{name}": math.nan for name in ("loss", *METRIC_NAMES)}
+    metrics = compute_metrics(confusion.cpu().numpy())
+    row = {f"{prefix}_{name}": value for name, value in metrics.scalars().items()}
+    row[f"{prefix}_loss"] = loss_sum / points if points else math.nan
+    return row
+
+
+def train_model(
+    config: TrainRunConfig, *, base_dir: Path, out_dir: Path | None = None, resume: bool = False,
+    on_step_end: Callable[[int, int], None] | None = None, log: Callable[[str], None] | None = None,
+) -> TrainResult:
+    """Train PCT as configured; checkpoints, ``metrics.csv`` and ``curves.png`` go to ``out_dir``.
+
+    ``base_dir`` anchors the config's relative paths; ``out_dir`` overrides ``[train] out_dir``.
+    ``resume`` continues from ``out_dir/last.pt`` (the interrupted epoch restarts from its
+    beginning). ``on_step_end(epoch, step)`` is called after every optimizer step (0-based).
+    Run under ``torchrun`` for DDP; every process calls this function.
+    """
+    settings = config.train
+    ctx = init_distributed(settings.device)
+    try:
+        with flush_denormals():
+            return _train(config, settings=settings, ctx=ctx, base_dir=base_dir, out_dir=out_dir, resume=resume,
+                          on_step_end=on_step_end, log=log)
+    finally:
+        if ctx.owns_group and dist.is_initialized():
+            dist.destroy_process_group()
+
+
+def _train(
+    config: TrainRunConfig, *, settings: TrainConfig, ctx: DistributedContext, base_dir: Path, out_dir: Path | None,
+    resume: bool, on_step_end: Callable[[int, int], None] | None, log: Callable[[str], None] | None,
+) -> TrainResult:
+    emit = log or (lambda text: print(text, file=sys.stderr, flush=True))
+    out = Path(out_dir) if out_dir is not None else resolve_path(base_dir, settings.out_dir)
+    last_path, best_path = out / "last.pt", out / "best.pt"
+    if not resume and last_path.exists():
+        raise LearnError(f"{out}: already holds a training run; pass --resume to continue it or choose another out_dir")
+    if resume and not last_path.is_file():
+        raise LearnError(f"{last_path}: no checkpoint to resume from; start without --resume")
+    # every input is checked before the output folder appears
+    train_sources = _resolve_sources(config.data.train, base=base_dir, label_field=config.data.train_label_field,
+                                     mapping_path=config.data.train_mapping)
+    val_sources = _resolve_sources(config.data.val, base=base_dir, label_field=config.data.val_label_field,
+                                   mapping_path=config.data.val_mapping)
+    if ctx.is_main:
+        out.mkdir(parents=True, exist_ok=True)
+    classes = len(config.data.class_names)
+    cache_dir = out / "tile-cache"
+
+    train_tiles = _collect_tiles(train_sources, config=config, cache_dir=cache_dir, ctx=ctx)
+    val_tiles = _collect_tiles(val_sources, config=config, cache_dir=cache_dir, ctx=ctx) if val_sources else None
+    train_set = TileDataset(train_tiles, points=config.blocks.points, seed=settings.seed)
+    val_set = None if val_tiles is None or len(val_tiles) == 0 else TileDataset(
+        val_tiles, points=config.blocks.points, seed=settings.seed,
+    )
+
+    torch.manual_seed(settings.seed)  # the same initial weights in every process
+    model: PCTSegmentation = build_model(classes, config.model).to(ctx.device)
+    ema = WeightEMA(model, alpha=settings.ema_alpha)
+    optimizer = torch.optim.Adam(model.parameters(), lr=settings.max_lr, weight_decay=settings.weight_decay)
+    sampler = GlobalBatchSampler(
+        len(train_set), batch_size=settings.batch_size, accumulation=settings.accumulation_steps,
+        world=ctx.world, rank=ctx.rank, seed=settings.seed,
+    )
+    scheduler = torch.optim.lr_scheduler.OneCycleLR(
+        optimizer, max_lr=settings.max_lr, total_steps=settings.epochs * sampler.steps_per_epoch,
+        pct_start=settings.pct_start, anneal_strategy="cos", div_factor=settings.div_factor,
+        final_div_factor=settings.final_div_factor,
+    )
+    use_scaler = ctx.device.type == "cuda" and settings.amp == "float16"
+    scaler = torch.amp.GradScaler(ctx.device.type, enabled=use_scaler)
+    history: list[dict[str, float]] = []
+    start_epoch = 0
+    best_miou = -math.inf
+    config_dict = dump_config(config)
+    if resume:
+        state = read_checkpoint(last_path)
+        _check_resumable(state["config"], config_dict, last_path)
+        if state["world_size"] * state["accumulation_steps"] != ctx.world * settings.accumulation_steps:
+            raise LearnError(
+                f"{last_path}: the run used a global batch of {state['global_batch']} blocks; resume with "
+                "processes x accumulation_steps giving the same global batch"
+            )
+        model.load_state_dict(state["model"])
+        ema.load_state_dict(state["ema"], steps=int(state["ema_steps"]))
+        optimizer.load_state_dict(state["optimizer"])
+        scheduler.load_state_dict(state["scheduler"])
+        scaler.load_state_dict(state["scaler"])
+        restore_rng_state(state["rng"])
+        history = list(state["history"])
+        start_epoch = int(state["epoch"])
+        best_miou = float(state.get("best_val_miou", -math.inf))
+        if ctx.is_main:
+            emit(f"resuming {out} after epoch {start_epoch}/{settings.epochs}")
+    parameters = count_parameters(model)
+    if ctx.is_main and not resume:
+        emit(
+            f"training PCT ({parameters:,} parameters) on {len(train_set)} blocks from "
+            f"{len(train_tiles.scene_names)} scenes, validating on {0 if val_set is None else len(val_set)} blocks; "
+            f"global batch {sampler.global_batch} = {settings.batch_size} x {ctx.world} process(es) x "
+            f"{settings.accumulation_steps} accumulation, {sampler.steps_per_epoch} steps/epoch, device {ctx.device}"
+        )
+    ddp_model: nn.Module = model
+    if ctx.world > 1:
+        # buffers stay identical in every process by construction (see MaskedBatchNorm1d):
+        # no need to broadcast them before every forward
+        ddp_model = nn.parallel.DistributedDataParallel(
+            model, device_ids=[ctx.local_rank] if ctx.device.type == "cuda" else None, forward_sync_buffers=False,
+        )
+    # the sampler runs in this process (keys carry the epoch), so workers can persist across epochs
+    loader = torch.utils.data.DataLoader(
+        train_set, batch_sampler=sampler, num_workers=settings.num_workers,
+        pin_memory=ctx.device.type == "cuda", persistent_workers=settings.num_workers > 0,
+    )
+    accumulation = settings.accumulation_steps
+
+    for epoch in range(start_epoch, settings.epochs):
+        started = time.perf_counter()
+        sampler.set_epoch(epoch)
+        model.train()
+        confusion = torch.zeros(classes, classes, dtype=torch.int64, device=ctx.device)
+        sums = torch.zeros(2, dtype=torch.float64, device=ctx.device)
+        bar = progress_bar(total=sampler.steps_per_epoch, desc=f"epoch {epoch + 1}/{settings.epochs}", unit="step") \
+            if ctx.is_main else _NoBar()
+        with bar:
+            for index, batch in enumerate(loader):
+                step, k = divmod(index, accumulation)
+                torch.manual_seed(_seed_int(settings.seed, 11, epoch, step, ctx.rank * accumulation + k))
+                xyz = batch["xyz"].to(ctx.device, non_blocking=True)
+                label = batch["label"].to(ctx.device, non_blocking=True)
+                mask = batch["mask"].to(ctx.device, non_blocking=True)
+                last_micro = k == accumulation - 1
+                sync = contextlib.nullcontext() if (last_micro or ctx.world == 1) else ddp_model.no_sync()
+                with sync:
+                    logits, loss, count = run_micro_batch(
+                        ddp_model, xyz, label, mask, scaler=scaler, amp=settings.amp, accumulation=accumulation,
+                    )
+                with torch.no_grad():
+                    sums += torch.stack([loss.detach().double() * count, count.double()])
+                    _update_confusion(confusion, logits.detach(), label)
+                if not last_micro:
+                    continue
+                finish_step(model, optimizer=optimizer, scaler=scaler, scheduler=scheduler, ema=ema)
+                bar.update(1)
+                if on_step_end is not None:
+                    on_step_end(epoch, step)
+        _all_reduce(confusion, ctx)
+        _all_reduce(sums, ctx)
+        row: dict[str, float] = {"epoch": epoch + 1, "lr": float(scheduler.get_last_lr()[0])}
+        row.update(_metric_row("train", confusion, float(sums[0]), float(sums[1])))
+        if val_set is not None:
+            val_confusion, val_loss, val_points = _validate(
+                ema.module, val_set, ctx=ctx, batch_size=settings.eval_batch_size, amp=settings.amp, classes=classes,
+            )
+            row.update(_metric_row("val", val_confusion, val_loss, val_points))
+        else:
+            row.update(_metric_row("val", None, 0.0, 0.0))
+        row["seconds"] = time.perf_counter() - started
+        history.append(row)
+        if ctx.is_main:
+            payload = {
+                "config": config_dict, "class_names": list(config.data.class_names), "epoch": epoch + 1,
+                "model": model.state_dict(), "ema": ema.state_dict(), "ema_steps": ema.steps,
+                "optimizer": optimizer.state_dict(),
+                "scheduler": scheduler.state_dict(), "scaler": scaler.state_dict(), "rng": capture_rng_state(),
+                "history": history, "world_size": ctx.world, "accumulation_steps": accumulation,
+                "global_batch": sampler.global_batch, "parameters": parameters,
+                "best_val_miou": max(best_miou, row["val_miou"]) if not math.isnan(row["val_miou"]) else best_miou,
+            }
+            save_checkpoint(last_path, payload)
+            if not math.isnan(row["val_miou"]) and row["val_miou"] > best_miou:
+                save_checkpoint(best_path, payload)
+            write_history_csv(history, out / "metrics.csv")
+            plot_training_curves(history, out / "curves.png", title=f"PCT on {out.name}")
+            emit(_describe_epoch(row, settings.epochs))
+        if not math.isnan(row["val_miou"]):
+            best_miou = max(best_miou, row["val_miou"])
+        if ctx.world > 1:
+            dist.barrier()  # nobody races ahead of the checkpoint
+    return TrainResult(out_dir=out, checkpoint=last_path, epochs_done=len(history), history=history, parameters=parameters)
+
+
+def _describe_epoch(row: dict[str, float], epochs: int) -> str:
+    def part(prefix: str) -> str:
+        if math.isnan(row[f"{prefix}_oa"]):
+            return f"{prefix} -"
+        return (f"{prefix} loss {row[f'{prefix}_loss']:.3f} OA {row[f'{prefix}_oa']:.3f} "
+                f"mIoU {row[f'{prefix}_miou']:.3f} mAcc {row[f'{prefix}_macc']:.3f} "
+                f"FWIoU {row[f'{prefix}_fwiou']:.3f} kappa {row[f'{prefix}_kappa']:.3f}")
+
+    return f"epoch {int(row['epoch'])}/{epochs} ({row['seconds']:.1f} s): {part('train')} | {part('val')}"

@@ -1,0 +1,113 @@
+"""Plain-text clouds: labels round-trip, every documented layout reads, errors are one line."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bimscan.errors import InputFileError, OutputError
+from bimscan.io.text import iter_text_chunks, read_text_cloud, write_text_cloud
+from bimscan.types import PointCloud
+
+
+def _cloud(n: int, seed: int = 0, labels: bool = True) -> PointCloud:
+    rng = np.random.default_rng(seed)
+    xyz = rng.normal(scale=20.0, size=(n, 3)) + [512_000.0, 5_400_000.0, 300.0]  # real-world offsets
+    return PointCloud(xyz=xyz, label=rng.integers(0, 256, n).astype(np.uint8) if labels else None)
+
+
+def test_text_cloud_round_trips_labels_and_coordinates(tmp_path: Path) -> None:
+    cloud = _cloud(2000)
+
+    write_text_cloud(tmp_path / "scan.txt", cloud)
+    back = read_text_cloud(tmp_path / "scan.txt")
+
+    np.testing.assert_array_equal(back.label, cloud.label)
+    np.testing.assert_allclose(back.xyz, cloud.xyz, atol=5.1e-7, rtol=0)
+
+
+def test_text_cloud_without_labels_reads_back_without_labels(tmp_path: Path) -> None:
+    cloud = _cloud(10, labels=False)
+
+    write_text_cloud(tmp_path / "scan.xyz", cloud)
+    back = read_text_cloud(tmp_path / "scan.xyz")
+
+    assert back.label is None and len(back) == 10
+
+
+@pytest.mark.parametrize(
+    ("text", "labels"),
+    [
+        ("1 2 3\n4 5 6\n", None),
+        ("1 2 3 7\n4 5 6 9\n", [7, 9]),
+        ("1 2 3 10 20 30\n4 5 6 10 20 30\n", None),
+        ("1 2 3 10 20 30 4\n4 5 6 10 20 30 0\n", [4, 0]),
+        ("x,y,z,red,green,blue,classification\n1,2,3,9,9,9,5\n4,5,6,9,9,9,6\n", [5, 6]),
+        ("// exported\n2\n1 2 3 1\n4 5 6 2\n", [1, 2]),  # .pts count line and a comment
+        ("label x y z\n3 1 2 3\n4 4 5 6\n", [3, 4]),  # named columns in any order
+    ],
+)
+def test_every_documented_text_layout_reads(tmp_path: Path, text: str, labels: list[int] | None) -> None:
+    path = tmp_path / "cloud.txt"
+    path.write_text(text)
+
+    cloud = read_text_cloud(path)
+
+    np.testing.assert_array_equal(cloud.xyz, [[1, 2, 3], [4, 5, 6]])
+    if labels is None:
+        assert cloud.label is None
+    else:
+        assert cloud.label.tolist() == labels
+
+
+def test_chunks_join_to_the_whole_cloud(tmp_path: Path) -> None:
+    cloud = _cloud(1234, seed=5)
+    write_text_cloud(tmp_path / "scan.txt", cloud)
+
+    chunks = list(iter_text_chunks(tmp_path / "scan.txt", chunk_points=100))
+
+    assert [len(c) for c in chunks] == [100] * 12 + [34]
+    joined = PointCloud.concatenate(chunks)
+    np.testing.assert_array_equal(joined.label, read_text_cloud(tmp_path / "scan.txt").label)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("1 2 3 4.5\n", "not an integer in 0..255"),
+        ("1 2 3 300\n", "not an integer in 0..255"),
+        ("1 2 3 4\n1 2 3 x\n", "unreadable point line near line 2"),
+        ("1 2 3 4 5\n", "has 5 columns"),
+        ("# only a comment\n", "holds no points"),
+        ("a,b,c\n1,2,3\n", "names no column 'x'"),
+    ],
+)
+def test_bad_text_clouds_fail_with_a_one_line_error(tmp_path: Path, text: str, message: str) -> None:
+    path = tmp_path / "bad.txt"
+    path.write_text(text)
+
+    with pytest.raises(InputFileError, match=message) as caught:
+        read_text_cloud(path)
+    assert "\n" not in str(caught.value)
+
+
+def test_writing_over_an_existing_file_needs_overwrite_and_leaves_no_temporary(tmp_path: Path) -> None:
+    path = tmp_path / "scan.txt"
+    write_text_cloud(path, _cloud(5))
+    before = path.read_bytes()
+
+    with pytest.raises(OutputError, match="already exists"):
+        write_text_cloud(path, _cloud(7, seed=1))
+    write_text_cloud(path, _cloud(7, seed=1), overwrite=True)
+
+    assert path.read_bytes() != before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scan.txt"]
+
+
+def test_same_cloud_gives_the_same_bytes(tmp_path: Path) -> None:
+    write_text_cloud(tmp_path / "a.txt", _cloud(300, seed=9))
+    write_text_cloud(tmp_path / "b.txt", _cloud(300, seed=9))
+
+    assert (tmp_path / "a.txt").read_bytes() == (tmp_path / "b.txt").read_bytes()

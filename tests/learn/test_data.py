@@ -1,0 +1,177 @@
+"""Scenes for learning: discovery (datasets, S3DIS areas, clouds), training tiles kept in
+bounded memory, and blocks that depend only on (seed, epoch, tile)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bimscan.errors import InputFileError, LearnError
+from bimscan.io.text import write_text_cloud
+from bimscan.learn.blocks import locate_columns, encode_column_key
+from bimscan.learn.config import DEFAULT_CLASS_NAMES, BlockConfig
+from bimscan.learn.data import (
+    TileDataset, collect_scene_tiles, list_scenes, load_or_collect_tiles, load_scene,
+)
+from bimscan.types import PointCloud
+
+
+def _write_manifest(folder: Path, units: list[dict[str, object]]) -> None:
+    (folder / "manifest.json").write_text(json.dumps({"format": "bimscan-dataset", "version": 1, "units": units}))
+
+
+def test_dataset_folder_expands_to_its_done_units_preferring_the_numpy_folder(tmp_path: Path) -> None:
+    for unit in ("a", "b", "c"):
+        (tmp_path / "units" / unit / "cloud").mkdir(parents=True)
+        (tmp_path / "units" / unit / "cloud" / "coord.npy").write_bytes(b"")
+        (tmp_path / "units" / unit / "cloud.laz").write_bytes(b"")
+    _write_manifest(tmp_path, [
+        {"id": "a", "status": "done", "files": {"laz": "units/a/cloud.laz", "npy": "units/a/cloud"}},
+        {"id": "b", "status": "failed", "files": {"npy": "units/b/cloud"}},
+        {"id": "c", "status": "done", "files": {"laz": "units/c/cloud.laz"}},
+    ])
+
+    scenes = list_scenes([tmp_path])
+
+    assert [(s.name, s.kind, s.path.relative_to(tmp_path).as_posix()) for s in scenes] == [
+        ("a", "npdir", "units/a/cloud"), ("c", "cloud", "units/c/cloud.laz"),
+    ]
+
+
+def test_dataset_without_finished_units_is_refused(tmp_path: Path) -> None:
+    _write_manifest(tmp_path, [{"id": "a", "status": "pending", "files": {}}])
+
+    with pytest.raises(LearnError, match="no unit with status 'done'"):
+        list_scenes([tmp_path])
+
+
+def test_paths_that_are_no_scene_are_one_line_errors(tmp_path: Path) -> None:
+    (tmp_path / "notes.doc").write_text("x")
+    (tmp_path / "empty").mkdir()
+
+    for path, message in ((tmp_path / "notes.doc", "not a scene"), (tmp_path / "empty", "not a scene"),
+                          (tmp_path / "missing.laz", "no such file")):
+        with pytest.raises(InputFileError, match=message):
+            list_scenes([path])
+
+
+def test_tiles_keep_a_random_subset_per_column_whatever_the_chunking(
+    tmp_path: Path, room: Callable[..., PointCloud],
+) -> None:
+    scene = room(4, size_m=(5.0, 3.0), points_per_m2=60)
+    write_text_cloud(tmp_path / "scene.txt", scene)
+    source = list_scenes([tmp_path / "scene.txt"])[0]
+    blocks = BlockConfig(size_m=2.0, eval_stride_m=1.0, points=64, min_points=16, cache_points=300)
+
+    small = collect_scene_tiles(source, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=3, chunk_points=500)
+    large = collect_scene_tiles(source, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=3, chunk_points=10**6)
+
+    np.testing.assert_array_equal(small.xyz, large.xyz)
+    np.testing.assert_array_equal(small.offsets, large.offsets)
+    ix, iy = locate_columns(scene.xyz[:, :2], size_m=2.0)
+    keys, counts = np.unique(encode_column_key(ix, iy), return_counts=True)
+    full = dict(zip(keys.tolist(), counts.tolist(), strict=True))
+    for t in range(len(small)):
+        kept = int(small.offsets[t + 1] - small.offsets[t])
+        assert small.count[t] == full[int(small.key[t])]
+        assert kept == min(300, full[int(small.key[t])])
+    # the kept points are points of the scene, in their own column, with their own labels
+    xyz, label = small.tile_points(0)
+    absolute = xyz + small.origin[0]
+    distance = np.linalg.norm(scene.xyz[None, :, :] - absolute[:20, None, :], axis=2)
+    nearest = distance.argmin(axis=1)
+    assert distance.min(axis=1).max() < 1e-5
+    np.testing.assert_array_equal(scene.label[nearest], label[:20])
+
+
+def test_tiles_with_too_few_points_are_dropped(tmp_path: Path) -> None:
+    xyz = np.array([[0.5, 0.5, 0.0]] * 50 + [[3.5, 0.5, 0.0]] * 5, dtype=np.float64)
+    write_text_cloud(tmp_path / "two.txt", PointCloud(xyz=xyz, label=np.zeros(55, np.uint8)))
+    blocks = BlockConfig(size_m=2.0, eval_stride_m=1.0, points=16, min_points=10, cache_points=64)
+
+    tiles = collect_scene_tiles(list_scenes([tmp_path / "two.txt"])[0], blocks=blocks,
+                                class_names=DEFAULT_CLASS_NAMES, seed=0)
+
+    assert len(tiles) == 1 and tiles.count.tolist() == [50]
+
+
+def test_tile_cache_on_disk_gives_the_same_tiles(tmp_path: Path, room: Callable[..., PointCloud]) -> None:
+    write_text_cloud(tmp_path / "scene.txt", room(1, points_per_m2=30))
+    source = list_scenes([tmp_path / "scene.txt"])[0]
+    blocks = BlockConfig(size_m=2.0, eval_stride_m=1.0, points=32, min_points=8, cache_points=64)
+
+    built = load_or_collect_tiles(source, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=1,
+                                  cache_dir=tmp_path / "cache")
+    cached = load_or_collect_tiles(source, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=1,
+                                   cache_dir=tmp_path / "cache", build=False)
+
+    assert len(list((tmp_path / "cache").glob("tiles-*.npz"))) == 1
+    np.testing.assert_array_equal(built.xyz, cached.xyz)
+    np.testing.assert_array_equal(built.label, cached.label)
+    with pytest.raises(LearnError, match="tile cache missing"):
+        load_or_collect_tiles(source, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=2,
+                              cache_dir=tmp_path / "cache", build=False)
+
+
+def test_training_blocks_depend_only_on_seed_epoch_and_tile(tmp_path: Path, room: Callable[..., PointCloud]) -> None:
+    write_text_cloud(tmp_path / "scene.txt", room(2, points_per_m2=60))
+    blocks = BlockConfig(size_m=2.0, eval_stride_m=1.0, points=64, min_points=16, cache_points=256)
+    tiles = collect_scene_tiles(list_scenes([tmp_path / "scene.txt"])[0], blocks=blocks,
+                                class_names=DEFAULT_CLASS_NAMES, seed=0)
+    dataset = TileDataset(tiles, points=64, seed=5)
+
+    first, again, other_epoch = dataset[(0, 1)], dataset[(0, 1)], dataset[(1, 1)]
+
+    np.testing.assert_array_equal(first["xyz"], again["xyz"])
+    assert not np.array_equal(first["xyz"], other_epoch["xyz"])
+    assert first["xyz"].shape == (64, 3) and first["mask"].all()
+    assert np.abs(first["xyz"]).max() <= 1.0 + 1e-6
+
+
+def test_load_scene_maps_a_stored_scheme_free_text_cloud_as_is(tmp_path: Path) -> None:
+    xyz = np.zeros((4, 3))
+    write_text_cloud(tmp_path / "a.txt", PointCloud(xyz=xyz, label=np.array([0, 4, 255, 2], np.uint8)))
+    write_text_cloud(tmp_path / "b.txt", PointCloud(xyz=xyz, label=np.array([0, 5, 6, 2], np.uint8)))
+
+    assert load_scene(tmp_path / "a.txt").label.tolist() == [0, 4, 255, 2]
+    with pytest.raises(LearnError, match="labels 5, 6 are not training classes"):
+        load_scene(tmp_path / "b.txt")
+
+
+@pytest.mark.parametrize("name", ["scene.laz", "scene.las", "scene.ply", "scene"])
+def test_every_bimscan_cloud_format_loads_with_its_labels(
+    tmp_path: Path, room: Callable[..., PointCloud], name: str,
+) -> None:
+    from bimscan.io import open_cloud_writer
+    from bimscan.semantics.scheme import load_scheme
+    from bimscan.types import CloudHeader
+
+    cloud = room(3, points_per_m2=10)
+    with open_cloud_writer(tmp_path / name, header=CloudHeader(scheme=load_scheme())) as writer:
+        writer.write(cloud)
+
+    back = load_scene(tmp_path / name)
+
+    np.testing.assert_array_equal(back.label, cloud.label)
+    np.testing.assert_allclose(back.xyz, cloud.xyz, atol=1e-4)
+
+
+def test_a_stored_scheme_in_another_order_is_mapped_by_class_name(
+    tmp_path: Path, room: Callable[..., PointCloud],
+) -> None:
+    from bimscan.io import open_cloud_writer
+    from bimscan.types import CloudHeader, LabelClass, LabelScheme
+
+    reversed_names = list(reversed(DEFAULT_CLASS_NAMES))  # id 0 = Others ... id 4 = Wall&Column
+    scheme = LabelScheme(name="reversed", classes=tuple(LabelClass(i, n, "#000000") for i, n in enumerate(reversed_names)),
+                         rules=(), default_label="Others")
+    cloud = room(8, points_per_m2=10)
+    stored = PointCloud(xyz=cloud.xyz, label=(4 - cloud.label).astype(np.uint8))
+    with open_cloud_writer(tmp_path / "scene.laz", header=CloudHeader(scheme=scheme)) as writer:
+        writer.write(stored)
+
+    np.testing.assert_array_equal(load_scene(tmp_path / "scene.laz").label, cloud.label)

@@ -1,0 +1,169 @@
+"""The train / evaluate / predict commands end to end on a tiny generated dataset: a bimscan
+dataset folder of LAZ and NumPy units for training, a foreign LAS with labels in an extra
+dimension and an S3DIS room as the "real" scans; bad input gives one line and exit 1."""
+
+from __future__ import annotations
+
+import csv
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import laspy
+import numpy as np
+import pytest
+
+from bimscan.cli.main import main
+from bimscan.io import open_cloud_writer
+from bimscan.semantics.scheme import load_scheme
+from bimscan.types import CloudHeader, PointCloud
+
+
+def _write_dataset(folder: Path, room: Callable[..., PointCloud]) -> None:
+    header = CloudHeader(scheme=load_scheme(), origin=(0.0, 0.0, 0.0), metadata={"test": True})
+    units = []
+    for i, (unit, file) in enumerate((("u0", "cloud.laz"), ("u1", "cloud"), ("u2", "cloud.laz"))):
+        (folder / "units" / unit).mkdir(parents=True)
+        cloud = room(i, size_m=(4.0 + i, 3.0), points_per_m2=40)
+        with open_cloud_writer(folder / "units" / unit / file, header=header) as writer:
+            for start in range(0, len(cloud), 1000):  # streamed, as the scanner writes
+                writer.write(cloud.take(slice(start, start + 1000)))
+        key = "laz" if file.endswith(".laz") else "npy"
+        units.append({"id": unit, "status": "done", "files": {key: f"units/{unit}/{file}"}})
+    units.append({"id": "u3", "status": "failed", "files": {}})
+    (folder / "manifest.json").write_text(json.dumps({"format": "bimscan-dataset", "version": 1, "units": units}))
+
+
+def _write_foreign_las(path: Path, cloud: PointCloud) -> None:
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.offsets = np.floor(cloud.xyz.min(axis=0))
+    header.scales = np.array([0.001, 0.001, 0.001])
+    header.add_extra_dim(laspy.ExtraBytesParams(name="gt", type=np.uint8))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = cloud.xyz[:, 0], cloud.xyz[:, 1], cloud.xyz[:, 2]
+    las.gt = cloud.label
+    las.write(path)
+
+
+def _write_s3dis_room(folder: Path, cloud: PointCloud) -> None:
+    names = {0: "wall", 1: "beam", 2: "ceiling", 3: "floor", 4: "table"}
+    (folder / "Annotations").mkdir(parents=True)
+    for label, name in names.items():
+        xyz = cloud.xyz[cloud.label == label]
+        table = np.column_stack([xyz, np.full((len(xyz), 3), 128.0)])
+        np.savetxt(folder / "Annotations" / f"{name}_1.txt", table, fmt="%.4f %.4f %.4f %d %d %d")
+
+
+@pytest.fixture
+def project(tmp_path: Path, room: Callable[..., PointCloud]) -> Path:
+    _write_dataset(tmp_path / "spc", room)
+    _write_foreign_las(tmp_path / "site.las", room(50, size_m=(5.0, 4.0), points_per_m2=40))
+    _write_s3dis_room(tmp_path / "Area_1" / "office_1", room(51, size_m=(4.0, 4.0), points_per_m2=40))
+    (tmp_path / "train.toml").write_text("""\
+[data]
+train = ["spc"]
+val = ["site.las"]
+val_label_field = "gt"
+
+[blocks]
+size_m = 2.0
+eval_stride_m = 1.0
+points = 128
+min_points = 32
+cache_points = 256
+
+[model]
+embed_dim = 16
+attention_layers = 2
+fuse_dim = 32
+head_dims = [32, 16]
+dropout = 0.1
+
+[train]
+epochs = 3
+batch_size = 2
+accumulation_steps = 2
+max_lr = 0.01
+num_workers = 0
+out_dir = "runs/tiny"
+""")
+    return tmp_path
+
+
+def test_train_evaluate_and_predict_from_the_command_line(
+    project: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.chdir(project)
+
+    assert main(["train", "train.toml"]) == 0
+    trained = capsys.readouterr()
+    checkpoint = project / "runs" / "tiny" / "last.pt"
+    assert "trained 3 epoch(s)" in trained.out and checkpoint.is_file()
+    assert trained.err.count("epoch ") >= 3  # one summary line per epoch
+
+    status = main(["evaluate", str(checkpoint), "site.las", "Area_1", "--label-field", "gt", "--out", "eval",
+                   "--device", "cpu"])
+    evaluated = capsys.readouterr()
+    assert status == 0, evaluated.err
+    lines = evaluated.out.splitlines()
+    assert lines[0] == "| Scene | OA | mIoU | mAcc | FWIoU | κ |"
+    assert [line.split("|")[1].strip() for line in lines[2:6]] == ["site", "Area_1/office_1", "**mean**", "**all points**"]
+    with (project / "eval" / "evaluation.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert [r["scene"] for r in rows] == ["site", "Area_1/office_1", "mean", "all points"]
+    assert int(rows[0]["points"]) == len(laspy.read(project / "site.las").points)
+    for row in rows:
+        assert 0.0 <= float(row["oa"]) <= 1.0 and -1.0 <= float(row["kappa"]) <= 1.0
+    mean_oa = (float(rows[0]["oa"]) + float(rows[1]["oa"])) / 2
+    assert float(rows[2]["oa"]) == pytest.approx(mean_oa, abs=2e-6)
+
+    assert main(["predict", str(checkpoint), "site.las", "site-labelled.laz", "--device", "cpu"]) == 0
+    predicted = capsys.readouterr()
+    assert "wrote site-labelled.laz" in predicted.out
+    written = laspy.read(project / "site-labelled.laz")
+    assert len(written.points) == len(laspy.read(project / "site.las").points)
+    assert set(np.unique(written.classification)) <= set(range(5))
+
+
+def test_training_resumes_from_the_command_line(project: Path, capsys: pytest.CaptureFixture[str],
+                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(project)
+    config = project / "train.toml"
+    config.write_text(config.read_text().replace("epochs = 3", "epochs = 1"))
+    assert main(["train", "train.toml", "--out", "one"]) == 0
+
+    assert main(["train", "train.toml", "--out", "one"]) == 1
+    assert "pass --resume" in capsys.readouterr().err
+    assert main(["train", "train.toml", "--out", "one", "--resume"]) == 0  # nothing left to do, no error
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (("epochs = 3", "epochs = 3\nepoch = 4"), "unknown key(s) 'epoch'"),
+        (("epochs = 3", "epochs = 0"), "epochs must be at least 1"),
+        (("max_lr = 0.01", 'max_lr = "fast"'), "expected a number"),
+        (('train = ["spc"]', 'train = ["nowhere"]'), "nowhere: no such file or folder"),
+    ],
+)
+def test_bad_training_input_is_one_error_line_and_exit_1(
+    project: Path, capsys: pytest.CaptureFixture[str], edit: tuple[str, str], message: str,
+) -> None:
+    config = project / "train.toml"
+    config.write_text(config.read_text().replace(*edit))
+
+    status = main(["train", str(config)])
+
+    err = capsys.readouterr().err
+    assert status == 1
+    assert err.startswith("error: ") and err.count("\n") == 1
+    assert message in err
+    assert not (project / "runs").exists()
+
+
+def test_evaluate_with_a_missing_checkpoint_is_one_error_line(project: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    status = main(["evaluate", str(project / "nope.pt"), str(project / "site.las")])
+
+    err = capsys.readouterr().err
+    assert status == 1 and err.startswith("error: ") and err.count("\n") == 1
+    assert "no such checkpoint" in err

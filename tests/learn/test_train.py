@@ -1,0 +1,196 @@
+"""Training: deterministic on CPU, resume equals an uninterrupted run, two torchrun processes
+equal one process with the same global batch, metrics CSV and curves written, and the
+configuration checked."""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+import torch
+
+import bimscan
+from bimscan.errors import ConfigError, LearnError
+from bimscan.learn.config import load_train_config
+from bimscan.learn.plots import CSV_COLUMNS
+from bimscan.learn.train import GlobalBatchSampler, train_model
+
+
+def _run(config_path: Path, **options: object) -> Path:
+    config, base = load_train_config(config_path)
+    return train_model(config, base_dir=base, log=lambda text: None, **options).checkpoint  # type: ignore[arg-type]
+
+
+def _load(path: Path) -> dict[str, object]:
+    return torch.load(path, map_location="cpu", weights_only=True)
+
+
+def _assert_same_weights(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor], *, atol: float = 0.0) -> None:
+    assert a.keys() == b.keys()
+    for key in a:
+        torch.testing.assert_close(a[key], b[key], atol=atol, rtol=0.0 if atol == 0.0 else 1e-4, msg=key)
+
+
+def _metrics(history: list[dict[str, float]]) -> list[dict[str, float]]:
+    return [{k: v for k, v in row.items() if k != "seconds"} for row in history]
+
+
+def test_training_twice_with_one_seed_gives_identical_weights_whatever_the_loader_workers(
+    tmp_path: Path, room_files: dict[str, list[str]], tiny_config: Callable[..., Path],
+) -> None:
+    first = _run(tiny_config(tmp_path, **room_files, out_dir="a", name="a.toml"))
+    with_workers = tiny_config(tmp_path, **room_files, out_dir="b", name="b.toml")
+    with_workers.write_text(with_workers.read_text().replace("num_workers = 0", "num_workers = 2"))
+    second = _run(with_workers)
+    other_seed = _run(tiny_config(tmp_path, **room_files, out_dir="c", name="c.toml", seed=1, epochs=1))
+
+    a, b, c = _load(first), _load(second), _load(other_seed)
+    _assert_same_weights(a["model"], b["model"])
+    _assert_same_weights(a["ema"], b["ema"])
+    assert _metrics(a["history"]) == _metrics(b["history"])
+    assert not torch.equal(a["model"]["classifier.weight"], c["model"]["classifier.weight"])
+
+
+def test_resumed_run_equals_an_uninterrupted_run(
+    tmp_path: Path, room_files: dict[str, list[str]], tiny_config: Callable[..., Path],
+) -> None:
+    straight = _run(tiny_config(tmp_path, **room_files, epochs=3, out_dir="straight", name="s.toml"))
+    resumed_config = tiny_config(tmp_path, **room_files, epochs=3, out_dir="resumed", name="r.toml")
+
+    def crash(epoch: int, step: int) -> None:
+        if (epoch, step) == (1, 1):  # in the middle of the second epoch, after one checkpoint
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        _run(resumed_config, on_step_end=crash)
+    assert _load(tmp_path / "resumed" / "last.pt")["epoch"] == 1
+    resumed = _run(resumed_config, resume=True)
+
+    a, b = _load(straight), _load(resumed)
+    _assert_same_weights(a["model"], b["model"])
+    _assert_same_weights(a["ema"], b["ema"])
+    assert a["optimizer"]["state"][0]["step"] == b["optimizer"]["state"][0]["step"]
+    assert _metrics(a["history"]) == _metrics(b["history"])
+
+
+@pytest.mark.slow
+def test_two_torchrun_processes_equal_one_process_with_the_same_global_batch(
+    tmp_path: Path, room_files: dict[str, list[str]], tiny_config: Callable[..., Path],
+) -> None:
+    # global batch 4 both ways: 2 blocks x 2 processes x 1 accumulation = 2 x 1 x 2
+    ddp_config = tiny_config(tmp_path, **room_files, accumulation=1, out_dir="ddp", name="ddp.toml")
+    single_config = tiny_config(tmp_path, **room_files, accumulation=2, out_dir="single", name="single.toml")
+    env = {**os.environ, "PYTHONPATH": str(Path(bimscan.__file__).resolve().parents[1]), "BIMSCAN_PROGRESS": "0"}
+    env.pop("WORLD_SIZE", None)
+
+    done = subprocess.run(
+        [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
+         "-m", "bimscan.cli.main", "train", str(ddp_config)],
+        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    single = _run(single_config)
+
+    ddp, one = _load(tmp_path / "ddp" / "last.pt"), _load(single)
+    assert ddp["world_size"] == 2 and ddp["global_batch"] == one["global_batch"] == 4
+    _assert_same_weights(ddp["model"], one["model"], atol=1e-5)
+    _assert_same_weights(ddp["ema"], one["ema"], atol=1e-5)
+    for row_ddp, row_one in zip(ddp["history"], one["history"], strict=True):
+        assert row_ddp["train_loss"] == pytest.approx(row_one["train_loss"], rel=1e-5)
+        assert row_ddp["val_miou"] == pytest.approx(row_one["val_miou"], abs=1e-6)
+
+
+def test_training_writes_metric_history_and_curves(trained_run: Path) -> None:
+    run = trained_run / "run"
+
+    with (run / "metrics.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+
+    assert tuple(rows[0].keys()) == CSV_COLUMNS
+    assert [int(r["epoch"]) for r in rows] == [1, 2, 3]
+    for row in rows:
+        for split in ("train", "val"):
+            for name in ("oa", "miou", "macc", "fwiou"):
+                assert 0.0 <= float(row[f"{split}_{name}"]) <= 1.0
+            assert float(row[f"{split}_loss"]) > 0.0
+    assert float(rows[-1]["train_loss"]) < float(rows[0]["train_loss"])  # it learns
+    assert (run / "curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    checkpoint = _load(run / "last.pt")
+    assert checkpoint["epoch"] == 3 and checkpoint["class_names"] == list(checkpoint["config"]["data"]["class_names"])
+    assert (run / "best.pt").is_file()
+
+
+def test_starting_over_an_existing_run_without_resume_is_refused(trained_run: Path) -> None:
+    config, base = load_train_config(trained_run / "train.toml")
+
+    with pytest.raises(LearnError, match="already holds a training run; pass --resume"):
+        train_model(config, base_dir=base, log=lambda text: None)
+
+
+def test_resuming_with_a_changed_configuration_is_refused(
+    tmp_path: Path, room_files: dict[str, list[str]], tiny_config: Callable[..., Path],
+) -> None:
+    _run(tiny_config(tmp_path, **room_files, epochs=1))
+    changed = tiny_config(tmp_path, **room_files, epochs=1, seed=9)
+
+    with pytest.raises(LearnError, match=r"\[train\] seed was 0 in the interrupted run and is 9 now"):
+        _run(changed, resume=True)
+
+
+def test_unknown_config_key_is_a_config_error(tmp_path: Path, room_files: dict[str, list[str]],
+                                              tiny_config: Callable[..., Path]) -> None:
+    path = tiny_config(tmp_path, **room_files)
+    path.write_text(path.read_text().replace("max_lr = 0.01", "max_lr = 0.01\nlearning_rate = 0.1"))
+
+    with pytest.raises(ConfigError, match="unknown key\\(s\\) 'learning_rate'"):
+        load_train_config(path)
+
+
+def test_block_size_must_be_a_whole_multiple_of_the_stride(tmp_path: Path, room_files: dict[str, list[str]],
+                                                           tiny_config: Callable[..., Path]) -> None:
+    path = tiny_config(tmp_path, **room_files)
+    path.write_text(path.read_text().replace("eval_stride_m = 1.0", "eval_stride_m = 1.5"))
+
+    with pytest.raises(ConfigError, match="whole multiple of eval_stride_m"):
+        load_train_config(path)
+
+
+@pytest.mark.parametrize(("world", "accumulation"), [(2, 1), (2, 2), (4, 1)])
+def test_processes_split_each_global_batch_like_one_process_accumulating(world: int, accumulation: int) -> None:
+    one = GlobalBatchSampler(23, batch_size=2, accumulation=world * accumulation, world=1, rank=0, seed=4)
+    ranks = [GlobalBatchSampler(23, batch_size=2, accumulation=accumulation, world=world, rank=r, seed=4)
+             for r in range(world)]
+    for sampler in (one, *ranks):
+        sampler.set_epoch(3)
+
+    single = list(one)
+    per_rank = [list(r) for r in ranks]
+    rebuilt = []
+    for step in range(one.steps_per_epoch):
+        for rank_batches in per_rank:
+            rebuilt += rank_batches[step * accumulation:(step + 1) * accumulation]
+
+    assert rebuilt == single
+    assert one.steps_per_epoch == math.ceil(23 / (2 * world * accumulation))
+    assert {i for batch in single for _, i in batch} == set(range(23))  # every tile each epoch
+
+
+@pytest.mark.parametrize("name", ["train_table2.toml", "train_tiny_cpu.toml"])
+def test_shipped_example_configs_load(name: str) -> None:
+    path = Path(bimscan.__file__).resolve().parents[2] / "configs" / name
+    if not path.is_file():
+        pytest.skip(f"{path} is not in this checkout")
+
+    config, base = load_train_config(path)
+
+    assert base == path.parent
+    if name == "train_table2.toml":  # the paper's Table 2, to the letter
+        assert (config.blocks.points, config.train.batch_size, config.train.accumulation_steps) == (8192, 2, 4)
+        assert (config.train.max_lr, config.train.weight_decay, config.train.ema_alpha) == (2e-3, 5e-4, 0.99)
+        assert config.train.amp == "float16" and len(config.data.class_names) == 5
