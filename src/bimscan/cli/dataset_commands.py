@@ -46,7 +46,7 @@ def _report_build(report: BuildReport) -> None:
 @click.argument("spec", type=click.Path(path_type=Path))
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--workers", type=int, default=None,
-              help="Units built at once (default: half the cores); each casts on cores // workers threads.")
+              help="Units built at once (default: one per core); each casts on cores // workers threads.")
 @click.option("--executor", type=click.Choice(EXECUTOR_CHOICES), default="local", show_default=True,
               help="local: spawned processes on this machine; ray: Ray tasks.")
 @click.option("--ray-address", default=None,
@@ -147,7 +147,7 @@ def figure(model: Path, cloud: Path, out: Path, real: Path | None, scheme: str |
 
 @click.command("demo")
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
-@click.option("--workers", type=int, default=None, help="Units built at once (default: half the cores).")
+@click.option("--workers", type=int, default=None, help="Units built at once (default: one per core).")
 @click.option("--executor", type=click.Choice(EXECUTOR_CHOICES), default="local", show_default=True)
 @click.option("--head-speed", "head_deg_per_s", type=float, default=60.0, show_default=True,
               help="Head rotation in deg/s for every configuration (the presets turn at 10; faster: fewer points).")
