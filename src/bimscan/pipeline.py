@@ -10,11 +10,13 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from bimscan import __version__
+from bimscan.errors import StationError
 from bimscan.process.checks import CloudSummary, check_semantics, filter_invalid
 from bimscan.progress import progress_bar
 from bimscan.scan.noise import NoiseModel
@@ -22,7 +24,7 @@ from bimscan.scan.scanner import ScannerModel, ScanSettings, check_settings, loa
 from bimscan.scan.scanning import DEFAULT_CHUNK_PULSES, VirtualScanner
 from bimscan.survey.run import run_survey, survey_pulses
 from bimscan.survey.stations import PlanReport, check_station, plan_stations, read_stations
-from bimscan.types import BimScene, CloudHeader, Station
+from bimscan.types import BimScene, CloudHeader, PointCloud, Station
 
 
 @dataclass(frozen=True)
@@ -30,6 +32,7 @@ class ScanOptions:
     """Everything that decides a scan besides the model (config as data)."""
 
     preset: str = "exp3"  # preset name (exp1..exp6) or a settings TOML file
+    settings: ScanSettings | None = None  # explicit settings (a dataset spec's table); replaces preset
     scanner: str | None = None  # registry name or a scanner TOML file; default riegl_vz400
     stations: str = "auto"  # "auto" or a station CSV file
     seed: int = 0
@@ -66,17 +69,28 @@ class ScanResult:
 def resolve_settings(options: ScanOptions) -> tuple[ScannerModel, ScanSettings, list[str]]:
     """Scanner model and settings of ``options``, validated (warnings for device limits)."""
     model = load_scanner(options.scanner)
-    settings = with_overrides(load_settings(options.preset), head_deg_per_s=options.head_deg_per_s)
+    base = options.settings if options.settings is not None else load_settings(options.preset)
+    settings = with_overrides(base, head_deg_per_s=options.head_deg_per_s)
     warnings = check_settings(settings, model, strict=options.strict)
     return model, settings, warnings
 
 
-def prepare_survey(scene: BimScene, options: ScanOptions, *, scanner: VirtualScanner | None = None) -> Survey:
-    """Place the scanner in the scene and fix the stations (planned or from a file)."""
+def prepare_survey(scene: BimScene, options: ScanOptions, *, scanner: VirtualScanner | None = None,
+                   stations: tuple[Station, ...] | None = None) -> Survey:
+    """Place the scanner in the scene and fix the stations (planned or from a file).
+
+    ``stations`` given: use them as they are (planned once per scene and reused for every
+    configuration, as the dataset builder does); ``options.stations`` is then not consulted.
+    """
     model, settings, warnings = resolve_settings(options)
     if scanner is None or scanner.scanner != model:
         scanner = VirtualScanner(scene.mesh, scene.components.label, scanner=model, engine=options.engine,
                                  threads=options.threads)
+    if stations is not None:
+        if not stations:
+            raise StationError(f"{scene.source}: an empty station list was given; pass at least one station")
+        return Survey(scene=scene, scanner=scanner, settings=settings, stations=tuple(stations), plan=None,
+                      warnings=tuple(warnings))
     if options.stations == "auto":
         stations, plan = plan_stations(scene, scanner)
         for station in stations:
@@ -99,7 +113,7 @@ def survey_metadata(survey: Survey, options: ScanOptions) -> dict[str, Any]:
         "software": f"bimscan {__version__}",
         "source": {"file": Path(survey.scene.source).name, "sha256": survey.scene.file_sha256, "schema": survey.scene.schema},
         "scanner": dataclasses.asdict(survey.scanner.scanner),
-        "preset": options.preset,
+        "preset": options.preset if options.settings is None else None,
         "settings": settings,
         "noise": dataclasses.asdict(options.noise),
         "seed": options.seed,
@@ -107,6 +121,31 @@ def survey_metadata(survey: Survey, options: ScanOptions) -> dict[str, Any]:
         "stations": [dataclasses.asdict(s) for s in survey.stations],
         "device_warnings": list(survey.warnings),
     }
+
+
+def cloud_header(survey: Survey, options: ScanOptions, *, extra_metadata: dict[str, Any] | None = None) -> CloudHeader:
+    """The header every writer stores with the survey's cloud (scheme, components, stations, metadata)."""
+    scene = survey.scene
+    metadata = survey_metadata(survey, options) | (extra_metadata or {})
+    return CloudHeader(scheme=scene.scheme, components=scene.components, stations=survey.stations,
+                       origin=cloud_origin(scene), metadata=metadata)
+
+
+def stream_survey(survey: Survey, options: ScanOptions, *, summary: CloudSummary,
+                  on_pulses: Callable[[int], None] | None = None) -> Iterator[PointCloud]:
+    """The survey's merged cloud as filtered, semantically checked chunks.
+
+    Every chunk has its invalid points dropped (counted in ``summary.dropped_invalid``) and is
+    checked against the component table (``SemanticError`` on a contradiction) before it is
+    yielded; ``summary`` accumulates counts, extents and histograms of what is yielded.
+    """
+    for chunk in run_survey(survey.scanner, survey.stations, survey.settings, noise=options.noise,
+                            seed=options.seed, chunk_pulses=options.chunk_pulses, on_pulses=on_pulses):
+        chunk, dropped = filter_invalid(chunk)
+        summary.dropped_invalid += dropped
+        check_semantics(chunk, survey.scene.components)
+        summary.add(chunk)
+        yield chunk
 
 
 def scan_survey(survey: Survey, out: str | Path, options: ScanOptions, *, overwrite: bool = False,
@@ -119,22 +158,15 @@ def scan_survey(survey: Survey, out: str | Path, options: ScanOptions, *, overwr
     from bimscan.io import open_cloud_writer
 
     start = time.perf_counter()
-    scene = survey.scene
-    metadata = survey_metadata(survey, options) | (extra_metadata or {})
-    header = CloudHeader(scheme=scene.scheme, components=scene.components, stations=survey.stations,
-                         origin=cloud_origin(scene), metadata=metadata)
+    header = cloud_header(survey, options, extra_metadata=extra_metadata)
+    metadata = dict(header.metadata)
     summary = CloudSummary()
     total = survey_pulses(survey.stations, survey.settings, survey.scanner)
     writer = open_cloud_writer(out, header=header, overwrite=overwrite)
     finished = False
     try:
         with progress_bar(total=total, desc="scanning", unit="pulse", enabled=progress) as bar:
-            for chunk in run_survey(survey.scanner, survey.stations, survey.settings, noise=options.noise,
-                                    seed=options.seed, chunk_pulses=options.chunk_pulses, on_pulses=bar.update):
-                chunk, dropped = filter_invalid(chunk)
-                summary.dropped_invalid += dropped
-                check_semantics(chunk, scene.components)
-                summary.add(chunk)
+            for chunk in stream_survey(survey, options, summary=summary, on_pulses=bar.update):
                 writer.write(chunk)
         written = writer.close()
         finished = True

@@ -1,0 +1,116 @@
+"""Dataset build throughput next to the single-scan rate, and the paper's dataset projected.
+
+Run: python benchmarks/bench_dataset.py [--head-speed 60] [--workers 1 2] [--formats laz]
+
+Builds 2 generated scenes x the 6 presets (12 units, LAZ) with the local executor, once per
+``--workers`` value, each into a fresh folder with a cold geometry cache. Before and after each
+build, in the same run, it scans one unit (the two-storey scene, exp5) the way ``bimscan scan``
+does (one process, all cores, stations planned beforehand) to LAZ. Prints points/s and
+units/min of every build, its ratio to the mean of the single scans around it, how long parsing
+took in the scene tasks (once per scene) and in the unit tasks (cache hits), and the time the
+paper's 8.75e9 points would take on this machine at each build's rate. The head speed (default 60 deg/s, the demo's) scales every unit's points
+by 10 / head speed relative to the presets.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+PAPER_POINTS = 8.75e9
+SCENES = (("office-2f", 1, 2), ("office-1f", 2, 1))
+
+
+def spec_text(head_deg_per_s: float, formats: list[str]) -> str:
+    lines = [f"name = \"bench\"\nformats = [{', '.join(repr(f).replace(chr(39), chr(34)) for f in formats)}]\n"]
+    for name, seed, storeys in SCENES:
+        lines.append(f"[[scenes]]\nname = \"{name}\"\ngenerate = {{ seed = {seed}, storeys = {storeys} }}\n")
+    for k in range(1, 7):
+        lines.append(f"[[configs]]\nname = \"exp{k}\"\npreset = \"exp{k}\"\nhead_deg_per_s = {head_deg_per_s!r}\n")
+    return "\n".join(lines)
+
+
+def single_scan(folder: Path, scene_ifc: Path, *, head_deg_per_s: float) -> tuple[int, float]:
+    """One unit the way `bimscan scan` runs it (stations planned beforehand, not timed): points, seconds."""
+    from bimscan.ifc.load import load_ifc
+    from bimscan.pipeline import ScanOptions, prepare_survey, scan_survey
+
+    options = ScanOptions(preset="exp5", head_deg_per_s=head_deg_per_s)
+    scene = load_ifc(scene_ifc)
+    survey = prepare_survey(scene, options)
+    start = time.perf_counter()
+    result = scan_survey(survey, folder / "single.laz", options, progress=False, overwrite=True)
+    return result.points, time.perf_counter() - start
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--head-speed", type=float, default=60.0, help="deg/s for every preset (10 = the paper's)")
+    parser.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker counts to compare")
+    parser.add_argument("--formats", nargs="+", default=["laz"], help="unit formats (laz, las, ply, npy)")
+    parser.add_argument("--keep", type=Path, default=None, help="keep the built datasets in this folder")
+    args = parser.parse_args()
+
+    root = Path(tempfile.mkdtemp(prefix="bimscan-bench-dataset-")) if args.keep is None else args.keep
+    root.mkdir(parents=True, exist_ok=True)
+    os.environ.setdefault("BIMSCAN_PROGRESS", "0")
+    from bimscan.dataset.build import build_dataset
+    from bimscan.dataset.spec import load_spec
+    from bimscan.ifc.generate import make_building
+
+    spec_path = root / "bench.toml"
+    spec_path.write_text(spec_text(args.head_speed, args.formats))
+    spec = load_spec(spec_path)
+    cores = os.cpu_count() or 1
+    print(f"machine: {cores} cores; dataset: {len(spec.scenes)} scenes x {len(spec.configs)} presets, "
+          f"head {args.head_speed:g} deg/s, formats {', '.join(args.formats)}")
+
+    os.environ["BIMSCAN_CACHE_DIR"] = str(root / "cache-single")
+    name, seed, storeys = SCENES[0]
+    ifc = make_building(root / f"{name}.ifc", seed=seed, storeys=storeys).path
+    single_scan(root, ifc, head_deg_per_s=args.head_speed * 4)  # warm-up: JIT caches, page cache
+
+    def single_rate() -> float:
+        points, seconds = single_scan(root, ifc, head_deg_per_s=args.head_speed)
+        print(f"  single scan ({name}, exp5, {points:,} points to LAZ, one process, {cores} threads): "
+              f"{seconds:.2f} s = {points / seconds / 1e6:.2f} Mpts/s")
+        return points / seconds
+
+    # Machines are shared and noisy: every build is bracketed by single scans and compared with their mean.
+    rows = []
+    before = single_rate()
+    for workers in args.workers:
+        out = root / f"dataset-w{workers}"
+        shutil.rmtree(out, ignore_errors=True)
+        os.environ["BIMSCAN_CACHE_DIR"] = str(root / f"cache-w{workers}")  # cold: every scene parsed here
+        shutil.rmtree(os.environ["BIMSCAN_CACHE_DIR"], ignore_errors=True)
+        report = build_dataset(spec, out, workers=workers, progress=False)
+        if not report.ok:
+            sys.exit(f"build failed: {report.summary()}")
+        os.environ["BIMSCAN_CACHE_DIR"] = str(root / "cache-single")
+        after = single_rate()
+        rows.append((workers, report, (before + after) / 2))
+        before = after
+
+    print(f"{'workers':>7} {'threads':>7} {'units':>5} {'points':>13} {'seconds':>8} {'Mpts/s':>7} {'units/min':>9} "
+          f"{'vs single':>9} {'parse s':>8} {'unit loads s':>12} {'8.75e9 pts':>11}")
+    for workers, report, single in rows:
+        rate = report.points_built / report.seconds
+        parse = sum(s.parse_s for s in report.scenes)
+        projected_h = PAPER_POINTS / rate / 3600
+        print(f"{workers:>7} {report.threads:>7} {report.built:>5} {report.points_built:>13,} {report.seconds:>8.1f} "
+              f"{rate / 1e6:>7.2f} {report.built / report.seconds * 60:>9.1f} {rate / single:>8.2f}x "
+              f"{parse:>8.2f} {report.unit_load_s:>12.2f} {projected_h:>9.1f} h")
+    print("parse s: the scene tasks' IFC parse (once per scene, cold cache); unit loads s: all unit tasks' loads "
+          "of the same scenes from the cache")
+    if args.keep is None:
+        shutil.rmtree(root, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,210 @@
+"""Dataset commands: ``build``, ``stats``, ``render``, ``figure`` and ``demo``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import click
+
+from bimscan.cli.ifc_commands import SCHEME_HELP
+
+EXECUTOR_CHOICES = ["local", "ray"]
+SIZE_HELP = "Picture size in pixels, WIDTHxHEIGHT."
+
+if TYPE_CHECKING:
+    from bimscan.dataset.build import BuildReport
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        width, height = (int(v) for v in text.lower().split("x"))
+    except ValueError as exc:
+        raise click.BadParameter(f"{text!r} is not WIDTHxHEIGHT, e.g. 1600x800") from exc
+    return width, height
+
+
+def _report_build(report: BuildReport) -> None:
+    """Print the build's warnings, failures and summary; raise DatasetError if a unit failed."""
+    from bimscan.errors import DatasetError
+
+    for scene in report.scenes:
+        for note in scene.notes:
+            click.echo(f"warning: scene {scene.scene}: {note}", err=True)
+    for entry in report.entries:
+        if entry["status"] == "failed":
+            click.echo(f"failed: {entry['id']}: {entry['error']}", err=True)
+    click.echo(f"{report.out_dir}: {report.summary()}")
+    if not report.ok:
+        pending = sum(e["status"] == "pending" for e in report.entries)
+        raise DatasetError(f"{report.failed} of {len(report.entries)} units failed"
+                           f"{f' and {pending} are pending' if pending else ''}; fix the causes above and run the "
+                           "same command again to finish them")
+
+
+@click.command("build")
+@click.argument("spec", type=click.Path(path_type=Path))
+@click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--workers", type=int, default=None,
+              help="Units built at once (default: one per core); each casts on cores // workers threads.")
+@click.option("--executor", type=click.Choice(EXECUTOR_CHOICES), default="local", show_default=True,
+              help="local: spawned processes on this machine; ray: Ray tasks.")
+@click.option("--ray-address", default=None,
+              help="Address of a running Ray cluster (with --executor ray; OUT_DIR must be on storage all nodes see). "
+                   "Default: a local Ray instance.")
+def build(spec: Path, out_dir: Path, workers: int | None, executor: str, ray_address: str | None) -> None:
+    """Build the dataset described by SPEC (a TOML file) into OUT_DIR.
+
+    One data unit per (scene, configuration): units/<scene>__<config>/ with the cloud file(s),
+    unit.json and timings.json; manifest.json lists every unit and its status. Everything in
+    SPEC is checked before any work. Interrupted or failed builds resume: run the same command
+    again and only the missing units are built (finished ones are verified by checksum).
+    """
+    from bimscan.dataset.build import build_dataset
+    from bimscan.dataset.spec import device_warnings, load_spec
+
+    if ray_address and executor != "ray":
+        raise click.BadParameter("--ray-address needs --executor ray", param_hint="--ray-address")
+    dataset_spec = load_spec(spec)
+    for warning in device_warnings(dataset_spec):
+        click.echo(f"warning: {warning}", err=True)
+    report = build_dataset(dataset_spec, out_dir, workers=workers, executor=executor, ray_address=ray_address)
+    _report_build(report)
+
+
+@click.command("stats")
+@click.argument("dataset_dir", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Folder for the tables, plots and report (default: DATASET_DIR/stats).")
+@click.option("--from-clouds", is_flag=True,
+              help="Recount every unit by streaming its cloud file instead of reading the counts in unit.json.")
+def stats(dataset_dir: Path, out_dir: Path | None, from_clouds: bool) -> None:
+    """Statistics of a built dataset: points, extents and class proportions per configuration.
+
+    Writes units.csv, configs.csv, scenes.csv, stats.json, points.png (paper Fig. 4),
+    extents.png (Fig. 5), classes.png (Fig. 6) and report.md, which states whether extents and
+    class proportions stay stable across configurations.
+    """
+    from bimscan.stats.report import write_stats
+
+    result = write_stats(dataset_dir, out_dir, from_clouds=from_clouds)
+    extent, extent_scene, axis = result.stats.max_extent_spread()
+    share, share_scene, name = result.stats.max_class_spread()
+    click.echo(f"{len(result.stats.units)} units summarised -> {result.out_dir / 'report.md'}")
+    if extent_scene:
+        click.echo(f"  largest extent spread across configurations: {100 * extent:.2f} % ({extent_scene}, {axis.upper()})")
+        click.echo(f"  largest class share spread: {share:.2f} percentage points ({share_scene}, {name})")
+
+
+@click.command("render")
+@click.argument("cloud", type=click.Path(path_type=Path))
+@click.argument("out", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--color", type=click.Choice(["label", "station", "intensity", "component", "height"]), default="label",
+              show_default=True, help="What the colours show.")
+@click.option("--max-points", type=int, default=3_000_000, show_default=True,
+              help="Uniform random sample drawn (the whole file is streamed).")
+@click.option("--size", default="1600x800", show_default=True, help=SIZE_HELP)
+@click.option("--cut", type=click.Choice(["auto", "none"]), default="auto", show_default=True,
+              help="auto: open the top storey (floor plan on top, rooms from above); none: the whole cloud.")
+def render(cloud: Path, out: Path, color: str, max_points: int, size: str, cut: str) -> None:
+    """Draw CLOUD (LAS/LAZ/PLY/NumPy folder) as OUT.png: top and oblique views with a legend."""
+    from bimscan.render.cloud import render_cloud
+
+    width, height = _size(size)
+    result = render_cloud(cloud, out, color=color, max_points=max_points, width=width, height=height, cut=cut)
+    click.echo(f"{result.path}: {result.total_points:,} points, {result.drawn_points:,} drawn, by {color}")
+
+
+@click.command("figure")
+@click.argument("model", type=click.Path(path_type=Path))
+@click.argument("cloud", type=click.Path(path_type=Path))
+@click.argument("out", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--real", type=click.Path(path_type=Path), default=None,
+              help="A real scan of the same building, drawn as a third panel.")
+@click.option("--scheme", default=None, help=SCHEME_HELP)
+@click.option("--max-points", type=int, default=3_000_000, show_default=True, help="Points drawn per cloud.")
+@click.option("--size", default="1800x700", show_default=True, help=SIZE_HELP)
+@click.option("--cut", type=click.Choice(["auto", "none"]), default="auto", show_default=True,
+              help="auto: cut every panel at the top storey's plan height; none: no cut.")
+def figure(model: Path, cloud: Path, out: Path, real: Path | None, scheme: str | None, max_points: int, size: str,
+           cut: str) -> None:
+    """Side by side: the BIM MODEL (IFC) shaded by class, its synthetic CLOUD, optionally a --real scan."""
+    from bimscan.errors import InputFileError
+    from bimscan.ifc.load import load_ifc
+    from bimscan.render.figure import render_figure
+    from bimscan.semantics import load_scheme
+
+    width, height = _size(size)
+    label_scheme = load_scheme(scheme)
+    for path in (cloud, real):
+        if path is not None and not path.exists():  # before the (slow) parse
+            raise InputFileError(f"{path}: no such file or folder; check the path")
+    scene = load_ifc(model, scheme=label_scheme)
+    result = render_figure(scene.mesh, scene.components.label, label_scheme, cloud, out, real=real, width=width,
+                           height=height, max_points=max_points, cut=cut, model_name=model.name)
+    click.echo(f"{result.path}: " + " | ".join(result.panels))
+
+
+@click.command("demo")
+@click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--workers", type=int, default=None, help="Units built at once (default: one per core).")
+@click.option("--executor", type=click.Choice(EXECUTOR_CHOICES), default="local", show_default=True)
+@click.option("--head-speed", "head_deg_per_s", type=float, default=60.0, show_default=True,
+              help="Head rotation in deg/s for every configuration (the presets turn at 10; faster: fewer points).")
+def demo(out_dir: Path, workers: int | None, executor: str, head_deg_per_s: float) -> None:
+    """The whole pipeline on generated buildings: dataset, statistics, pictures, in OUT_DIR.
+
+    Two demo buildings x the paper's six configurations (at a faster head speed, so it runs in
+    minutes), then `bimscan stats` and pictures of each scene. Run it again to resume.
+    OUT_DIR/dataset.toml is the spec: change it and run `bimscan build` on it for your own.
+    """
+    from bimscan.dataset.build import build_dataset
+    from bimscan.dataset.demo import RENDER_CONFIG, write_demo_spec
+    from bimscan.dataset.manifest import read_manifest
+    from bimscan.dataset.spec import device_warnings, load_spec, unit_id
+    from bimscan.errors import DatasetError
+    from bimscan.ifc.load import load_ifc
+    from bimscan.render.cloud import render_cloud
+    from bimscan.render.figure import render_figure
+    from bimscan.semantics import load_scheme
+    from bimscan.stats.report import write_stats
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    spec_path = write_demo_spec(out_dir / "dataset.toml", head_deg_per_s=head_deg_per_s)
+    spec = load_spec(spec_path)
+    dataset = out_dir / "dataset"
+    click.echo(f"building {len(spec.scenes)} scenes x {len(spec.configs)} configurations into {dataset}")
+    warnings = device_warnings(spec)
+    if warnings:
+        click.echo(f"note: {len(warnings)} settings of the paper's presets lie outside the scanner's limits, as in "
+                   f"the paper (`bimscan build {spec_path} ...` lists them)", err=True)
+    report = build_dataset(spec, dataset, workers=workers, executor=executor)
+    failure: DatasetError | None = None
+    try:
+        _report_build(report)
+    except DatasetError as exc:
+        failure = exc  # statistics and pictures of the finished units are still worth making
+    done = {e["id"]: e for e in read_manifest(dataset)["units"] if e["status"] == "done"}
+    if done:
+        result = write_stats(dataset, out_dir / "stats")
+        click.echo(f"statistics: {result.out_dir / 'report.md'}")
+    scheme = load_scheme(spec.scheme)
+    (out_dir / "pictures").mkdir(exist_ok=True)
+    for scene in spec.scenes:
+        entry = done.get(unit_id(scene.name, RENDER_CONFIG))
+        if entry is None:
+            continue
+        cloud = dataset / entry["files"]["laz"]
+        picture = render_cloud(cloud, out_dir / "pictures" / f"{scene.name}_{RENDER_CONFIG}.png")
+        model = load_ifc(dataset / "scenes" / f"{scene.name}.ifc", scheme=scheme)
+        both = render_figure(model.mesh, model.components.label, scheme, cloud,
+                             out_dir / "pictures" / f"{scene.name}_model_and_scan.png",
+                             model_name=f"{scene.name} (generated)")
+        click.echo(f"pictures: {picture.path}, {both.path}")
+    click.echo(f"spec: {spec_path} (edit it and run 'bimscan build {spec_path} {dataset}' to rebuild)")
+    click.echo(f"manifest: {dataset / 'manifest.json'}")
+    if failure is not None:
+        raise failure
+
+
+COMMANDS: list[click.Command] = [build, stats, render, figure, demo]

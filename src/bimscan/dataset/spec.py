@@ -1,0 +1,263 @@
+"""Dataset specifications: which scenes, scanned with which configurations, written how.
+
+A spec is one TOML file (paths inside it are relative to the file)::
+
+    name = "my-dataset"
+    seed = 0                      # noise seed of every unit
+    scheme = "spc5"               # built-in label scheme or a scheme TOML file
+    scanner = "riegl_vz400"       # built-in scanner or a scanner TOML file
+    formats = ["laz", "npy"]      # one or several of laz, las, ply, npy per unit
+    voxel_size_m = 0.02           # optional: voxel subsampling of every unit
+    engine = "open3d"             # ray engine
+    strict = false                # settings outside the device's limits are errors
+
+    [noise]                       # optional; the paper's values by default
+    range_sigma_m = 0.005
+    angle_sigma_deg = 0.03
+
+    [[scenes]]
+    name = "duplex"
+    ifc = "models/duplex.ifc"
+    stations = "auto"             # or a station CSV file
+
+    [[scenes]]
+    name = "demo1"
+    generate = { seed = 1, storeys = 2 }   # a generated demo building
+
+    [[configs]]
+    name = "exp1"
+    preset = "exp1"               # exp1..exp6 (the paper's Table 1)
+    head_deg_per_s = 60.0         # optional head speed override
+
+    [[configs]]
+    name = "custom"
+    settings = { pulse_freq_hz = 300000, scan_freq_hz = 100, head_deg_per_s = 20 }
+
+``load_spec`` checks everything a build needs before any work starts: unknown keys, bad
+values, names, missing IFC or station files, unknown presets, schemes, scanners and engines,
+impossible settings. Each (scene, configuration) pair is one data unit ``<scene>__<config>``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from bimscan.config import build_dataclass, load_toml
+from bimscan.errors import BimscanError, ConfigError, InputFileError
+from bimscan.scan.noise import NoiseModel
+from bimscan.scan.scanner import ScannerModel, ScanSettings, check_settings, load_scanner, load_settings, with_overrides
+from bimscan.types import LabelScheme
+
+# format key -> the unit's cloud file name (a folder for NumPy)
+FORMAT_FILES: dict[str, str] = {"laz": "cloud.laz", "las": "cloud.las", "ply": "cloud.ply", "npy": "cloud"}
+UNIT_SEPARATOR = "__"
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+
+
+@dataclass(frozen=True)
+class GeneratedScene:
+    """A seeded demo building (``bimscan.ifc.generate.make_building``)."""
+
+    seed: int
+    storeys: int = 2
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """One BIM scene: an IFC file (``ifc``, absolute once loaded) or a generated building."""
+
+    name: str
+    ifc: str | None = None
+    generate: GeneratedScene | None = None
+    stations: str = "auto"  # "auto" or a station CSV file (absolute once loaded)
+
+
+@dataclass(frozen=True)
+class ConfigSpec:
+    """One scanner configuration: a preset or an explicit settings table, optional head speed."""
+
+    name: str
+    preset: str | None = None
+    settings: ScanSettings | None = None
+    head_deg_per_s: float | None = None
+
+
+@dataclass(frozen=True)
+class DatasetSpec:
+    """A validated dataset specification (see the module docs); paths are absolute."""
+
+    name: str = "dataset"
+    seed: int = 0
+    scheme: str = "spc5"
+    scanner: str = "riegl_vz400"
+    formats: tuple[str, ...] = ("laz",)
+    voxel_size_m: float | None = None
+    engine: str = "open3d"
+    strict: bool = False
+    noise: NoiseModel = field(default_factory=NoiseModel)
+    scenes: tuple[SceneSpec, ...] = ()
+    configs: tuple[ConfigSpec, ...] = ()
+
+    def unit_ids(self) -> list[str]:
+        """Every unit id, scene by scene, configurations in spec order."""
+        return [unit_id(s.name, c.name) for s in self.scenes for c in self.configs]
+
+    def scene(self, name: str) -> SceneSpec:
+        return next(s for s in self.scenes if s.name == name)
+
+    def config(self, name: str) -> ConfigSpec:
+        return next(c for c in self.configs if c.name == name)
+
+
+def unit_id(scene: str, config: str) -> str:
+    """The id (and folder name) of the unit of ``scene`` scanned with ``config``."""
+    return f"{scene}{UNIT_SEPARATOR}{config}"
+
+
+def load_spec(path: str | Path) -> DatasetSpec:
+    """Read and validate a dataset spec file; relative paths resolve against its folder.
+
+    Raises ConfigError (unknown keys, bad values, unknown presets, impossible settings, ...) or
+    InputFileError (the spec, an IFC or a station file is missing), naming the place in the file.
+    """
+    path = Path(path)
+    data = load_toml(path)
+    return parse_spec(data, base=path.resolve().parent, where=str(path))
+
+
+def parse_spec(data: dict[str, Any], *, base: Path, where: str) -> DatasetSpec:
+    """Validate a spec mapping (as read from TOML); ``base`` resolves relative paths."""
+    data = dict(data)
+    scenes_raw = data.pop("scenes", None)
+    configs_raw = data.pop("configs", None)
+    try:
+        spec = build_dataclass(DatasetSpec, data, where=where)
+    except BimscanError as exc:  # nested tables (noise) validate themselves without knowing the file
+        raise exc if str(exc).startswith(where) else type(exc)(f"{where}: {exc}") from exc
+    if not isinstance(scenes_raw, list) or not scenes_raw:
+        raise ConfigError(f"{where}: no scenes; add at least one [[scenes]] table with a name and an ifc file")
+    if not isinstance(configs_raw, list) or not configs_raw:
+        raise ConfigError(f"{where}: no configurations; add at least one [[configs]] table with a name and a preset")
+    scenes = tuple(_scene(raw, base=base, where=f"{where} [[scenes]] #{i + 1}") for i, raw in enumerate(scenes_raw))
+    configs = tuple(build_dataclass(ConfigSpec, raw, where=f"{where} [[configs]] #{i + 1}")
+                    for i, raw in enumerate(configs_raw))
+    spec = _absolute(dataclasses.replace(spec, scenes=scenes, configs=configs), base=base)
+    check_spec(spec, where=where)
+    return spec
+
+
+def _scene(raw: Any, *, base: Path, where: str) -> SceneSpec:
+    scene = build_dataclass(SceneSpec, raw, where=where)
+    where = f"{where} ({scene.name!r})"
+    if (scene.ifc is None) == (scene.generate is None):
+        raise ConfigError(f"{where}: give exactly one of 'ifc' (a file) or 'generate' (a demo building), not "
+                          f"{'both' if scene.ifc else 'neither'}")
+    ifc = None
+    if scene.ifc is not None:
+        ifc_path = (base / scene.ifc).resolve()
+        if not ifc_path.is_file():
+            raise InputFileError(f"{where}: IFC file {scene.ifc!r} not found (looked at {ifc_path}); fix the path, "
+                                 "which is relative to the spec file")
+        ifc = str(ifc_path)
+    stations = scene.stations
+    if stations != "auto":
+        station_path = (base / stations).resolve()
+        if not station_path.is_file():
+            raise InputFileError(f"{where}: station file {stations!r} not found (looked at {station_path}); give "
+                                 "'auto' or a CSV file relative to the spec file")
+        stations = str(station_path)
+    return dataclasses.replace(scene, ifc=ifc, stations=stations)
+
+
+def check_spec(spec: DatasetSpec, *, where: str) -> None:
+    """Raise a BimscanError for the first thing in ``spec`` a build could not do."""
+    from bimscan.scan.engine import ENGINES
+
+    for kind, names in (("scene", [s.name for s in spec.scenes]), ("configuration", [c.name for c in spec.configs])):
+        for name in names:
+            if not _NAME.match(name) or UNIT_SEPARATOR in name:
+                raise ConfigError(f"{where}: {kind} name {name!r} is not usable as a folder name; use letters, digits, "
+                                  f"'-', '_' and '.', starting with a letter or digit, without {UNIT_SEPARATOR!r}")
+        duplicates = sorted({n for n in names if names.count(n) > 1})
+        if duplicates:
+            raise ConfigError(f"{where}: {kind} name(s) {', '.join(map(repr, duplicates))} used more than once; "
+                              "give every one a unique name")
+    if not spec.formats:
+        raise ConfigError(f"{where}: 'formats' is empty; give one or more of {', '.join(FORMAT_FILES)}")
+    for fmt in spec.formats:
+        if fmt not in FORMAT_FILES:
+            raise ConfigError(f"{where}: unknown output format {fmt!r}; use one or more of {', '.join(FORMAT_FILES)}")
+    if len(set(spec.formats)) != len(spec.formats):
+        raise ConfigError(f"{where}: 'formats' lists a format twice ({list(spec.formats)}); list each once")
+    if spec.voxel_size_m is not None and not spec.voxel_size_m > 0:
+        raise ConfigError(f"{where}: voxel_size_m = {spec.voxel_size_m} is impossible; give an edge > 0 in metres "
+                          "or leave it out for no subsampling")
+    if spec.seed < 0:
+        raise ConfigError(f"{where}: seed = {spec.seed} is impossible; give an integer >= 0")
+    if spec.engine not in ENGINES:
+        raise ConfigError(f"{where}: unknown ray engine {spec.engine!r}; use one of {', '.join(ENGINES)}")
+    try:
+        resolve_scheme(spec)
+        scanner = resolve_scanner(spec)
+    except BimscanError as exc:
+        raise type(exc)(f"{where}: {exc}") from exc
+    for config in spec.configs:
+        config_where = f"{where} [[configs]] {config.name!r}"
+        try:
+            settings = config_settings(config)
+            check_settings(settings, scanner, strict=spec.strict)
+        except BimscanError as exc:
+            raise type(exc)(f"{config_where}: {exc}") from exc
+    for scene in spec.scenes:
+        if scene.generate is not None:
+            from bimscan.ifc.generate import check_building_options
+
+            try:
+                check_building_options(seed=scene.generate.seed, storeys=scene.generate.storeys)
+            except BimscanError as exc:
+                raise type(exc)(f"{where} [[scenes]] {scene.name!r} generate: {exc}") from exc
+
+
+def _local_path(value: str, base: Path) -> str:
+    """A registry name stays as is; anything else is a file relative to the spec's folder."""
+    candidate = base / value
+    return str(candidate.resolve()) if candidate.is_file() else value
+
+
+def _absolute(spec: DatasetSpec, *, base: Path) -> DatasetSpec:
+    """The spec with its scheme, scanner and preset files made absolute (workers run anywhere)."""
+    configs = tuple(dataclasses.replace(c, preset=_local_path(c.preset, base)) if c.preset else c for c in spec.configs)
+    return dataclasses.replace(spec, scheme=_local_path(spec.scheme, base), scanner=_local_path(spec.scanner, base),
+                               configs=configs)
+
+
+def resolve_scheme(spec: DatasetSpec) -> LabelScheme:
+    """The spec's label scheme (a built-in name or a scheme file)."""
+    from bimscan.semantics import load_scheme
+
+    return load_scheme(spec.scheme)
+
+
+def resolve_scanner(spec: DatasetSpec) -> ScannerModel:
+    """The spec's scanner model (a built-in name or a scanner file)."""
+    return load_scanner(spec.scanner)
+
+
+def device_warnings(spec: DatasetSpec) -> list[str]:
+    """One line per configuration setting outside the scanner's limits (allowed unless ``strict``)."""
+    scanner = resolve_scanner(spec)
+    return [f"configuration {config.name!r}: {warning}" for config in spec.configs
+            for warning in check_settings(config_settings(config), scanner)]
+
+
+def config_settings(config: ConfigSpec) -> ScanSettings:
+    """The scan settings of a configuration, head speed override applied."""
+    if (config.preset is None) == (config.settings is None):
+        raise ConfigError(f"give exactly one of 'preset' (exp1..exp6 or a settings file) or 'settings' (a table), "
+                          f"not {'both' if config.preset else 'neither'}")
+    settings = config.settings if config.settings is not None else load_settings(config.preset)  # type: ignore[arg-type]
+    return with_overrides(settings, head_deg_per_s=config.head_deg_per_s)

@@ -1,0 +1,196 @@
+"""Pictures of point clouds: streamed uniform sample, colours, z-buffered splats, PNG.
+
+``render_cloud`` reads any cloud bimscan reads (LAS/LAZ/PLY/NumPy folder, its own or another
+tool's) in chunks, keeps a uniform random sample of at most ``max_points`` points (a few million
+show every surface of a building at screen resolution), colours it, and draws a top view and an
+oblique view side by side with a legend. Drawing is a z-buffered splat (Numba): nearest point
+wins per pixel, no blending, so colours stay exactly the class colours.
+"""
+
+from __future__ import annotations
+
+import colorsys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bimscan.errors import ConfigError
+from bimscan.process.subsample import UniformSampler
+from bimscan.render.compose import Panel, compose_png, hex_rgb
+from bimscan.render.raster import new_canvas, splat_points
+from bimscan.render.view import OBLIQUE, TOP, Camera, Section, find_section
+from bimscan.types import CloudHeader, LabelScheme, PointCloud
+
+COLOR_MODES = ("label", "station", "intensity", "component", "height")
+UNKNOWN_RGB = (150, 150, 150)
+DEFAULT_MAX_POINTS = 3_000_000
+
+
+@dataclass(frozen=True)
+class CloudSample:
+    """A uniform sample of a cloud file: the points, how many the file holds, its bimscan header."""
+
+    cloud: PointCloud
+    total: int
+    header: CloudHeader | None
+
+
+@dataclass(frozen=True)
+class RenderResult:
+    path: Path
+    total_points: int
+    drawn_points: int
+    color: str
+    section: Section | None
+
+
+def sample_cloud(path: str | Path, *, max_points: int = DEFAULT_MAX_POINTS, seed: int = 0,
+                 chunk_points: int = 2_000_000) -> CloudSample:
+    """Stream ``path`` and keep a uniform sample of at most ``max_points`` points (same seed, same sample)."""
+    from bimscan.io import iter_cloud_chunks, read_cloud_header
+
+    header = read_cloud_header(path)
+    sampler = UniformSampler(max_points, seed=seed)
+    for chunk in iter_cloud_chunks(path, chunk_points=chunk_points):
+        sampler.add(PointCloud(xyz=chunk.xyz, label=chunk.label, component=chunk.component, station=chunk.station,
+                               intensity=chunk.intensity))  # time is not drawn: do not keep it
+    return CloudSample(cloud=sampler.result(), total=sampler.seen, header=header)
+
+
+def _palette(n: int) -> np.ndarray:
+    """(n, 3) uint8 distinct colours: golden-ratio hues, alternating lightness."""
+    hues = (np.arange(n) * 0.618033988749895) % 1.0
+    rows = [colorsys.hsv_to_rgb(h, 0.75, 0.95 if i % 2 == 0 else 0.7) for i, h in enumerate(hues)]
+    return (np.array(rows).reshape(-1, 3) * 255).round().astype(np.uint8)
+
+
+def _ramp(values: np.ndarray) -> np.ndarray:
+    """(N, 3) uint8 colours of values in [0, 1] on matplotlib's viridis."""
+    from matplotlib import colormaps
+
+    return (colormaps["viridis"](np.clip(values, 0, 1))[:, :3] * 255).round().astype(np.uint8)
+
+
+def point_colors(cloud: PointCloud, mode: str, scheme: LabelScheme | None) -> tuple[np.ndarray, list[tuple[str, tuple[int, int, int]]]]:
+    """(N, 3) uint8 colours of ``cloud``'s points by ``mode`` and the legend entries (name, rgb).
+
+    label: the scheme's class colours (ids it lacks grey), or distinct colours per class id for a
+    foreign file (``scheme`` None); station / component: distinct colours per id; intensity /
+    height: viridis from the 2nd to the 98th percentile.
+    Raises ConfigError when the cloud lacks the column ``mode`` needs.
+    """
+    if mode not in COLOR_MODES:
+        raise ConfigError(f"unknown colour mode {mode!r}; use one of {', '.join(COLOR_MODES)}")
+    n = len(cloud)
+    column = {"label": cloud.label, "station": cloud.station, "intensity": cloud.intensity,
+              "component": cloud.component, "height": cloud.xyz[:, 2]}[mode]
+    if column is None:
+        raise ConfigError(f"the cloud has no {mode} column to colour by; use --color height (or another column it has)")
+    if mode == "label" and scheme is None:
+        # a foreign file: its class ids follow its own convention (ASPRS codes, ...), not ours
+        ids, inverse = np.unique(column, return_inverse=True)
+        palette = _palette(len(ids))
+        legend = [(f"class {int(i)}", tuple(int(v) for v in palette[k])) for k, i in enumerate(ids[:24])]
+        return palette[inverse], legend  # type: ignore[return-value]
+    if mode == "label":
+        table = np.tile(np.array(UNKNOWN_RGB, dtype=np.uint8), (256, 1))
+        for cls in scheme.classes:
+            table[cls.id] = hex_rgb(cls.color)
+        present = np.bincount(column, minlength=256) if n else np.zeros(256, dtype=np.int64)
+        legend = [(cls.name, hex_rgb(cls.color)) for cls in scheme.classes if present[cls.id]]
+        if any(present[i] for i in range(256) if i not in {c.id for c in scheme.classes}):
+            legend.append(("unknown class", UNKNOWN_RGB))
+        return table[column], legend
+    if mode in ("station", "component"):
+        ids = column.astype(np.int64)
+        unique, inverse = np.unique(ids, return_inverse=True)
+        palette = _palette(len(unique))
+        colors = palette[inverse]
+        if mode == "station" and len(unique) <= 24:
+            legend = [(f"station {int(i)}", tuple(int(v) for v in palette[k])) for k, i in enumerate(unique)]
+        else:
+            legend = [(f"{len(unique)} {mode}s, one colour each", tuple(int(v) for v in palette[0]))]
+        return colors, legend  # type: ignore[return-value]
+    values = column.astype(np.float64)
+    lo, hi = (np.percentile(values, [2, 98]) if n else (0.0, 1.0))
+    colors = _ramp((values - lo) / (hi - lo if hi > lo else 1.0))
+    ends = _ramp(np.array([0.0, 1.0]))
+    unit = " m" if mode == "height" else ""
+    legend = [(f"{mode} {lo:.3g}{unit}", tuple(int(v) for v in ends[0])),
+              (f"{mode} {hi:.3g}{unit}", tuple(int(v) for v in ends[1]))]
+    return colors, legend  # type: ignore[return-value]
+
+
+def draw_points(xyz: np.ndarray, colors: np.ndarray, camera: Camera, *, radius: int | None = None) -> np.ndarray:
+    """(H, W, 3) uint8 image of points (N, 3) with colours (N, 3), nearest first, white background."""
+    image, zbuffer = new_canvas(camera.width, camera.height)
+    if len(xyz) == 0:
+        return image
+    sx, sy, depth = camera.project(xyz)
+    if radius is None:
+        # sparse samples need bigger splats to read as surfaces
+        radius = 0 if len(xyz) >= 4 * camera.width * camera.height else 1
+    splat_points(sx, sy, depth, np.ascontiguousarray(colors, dtype=np.uint8), int(radius), zbuffer, image)
+    return image
+
+
+CUT_MODES = ("auto", "none")
+
+
+def view_masks(z: np.ndarray, cut: str) -> tuple[Section | None, np.ndarray, np.ndarray]:
+    """The section (``cut`` "auto": ``find_section``; "none": no cut) and the (N,) masks of the
+    points the top view (the top storey's floor plan band) and the oblique view (everything under
+    the plan cut: rooms opened from above) draw."""
+    if cut not in CUT_MODES:
+        raise ConfigError(f"unknown cut {cut!r}; use one of {', '.join(CUT_MODES)}")
+    section = find_section(z) if cut == "auto" else None
+    if section is None:
+        everything = np.ones(len(z), dtype=bool)
+        return None, everything, everything
+    below = z <= section.plan_z
+    return section, below & (z >= section.floor_z - 0.15), below
+
+
+def render_cloud(path: str | Path, out: str | Path, *, color: str = "label", max_points: int = DEFAULT_MAX_POINTS,
+                 width: int = 1600, height: int = 800, cut: str = "auto", seed: int = 0) -> RenderResult:
+    """Top and oblique views of the cloud at ``path`` side by side, with a legend, as a PNG.
+
+    cut: "auto" opens the top storey of a building (a floor plan on top, rooms opened from above
+    in the oblique view; see ``find_section``) or "none". The PNG is exactly width x height
+    pixels and is written atomically.
+    """
+    if color not in COLOR_MODES:
+        raise ConfigError(f"unknown colour mode {color!r}; use one of {', '.join(COLOR_MODES)}")
+    check_size(width, height)
+    sample = sample_cloud(path, max_points=max_points, seed=seed)
+    cloud = sample.cloud
+    colors, legend = point_colors(cloud, color, sample.header.scheme if sample.header else None)
+    section, top_mask, oblique_mask = view_masks(cloud.xyz[:, 2], cut)
+    panel_w, panel_h = panel_size(width, height, panels=2)
+    panels = []
+    for title, (azimuth, elevation), mask in (("top view", TOP, top_mask), ("oblique view", OBLIQUE, oblique_mask)):
+        xyz = cloud.xyz[mask]
+        low, high = (xyz.min(axis=0), xyz.max(axis=0)) if len(xyz) else (np.zeros(3), np.ones(3))
+        camera = Camera.fit(low, high, azimuth_deg=azimuth, elevation_deg=elevation, width=panel_w, height=panel_h)
+        if section is not None:
+            title += (f", z {section.floor_z - 0.15:.2f} to {section.plan_z:.2f} m" if mask is top_mask
+                      else f", below z {section.plan_z:.2f} m")
+        panels.append(Panel(title=title, image=draw_points(xyz, colors[mask], camera)))
+    title = f"{Path(path).name}: {sample.total:,} points ({len(cloud):,} sampled), coloured by {color}"
+    compose_png(panels, legend=legend, title=title, out=out, width=width, height=height)
+    return RenderResult(path=Path(out), total_points=sample.total, drawn_points=len(cloud), color=color,
+                        section=section)
+
+
+def check_size(width: int, height: int) -> None:
+    if not (200 <= width <= 16000 and 150 <= height <= 16000):
+        raise ConfigError(f"image size {width}x{height} is impossible; give a width of 200..16000 and a height of "
+                          "150..16000 pixels")
+
+
+def panel_size(width: int, height: int, *, panels: int) -> tuple[int, int]:
+    """Pixel size of each of ``panels`` side-by-side panels in a composed image (see ``compose``)."""
+    from bimscan.render.compose import GAP_PX, LEGEND_PX, TITLE_PX
+
+    return (width - GAP_PX * (panels + 1)) // panels, height - TITLE_PX - LEGEND_PX

@@ -1,0 +1,96 @@
+"""Compose rendered panels into one PNG of an exact pixel size: titles above, legend below.
+
+Layout (pixels)::
+
+    +--------------------------------------------------+
+    | title                                  TITLE_PX  |
+    | panel title      | panel title                   |
+    | +-------------+  +-------------+                 |
+    | |   panel     |  |   panel     |  ...            |
+    | +-------------+  +-------------+                 |
+    | [] class  [] class  [] class           LEGEND_PX |
+    +--------------------------------------------------+
+
+Panels are copied pixel for pixel (matplotlib's ``figimage``, no resampling), so their colours
+are exactly the ones drawn; text never overlaps them. The PNG is written atomically and carries
+no timestamp, so the same panels give the same bytes.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import secrets
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bimscan.errors import ConfigError, OutputError
+
+TITLE_PX = 46
+LEGEND_PX = 36
+GAP_PX = 8
+DPI = 100
+
+
+@dataclass(frozen=True)
+class Panel:
+    title: str
+    image: np.ndarray  # (H, W, 3) uint8
+
+
+def hex_rgb(color: str) -> tuple[int, int, int]:
+    """'#rrggbb' -> (r, g, b) 0..255."""
+    text = color.lstrip("#")
+    if len(text) != 6:
+        raise ConfigError(f"colour {color!r} is not of the form #rrggbb")
+    return int(text[0:2], 16), int(text[2:4], 16), int(text[4:6], 16)
+
+
+def panel_origin(index: int, panel_width: int) -> tuple[int, int]:
+    """Top-left pixel (x, y) of panel ``index`` in the composed image."""
+    return GAP_PX + index * (panel_width + GAP_PX), TITLE_PX
+
+
+def compose_png(panels: list[Panel], *, legend: list[tuple[str, tuple[int, int, int]]], title: str, out: str | Path,
+                width: int, height: int) -> Path:
+    """Write the panels side by side with ``title`` and ``legend`` as an exactly width x height PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Patch
+
+    out = Path(out)
+    if out.suffix.lower() != ".png":
+        raise OutputError(f"{out}: pictures are written as PNG; give a path ending in .png")
+    if not out.parent.is_dir():
+        raise OutputError(f"output folder {out.parent} does not exist; create it first or choose another path")
+    canvas = np.full((height, width, 3), 255, dtype=np.uint8)
+    figure = Figure(figsize=(width / DPI, height / DPI), dpi=DPI)
+    for index, panel in enumerate(panels):
+        x, y = panel_origin(index, panel.image.shape[1])
+        h, w = panel.image.shape[:2]
+        if x + w > width or y + h > height - LEGEND_PX + 1:
+            raise ValueError(f"panel {index} ({w}x{h}) does not fit a {width}x{height} image")
+        canvas[y:y + h, x:x + w] = panel.image
+        figure.text((x + w / 2) / width, 1 - (TITLE_PX - 10) / height, panel.title, ha="center", va="center",
+                    fontsize=10)
+    figure.figimage(canvas, 0, 0, origin="upper", resize=False)
+    figure.text(0.5, 1 - 12 / height, title, ha="center", va="center", fontsize=10, weight="bold")
+    if legend:
+        handles = [Patch(facecolor=np.array(rgb) / 255, edgecolor="none", label=name) for name, rgb in legend]
+        figure.legend(handles=handles, loc="lower center", ncols=min(len(handles), 8), frameon=False, fontsize=9,
+                      bbox_to_anchor=(0.5, 2 / height), handlelength=1.2, columnspacing=1.2)
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=DPI, metadata={"Software": "bimscan"})
+    temp = out.with_name(f".{out.name}.{secrets.token_hex(6)}.tmp")
+    try:
+        temp.write_bytes(buffer.getvalue())
+        os.replace(temp, out)
+    except OSError as exc:
+        raise OutputError(f"could not write {out} ({exc.strerror}); check the folder and free space") from exc
+    finally:
+        temp.unlink(missing_ok=True)
+    return out

@@ -1,0 +1,129 @@
+"""Per-unit figures of a built dataset: point count, extents, class counts.
+
+``collect_units`` reads them from each finished unit's ``unit.json`` (counted while the unit
+was written), or, with ``from_clouds``, recounts them by streaming the unit's cloud file in
+chunks (``iter_cloud_chunks``): never a whole cloud in memory.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bimscan.dataset.manifest import UNIT_NAME, read_json, read_manifest
+from bimscan.errors import DatasetError
+from bimscan.types import LabelClass
+
+# Which file of a unit to stream when recounting: the cheapest to decode first.
+READ_PREFERENCE = ("npy", "las", "ply", "laz")
+
+
+@dataclass(frozen=True)
+class UnitStats:
+    """One unit's figures. minimum/maximum: (3,) float64 metres; class_counts: class name -> points."""
+
+    unit: str
+    scene: str
+    config: str
+    points: int
+    minimum: np.ndarray
+    maximum: np.ndarray
+    class_counts: dict[str, int]
+
+    @property
+    def size(self) -> np.ndarray:
+        """(3,) extent along X, Y, Z in metres."""
+        return self.maximum - self.minimum
+
+    def proportions_pct(self, classes: list[str]) -> np.ndarray:
+        """(len(classes),) share of each class in percent (zeros for an empty unit)."""
+        counts = np.array([self.class_counts.get(c, 0) for c in classes], dtype=np.float64)
+        return 100.0 * counts / self.points if self.points else np.zeros(len(classes))
+
+
+@dataclass(frozen=True)
+class CollectedDataset:
+    """The finished units of a dataset, its classes (with colours) and the units left out."""
+
+    units: list[UnitStats]
+    classes: list[LabelClass]
+    missing: list[dict[str, Any]]  # manifest rows of units not done (status, error)
+    configs: list[str]  # in manifest order
+    scenes: list[str]
+
+
+def collect_units(dataset_dir: str | Path, *, from_clouds: bool = False, chunk_points: int = 2_000_000) -> CollectedDataset:
+    """Figures of every finished unit of the dataset in ``dataset_dir`` (see the module docs)."""
+    folder = Path(dataset_dir)
+    manifest = read_manifest(folder)
+    units: list[UnitStats] = []
+    missing: list[dict[str, Any]] = []
+    classes: list[LabelClass] = []
+    configs: list[str] = []
+    scenes: list[str] = []
+    for entry in manifest["units"]:
+        if entry["config"] not in configs:
+            configs.append(entry["config"])
+        if entry["scene"] not in scenes:
+            scenes.append(entry["scene"])
+        if entry["status"] != "done":
+            missing.append(entry)
+            continue
+        meta = read_json(folder / "units" / entry["id"] / UNIT_NAME)
+        unit_classes = _classes_of(meta, where=str(folder / "units" / entry["id"] / UNIT_NAME))
+        if not classes:
+            classes = unit_classes
+        elif [c.name for c in unit_classes] != [c.name for c in classes]:
+            raise DatasetError(f"unit {entry['id']} uses classes {[c.name for c in unit_classes]}, other units "
+                               f"{[c.name for c in classes]}; statistics need one label scheme per dataset")
+        if from_clouds:
+            units.append(_recount(folder, entry, unit_classes, chunk_points=chunk_points))
+        else:
+            units.append(_from_meta(entry, meta))
+    return CollectedDataset(units=units, classes=classes, missing=missing, configs=configs, scenes=scenes)
+
+
+def _classes_of(meta: dict[str, Any], *, where: str) -> list[LabelClass]:
+    try:
+        raw = meta["inputs"]["scheme"]["classes"]
+        return [LabelClass(id=int(c["id"]), name=str(c["name"]), color=str(c["color"])) for c in raw]
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DatasetError(f"{where}: no label scheme in the unit metadata ({exc}); rebuild the unit") from exc
+
+
+def _from_meta(entry: dict[str, Any], meta: dict[str, Any]) -> UnitStats:
+    try:
+        extents = meta["extents"]
+        return UnitStats(unit=entry["id"], scene=entry["scene"], config=entry["config"], points=int(meta["points"]),
+                         minimum=np.asarray(extents["min"], dtype=np.float64),
+                         maximum=np.asarray(extents["max"], dtype=np.float64),
+                         class_counts={str(k): int(v) for k, v in meta["class_histogram"].items()})
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DatasetError(f"unit {entry['id']}: unit.json lacks counts or extents ({exc}); rebuild the unit") from exc
+
+
+def _recount(folder: Path, entry: dict[str, Any], classes: list[LabelClass], *, chunk_points: int) -> UnitStats:
+    from bimscan.io import iter_cloud_chunks
+
+    files = entry["files"]
+    fmt = next((f for f in READ_PREFERENCE if f in files), None)
+    if fmt is None:
+        raise DatasetError(f"unit {entry['id']}: no readable cloud listed in the manifest ({files}); rebuild it")
+    points = 0
+    low, high = np.full(3, np.inf), np.full(3, -np.inf)
+    counts = np.zeros(256, dtype=np.int64)
+    for chunk in iter_cloud_chunks(folder / files[fmt], chunk_points=chunk_points):
+        if len(chunk) == 0:
+            continue
+        points += len(chunk)
+        np.minimum(low, chunk.xyz.min(axis=0), out=low)
+        np.maximum(high, chunk.xyz.max(axis=0), out=high)
+        if chunk.label is not None:
+            counts += np.bincount(chunk.label, minlength=256)[:256]
+    if points == 0:
+        low, high = np.zeros(3), np.zeros(3)
+    return UnitStats(unit=entry["id"], scene=entry["scene"], config=entry["config"], points=points, minimum=low,
+                     maximum=high, class_counts={c.name: int(counts[c.id]) for c in classes})

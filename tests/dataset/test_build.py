@@ -1,0 +1,277 @@
+"""Building datasets: units, metadata, manifest, checksums; resuming, killing, failing, Ray."""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bimscan.dataset.build import build_dataset
+from bimscan.dataset.spec import load_spec
+from bimscan.io import read_cloud
+
+from .conftest import UNIT_IDS, BuiltDataset, reproducible_files
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _manifest(out: Path) -> dict:
+    return json.loads((out / "manifest.json").read_text())
+
+
+def test_a_build_writes_one_unit_per_scene_and_configuration_with_the_manifest_shape(reference_dataset: BuiltDataset) -> None:
+    out = reference_dataset.out
+    manifest = _manifest(out)
+    assert manifest["format"] == "bimscan-dataset" and manifest["version"] == 1
+    assert [u["id"] for u in manifest["units"]] == list(UNIT_IDS)
+    for unit in manifest["units"]:
+        assert set(unit) == {"id", "scene", "config", "status", "error", "points", "files"}
+        assert unit["status"] == "done" and unit["error"] is None
+        assert unit["id"] == f"{unit['scene']}__{unit['config']}"
+        assert unit["files"] == {"laz": f"units/{unit['id']}/cloud.laz", "npy": f"units/{unit['id']}/cloud"}
+        assert (out / unit["files"]["laz"]).is_file() and (out / unit["files"]["npy"]).is_dir()
+    assert reference_dataset.report.ok and reference_dataset.report.built == 4
+
+
+def test_unit_metadata_records_inputs_counts_and_checksums_that_match_the_files(reference_dataset: BuiltDataset) -> None:
+    out = reference_dataset.out
+    for entry in _manifest(out)["units"]:
+        folder = out / "units" / entry["id"]
+        meta = json.loads((folder / "unit.json").read_text())
+        assert meta["scene"] == entry["scene"] and meta["config"] == entry["config"]
+        assert meta["inputs"]["seed"] == 3
+        assert meta["inputs"]["noise"]["range_sigma_m"] == 0.005 and meta["inputs"]["noise"]["angle_sigma_deg"] == 0.03
+        assert meta["inputs"]["config"]["settings"]["head_deg_per_s"] == 360.0
+        assert meta["inputs"]["scene"]["sha256"] == _sha256(out / "scenes" / f"{entry['scene']}.ifc")
+        assert meta["ifc_schema"] == "IFC4" and meta["inputs"]["software"].startswith("bimscan ")
+        assert len(meta["stations"]) >= 2
+        assert meta["points"] == entry["points"] > 10_000
+        assert sum(meta["class_histogram"].values()) == meta["points"]
+        assert sum(meta["station_counts"].values()) == meta["points"]
+        assert meta["points_scanned"] == meta["points"] and meta["dropped_invalid"] == 0
+        # every written file is listed with its real SHA-256
+        listed = {name: digest for name, digest in meta["checksums"].items()}
+        on_disk = {p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.is_file()} - {"unit.json", "timings.json"}
+        assert set(listed) == on_disk
+        for name, digest in listed.items():
+            assert _sha256(folder / name) == digest
+        # both formats hold the same labelled points
+        laz, npy = read_cloud(folder / "cloud.laz"), read_cloud(folder / "cloud")
+        assert len(laz) == len(npy) == meta["points"]
+        np.testing.assert_array_equal(laz.label, npy.label)
+        np.testing.assert_allclose(laz.xyz, npy.xyz, atol=2e-4)
+        names = [c["name"] for c in meta["inputs"]["scheme"]["classes"]]
+        assert [meta["class_histogram"][n] for n in names] == np.bincount(laz.label, minlength=len(names)).tolist()
+        np.testing.assert_allclose(meta["extents"]["min"], laz.xyz.min(axis=0), atol=1e-3)
+        timings = json.loads((folder / "timings.json").read_text())
+        assert timings["total_s"] > 0
+
+
+def test_every_configuration_of_a_scene_scans_from_the_same_stations(reference_dataset: BuiltDataset) -> None:
+    out = reference_dataset.out
+    for scene in ("north", "south"):
+        sparse = json.loads((out / "units" / f"{scene}__sparse" / "unit.json").read_text())
+        dense = json.loads((out / "units" / f"{scene}__dense" / "unit.json").read_text())
+        assert sparse["stations"] == dense["stations"]
+        assert dense["points"] > 1.5 * sparse["points"]  # twice the pulse rate
+
+
+def test_a_second_run_builds_nothing_and_touches_no_unit(reference_dataset: BuiltDataset) -> None:
+    out = reference_dataset.out
+    before = {p: p.stat().st_mtime_ns for p in (out / "units").rglob("*")}
+    manifest = (out / "manifest.json").read_bytes()
+    report = build_dataset(load_spec(reference_dataset.spec), out, workers=2, progress=False)
+    assert (report.built, report.reused, report.failed) == (0, 4, 0)
+    assert {p: p.stat().st_mtime_ns for p in (out / "units").rglob("*")} == before
+    assert (out / "manifest.json").read_bytes() == manifest
+
+
+def test_a_unit_whose_file_changed_is_rebuilt_to_the_same_bytes(reference_dataset: BuiltDataset, tmp_path: Path) -> None:
+    out = tmp_path / "copy"
+    shutil.copytree(reference_dataset.out, out)
+    damaged = out / "units" / "south__dense" / "cloud" / "segment.npy"
+    data = bytearray(damaged.read_bytes())
+    data[-1] ^= 0xFF
+    damaged.write_bytes(bytes(data))
+    (out / "units" / "north__sparse" / "cloud.laz").unlink()
+    report = build_dataset(load_spec(reference_dataset.spec), out, executor="serial", progress=False)
+    assert (report.built, report.reused) == (2, 2)
+    assert reproducible_files(out) == reproducible_files(reference_dataset.out)
+
+
+def test_a_changed_spec_rebuilds_the_units_it_changes(reference_dataset: BuiltDataset, tmp_path: Path) -> None:
+    out = tmp_path / "copy"
+    shutil.copytree(reference_dataset.out, out)
+    spec_text = reference_dataset.spec.read_text().replace('preset = "exp3"', 'preset = "exp4"')
+    spec = tmp_path / "changed.toml"
+    spec.write_text(spec_text)
+    report = build_dataset(load_spec(spec), out, executor="serial", progress=False)
+    assert (report.built, report.reused) == (2, 2)  # the two "dense" units
+    meta = json.loads((out / "units" / "north__dense" / "unit.json").read_text())
+    assert meta["inputs"]["config"]["preset"] == "exp4"
+
+
+def _children(pid: int) -> list[int]:
+    """Process ids whose parent is ``pid`` (Linux /proc)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue  # the process ended while we looked
+        if int(fields[1]) == pid:
+            found.append(int(stat.parent.name))
+    return found
+
+
+@pytest.mark.slow
+def test_a_build_killed_mid_way_resumes_to_identical_outputs(reference_dataset: BuiltDataset, tmp_path: Path) -> None:
+    out = tmp_path / "killed"
+    command = [sys.executable, "-m", "bimscan.cli.main", "build", str(reference_dataset.spec), str(out), "--workers", "1"]
+    process = subprocess.Popen(command, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 240
+    workers: list[int] = []
+    try:
+        # wait until one unit is in place and the next one is being written, then kill -9 the driver
+        while time.monotonic() < deadline and process.poll() is None:
+            units = out / "units"
+            finished = [p for p in units.iterdir() if not p.name.startswith(".")] if units.is_dir() else []
+            staging = [p for p in units.iterdir() if p.name.endswith(".tmp")] if units.is_dir() else []
+            if finished and staging:
+                workers = _children(process.pid)
+                process.send_signal(signal.SIGKILL)
+                break
+            time.sleep(0.005)
+    finally:
+        if process.poll() is None and not workers:  # stopped waiting without killing: end the whole build
+            os.killpg(process.pid, signal.SIGKILL)
+        process.wait(timeout=60)
+    assert process.returncode == -signal.SIGKILL, f"the build ended before it could be killed: {process.stderr.read()}"
+    assert workers  # the spawned worker (and multiprocessing's resource tracker)
+    # the orphaned worker notices its driver is gone and ends itself, mid-unit
+    end = time.monotonic() + 10
+    while time.monotonic() < end and any(Path(f"/proc/{pid}").exists() for pid in workers):
+        time.sleep(0.05)
+    alive = [pid for pid in workers if Path(f"/proc/{pid}").exists()]
+    for pid in alive:
+        os.kill(pid, signal.SIGKILL)  # do not leave them behind if the test fails
+    assert not alive, "worker processes outlived their killed driver"
+    statuses = [u["status"] for u in _manifest(out)["units"]]
+    assert "pending" in statuses  # the manifest, rewritten after every unit, says the build is unfinished
+
+    report = build_dataset(load_spec(reference_dataset.spec), out, workers=1, progress=False)
+    assert report.ok and report.reused >= 1 and report.built >= 1
+    assert not [p for p in (out / "units").iterdir() if p.name.startswith(".")]
+    assert reproducible_files(out) == reproducible_files(reference_dataset.out)
+
+
+@pytest.mark.slow
+def test_the_ray_executor_writes_the_same_bytes_as_the_local_one(reference_dataset: BuiltDataset, tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    out = tmp_path / "ray"
+    report = build_dataset(load_spec(reference_dataset.spec), out, executor="ray", workers=2, progress=False)
+    assert report.ok and report.built == 4
+    assert reproducible_files(out) == reproducible_files(reference_dataset.out)
+
+
+ONE_SCENE = """\
+formats = ["npy"]
+{extra}
+[[scenes]]
+name = "good"
+generate = {{ seed = 1, storeys = 1 }}
+{scenes}
+[[configs]]
+name = "fast"
+preset = "exp3"
+head_deg_per_s = 360.0
+"""
+
+
+def _small_spec(folder: Path, *, extra: str = "", scenes: str = "") -> Path:
+    path = folder / "spec.toml"
+    path.write_text(ONE_SCENE.format(extra=extra, scenes=scenes))
+    return path
+
+
+def test_a_bad_scene_fails_its_units_and_the_others_are_built(tmp_path: Path, session_env: Path) -> None:
+    (tmp_path / "broken.ifc").write_text("this is not a model\n")
+    spec = _small_spec(tmp_path, scenes='[[scenes]]\nname = "broken"\nifc = "broken.ifc"\n')
+    report = build_dataset(load_spec(spec), tmp_path / "out", executor="serial", progress=False)
+    rows = {u["id"]: u for u in _manifest(tmp_path / "out")["units"]}
+    assert rows["good__fast"]["status"] == "done" and rows["good__fast"]["points"] > 0
+    assert rows["broken__fast"]["status"] == "failed"
+    assert "not an IFC file" in rows["broken__fast"]["error"] and "\n" not in rows["broken__fast"]["error"]
+    assert rows["broken__fast"]["points"] == 0 and rows["broken__fast"]["files"] == {}
+    assert not report.ok and "1 failed" in report.summary()
+    assert not (tmp_path / "out" / "units" / "broken__fast").exists()
+
+
+def test_a_full_disk_fails_the_unit_with_a_clear_reason_and_leaves_no_partial_unit(
+        tmp_path: Path, session_env: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from bimscan.io import npdir
+
+    original = npdir.NpdirCloudWriter._append
+    calls = {"n": 0}
+
+    def full_disk(self, chunk):  # the third chunk written hits a full disk
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise OSError(errno.ENOSPC, "No space left on device", str(self.path))
+        return original(self, chunk)
+
+    monkeypatch.setattr(npdir.NpdirCloudWriter, "_append", full_disk)
+    spec = _small_spec(tmp_path)
+    report = build_dataset(load_spec(spec), tmp_path / "out", executor="serial", progress=False, chunk_pulses=20_000)
+    (row,) = _manifest(tmp_path / "out")["units"]
+    assert report.failed == 1 and row["status"] == "failed"
+    assert row["error"].startswith("disk full while writing") and "free space" in row["error"]
+    assert list((tmp_path / "out" / "units").iterdir()) == []  # no unit, no staging folder left
+    monkeypatch.undo()
+    report = build_dataset(load_spec(spec), tmp_path / "out", executor="serial", progress=False)
+    assert report.ok and report.built == 1  # space freed: the same command finishes it
+
+
+def test_voxel_subsampling_thins_a_unit_and_is_recorded(tmp_path: Path, session_env: Path) -> None:
+    from bimscan.io import read_cloud_header
+
+    spec = _small_spec(tmp_path, extra="voxel_size_m = 0.1")
+    build_dataset(load_spec(spec), tmp_path / "out", executor="serial", progress=False)
+    folder = tmp_path / "out" / "units" / "good__fast"
+    meta = json.loads((folder / "unit.json").read_text())
+    assert 0 < meta["points"] < meta["points_scanned"] / 2
+    assert meta["dropped_by_voxel"] == meta["points_scanned"] - meta["points"]
+    cloud = read_cloud(folder / "cloud")
+    origin = np.asarray(read_cloud_header(folder / "cloud").origin)
+    keys = np.floor((cloud.xyz - origin) / 0.1).astype(np.int64)
+    # one point per 10 cm voxel of the grid anchored at the cloud's origin (float32 storage can move
+    # a point sitting on a voxel face by a micrometre)
+    assert len(np.unique(keys, axis=0)) >= len(cloud) - 10
+
+
+def test_the_build_command_exits_non_zero_with_a_summary_when_a_unit_failed(
+        tmp_path: Path, session_env: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from bimscan.cli.main import main
+
+    (tmp_path / "broken.ifc").write_text("this is not a model\n")
+    spec = _small_spec(tmp_path, scenes='[[scenes]]\nname = "broken"\nifc = "broken.ifc"\n')
+    assert main(["build", str(spec), str(tmp_path / "out"), "--workers", "1"]) == 1
+    captured = capsys.readouterr()
+    assert "2 units: 1 built, 0 already done, 1 failed" in captured.out
+    lines = captured.err.strip().splitlines()
+    assert lines[0].startswith("warning: configuration 'fast': scan_freq_hz = 240")  # exp3 exceeds the device
+    (failure,) = [line for line in lines if line.startswith("failed: ")]
+    assert failure.startswith("failed: broken__fast: ") and "not an IFC file" in failure
+    assert lines[-1].startswith("error: 1 of 2 units failed;") and "run the same command again" in lines[-1]

@@ -1,0 +1,126 @@
+"""Dataset specs: what loads, and one clear error before any work for what does not."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from bimscan.cli.main import main
+from bimscan.dataset.spec import load_spec
+from bimscan.errors import ConfigError, InputFileError, ScannerSettingsError
+
+GOOD = """\
+name = "two"
+seed = 7
+formats = ["laz", "ply"]
+voxel_size_m = 0.02
+[noise]
+range_sigma_m = 0.002
+[[scenes]]
+name = "room"
+ifc = "models/room.ifc"
+stations = "stations.csv"
+[[scenes]]
+name = "generated"
+generate = { seed = 4, storeys = 3 }
+[[configs]]
+name = "paper-exp2"
+preset = "exp2"
+[[configs]]
+name = "mine"
+settings = { pulse_freq_hz = 300000, scan_freq_hz = 100, head_deg_per_s = 20 }
+"""
+
+
+@pytest.fixture
+def spec_folder(tmp_path: Path, box_room_ifc: Path) -> Path:
+    (tmp_path / "models").mkdir()
+    (tmp_path / "models" / "room.ifc").write_bytes(box_room_ifc.read_bytes())
+    (tmp_path / "stations.csv").write_text("x,y,height\n4,3,1.7\n")
+    return tmp_path
+
+
+def _write(folder: Path, text: str) -> Path:
+    path = folder / "spec.toml"
+    path.write_text(text)
+    return path
+
+
+def test_a_spec_loads_with_paths_made_absolute_and_settings_resolved(spec_folder: Path) -> None:
+    from bimscan.dataset.spec import config_settings
+
+    spec = load_spec(_write(spec_folder, GOOD))
+    assert spec.unit_ids() == ["room__paper-exp2", "room__mine", "generated__paper-exp2", "generated__mine"]
+    room, generated = spec.scenes
+    assert room.ifc == str((spec_folder / "models" / "room.ifc").resolve())
+    assert room.stations == str((spec_folder / "stations.csv").resolve())
+    assert generated.ifc is None and generated.generate.seed == 4 and generated.generate.storeys == 3
+    assert spec.noise.range_sigma_m == 0.002 and spec.noise.angle_sigma_deg == 0.03
+    assert spec.formats == ("laz", "ply") and spec.voxel_size_m == 0.02 and spec.seed == 7
+    assert config_settings(spec.configs[0]).scan_freq_hz == 360
+    assert config_settings(spec.configs[1]).head_deg_per_s == 20
+
+
+@pytest.mark.parametrize(("edit", "error", "message"), [
+    (lambda t: t.replace('name = "two"', 'name = "two"\ncolour = "red"'), ConfigError, "unknown key(s) 'colour'"),
+    (lambda t: t.replace('stations = "stations.csv"', 'station = "auto"'), ConfigError, "unknown key(s) 'station'"),
+    (lambda t: t.replace("models/room.ifc", "models/missing.ifc"), InputFileError, "IFC file 'models/missing.ifc' not found"),
+    (lambda t: t.replace('"exp2"', '"exp9"'), ConfigError, "preset 'exp9' is neither a file nor a known preset"),
+    (lambda t: t.replace("head_deg_per_s = 20", "head_deg_per_s = -1"), ScannerSettingsError, "head_deg_per_s = -1"),
+    (lambda t: t.replace('"laz", "ply"', '"laz", "e57"'), ConfigError, "unknown output format 'e57'"),
+    (lambda t: t.replace("0.02", "-0.5"), ConfigError, "voxel_size_m = -0.5 is impossible"),
+    (lambda t: t.replace('name = "mine"', 'name = "paper-exp2"'), ConfigError, "'paper-exp2' used more than once"),
+    (lambda t: t.replace('name = "room"', 'name = "my__room"'), ConfigError, "is not usable as a folder name"),
+    (lambda t: t.replace('ifc = "models/room.ifc"', 'ifc = "models/room.ifc"\ngenerate = { seed = 1 }'), ConfigError,
+     "exactly one of 'ifc'"),
+    (lambda t: t.replace("storeys = 3", "storeys = 40"), ConfigError, "storeys must be an integer in"),
+    (lambda t: t.replace('stations = "stations.csv"', 'stations = "nowhere.csv"'), InputFileError, "station file"),
+    (lambda t: t.replace("range_sigma_m = 0.002", "range_sigma_m = -2"), ScannerSettingsError, "range_sigma_m"),
+    (lambda t: t.replace('name = "two"', 'name = "two"\nstrict = true'), ScannerSettingsError, "outside the device's limits"),
+    (lambda t: t.split("[[configs]]")[0], ConfigError, "no configurations"),
+])
+def test_a_bad_spec_raises_one_clear_error_naming_the_file(spec_folder: Path, edit, error: type, message: str) -> None:
+    path = _write(spec_folder, edit(GOOD))
+    with pytest.raises(error) as caught:
+        load_spec(path)
+    assert message in str(caught.value)
+    assert str(path) in str(caught.value) and "\n" not in str(caught.value)
+
+
+def test_settings_outside_the_device_limits_are_listed_per_configuration(spec_folder: Path) -> None:
+    from bimscan.dataset.spec import device_warnings
+
+    warnings = device_warnings(load_spec(_write(spec_folder, GOOD)))
+    assert len(warnings) == 2 and all(w.startswith("configuration 'paper-exp2': ") for w in warnings)
+    assert any("scan_freq_hz = 360" in w for w in warnings) and any("pulse_freq_hz = 50000" in w for w in warnings)
+
+
+def test_build_refuses_a_bad_spec_before_any_work(spec_folder: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = _write(spec_folder, GOOD.replace('"exp2"', '"exp9"'))
+    out = spec_folder / "out"
+    assert main(["build", str(path), str(out)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and "exp9" in err[0]
+    assert not out.exists()  # nothing was created, let alone parsed or scanned
+
+
+def test_build_refuses_a_spec_that_is_not_toml(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "spec.toml"
+    path.write_text("[[scenes]\nname = ")
+    assert main(["build", str(path), str(tmp_path / "out")]) == 1
+    assert "not valid TOML" in capsys.readouterr().err
+
+
+def test_the_shipped_example_specs_load(tmp_path: Path) -> None:
+    from bimscan.dataset.demo import DEMO_SPEC
+
+    root = Path(__file__).resolve().parents[2]
+    demo = load_spec(root / "configs" / "dataset_demo.toml")
+    assert (root / "configs" / "dataset_demo.toml").read_text() == DEMO_SPEC  # the demo builds this very file
+    assert len(demo.unit_ids()) == 12 and [c.preset for c in demo.configs] == [f"exp{i}" for i in range(1, 7)]
+    spc = root / "configs" / "dataset_spc.toml"
+    if not (root.parent / "shared" / "data" / "ifc" / "duplex.ifc").is_file():
+        pytest.skip("the SPC-scale example uses the shared sample models, absent here")
+    spec = load_spec(spc)
+    assert len(spec.scenes) == 22 and len(spec.unit_ids()) == 132
