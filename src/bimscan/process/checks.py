@@ -11,9 +11,26 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numba as nb
 import numpy as np
 
 from bimscan.types import ComponentTable, PointCloud
+
+
+@nb.njit(cache=True, nogil=True)
+def column_extents(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(min (3,), max (3,)) of an (N, 3) array in one pass (NumPy's axis-0 reductions over three
+    columns are an order of magnitude slower)."""
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for i in range(xyz.shape[0]):
+        for j in range(3):
+            v = xyz[i, j]
+            if v < lo[j]:
+                lo[j] = v
+            if v > hi[j]:
+                hi[j] = v
+    return lo, hi
 
 
 class SemanticError(ValueError):
@@ -22,6 +39,8 @@ class SemanticError(ValueError):
 
 def filter_invalid(chunk: PointCloud) -> tuple[PointCloud, int]:
     """Drop points with non-finite coordinates; returns the kept chunk and the dropped count."""
+    if len(chunk) == 0 or (np.isfinite(chunk.xyz.min()) and np.isfinite(chunk.xyz.max())):
+        return chunk, 0  # the common case, checked with two flat reductions (NaN and inf propagate)
     ok = np.isfinite(chunk.xyz).all(axis=1)
     dropped = int(len(ok) - ok.sum())
     return (chunk if dropped == 0 else chunk.take(ok)), dropped
@@ -58,14 +77,15 @@ class CloudSummary:
         if len(chunk) == 0:
             return
         self.points += len(chunk)
-        np.minimum(self.minimum, chunk.xyz.min(axis=0), out=self.minimum)
-        np.maximum(self.maximum, chunk.xyz.max(axis=0), out=self.maximum)
+        lo, hi = column_extents(chunk.xyz)
+        np.minimum(self.minimum, lo, out=self.minimum)
+        np.maximum(self.maximum, hi, out=self.maximum)
         if chunk.label is not None:
             self.class_counts += np.bincount(chunk.label, minlength=256)[:256]
         if chunk.station is not None:
-            ids, counts = np.unique(chunk.station, return_counts=True)
-            for i, c in zip(ids.tolist(), counts.tolist()):
-                self.station_counts[i] = self.station_counts.get(i, 0) + c
+            counts = np.bincount(chunk.station)
+            for i in np.flatnonzero(counts).tolist():
+                self.station_counts[i] = self.station_counts.get(i, 0) + int(counts[i])
 
     def histogram(self, names: dict[int, str]) -> dict[str, int]:
         """Points per class name (every class of the scheme, zeros included)."""
