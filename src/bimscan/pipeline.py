@@ -137,10 +137,13 @@ def stream_survey(survey: Survey, options: ScanOptions, *, summary: CloudSummary
 
     Every chunk has its invalid points dropped (counted in ``summary.dropped_invalid``) and is
     checked against the component table (``SemanticError`` on a contradiction) before it is
-    yielded; ``summary`` accumulates counts, extents and histograms of what is yielded.
+    yielded; ``summary`` accumulates counts, extents and histograms of what is yielded. A chunk
+    is valid until the next one is requested (the scanner reuses its buffers): write it out or
+    copy it first.
     """
     for chunk in run_survey(survey.scanner, survey.stations, survey.settings, noise=options.noise,
-                            seed=options.seed, chunk_pulses=options.chunk_pulses, on_pulses=on_pulses):
+                            seed=options.seed, chunk_pulses=options.chunk_pulses, on_pulses=on_pulses,
+                            reuse_buffers=True):
         chunk, dropped = filter_invalid(chunk)
         summary.dropped_invalid += dropped
         check_semantics(chunk, survey.scene.components)

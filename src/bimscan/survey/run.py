@@ -23,12 +23,13 @@ def survey_pulses(stations: tuple[Station, ...], settings: ScanSettings, scanner
 
 def run_survey(scanner: VirtualScanner, stations: tuple[Station, ...], settings: ScanSettings, *, noise: NoiseModel,
                seed: int, chunk_pulses: int = DEFAULT_CHUNK_PULSES,
-               on_pulses: Callable[[int], None] | None = None) -> Iterator[PointCloud]:
+               on_pulses: Callable[[int], None] | None = None, reuse_buffers: bool = False) -> Iterator[PointCloud]:
     """Stream the merged, labelled cloud of all stations.
 
     on_pulses(n) is called after each chunk with the number of pulses it covered (progress).
+    reuse_buffers: chunks are overwritten by the next one (see VirtualScanner.scan_station).
     """
     duration = settings.duration_s()
     for index, station in enumerate(stations):
         yield from scanner.scan_station(station, settings, noise=noise, seed=seed, time0_s=index * duration,
-                                        chunk_pulses=chunk_pulses, on_pulses=on_pulses)
+                                        chunk_pulses=chunk_pulses, on_pulses=on_pulses, reuse_buffers=reuse_buffers)
