@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from bimscan.errors import InputFileError, StationError
@@ -67,6 +66,14 @@ def test_a_station_file_with_absolute_and_floor_relative_rows(box, tmp_path):
     assert stations[1].heading_deg == 90.0 and stations[1].floor_z == pytest.approx(0.0, abs=1e-4)
 
 
+def test_stations_without_heights_stand_on_a_standard_tripod(box, tmp_path):
+    scene, scanner = box
+    path = tmp_path / "xy.csv"
+    path.write_text("x,y\n3,3\n")
+    (station,) = read_stations(path, scene, scanner)
+    assert station.position[2] == pytest.approx(VZ400.instrument_height_m, abs=1e-4)
+
+
 def test_whitespace_separated_station_files_are_read(box, tmp_path):
     scene, scanner = box
     path = tmp_path / "stations.txt"
@@ -75,7 +82,7 @@ def test_whitespace_separated_station_files_are_read(box, tmp_path):
 
 
 @pytest.mark.parametrize("text, message", [
-    ("a,b,c\n1,2,3\n", "must name x, y and z or height"),
+    ("a,b,c\n1,2,3\n", "must name x and y"),
     ("x,y,z\n1,2\n", "has 2 values for 3 columns"),
     ("x,y,z\n1,two,3\n", "must be numbers"),
     ("x,y,height,storey\n2,2,1.7,Attic\n", "unknown storey 'Attic'"),

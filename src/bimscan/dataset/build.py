@@ -53,7 +53,6 @@ from bimscan.dataset.manifest import (
     manifest_entry,
     read_json,
     remove_leftovers,
-    sha256_file,
     staging_dir,
     unit_dir,
     verify_unit,
@@ -70,6 +69,7 @@ from bimscan.dataset.spec import (
     unit_id,
 )
 from bimscan.errors import BimscanError, DatasetError, OutputError
+from bimscan.hashing import file_sha256
 from bimscan.progress import progress_bar
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.scanner import ScannerModel, ScanSettings
@@ -287,8 +287,8 @@ def _scene_inputs(spec: DatasetSpec, scene_name: str, scene_file: Path) -> dict[
     scene = spec.scene(scene_name)
     stations: Any = "auto"
     if scene.stations != "auto":
-        stations = {"file": Path(scene.stations).name, "sha256": sha256_file(Path(scene.stations))}
-    return {"scene": {"name": scene.name, "file": scene_file.name, "sha256": sha256_file(scene_file),
+        stations = {"file": Path(scene.stations).name, "sha256": file_sha256(Path(scene.stations))}
+    return {"scene": {"name": scene.name, "file": scene_file.name, "sha256": file_sha256(scene_file),
                       "generated": None if scene.generate is None else dataclasses.asdict(scene.generate)},
             "stations": stations}
 

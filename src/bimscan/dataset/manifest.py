@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from bimscan.errors import DatasetError, InputFileError
+from bimscan.hashing import file_sha256
 
 MANIFEST_NAME = "manifest.json"
 DATASET_NAME = "dataset.json"
@@ -81,15 +82,6 @@ def read_json(path: Path) -> dict[str, Any]:
     if not isinstance(document, dict):
         raise DatasetError(f"{path}: expected a JSON object, got {type(document).__name__}")
     return document
-
-
-def sha256_file(path: Path) -> str:
-    """Hex SHA-256 of a file, read in 8 MiB blocks."""
-    digest = hashlib.sha256()
-    with path.open("rb") as handle:
-        while block := handle.read(8 << 20):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def fingerprint(inputs: Mapping[str, Any]) -> str:
@@ -169,7 +161,7 @@ def verify_unit(folder: Path, *, expected_fingerprint: str) -> str | None:
         path = folder / name
         if not path.is_file():
             return f"{name} is missing"
-        if sha256_file(path) != digest:
+        if file_sha256(path) != digest:
             return f"{name} does not match its checksum"
     return None
 

@@ -494,7 +494,7 @@ def _door_zones(walls: list[WallPlan]) -> list[Rect]:
     """Plan areas in front of and behind every door, kept free of furniture."""
     zones = []
     for wall in walls:
-        (x0, y0), (x1, y1) = wall.start, wall.end
+        (x0, y0), (_, y1) = wall.start, wall.end
         along_x = abs(y1 - y0) < 1e-9
         for o in wall.openings:
             if o.kind != "door":
@@ -511,7 +511,7 @@ def _window_zones(walls: list[WallPlan]) -> list[Rect]:
     """Plan areas in front of windows, where tall furniture would block the glass."""
     zones = []
     for wall in walls:
-        (x0, y0), (x1, y1) = wall.start, wall.end
+        (x0, y0), (_, y1) = wall.start, wall.end
         along_x = abs(y1 - y0) < 1e-9
         for o in wall.openings:
             if o.kind != "window":

@@ -10,7 +10,6 @@ elements, annotations and grids are not scannable. Elements whose geometry fails
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import os
 import re
@@ -20,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.errors import EmptyModelError, IfcError, InputFileError
+from bimscan.hashing import file_sha256
 from bimscan.ifc import cache as geometry_cache
 from bimscan.ifc.schema import SUPPORTED_SCHEMAS, class_ancestry, known_classes
 from bimscan.progress import progress_bar
@@ -89,15 +89,6 @@ def load_ifc(
         failed=parsed.failed,
         unmapped_classes=mapping.unmapped,
     )
-
-
-def file_sha256(path: Path) -> str:
-    """Hex SHA-256 of a file's bytes, read in 4 MiB blocks."""
-    digest = hashlib.sha256()
-    with path.open("rb") as handle:
-        while block := handle.read(4 << 20):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def _check_ifc_file(path: Path) -> None:

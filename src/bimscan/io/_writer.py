@@ -13,7 +13,6 @@ power loss before the operating system has written its cache.
 from __future__ import annotations
 
 import errno
-import hashlib
 import os
 import secrets
 import shutil
@@ -24,6 +23,7 @@ from types import TracebackType
 from typing import BinaryIO, Protocol, Self
 
 from bimscan.errors import InputFileError, OutputError
+from bimscan.hashing import file_sha256
 from bimscan.io._header import dump_json, header_to_document, present_columns
 from bimscan.types import CloudHeader, PointCloud
 
@@ -83,15 +83,6 @@ def check_input_path(path: str | Path) -> Path:
     if not path.exists():
         raise InputFileError(f"{path}: no such file or folder; check the path")
     return path
-
-
-def file_sha256(path: Path) -> str:
-    """Hex SHA-256 of a file, read in 8 MiB blocks."""
-    digest = hashlib.sha256()
-    with path.open("rb") as handle:
-        while block := handle.read(8 << 20):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 class WatchedFile:

@@ -4,8 +4,9 @@ Stations stand on the floor: the beam origin is ``tripod_height + beam_origin_he
 
 Station files are CSV (comma or whitespace separated) with a header naming the columns:
 ``x, y`` (metres) and either ``z`` (absolute height of the beam origin) or ``height`` (beam
-origin above the floor below, with ``storey`` naming the storey when the building has more than
-one); ``heading_deg`` is optional. Lines starting with ``#`` are comments.
+origin above the floor below; without z and height the scanner's tripod + beam offset), with
+``storey`` naming the storey of floor-relative stations when the building has more than one;
+``heading_deg`` is optional. Lines starting with ``#`` are comments.
 
 ``plan_stations`` places stations per storey: a grid of candidate tripod spots on floors
 (slab or floor covering under the spot, headroom, a clear circle around the tripod, not inside
@@ -63,9 +64,9 @@ def read_stations(path: str | Path, scene: BimScene, scanner: VirtualScanner) ->
     header = [h.strip().lower() for h in rows[0]]
     allowed = {"x", "y", "z", "height", "storey", "heading_deg"}
     unknown = sorted(set(header) - allowed)
-    if unknown or not {"x", "y"} <= set(header) or not ({"z", "height"} & set(header)):
-        raise StationError(f"{path}: header {','.join(header)!r} must name x, y and z or height "
-                           f"(optional: storey, heading_deg); unknown: {', '.join(unknown) or 'none'}")
+    if unknown or not {"x", "y"} <= set(header):
+        raise StationError(f"{path}: header {','.join(header)!r} must name x and y (optional: z or height, "
+                           f"storey, heading_deg); unknown: {', '.join(unknown) or 'none'}")
     storeys = {s.name: s.elevation_m for s in scene.storeys}
     stations = []
     instrument = scanner.scanner.instrument_height_m
@@ -84,7 +85,7 @@ def read_stations(path: str | Path, scene: BimScene, scanner: VirtualScanner) ->
         floor_z = None
         if z is None:
             if height is None:
-                raise StationError(f"{path}: station {number} needs z or height")
+                height = instrument  # a tripod of the scanner's standard height
             if not storey_name:
                 if len(storeys) > 1:
                     raise StationError(f"{path}: station {number} is floor-relative but names no storey; "
