@@ -196,3 +196,28 @@ def test_binary_noise_inside_an_ifc_is_rejected(shared_ifc, tmp_path):
     path.write_bytes(data[:middle] + junk + data[middle + len(junk):])
     with pytest.raises(IfcError, match="could not be parsed|garbled"):
         load_ifc(path)
+
+
+def test_an_ifczip_loads_like_the_ifc_inside(shared_ifc, tmp_path):
+    import zipfile
+
+    model = shared_ifc("IfcOpenHouse_IFC4.ifc")
+    archive = tmp_path / "house.ifczip"
+    with zipfile.ZipFile(archive, "w", compression=zipfile.ZIP_DEFLATED) as z:
+        z.write(model, "IfcOpenHouse_IFC4.ifc")
+    scene = load_ifc(archive)
+    plain = load_ifc(model)
+    assert scene.source == str(archive)
+    assert scene.components.global_id.tolist() == plain.components.global_id.tolist()
+    assert np.array_equal(scene.mesh.vertices, plain.mesh.vertices)
+
+
+def test_a_zip_without_exactly_one_ifc_is_refused(tmp_path):
+    import zipfile
+
+    archive = tmp_path / "two.ifczip"
+    with zipfile.ZipFile(archive, "w") as z:
+        z.writestr("a.ifc", "ISO-10303-21;")
+        z.writestr("b.ifc", "ISO-10303-21;")
+    with pytest.raises(IfcError, match="exactly one"):
+        load_ifc(archive)

@@ -13,6 +13,9 @@ from __future__ import annotations
 import logging
 import os
 import re
+import shutil
+import tempfile
+import zipfile
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -59,13 +62,15 @@ def load_ifc(
 ) -> BimScene:
     """Parse an IFC file into a labelled BimScene.
 
-    path: an IFC-SPF file (.ifc). scheme: label scheme (default: the five SPC classes).
+    path: an IFC-SPF file (.ifc) or a zip of one (.ifczip). scheme: label scheme (default: the five SPC classes).
     use_cache: reuse geometry parsed before (keyed by file content hash and loader version;
     folder ``$BIMSCAN_CACHE_DIR`` or ``~/.cache/bimscan``). threads: geometry threads (all cores).
     Raises InputFileError (missing/unreadable), IfcError (not IFC, truncated, garbled,
     unsupported schema), EmptyModelError (no element with geometry).
     """
     path = Path(path)
+    if path.is_file() and zipfile.is_zipfile(path):
+        return _load_ifczip(path, scheme=scheme, use_cache=use_cache, threads=threads)
     _check_ifc_file(path)
     scheme = scheme or load_scheme()
     check_rule_classes(scheme, known_classes())
@@ -89,6 +94,20 @@ def load_ifc(
         failed=parsed.failed,
         unmapped_classes=mapping.unmapped,
     )
+
+
+def _load_ifczip(path: Path, *, scheme: LabelScheme | None, use_cache: bool, threads: int | None) -> BimScene:
+    """An .ifczip (a zip archive holding one IFC-SPF file): extract it to a temporary folder."""
+    with zipfile.ZipFile(path) as archive:
+        members = [m for m in archive.namelist() if m.lower().endswith(".ifc") and not m.endswith("/")]
+        if len(members) != 1:
+            raise IfcError(f"{path}: a zip archive with {len(members)} .ifc files; an .ifczip must hold exactly one")
+        with tempfile.TemporaryDirectory(prefix="bimscan-ifczip-") as folder:
+            extracted = Path(folder) / Path(members[0]).name
+            with archive.open(members[0]) as source, extracted.open("wb") as target:
+                shutil.copyfileobj(source, target, 8 << 20)
+            scene = load_ifc(extracted, scheme=scheme, use_cache=use_cache, threads=threads)
+    return replace(scene, source=str(path))
 
 
 def _check_ifc_file(path: Path) -> None:
