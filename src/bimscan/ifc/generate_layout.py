@@ -7,7 +7,8 @@ the two apart lets the layout rules be read (and tested) without any geometry ke
 
 The building is a double-loaded corridor block, the commonest office/school plan: a corridor
 along X, a strip of rooms south and north of it, a half-turn stair in a stairwell at the west
-end of the north strip (when there is more than one storey), the entrance at the east end of the
+end of the north strip (when there is more than one storey; a store room fills the strip behind
+it where the strip is deeper than the stair), the entrance at the east end of the
 corridor. Columns stand on a grid along the exterior walls and the corridor walls; beams span
 across the building (along Y) at the interior grid lines, under every slab.
 
