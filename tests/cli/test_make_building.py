@@ -10,7 +10,9 @@ import pytest
 from bimscan.cli.main import main
 
 
-def test_make_building_writes_the_file_and_prints_a_one_line_summary(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_make_building_writes_the_file_and_prints_a_one_line_summary(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / "demo.ifc"
     assert main(["make-building", str(out), "--seed", "7", "--storeys", "2"]) == 0
     stdout = capsys.readouterr().out

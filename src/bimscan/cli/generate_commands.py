@@ -12,7 +12,9 @@ from bimscan.ifc.generate_layout import MAX_STOREYS, MIN_STOREYS
 
 @click.command("make-building")
 @click.argument("out", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the layout; the same seed gives the same file bytes.")
+@click.option(
+    "--seed", type=int, default=0, show_default=True, help="Layout seed; the same seed gives the same file bytes."
+)
 @click.option(
     "--storeys",
     type=int,

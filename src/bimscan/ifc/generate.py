@@ -86,13 +86,17 @@ class GeneratedBuilding:
 
 def check_building_options(*, seed: int, storeys: int) -> None:
     """Raise ConfigError unless ``seed`` is an integer in [0, 2**63) and ``storeys`` in 1..10."""
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= MAX_SEED:
+    if not _is_int(seed) or not 0 <= seed <= MAX_SEED:
         raise ConfigError(f"seed must be an integer from 0 to {MAX_SEED}, got {seed!r}; pass a non-negative integer")
-    if isinstance(storeys, bool) or not isinstance(storeys, (int, np.integer)) or not MIN_STOREYS <= storeys <= MAX_STOREYS:
+    if not _is_int(storeys) or not MIN_STOREYS <= storeys <= MAX_STOREYS:
         raise ConfigError(
             f"storeys must be an integer in {MIN_STOREYS}..{MAX_STOREYS}, got {storeys!r}; "
             f"pick a number of storeys in that range"
         )
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
 
 
 def make_building(path: str | Path | None = None, *, seed: int = 0, storeys: int = 2) -> GeneratedBuilding:
@@ -156,11 +160,11 @@ def _write_atomically(target: Path, text: str) -> None:
             out.write(text)
         os.replace(tmp, target)
     except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise OutputError(f"could not write {str(target)!r}: {exc.strerror or exc}; check the folder's permissions and free space") from exc
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+        raise OutputError(
+            f"could not write {str(target)!r}: {exc.strerror or exc}; check the folder's permissions and free space"
+        ) from exc
+    finally:
+        tmp.unlink(missing_ok=True)  # gone already after a successful rename
 
 
 def _frame(origin: Sequence[float], x_axis: Sequence[float] = (1.0, 0.0, 0.0)) -> np.ndarray:
@@ -179,6 +183,9 @@ def _translate(matrix: np.ndarray, local: Sequence[float]) -> np.ndarray:
     return out
 
 
+Box = tuple[float, float, float, float, float, float]  # x, y, z, size_x, size_y, size_z (metres)
+
+
 def _rect_polyline(width: float, depth: float) -> list[tuple[float, float]]:
     return [(0.0, 0.0), (width, 0.0), (width, depth), (0.0, depth), (0.0, 0.0)]
 
@@ -187,7 +194,6 @@ class _Author:
     """Writes one BuildingPlan into a fresh IFC4 model, element by element, via ifcopenshell.api."""
 
     def __init__(self, plan: BuildingPlan, *, name: str) -> None:
-
         self.plan = plan
         model = api.project.create_file(version="IFC4")
         header = model.header.file_name
@@ -220,9 +226,9 @@ class _Author:
         ifc_class: str,
         *,
         name: str,
-        predefined_type: str | None,
-        representation: ifcopenshell.entity_instance | None,
         matrix: np.ndarray,
+        predefined_type: str | None = None,
+        representation: ifcopenshell.entity_instance | None = None,
         container: ifcopenshell.entity_instance | None = None,
         whole: ifcopenshell.entity_instance | None = None,
     ) -> ifcopenshell.entity_instance:
@@ -230,7 +236,6 @@ class _Author:
 
         Placement comes last because the api places a product relative to its container.
         """
-
         element = api.root.create_entity(self.model, ifc_class=ifc_class, predefined_type=predefined_type, name=name)
         if representation is not None:
             api.geometry.assign_representation(self.model, product=element, representation=representation)
@@ -241,7 +246,7 @@ class _Author:
         api.geometry.edit_object_placement(self.model, product=element, matrix=matrix)
         return element
 
-    def _boxes(self, boxes: Sequence[tuple[float, float, float, float, float, float]]) -> ifcopenshell.entity_instance:
+    def _boxes(self, boxes: Sequence[Box]) -> ifcopenshell.entity_instance:
         """One body of axis-aligned boxes (x, y, z, size_x, size_y, size_z) in local metres."""
         items = []
         for x, y, z, sx, sy, sz in boxes:
@@ -250,7 +255,6 @@ class _Author:
         return self.builder.get_representation(self.body, items)
 
     def _slab_body(self, width: float, depth: float, thickness: float) -> ifcopenshell.entity_instance:
-
         return api.geometry.add_slab_representation(
             self.model, context=self.body, depth=thickness, polyline=_rect_polyline(width, depth)
         )
@@ -258,16 +262,15 @@ class _Author:
     # -- the building ---------------------------------------------------------------------
 
     def add_building(self) -> None:
-
         plan = self.plan
-        site = self._element("IfcSite", name="Site", predefined_type=None, representation=None, matrix=np.eye(4), whole=self.project)
-        building = self._element("IfcBuilding", name="Demo building", predefined_type=None, representation=None, matrix=np.eye(4), whole=site)
+        site = self._element("IfcSite", name="Site", matrix=np.eye(4), whole=self.project)
+        building = self._element("IfcBuilding", name="Demo building", matrix=np.eye(4), whole=site)
         storeys = []
         for storey_plan in plan.storeys:
-            storey = api.root.create_entity(self.model, ifc_class="IfcBuildingStorey", name=_storey_name(storey_plan.index))
-            storey.Elevation = storey_plan.elevation_m
-            api.aggregate.assign_object(self.model, products=[storey], relating_object=building)
-            api.geometry.edit_object_placement(self.model, product=storey, matrix=_frame((0.0, 0.0, storey_plan.elevation_m)))
+            z = storey_plan.elevation_m
+            name = _storey_name(storey_plan.index)
+            storey = self._element("IfcBuildingStorey", name=name, matrix=_frame((0, 0, z)), whole=building)
+            storey.Elevation = z
             storeys.append(storey)
         for storey, storey_plan in zip(storeys, plan.storeys):
             self.add_storey(storey, storey_plan)
@@ -313,7 +316,6 @@ class _Author:
             self.add_stair(storey, plan.stair, z, index=sp.index)
 
     def add_wall(self, storey: ifcopenshell.entity_instance, wall: WallPlan, z: float) -> None:
-
         start, end = np.array(wall.start), np.array(wall.end)
         direction = (end - start) / wall.length_m
         normal = np.array([-direction[1], direction[0]])
@@ -322,7 +324,11 @@ class _Author:
         origin = start - normal * wall.thickness_m / 2
         matrix = _frame((origin[0], origin[1], z), (direction[0], direction[1], 0.0))
         body = api.geometry.add_wall_representation(
-            self.model, context=self.body, length=wall.length_m, height=self.plan.clear_height_m, thickness=wall.thickness_m
+            self.model,
+            context=self.body,
+            length=wall.length_m,
+            height=self.plan.clear_height_m,
+            thickness=wall.thickness_m,
         )
         element = self._element(
             "IfcWall",
@@ -356,7 +362,9 @@ class _Author:
             thickness=thickness + 0.2,
             offset=-0.1,
         )
-        void = api.root.create_entity(self.model, ifc_class="IfcOpeningElement", predefined_type="OPENING", name=f"Opening for {opening.name}")
+        void = api.root.create_entity(
+            self.model, ifc_class="IfcOpeningElement", predefined_type="OPENING", name=f"Opening for {opening.name}"
+        )
         api.geometry.assign_representation(self.model, product=void, representation=void_body)
         api.feature.add_feature(self.model, feature=void, element=wall)
         api.geometry.edit_object_placement(
@@ -391,7 +399,9 @@ class _Author:
                 panel_properties=[{} for _ in range(panels)],
             )
             ifc_class, predefined = "IfcWindow", "WINDOW"
-        filling = api.root.create_entity(self.model, ifc_class=ifc_class, predefined_type=predefined, name=opening.name.capitalize())
+        filling = api.root.create_entity(
+            self.model, ifc_class=ifc_class, predefined_type=predefined, name=opening.name.capitalize()
+        )
         filling.OverallWidth = opening.width_m
         filling.OverallHeight = opening.height_m
         api.geometry.assign_representation(self.model, product=filling, representation=body)
@@ -402,15 +412,16 @@ class _Author:
         )
 
     def add_slab_opening(self, slab: ifcopenshell.entity_instance, rect: Rect, z: float) -> None:
-
-        void = api.root.create_entity(self.model, ifc_class="IfcOpeningElement", predefined_type="OPENING", name="Stair opening")
+        void = api.root.create_entity(
+            self.model, ifc_class="IfcOpeningElement", predefined_type="OPENING", name="Stair opening"
+        )
         body = self._slab_body(rect.width, rect.depth, self.plan.slab_m + 0.2)
         api.geometry.assign_representation(self.model, product=void, representation=body)
         api.feature.add_feature(self.model, feature=void, element=slab)
-        api.geometry.edit_object_placement(self.model, product=void, matrix=_frame((rect.x0, rect.y0, z - self.plan.slab_m - 0.1)))
+        matrix = _frame((rect.x0, rect.y0, z - self.plan.slab_m - 0.1))
+        api.geometry.edit_object_placement(self.model, product=void, matrix=matrix)
 
     def add_column(self, storey: ifcopenshell.entity_instance, rect: Rect, z: float, *, name: str) -> None:
-
         if self._column_profile is None:
             profile = api.profile.add_parameterized_profile(self.model, ifc_class="IfcRectangleProfileDef")
             profile.ProfileName = f"{self.plan.column_m:.2f} x {self.plan.column_m:.2f} column"
@@ -420,7 +431,10 @@ class _Author:
             self.model, context=self.body, profile=self._column_profile, depth=self.plan.clear_height_m
         )
         cx, cy = rect.centre
-        self._element("IfcColumn", name=name, predefined_type="COLUMN", representation=body, matrix=_frame((cx, cy, z)), container=storey)
+        matrix = _frame((cx, cy, z))
+        self._element(
+            "IfcColumn", name=name, predefined_type="COLUMN", representation=body, matrix=matrix, container=storey
+        )
 
     def add_beam(self, storey: ifcopenshell.entity_instance, rect: Rect, ceiling_z: float, *, name: str) -> None:
         """A downstand beam along Y hanging from the slab underside at ``ceiling_z``."""
@@ -441,7 +455,9 @@ class _Author:
         matrix[:3, 1] = (0.0, 0.0, -1.0)
         matrix[:3, 2] = (0.0, 1.0, 0.0)
         matrix[:3, 3] = (rect.centre[0], rect.y0, ceiling_z - plan.beam_depth_m / 2)
-        self._element("IfcBeam", name=name, predefined_type="BEAM", representation=body, matrix=matrix, container=storey)
+        self._element(
+            "IfcBeam", name=name, predefined_type="BEAM", representation=body, matrix=matrix, container=storey
+        )
 
     def add_space(self, storey: ifcopenshell.entity_instance, room: RoomPlan, z: float) -> None:
         space = self._element(
@@ -492,7 +508,11 @@ class _Author:
         plan = self.plan
         half = plan.storey_height_m / 2
         whole = self._element(
-            "IfcStair", name=f"Stair {index}", predefined_type="HALF_TURN_STAIR", representation=None, matrix=_frame((0.0, 0.0, z)), container=storey
+            "IfcStair",
+            name=f"Stair {index}",
+            predefined_type="HALF_TURN_STAIR",
+            matrix=_frame((0, 0, z)),
+            container=storey,
         )
         r, h, g = stair.risers_per_flight, stair.riser_m, stair.going_m
         w1 = stair.flight1_y[1] - stair.flight1_y[0]
@@ -580,15 +600,17 @@ class _Author:
                 x = x0 + sign * distance - post / 2
                 floor = z0 + (step + 1) * h
                 rect = self.builder.rectangle(size=(post, post), position=(x, y_edge))
-                items.append(self.builder.extrude(rect, top(distance) - rail - floor + 0.01, position=(0.0, 0.0, floor)))
+                height = top(distance) - rail - floor + 0.01  # into the rail, so post and rail join
+                items.append(self.builder.extrude(rect, height, position=(0.0, 0.0, floor)))
         return self.builder.get_representation(self.body, items)
 
     def add_guard(self, storey: ifcopenshell.entity_instance, stair: StairPlan, z: float) -> None:
         """Guard rail on the top storey where the stair void of flight 1 meets the floor."""
         y0, y1 = stair.flight2_y[1], stair.flight1_y[1]
         x = stair.x_start_m - 0.05
-        boxes = [(x, y0, 0.0, 0.04, 0.04, 1.0), (x, y1 - 0.04, 0.0, 0.04, 0.04, 1.0), (x, (y0 + y1) / 2 - 0.02, 0.0, 0.04, 0.04, 1.0)]
-        boxes += [(x, y0, 0.96, 0.05, y1 - y0, 0.05), (x, y0, 0.5, 0.04, y1 - y0, 0.03)]
+        posts = [(x, y, 0.0, 0.04, 0.04, 1.0) for y in (y0, (y0 + y1) / 2 - 0.02, y1 - 0.04)]
+        rails = [(x, y0, 0.96, 0.05, y1 - y0, 0.05), (x, y0, 0.5, 0.04, y1 - y0, 0.03)]
+        boxes = posts + rails
         self._element(
             "IfcRailing",
             name="Stair void guard",
@@ -609,7 +631,9 @@ class _Author:
         for entity in [*self.model.by_type("IfcRelationship"), *self.model.by_type("IfcUnitAssignment")]:
             for index in range(len(entity)):
                 value = entity[index]
-                if isinstance(value, tuple) and len(value) > 1 and all(isinstance(v, ifcopenshell.entity_instance) for v in value):
+                if not isinstance(value, tuple) or len(value) < 2:
+                    continue
+                if all(isinstance(v, ifcopenshell.entity_instance) for v in value):
                     entity[index] = sorted(value, key=lambda v: v.id())
 
     def assign_global_ids(self, *, seed: int, storeys: int) -> None:
@@ -637,7 +661,7 @@ def _y_extrusion() -> dict[str, tuple[float, float, float]]:
     return {"position_x_axis": (1, 0, 0), "position_z_axis": (0, -1, 0), "extrusion_vector": (0, 0, -1)}
 
 
-def _furniture_boxes(kind: str, width: float, deep: float, height: float) -> list[tuple[float, float, float, float, float, float]]:
+def _furniture_boxes(kind: str, width: float, deep: float, height: float) -> list[Box]:
     """Boxes (x, y, z, sx, sy, sz) of one piece in its own frame: x along its width, y from the
     front (0) to the back (``deep``), z up from the floor. Metres."""
     if kind == "table":

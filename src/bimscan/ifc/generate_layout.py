@@ -7,7 +7,8 @@ the two apart lets the layout rules be read (and tested) without any geometry ke
 
 The building is a double-loaded corridor block, the commonest office/school plan: a corridor
 along X, a strip of rooms south and north of it, a half-turn stair in a stairwell at the west
-end of the north strip (when there is more than one storey), the entrance at the east end of the
+end of the north strip (when there is more than one storey; a store room fills the strip behind
+it where the strip is deeper than the stair), the entrance at the east end of the
 corridor. Columns stand on a grid along the exterior walls and the corridor walls; beams span
 across the building (along Y) at the interior grid lines, under every slab.
 
@@ -367,9 +368,11 @@ def _free_intervals(lo: float, hi: float, blocked: list[tuple[float, float]]) ->
     return out
 
 
-def _plan_storey(
-    plan: BuildingPlan, *, index: int, x_first: float, rng: np.random.Generator
-) -> StoreyPlan:
+def _plan_storey(plan: BuildingPlan, *, index: int, x_first: float, rng: np.random.Generator) -> StoreyPlan:
+    """Rooms, walls with openings, and furniture of storey ``index``.
+
+    ``x_first`` is where the north strip's offices begin (east of the stairwell, if any).
+    """
     e, ti, c = EXTERIOR_WALL_M, plan.interior_wall_m, plan.column_m
     w, d = plan.width_m, plan.depth_m
     ca, cb = plan.corridor_y_m
@@ -415,9 +418,8 @@ def _plan_storey(
     window_head = min(2.25, clear_h - 0.35)
 
     def add_opening(wall: str, kind: OpeningKind, at: float, width: float, sill: float, height: float) -> None:
-        openings.setdefault(wall, []).append(
-            OpeningPlan(kind, _r(at), _r(width), _r(sill), _r(height), f"{kind} {index}.{len(openings.get(wall, []))}")
-        )
+        name = f"{kind} {index}.{sum(len(v) for v in openings.values()):02d}"  # unique on the storey
+        openings.setdefault(wall, []).append(OpeningPlan(kind, _r(at), _r(width), _r(sill), _r(height), name))
 
     # Every strip room opens onto the corridor; the corridor wall starts at x = e.
     for room, side in strip_rooms:
@@ -442,7 +444,8 @@ def _plan_storey(
             if b - a < 1.0:
                 continue
             width = min(b - a, rng.uniform(1.2, 2.2))
-            add_opening(wall, "window", (a + b) / 2 - width / 2 - wall_start, width, window_sill, window_head - window_sill)
+            at = (a + b) / 2 - width / 2 - wall_start
+            add_opening(wall, "window", at, width, window_sill, window_head - window_sill)
 
     for room, side in strip_rooms:
         add_windows(side, room.rect.x0, room.rect.x1, 0.0)
@@ -562,13 +565,14 @@ def _plan_furniture(
                 rect = Rect(_r(x), _r(y), _r(x + sx), _r(y + sy))
                 if fits(rect, tall=False):
                     placed.append(rect)
-                    out.append(FurniturePlan("table", rect, 0.74, (0, -1) if long_x else (-1, 0), f"table {index}.{len(out)}"))
+                    facing = (0, -1) if long_x else (-1, 0)
+                    out.append(FurniturePlan("table", rect, 0.74, facing, f"table {index}.{len(out)}"))
                     break
         for _ in range(int(rng.integers(1, 4))):
             kind: FurnitureKind = ("cabinet", "shelf")[int(rng.integers(2))]
             width = float(rng.uniform(0.8, 1.2))
             deep = 0.45 if kind == "cabinet" else 0.35
-            height = float(rng.choice([0.8, 1.1, 2.0])) if kind == "cabinet" else float(rng.uniform(1.8, 2.1))
+            height = float(rng.choice([0.8, 1.2, 2.0])) if kind == "cabinet" else float(rng.uniform(1.8, 2.1))
             for _ in range(40):
                 side = int(rng.integers(4))  # which room side the back stands against: S, N, W, E
                 if side < 2:
@@ -583,7 +587,7 @@ def _plan_furniture(
                     y = rng.uniform(r.y0, r.y1 - width)
                     x = r.x0 if side == 2 else r.x1 - deep
                     rect, facing = Rect(_r(x), _r(y), _r(x + deep), _r(y + width)), ((1, 0) if side == 2 else (-1, 0))
-                if fits(rect, tall=height > 1.0):
+                if fits(rect, tall=height > 0.8):  # window sills are at 0.85 m or more
                     placed.append(rect)
                     out.append(FurniturePlan(kind, rect, _r(height), facing, f"{kind} {index}.{len(out)}"))
                     break
