@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -59,12 +60,17 @@ class SceneMesh:
     def n_triangles(self) -> int:
         return int(len(self.faces))
 
-    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """(min xyz, max xyz) in metres of the vertices that faces use."""
+    @cached_property
+    def _bounds(self) -> tuple[np.ndarray, np.ndarray]:
         used = self.vertices[np.unique(self.faces)] if len(self.faces) else self.vertices
         if len(used) == 0:
             return np.zeros(3), np.zeros(3)
         return used.min(axis=0), used.max(axis=0)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(min xyz, max xyz) in metres of the vertices that faces use (computed once)."""
+        lo, hi = self._bounds
+        return lo.copy(), hi.copy()
 
 
 @dataclass(frozen=True)

@@ -65,7 +65,6 @@ def check_semantics(chunk: PointCloud, components: ComponentTable) -> None:
 class CloudSummary:
     """Running totals over a stream of chunks: points, extents, class and station histograms."""
 
-    n_classes: int = 256
     points: int = 0
     dropped_invalid: int = 0
     minimum: np.ndarray = field(default_factory=lambda: np.full(3, np.inf))

@@ -20,6 +20,15 @@ DEFAULT_REFLECTANCE = 0.5
 INTENSITY_REFERENCE_M = 5.0  # intensity falls with (5 m / range)^2 beyond 5 m
 
 
+def sphere_directions(n: int) -> np.ndarray:
+    """(n, 3) float32 unit vectors spread evenly over the sphere (Fibonacci lattice)."""
+    i = np.arange(n) + 0.5
+    z = 1 - 2 * i / n
+    r = np.sqrt(1 - z * z)
+    phi = math.pi * (1 + 5**0.5) * i
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1).astype(np.float32)
+
+
 def registration_error(noise: NoiseModel, key: np.uint64) -> tuple[np.ndarray, np.ndarray]:
     """The station's rigid registration error: rotation (3, 3) about the vertical and shift (3,) metres."""
     draws = station_normals(key)
@@ -54,6 +63,7 @@ class VirtualScanner:
         self._ray_buffer = np.empty((0, 6), dtype=np.float32)
         self._pulse_buffer = np.empty(0, dtype=np.int64)
         self._output_buffers: tuple[np.ndarray, ...] = (np.empty((0, 3)),)
+        self._probe: RayEngine | None = None
 
     def _set_threads(self) -> None:
         if self.threads:
@@ -120,15 +130,19 @@ class VirtualScanner:
             self._output_buffers = columns
         return columns
 
-    def cast_from(self, origin_world: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Cast unit ``directions`` (N, 3) from one world point: (distance (N,) f4, component (N,) i4, -1 = miss)."""
+    def cast(self, origins_world: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """First hits of rays: origins (3,) or (N, 3) world metres, unit directions (N, 3).
+
+        Returns the distance (N,) float64 (inf where nothing is hit) and the hit component
+        (N,) int32 (-1 for a miss). For probing the scene (station planning and checks).
+        """
         rays = np.empty((len(directions), 6), dtype=np.float32)
-        rays[:, :3] = np.asarray(origin_world, dtype=np.float64) - self.engine.centre
+        rays[:, :3] = np.asarray(origins_world, dtype=np.float64) - self.engine.centre
         rays[:, 3:] = directions
         t_hit, triangle = self.engine.cast(rays)
-        hit = triangle < len(self.face_component)
-        component = np.where(hit, self.face_component[np.minimum(triangle, len(self.face_component) - 1)], -1)
-        return t_hit, component.astype(np.int32)
+        n_faces = len(self.face_component)
+        component = np.where(triangle < n_faces, self.face_component[np.minimum(triangle, n_faces - 1)], -1)
+        return t_hit.astype(np.float64), component.astype(np.int32)
 
     def solid_containing(self, point_world: np.ndarray, *, n_rays: int = 96) -> int | None:
         """The component whose closed surface encloses ``point_world``, or None.
@@ -139,19 +153,15 @@ class VirtualScanner:
         """
         from bimscan.scan.engine import Open3DEngine
 
-        if not hasattr(self.engine, "list_intersections"):
-            if getattr(self, "_probe", None) is None:
+        if hasattr(self.engine, "list_intersections"):
+            probe = self.engine
+        else:  # engines without it (embreex): an Open3D scene for these rare probes
+            if self._probe is None:
                 self._probe = Open3DEngine(self.mesh, threads=self.threads)
             probe = self._probe
-        else:
-            probe = self.engine
-        i = np.arange(n_rays) + 0.5
-        z = 1 - 2 * i / n_rays
-        phi = math.pi * (1 + 5**0.5) * i
-        directions = np.stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], axis=1)
         rays = np.empty((n_rays, 6), dtype=np.float32)
         rays[:, :3] = np.asarray(point_world, dtype=np.float64) - probe.centre
-        rays[:, 3:] = directions
+        rays[:, 3:] = sphere_directions(n_rays)
         ray_ids, triangle = probe.list_intersections(rays)
         valid = triangle < len(self.face_component)
         if not valid.any():

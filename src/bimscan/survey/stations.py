@@ -26,19 +26,10 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.errors import InputFileError, StationError
-from bimscan.scan.scanning import VirtualScanner
+from bimscan.scan.scanning import VirtualScanner, sphere_directions
 from bimscan.types import BimScene, Station
 
 FLOOR_CLASSES = ("IfcSlab", "IfcCovering", "IfcRamp", "IfcRampFlight", "IfcPlate")
-
-
-def sphere_directions(n: int) -> np.ndarray:
-    """(n, 3) float32 unit vectors spread evenly over the sphere (Fibonacci lattice)."""
-    i = np.arange(n) + 0.5
-    z = 1 - 2 * i / n
-    r = np.sqrt(1 - z * z)
-    phi = math.pi * (1 + 5**0.5) * i
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -113,7 +104,7 @@ def check_station(station: Station, scene: BimScene, scanner: VirtualScanner) ->
         raise StationError(f"{where} is inside a solid ({scene.components.ifc_class[inside]} "
                            f"{scene.components.global_id[inside]}); move it into a room")
     directions = sphere_directions(2048)
-    t_hit, _ = scanner.cast_from(np.asarray(station.position), directions)
+    t_hit, _ = scanner.cast(np.asarray(station.position), directions)
     hit = np.isfinite(t_hit)
     down, up = directions[:, 2] < -0.85, directions[:, 2] > 0.85
     if (~hit[down]).mean() > 0.5 and (~hit[up]).mean() > 0.5:
@@ -121,7 +112,7 @@ def check_station(station: Station, scene: BimScene, scanner: VirtualScanner) ->
 
 
 def _floor_below(scanner: VirtualScanner, x: float, y: float, z_from: float) -> float | None:
-    t, _ = scanner.cast_from(np.array([x, y, z_from]), np.array([[0.0, 0.0, -1.0]], dtype=np.float32))
+    t, _ = scanner.cast(np.array([x, y, z_from]), np.array([[0.0, 0.0, -1.0]], dtype=np.float32))
     return None if not np.isfinite(t[0]) else z_from - float(t[0])
 
 
@@ -206,7 +197,7 @@ def _tripod_spots(scanner: VirtualScanner, gx: np.ndarray, gy: np.ndarray, eleva
     """
     start_z = elevation + min(1.0, 0.5 * (next_elevation - elevation))
     origins = np.stack([gx, gy, np.full_like(gx, start_z)], axis=1)
-    t, component = _cast_many(scanner, origins, np.broadcast_to(np.array([0, 0, -1], np.float32), origins.shape))
+    t, component = scanner.cast(origins, np.broadcast_to(np.array([0, 0, -1], np.float32), origins.shape))
     floor_z = start_z - t
     near_elevation = (floor_z > elevation - 0.6) & (floor_z < elevation + 0.6)
     on_floor = np.isfinite(t) & (component >= 0) & floor_components[np.maximum(component, 0)] & near_elevation
@@ -219,7 +210,7 @@ def _tripod_spots(scanner: VirtualScanner, gx: np.ndarray, gy: np.ndarray, eleva
         return spots
     # something overhead (a ceiling or roof: inside the building), above the instrument
     up_origins = spots + [0.0, 0.0, 0.05]
-    t_up, _ = _cast_many(scanner, up_origins, np.broadcast_to(np.array([0, 0, 1], np.float32), up_origins.shape))
+    t_up, _ = scanner.cast(up_origins, np.broadcast_to(np.array([0, 0, 1], np.float32), up_origins.shape))
     spots = spots[np.isfinite(t_up) & (t_up >= instrument + 0.3)]
     if len(spots) == 0:
         return spots
@@ -228,20 +219,9 @@ def _tripod_spots(scanner: VirtualScanner, gx: np.ndarray, gy: np.ndarray, eleva
     clear = np.ones(len(spots), dtype=bool)
     for h in (0.3, 1.0, instrument):
         origins = np.repeat(spots + [0.0, 0.0, h], len(ring), axis=0)
-        t_ring, _ = _cast_many(scanner, origins, np.tile(ring, (len(spots), 1)))
+        t_ring, _ = scanner.cast(origins, np.tile(ring, (len(spots), 1)))
         clear &= (t_ring.reshape(len(spots), len(ring)) >= clearance).all(axis=1)
     return spots[clear]
-
-
-def _cast_many(scanner: VirtualScanner, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    rays = np.empty((len(origins), 6), dtype=np.float32)
-    rays[:, :3] = origins - scanner.engine.centre
-    rays[:, 3:] = directions
-    t, triangle = scanner.engine.cast(rays)
-    n_faces = len(scanner.face_component)
-    hit = triangle < n_faces
-    component = np.where(hit, scanner.face_component[np.minimum(triangle, n_faces - 1)], -1)
-    return t.astype(np.float64), component
 
 
 def _choose(scanner: VirtualScanner, spots: np.ndarray, rooms, instrument: float, max_spacing: float,
@@ -286,7 +266,7 @@ def useful_return_fraction(scanner: VirtualScanner, heads: np.ndarray, n_rays: i
     low, high = np.sin(np.radians([model.elevation_min_deg, model.elevation_max_deg]))
     directions = directions[(directions[:, 2] >= low) & (directions[:, 2] < high)][:n_rays]
     origins = np.repeat(heads, len(directions), axis=0)
-    t, _ = _cast_many(scanner, origins, np.tile(directions, (len(heads), 1)))
+    t, _ = scanner.cast(origins, np.tile(directions, (len(heads), 1)))
     ok = (t >= model.min_range_m) & (t <= model.max_range_m)
     return ok.reshape(len(heads), len(directions)).mean(axis=1)
 
@@ -300,7 +280,7 @@ def _visible_from(scanner: VirtualScanner, heads: np.ndarray, i: int, max_spacin
     out[i] = True
     if near.any():
         directions = (delta[near] / distance[near, None]).astype(np.float32)
-        t, _ = _cast_many(scanner, np.broadcast_to(heads[i], directions.shape), directions)
+        t, _ = scanner.cast(heads[i], directions)
         out[np.flatnonzero(near)] = t >= distance[near] - 0.05
     return out
 
