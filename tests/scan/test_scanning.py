@@ -195,3 +195,16 @@ def test_registration_error_moves_each_station_rigidly_by_the_configured_sigmas(
     # over many stations the draws follow the sigmas
     draws = np.array([registration_error(noise, np.uint64(noise_key(9, s)))[1] for s in range(4000)])
     assert draws.std(axis=0) == pytest.approx([0.01] * 3, rel=0.06)
+
+
+def test_noise_quantiles_match_the_normal_distribution_to_2e_5_sigma():
+    from scipy.special import ndtri
+
+    from bimscan.scan.kernels import _normal_from_bits
+
+    rng = np.random.default_rng(0)
+    bits = np.concatenate([rng.integers(0, 2**32, 20000, dtype=np.uint64), np.arange(0, 300, dtype=np.uint64),
+                           2**32 - 1 - np.arange(0, 300, dtype=np.uint64), 2**31 + np.arange(-300, 300).astype(np.uint64)])
+    values = np.array([_normal_from_bits(np.uint64(b)) for b in bits])
+    exact = ndtri((bits.astype(np.float64) + 0.5) / 2**32)
+    assert np.abs(values - exact).max() < 2e-5

@@ -2,8 +2,8 @@
 
 ``generate_rays`` turns a range of mirror lines into float32 rays; ``finish_hits`` turns the
 engine's hits into labelled points (range filter, range and angle noise, coordinates, labels,
-intensity, time) and compacts them. Both run over fixed-size blocks, so their output does not
-depend on the number of threads. Noise comes from a counter-based generator keyed by
+intensity, time) and compacts them. Each line's rays have fixed slots and the compaction runs
+over fixed-size blocks, so the output does not depend on the number of threads. Noise comes from a counter-based generator keyed by
 (seed, station) and indexed by the pulse number, so it does not depend on chunking either.
 """
 
@@ -114,15 +114,6 @@ def _small_sincos(a: float) -> tuple[float, float]:
         a2 = a * a
         return a * (1.0 - a2 * (1.0 / 6.0 - a2 * (1.0 / 120.0))), 1.0 - a2 * (0.5 - a2 * (1.0 / 24.0 - a2 * (1.0 / 720.0)))
     return math.sin(a), math.cos(a)
-
-
-@nb.njit(cache=True)
-def pulse_normals(key: np.uint64, pulses: np.ndarray) -> np.ndarray:
-    """(N, 3) standard normal deviates (range, azimuth, elevation) the scanner draws for these pulses."""
-    out = np.empty((len(pulses), 3))
-    for i in range(len(pulses)):
-        out[i, 0], out[i, 1], out[i, 2] = _pulse_normals(key, pulses[i])
-    return out
 
 
 @nb.njit(cache=True, parallel=True)
