@@ -67,6 +67,13 @@ class SceneMesh:
             return np.zeros(3), np.zeros(3)
         return used.min(axis=0), used.max(axis=0)
 
+    def face_normals(self) -> np.ndarray:
+        """(F, 3) float64 unit normals of the triangles, from their winding (zero for degenerate ones)."""
+        v, f = self.vertices, self.faces
+        n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """(min xyz, max xyz) in metres of the vertices that faces use (computed once)."""
         lo, hi = self._bounds
@@ -130,6 +137,12 @@ class LabelClass:
     id: int
     name: str
     color: str  # "#rrggbb", used by renders and plots
+
+    @property
+    def rgb(self) -> tuple[int, int, int]:
+        """The colour as (r, g, b) integers 0..255."""
+        text = self.color.lstrip("#")
+        return int(text[0:2], 16), int(text[2:4], 16), int(text[4:6], 16)
 
 
 @dataclass(frozen=True)

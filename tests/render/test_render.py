@@ -9,7 +9,7 @@ import pytest
 
 from bimscan.cli.main import main
 from bimscan.render.cloud import panel_size, render_cloud
-from bimscan.render.compose import hex_rgb, panel_origin
+from bimscan.render.compose import panel_origin
 from bimscan.render.raster import fill_triangles, new_canvas, splat_points
 from bimscan.render.view import TOP, Camera, find_section
 from bimscan.semantics import load_scheme
@@ -108,7 +108,7 @@ def test_render_writes_a_png_of_the_requested_size_in_the_class_colours(tmp_path
     image = _pixels(tmp_path / "room.png")
     assert image.shape == (500, 900, 3)
     assert result.total_points == len(_room_cloud()) and result.drawn_points == 150_000
-    palette = {hex_rgb(c.color): c.name for c in load_scheme().classes}
+    palette = {c.rgb: c.name for c in load_scheme().classes}
     for panel in _panels(image, 2):
         colours = {tuple(int(v) for v in p) for p in np.unique(panel.reshape(-1, 3), axis=0)}
         assert colours - {WHITE} <= set(palette), "every drawn pixel has a class colour"
@@ -139,7 +139,7 @@ def test_render_colours_by_station_and_reads_foreign_files(tmp_path: Path) -> No
                for p in np.unique(panel.reshape(-1, 3), axis=0)} - {WHITE}
     # a foreign file's class ids are not bimscan's classes: one neutral colour per id (floor, walls, table
     # under the cut), none of them a bimscan class colour
-    assert len(colours) == 3 and not colours & {hex_rgb(c.color) for c in load_scheme().classes}
+    assert len(colours) == 3 and not colours & {c.rgb for c in load_scheme().classes}
     _write(cloud, tmp_path / "ours.ply")
     render_cloud(tmp_path / "ours.ply", tmp_path / "stations.png", color="station", width=600, height=400,
                  max_points=50_000, cut="none")
@@ -171,7 +171,7 @@ def test_the_figure_shows_the_model_and_its_scan_side_by_side(tmp_path: Path, bo
     assert len(np.unique(model.reshape(-1, 3), axis=0)) - 1 > 2
     # the real scan is framed on its own points (the model's frame holds the synthetic scan): it fills more
     assert (real != 255).any(axis=2).mean() > (synthetic != 255).any(axis=2).mean()
-    palette = {hex_rgb(c.color) for c in load_scheme().classes}
+    palette = {c.rgb for c in load_scheme().classes}
     assert {tuple(int(v) for v in p) for p in np.unique(real.reshape(-1, 3), axis=0)} - {WHITE} <= palette
 
 
@@ -186,3 +186,18 @@ def test_render_and_figure_refuse_bad_input_with_one_line(tmp_path: Path, capsys
     assert main(["figure", str(tmp_path / "missing.ifc"), str(tmp_path / "nothing"), str(tmp_path / "f.png")]) == 1
     assert "no such file" in capsys.readouterr().err
     assert not list(tmp_path.glob("*.png")) and not list(tmp_path.glob(".*"))
+
+
+def test_shading_leaves_the_callers_light_vector_alone():
+    import numpy as np
+
+    from bimscan.render.mesh import face_colors
+    from bimscan.semantics import load_scheme
+    from bimscan.types import SceneMesh
+
+    mesh = SceneMesh(vertices=np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), faces=np.array([[0, 1, 2]], np.int32),
+                     face_component=np.zeros(1, np.int32))
+    light = np.array([0.0, 0.0, 2.0])
+    colors = face_colors(mesh, np.zeros(1, np.uint8), load_scheme(), light_towards=light)
+    assert light.tolist() == [0.0, 0.0, 2.0]
+    assert tuple(colors[0]) == load_scheme().classes[0].rgb  # facing the light: full colour

@@ -45,7 +45,7 @@ def _report_build(report: BuildReport) -> None:
 @click.command("build")
 @click.argument("spec", type=click.Path(path_type=Path))
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
-@click.option("--workers", type=int, default=None,
+@click.option("--workers", type=click.IntRange(min=1), default=None,
               help="Units built at once (default: one per core); each casts on cores // workers threads.")
 @click.option("--executor", type=click.Choice(EXECUTOR_CHOICES), default="local", show_default=True,
               help="local: spawned processes on this machine; ray: Ray tasks.")
@@ -101,7 +101,7 @@ def stats(dataset_dir: Path, out_dir: Path | None, from_clouds: bool) -> None:
 @click.argument("out", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--color", type=click.Choice(["label", "station", "intensity", "component", "height"]), default="label",
               show_default=True, help="What the colours show.")
-@click.option("--max-points", type=int, default=3_000_000, show_default=True,
+@click.option("--max-points", type=click.IntRange(min=1), default=3_000_000, show_default=True,
               help="Uniform random sample drawn (the whole file is streamed).")
 @click.option("--size", default="1600x800", show_default=True, help=SIZE_HELP)
 @click.option("--cut", type=click.Choice(["auto", "none"]), default="auto", show_default=True,
@@ -131,10 +131,12 @@ def figure(model: Path, cloud: Path, out: Path, real: Path | None, scheme: str |
     """Side by side: the BIM MODEL (IFC) shaded by class, its synthetic CLOUD, optionally a --real scan."""
     from bimscan.errors import InputFileError
     from bimscan.ifc.load import load_ifc
+    from bimscan.render.compose import check_png_output
     from bimscan.render.figure import render_figure
     from bimscan.semantics import load_scheme
 
     width, height = _size(size)
+    check_png_output(out)
     label_scheme = load_scheme(scheme)
     for path in (cloud, real):
         if path is not None and not path.exists():  # before the (slow) parse
@@ -147,9 +149,10 @@ def figure(model: Path, cloud: Path, out: Path, real: Path | None, scheme: str |
 
 @click.command("demo")
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
-@click.option("--workers", type=int, default=None, help="Units built at once (default: one per core).")
+@click.option("--workers", type=click.IntRange(min=1), default=None, help="Units built at once (default: one per core).")
 @click.option("--executor", type=click.Choice(EXECUTOR_CHOICES), default="local", show_default=True)
-@click.option("--head-speed", "head_deg_per_s", type=float, default=60.0, show_default=True,
+@click.option("--head-speed", "head_deg_per_s", type=click.FloatRange(min=0.0, max=3600.0, min_open=True),
+              default=60.0, show_default=True,
               help="Head rotation in deg/s for every configuration (the presets turn at 10; faster: fewer points).")
 def demo(out_dir: Path, workers: int | None, executor: str, head_deg_per_s: float) -> None:
     """The whole pipeline on generated buildings: dataset, statistics, pictures, in OUT_DIR.

@@ -44,8 +44,12 @@ def main(argv: list[str] | None = None) -> int:
     except click.exceptions.Abort:
         click.echo("error: interrupted", err=True)
         return 130
+    except click.UsageError as exc:  # a bad option or argument: one line, like every other error
+        command = f"bimscan {exc.ctx.command_path.split(' ', 1)[1]} " if exc.ctx and " " in exc.ctx.command_path else "bimscan "
+        click.echo(f"error: {exc.format_message()} (see '{command}--help')", err=True)
+        return exc.exit_code
     except click.ClickException as exc:
-        exc.show()
+        click.echo(f"error: {exc.format_message()}", err=True)
         return exc.exit_code
     except BimscanError as exc:
         click.echo(f"error: {exc}", err=True)

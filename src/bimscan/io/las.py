@@ -304,7 +304,8 @@ def iter_las_chunks(
                 return
             for points in reader.chunk_iterator(chunk_points):
                 yield to_cloud(points)
-        except (LaspyException, EOFError) as exc:
+        except (LaspyException, EOFError, ValueError, RuntimeError) as exc:
+            # laspy raises its own errors and ValueError on short buffers; lazrs raises RuntimeError
             raise InputFileError(f"{path}: the point data is damaged ({exc}); check the file") from exc
 
 

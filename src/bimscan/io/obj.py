@@ -64,20 +64,12 @@ def group_name(component: int, global_id: str) -> str:
     return f"c{component}_{global_id}".replace(" ", "_")
 
 
-def _hex_to_rgb(color: str) -> tuple[float, float, float]:
-    text = color.lstrip("#")
-    try:
-        return tuple(int(text[i : i + 2], 16) / 255.0 for i in (0, 2, 4))  # type: ignore[return-value]
-    except ValueError:
-        return (0.5, 0.5, 0.5)
-
-
 def _materials_text(scene: BimScene) -> str:
     lines = ["# bimscan semantic classes; helios_classification is read by HELIOS++"]
     labels = {c.id: c for c in scene.scheme.classes}
     for label in sorted(set(labels) | {int(v) for v in scene.components.label}):
         cls = labels.get(label)
-        r, g, b = _hex_to_rgb(cls.color) if cls else (0.5, 0.5, 0.5)
+        r, g, b = (v / 255.0 for v in cls.rgb) if cls else (0.5, 0.5, 0.5)
         lines += [
             "", f"newmtl class_{label}", f"# {cls.name if cls else 'unknown class'}",
             "Ka 0.0 0.0 0.0", f"Kd {r:.4f} {g:.4f} {b:.4f}", "Ks 0.0 0.0 0.0",

@@ -186,8 +186,12 @@ def read_ply_layout(handle: BinaryIO, *, where: str) -> PlyLayout:
         elif key in ("comment", "obj_info"):
             comments.append(raw.decode("ascii", "replace").rstrip("\r\n")[len(key) + 1 :])
         elif key == "element" and len(words) == 3:
+            if not words[2].isdigit():
+                raise InputFileError(f"{where}: PLY element line {raw!r} needs a count >= 0; check the file")
             elements.append({"name": words[1], "count": int(words[2]), "properties": [], "has_lists": False})
-        elif key == "property" and elements:
+        elif key == "property" and elements and len(words) >= 3:
+            if words[-1] in (name for name, _ in elements[-1]["properties"]):
+                raise InputFileError(f"{where}: PLY property {words[-1]!r} appears twice in one element; check the file")
             if words[1] == "list":
                 elements[-1]["has_lists"] = True
                 elements[-1]["properties"].append((words[-1], "list"))

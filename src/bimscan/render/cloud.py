@@ -17,13 +17,12 @@ import numpy as np
 
 from bimscan.errors import ConfigError
 from bimscan.process.subsample import UniformSampler
-from bimscan.render.compose import Panel, compose_png, hex_rgb
+from bimscan.render.compose import UNKNOWN_RGB, Panel, check_png_output, class_color_table, compose_png
 from bimscan.render.raster import new_canvas, splat_points
 from bimscan.render.view import OBLIQUE, TOP, Camera, Section, find_section
 from bimscan.types import CloudHeader, LabelScheme, PointCloud
 
 COLOR_MODES = ("label", "station", "intensity", "component", "height")
-UNKNOWN_RGB = (150, 150, 150)
 DEFAULT_MAX_POINTS = 3_000_000
 
 
@@ -94,11 +93,9 @@ def point_colors(cloud: PointCloud, mode: str, scheme: LabelScheme | None) -> tu
         legend = [(f"class {int(i)}", tuple(int(v) for v in palette[k])) for k, i in enumerate(ids[:24])]
         return palette[inverse], legend  # type: ignore[return-value]
     if mode == "label":
-        table = np.tile(np.array(UNKNOWN_RGB, dtype=np.uint8), (256, 1))
-        for cls in scheme.classes:
-            table[cls.id] = hex_rgb(cls.color)
+        table = class_color_table(scheme)
         present = np.bincount(column, minlength=256) if n else np.zeros(256, dtype=np.int64)
-        legend = [(cls.name, hex_rgb(cls.color)) for cls in scheme.classes if present[cls.id]]
+        legend = [(cls.name, cls.rgb) for cls in scheme.classes if present[cls.id]]
         if any(present[i] for i in range(256) if i not in {c.id for c in scheme.classes}):
             legend.append(("unknown class", UNKNOWN_RGB))
         return table[column], legend
@@ -163,6 +160,7 @@ def render_cloud(path: str | Path, out: str | Path, *, color: str = "label", max
     if color not in COLOR_MODES:
         raise ConfigError(f"unknown colour mode {color!r}; use one of {', '.join(COLOR_MODES)}")
     check_size(width, height)
+    check_png_output(out)
     sample = sample_cloud(path, max_points=max_points, seed=seed)
     cloud = sample.cloud
     colors, legend = point_colors(cloud, color, sample.header.scheme if sample.header else None)

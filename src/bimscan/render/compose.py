@@ -26,7 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bimscan.errors import ConfigError, OutputError
+from bimscan.errors import OutputError
+from bimscan.types import LabelScheme
 
 TITLE_PX = 46
 LEGEND_PX = 36
@@ -40,17 +41,30 @@ class Panel:
     image: np.ndarray  # (H, W, 3) uint8
 
 
-def hex_rgb(color: str) -> tuple[int, int, int]:
-    """'#rrggbb' -> (r, g, b) 0..255."""
-    text = color.lstrip("#")
-    if len(text) != 6:
-        raise ConfigError(f"colour {color!r} is not of the form #rrggbb")
-    return int(text[0:2], 16), int(text[2:4], 16), int(text[4:6], 16)
+UNKNOWN_RGB = (150, 150, 150)  # points or faces of a class the scheme does not name
+
+
+def class_color_table(scheme: LabelScheme) -> np.ndarray:
+    """(256, 3) uint8 colour of every class id (the scheme's colours, grey for the rest)."""
+    table = np.tile(np.array(UNKNOWN_RGB, dtype=np.uint8), (256, 1))
+    for cls in scheme.classes:
+        table[cls.id] = cls.rgb
+    return table
 
 
 def panel_origin(index: int, panel_width: int) -> tuple[int, int]:
     """Top-left pixel (x, y) of panel ``index`` in the composed image."""
     return GAP_PX + index * (panel_width + GAP_PX), TITLE_PX
+
+
+def check_png_output(out: str | Path) -> Path:
+    """Raise OutputError now for a picture path that cannot be written (before any slow work)."""
+    out = Path(out)
+    if out.suffix.lower() != ".png":
+        raise OutputError(f"{out}: pictures are written as PNG; give a path ending in .png")
+    if not out.parent.is_dir():
+        raise OutputError(f"output folder {out.parent} does not exist; create it first or choose another path")
+    return out
 
 
 def compose_png(panels: list[Panel], *, legend: list[tuple[str, tuple[int, int, int]]], title: str, out: str | Path,
@@ -62,11 +76,7 @@ def compose_png(panels: list[Panel], *, legend: list[tuple[str, tuple[int, int, 
     from matplotlib.figure import Figure
     from matplotlib.patches import Patch
 
-    out = Path(out)
-    if out.suffix.lower() != ".png":
-        raise OutputError(f"{out}: pictures are written as PNG; give a path ending in .png")
-    if not out.parent.is_dir():
-        raise OutputError(f"output folder {out.parent} does not exist; create it first or choose another path")
+    out = check_png_output(out)
     canvas = np.full((height, width, 3), 255, dtype=np.uint8)
     figure = Figure(figsize=(width / DPI, height / DPI), dpi=DPI)
     for index, panel in enumerate(panels):

@@ -15,7 +15,7 @@ import numpy as np
 
 from bimscan.errors import ConfigError
 from bimscan.render.cloud import DEFAULT_MAX_POINTS, check_size, draw_points, panel_size, point_colors, sample_cloud
-from bimscan.render.compose import Panel, compose_png, hex_rgb
+from bimscan.render.compose import Panel, check_png_output, compose_png
 from bimscan.render.mesh import draw_mesh, face_colors
 from bimscan.render.view import OBLIQUE, Camera, find_section
 from bimscan.types import LabelScheme, SceneMesh
@@ -38,6 +38,7 @@ def render_figure(mesh: SceneMesh, component_label: np.ndarray, scheme: LabelSch
     if cut not in ("auto", "none"):
         raise ConfigError(f"unknown cut {cut!r}; use auto or none")
     check_size(width, height)
+    check_png_output(out)
     n_panels = 3 if real is not None else 2
     panel_w, panel_h = panel_size(width, height, panels=n_panels)
     azimuth, elevation = OBLIQUE
@@ -62,6 +63,7 @@ def render_figure(mesh: SceneMesh, component_label: np.ndarray, scheme: LabelSch
         xyz = measured.cloud.xyz
         real_section = find_section(xyz[:, 2]) if cut == "auto" and len(xyz) else None
         keep = np.ones(len(xyz), dtype=bool) if real_section is None else xyz[:, 2] <= real_section.plan_z
+        # all zeros is LAS "never classified" (a foreign scan without labels): colour by height then
         mode = "label" if measured.cloud.label is not None and measured.cloud.label.any() else "height"
         colors, _ = point_colors(measured.cloud, mode, measured.header.scheme if measured.header else scheme)
         low_r, high_r = (xyz[keep].min(axis=0), xyz[keep].max(axis=0)) if keep.any() else (np.zeros(3), np.ones(3))
@@ -69,7 +71,7 @@ def render_figure(mesh: SceneMesh, component_label: np.ndarray, scheme: LabelSch
                                  height=panel_h)
         panels.append(Panel(title=f"real scan ({measured.total:,} points, by {mode})",
                             image=draw_points(xyz[keep], colors[keep], real_camera)))
-    legend = [(c.name, hex_rgb(c.color)) for c in scheme.classes]
+    legend = [(c.name, c.rgb) for c in scheme.classes]
     title = f"{model_name}: model, synthetic scan{' and real scan' if real is not None else ''}"
     compose_png(panels, legend=legend, title=title, out=out, width=width, height=height)
     return FigureResult(path=Path(out), panels=tuple(p.title for p in panels))

@@ -4,12 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from bimscan.render.compose import hex_rgb
+from bimscan.render.compose import class_color_table
 from bimscan.render.raster import fill_triangles, new_canvas
 from bimscan.render.view import Camera
 from bimscan.types import LabelScheme, SceneMesh
-
-UNKNOWN_RGB = (150, 150, 150)
 
 
 def face_colors(mesh: SceneMesh, component_label: np.ndarray, scheme: LabelScheme, *,
@@ -19,18 +17,10 @@ def face_colors(mesh: SceneMesh, component_label: np.ndarray, scheme: LabelSchem
     component_label: (C,) uint8 class id per component. light_towards: (3,) direction from the
     scene to the light (a light near the camera keeps faces that face the viewer bright).
     """
-    table = np.tile(np.array(UNKNOWN_RGB, dtype=np.float64), (256, 1))
-    for cls in scheme.classes:
-        table[cls.id] = hex_rgb(cls.color)
-    base = table[component_label[mesh.face_component]]
-    v = mesh.vertices
-    f = mesh.faces
-    normal = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    length = np.linalg.norm(normal, axis=1)
-    normal /= np.where(length > 0, length, 1.0)[:, None]
-    light = np.asarray(light_towards, dtype=np.float64)
+    base = class_color_table(scheme).astype(np.float64)[component_label[mesh.face_component]]
+    light = np.array(light_towards, dtype=np.float64)  # a copy: the caller's vector stays as it is
     light /= np.linalg.norm(light)
-    shade = 0.45 + 0.55 * np.abs(normal @ light)  # triangle winding is not trusted: two-sided
+    shade = 0.45 + 0.55 * np.abs(mesh.face_normals() @ light)  # triangle winding is not trusted: two-sided
     return np.clip(base * shade[:, None], 0, 255).round().astype(np.uint8)
 
 

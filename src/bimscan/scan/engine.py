@@ -102,14 +102,3 @@ def make_engine(mesh: SceneMesh, *, name: str = DEFAULT_ENGINE, threads: int = 0
     if name not in ENGINES:
         raise ConfigError(f"unknown ray engine {name!r}; choose one of {', '.join(ENGINES)}")
     return ENGINES[name](mesh, threads=threads)
-
-
-def face_normals(mesh: SceneMesh) -> np.ndarray:
-    """(F, 3) float32 unit normals of the triangles (zero for degenerate ones)."""
-    v = mesh.vertices
-    f = mesh.faces
-    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        n = np.where(length > 0, n / length, 0.0)
-    return n.astype(np.float32)

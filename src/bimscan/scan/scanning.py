@@ -8,7 +8,7 @@ from collections.abc import Callable, Iterator
 import numba
 import numpy as np
 
-from bimscan.scan.engine import RayEngine, face_normals, make_engine
+from bimscan.scan.engine import RayEngine, make_engine
 from bimscan.scan.kernels import finish_hits, generate_rays, noise_key, station_normals
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.pattern import PulsePattern
@@ -57,7 +57,7 @@ class VirtualScanner:
         self.reflectance = (np.full(n_components, DEFAULT_REFLECTANCE, dtype=np.float32) if reflectance is None
                             else np.ascontiguousarray(reflectance, dtype=np.float32))
         self.face_component = np.ascontiguousarray(mesh.face_component, dtype=np.int32)
-        self.face_normal = face_normals(mesh)
+        self.face_normal = mesh.face_normals().astype(np.float32)
         # Working buffers of scan_station, reused (outputs are fresh arrays): one scan at a time
         # per VirtualScanner.
         self._ray_buffer = np.empty((0, 6), dtype=np.float32)
