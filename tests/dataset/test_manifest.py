@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 
+from bimscan.files import replace_path
 from bimscan.dataset.manifest import (
     UNIT_FORMAT,
     UNIT_VERSION,
-    commit_unit,
     fingerprint,
     manifest_entry,
     read_manifest,
@@ -77,7 +77,7 @@ def test_committing_a_unit_replaces_a_stale_one_and_leftovers_are_swept(tmp_path
     staged = _unit(units / ".a__b.123.tmp", key="new")
     (units / ".a__c.456.tmp").mkdir()
     (tmp_path / ".manifest.json.789.tmp").write_text("{")
-    commit_unit(staged, stale)
+    replace_path(staged, stale)
     assert json.loads((units / "a__b" / "unit.json").read_text())["fingerprint"] == "new"
     assert remove_leftovers(tmp_path) == 2
     assert sorted(p.name for p in units.iterdir()) == ["a__b"] and not list(tmp_path.glob(".*.tmp"))

@@ -48,7 +48,6 @@ from bimscan.dataset.manifest import (
     UNIT_NAME,
     UNIT_VERSION,
     UNITS_DIR,
-    commit_unit,
     fingerprint,
     manifest_entry,
     read_json,
@@ -64,12 +63,13 @@ from bimscan.dataset.spec import (
     ConfigSpec,
     DatasetSpec,
     config_settings,
+    preset_name,
     resolve_scanner,
     resolve_scheme,
     unit_id,
 )
 from bimscan.errors import BimscanError, DatasetError, OutputError
-from bimscan.hashing import file_sha256
+from bimscan.files import file_sha256, replace_path
 from bimscan.progress import progress_bar
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.scanner import ScannerModel, ScanSettings
@@ -297,7 +297,7 @@ def _unit_inputs(shared: dict[str, Any], scene: dict[str, Any], config: ConfigSp
     """Everything a unit's bytes depend on (JSON-able); its fingerprint decides reuse."""
     settings = config_settings(config)
     return shared | scene | {
-        "config": {"name": config.name, "preset": config.preset if config.settings is None else None,
+        "config": {"name": config.name, "preset": preset_name(config.preset) if config.settings is None else None,
                    "head_deg_per_s_override": config.head_deg_per_s, "settings": dataclasses.asdict(settings)},
     }
 
@@ -326,11 +326,11 @@ def _plan_units(spec: DatasetSpec, out: Path, scene_files: dict[str, Path], scen
                     entries.append(manifest_entry(unit=uid, scene=scene.name, config=config.name, status="done",
                                                   points=meta["points"], files=_manifest_files(uid, meta["files"])))
                     continue
-                shutil.rmtree(folder, ignore_errors=True)  # stale or damaged: rebuilt below
+                # stale or damaged: rebuilt below; replace_path swaps it out only once the new one is complete
             entries.append(manifest_entry(unit=uid, scene=scene.name, config=config.name, status="pending"))
             jobs[uid] = UnitJob(
                 unit=uid, scene=scene.name, config=config.name, ifc=str(scene_files[scene.name]), scheme=spec.scheme,
-                scanner=spec.scanner, settings=config_settings(config), preset=config.preset, noise=spec.noise,
+                scanner=spec.scanner, settings=config_settings(config), preset=preset_name(config.preset), noise=spec.noise,
                 seed=spec.seed, engine=spec.engine, strict=spec.strict, formats=spec.formats,
                 voxel_size_m=spec.voxel_size_m, stations_file=str(_stations_path(out, scene.name)), out_dir=str(out),
                 threads=1, inputs=inputs, fingerprint=key, chunk_pulses=chunk_pulses,  # threads: set in _run
@@ -577,7 +577,7 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
         write_json(staged / TIMINGS_NAME, {"load_s": round(load_s, 3), "scan_write_s": round(scan_s, 3),
                                            "total_s": round(time.perf_counter() - start, 3), "threads": job.threads,
                                            "points_per_s": round(kept.points / max(scan_s, 1e-9))})
-        commit_unit(staged, unit_dir(out, job.unit))
+        replace_path(staged, unit_dir(out, job.unit))
         staged = None
         return UnitOutcome(unit=job.unit, status="done", points=kept.points, files=files, load_s=load_s,
                            seconds=time.perf_counter() - start)

@@ -76,7 +76,7 @@ DEMO_SPEC = demo_spec()
 
 def write_demo_spec(path: Path, *, head_deg_per_s: float = DEFAULT_HEAD_DEG_PER_S) -> Path:
     """Write the demo's dataset spec to ``path`` (atomically); returns the path."""
-    from bimscan.dataset.manifest import write_bytes
+    from bimscan.files import write_atomic
 
-    write_bytes(path, demo_spec(head_deg_per_s=head_deg_per_s).encode("utf-8"))
+    write_atomic(path, demo_spec(head_deg_per_s=head_deg_per_s).encode("utf-8"))
     return path

@@ -27,15 +27,13 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import secrets
 import shutil
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from bimscan.errors import DatasetError, InputFileError
-from bimscan.hashing import file_sha256
+from bimscan.files import file_sha256, temp_path, write_atomic
 
 MANIFEST_NAME = "manifest.json"
 DATASET_NAME = "dataset.json"
@@ -55,20 +53,9 @@ def dump_json(document: Mapping[str, Any]) -> bytes:
     return (json.dumps(document, sort_keys=True, indent=1, ensure_ascii=False, allow_nan=False) + "\n").encode("utf-8")
 
 
-def write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically (a temporary file in the same folder, renamed)."""
-    temp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
-    try:
-        with temp.open("wb") as handle:
-            handle.write(data)
-        os.replace(temp, path)
-    finally:
-        temp.unlink(missing_ok=True)  # gone already when the rename succeeded
-
-
 def write_json(path: Path, document: Mapping[str, Any]) -> None:
     """Write ``document`` to ``path`` as canonical JSON, atomically."""
-    write_bytes(path, dump_json(document))
+    write_atomic(path, dump_json(document))
 
 
 def read_json(path: Path) -> dict[str, Any]:
@@ -167,21 +154,10 @@ def verify_unit(folder: Path, *, expected_fingerprint: str) -> str | None:
 
 
 def staging_dir(out_dir: Path, unit: str) -> Path:
-    """A fresh hidden folder in ``units/`` to build ``unit`` in."""
-    folder = out_dir / UNITS_DIR / f".{unit}.{secrets.token_hex(6)}.tmp"
+    """A fresh hidden folder in ``units/`` to build ``unit`` in (renamed into place by replace_path)."""
+    folder = temp_path(out_dir / UNITS_DIR / unit)
     folder.mkdir(parents=True)
     return folder
-
-
-def commit_unit(staged: Path, final: Path) -> None:
-    """Move a finished staging folder into place, replacing a stale unit folder if there is one."""
-    if final.exists():
-        trash = final.with_name(f".{final.name}.{secrets.token_hex(6)}.old")
-        os.replace(final, trash)
-        os.replace(staged, final)
-        shutil.rmtree(trash, ignore_errors=True)
-    else:
-        os.replace(staged, final)
 
 
 def remove_leftovers(out_dir: Path) -> int:

@@ -49,7 +49,9 @@ from typing import Any
 from bimscan.config import build_dataclass, load_toml
 from bimscan.errors import BimscanError, ConfigError, InputFileError
 from bimscan.scan.noise import NoiseModel
-from bimscan.scan.scanner import ScannerModel, ScanSettings, check_settings, load_scanner, load_settings, with_overrides
+from bimscan.scan.scanner import (
+    PRESETS, ScannerModel, ScanSettings, check_settings, load_scanner, load_settings, with_overrides,
+)
 from bimscan.types import LabelScheme
 
 # format key -> the unit's cloud file name (a folder for NumPy)
@@ -252,6 +254,14 @@ def device_warnings(spec: DatasetSpec) -> list[str]:
     scanner = resolve_scanner(spec)
     return [f"configuration {config.name!r}: {warning}" for config in spec.configs
             for warning in check_settings(config_settings(config), scanner)]
+
+
+def preset_name(preset: str | None) -> str | None:
+    """How a unit records its preset: the name, or a settings file's file name (never a path, so
+    that moving the dataset's folder changes neither fingerprints nor bytes)."""
+    if preset is None or preset in PRESETS:
+        return preset
+    return Path(preset).name
 
 
 def config_settings(config: ConfigSpec) -> ScanSettings:

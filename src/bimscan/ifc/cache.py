@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from bimscan.files import atomic_output, write_atomic
 from bimscan.types import ComponentTable, FailedElement, SceneMesh, Space, Storey
 
 if TYPE_CHECKING:
@@ -84,13 +84,8 @@ def store_parsed(key: str, parsed: ParsedModel) -> None:
             "space_vertex_counts": [len(s.vertices) for s in spaces],
             "space_face_counts": [len(s.faces) for s in spaces],
         }
-        for suffix, write in ((".npz", lambda h: np.savez(h, **arrays)), (".json", lambda h: h.write(json.dumps(meta).encode()))):
-            fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{key}", suffix=suffix + ".tmp")
-            try:
-                with os.fdopen(fd, "wb") as handle:
-                    write(handle)
-                os.replace(tmp, folder / f"{key}{suffix}")
-            finally:
-                Path(tmp).unlink(missing_ok=True)  # gone already when the rename succeeded
+        with atomic_output(folder / f"{key}.npz") as temp, temp.open("wb") as handle:
+            np.savez(handle, **arrays)
+        write_atomic(folder / f"{key}.json", json.dumps(meta).encode())
     except OSError:
         return

@@ -16,11 +16,12 @@ same options give the same bytes.
 
 from __future__ import annotations
 
+import contextlib
+
 import hashlib
-import os
 import uuid
 from collections import Counter
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -39,6 +40,7 @@ import ifcopenshell.guid
 import numpy as np
 from ifcopenshell.util.shape_builder import ShapeBuilder
 
+from bimscan.files import atomic_output
 from bimscan.errors import ConfigError, OutputError
 from bimscan.ifc.generate_layout import (
     CEILING_M,
@@ -124,8 +126,9 @@ def build_building_model(*, seed: int = 0, storeys: int = 2) -> tuple[ifcopenshe
     check_building_options(seed=seed, storeys=storeys)
     seed, storeys = int(seed), int(storeys)
     plan = plan_building(seed=seed, storeys=storeys)
-    author = _Author(plan, name=f"bimscan-building-seed{seed}-storeys{storeys}")
-    author.add_building()
+    with _no_owner_history():
+        author = _Author(plan, name=f"bimscan-building-seed{seed}-storeys{storeys}")
+        author.add_building()
     author.sort_unordered_sets()
     author.assign_global_ids(seed=seed, storeys=storeys)
     summary = GeneratedBuilding(
@@ -141,6 +144,20 @@ def build_building_model(*, seed: int = 0, storeys: int = 2) -> tuple[ifcopenshe
     return author.model, summary
 
 
+@contextlib.contextmanager
+def _no_owner_history() -> Iterator[None]:
+    """Author without IfcOwnerHistory even if the process configured ifcopenshell.api's owner
+    callbacks (they stamp the current time into the file, which would break same seed, same bytes)."""
+    import ifcopenshell.api.owner.settings as owner
+
+    saved = owner.get_user, owner.get_application
+    owner.get_user = owner.get_application = lambda file: None
+    try:
+        yield
+    finally:
+        owner.get_user, owner.get_application = saved
+
+
 def _check_output_path(target: Path) -> None:
     if target.suffix.lower() != ".ifc":
         raise OutputError(f"output file must end in .ifc, got {str(target)!r}; name it like building.ifc")
@@ -153,18 +170,13 @@ def _check_output_path(target: Path) -> None:
 
 def _write_atomically(target: Path, text: str) -> None:
     """Write to a fresh temporary name beside ``target``, then rename over it."""
-    # Opened with "x" (not tempfile.mkstemp) so the file gets the usual umask permissions.
-    tmp = target.with_name(f".{target.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
     try:
-        with open(tmp, "x", encoding="utf-8", newline="\n") as out:
+        with atomic_output(target) as temp, temp.open("x", encoding="utf-8", newline="\n") as out:
             out.write(text)
-        os.replace(tmp, target)
     except OSError as exc:
         raise OutputError(
             f"could not write {str(target)!r}: {exc.strerror or exc}; check the folder's permissions and free space"
         ) from exc
-    finally:
-        tmp.unlink(missing_ok=True)  # gone already after a successful rename
 
 
 def _frame(origin: Sequence[float], x_axis: Sequence[float] = (1.0, 0.0, 0.0)) -> np.ndarray:

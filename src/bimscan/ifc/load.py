@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.errors import EmptyModelError, IfcError, InputFileError
-from bimscan.hashing import file_sha256
+from bimscan.files import file_sha256
 from bimscan.ifc import cache as geometry_cache
 from bimscan.ifc.schema import SUPPORTED_SCHEMAS, class_ancestry, known_classes
 from bimscan.progress import progress_bar

@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import errno
 import os
-import secrets
-import shutil
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,7 +21,7 @@ from types import TracebackType
 from typing import BinaryIO, Protocol, Self
 
 from bimscan.errors import InputFileError, OutputError
-from bimscan.hashing import file_sha256
+from bimscan.files import file_sha256, remove_path, replace_path, temp_path
 from bimscan.io._header import dump_json, header_to_document, present_columns
 from bimscan.types import CloudHeader, PointCloud
 
@@ -119,34 +117,11 @@ class WatchedFile:
         return watched
 
 
-def temp_name(final: Path) -> Path:
-    return final.with_name(f".{final.name}.{secrets.token_hex(6)}.tmp")
-
-
-def _remove(path: Path) -> None:
-    try:
-        if path.is_dir() and not path.is_symlink():
-            shutil.rmtree(path)
-        else:
-            path.unlink()
-    except FileNotFoundError:
-        pass
-
-
 def commit_output(temp: Path, final: Path, *, overwrite: bool) -> None:
     """Move ``temp`` to ``final``; an existing ``final`` is replaced only with ``overwrite``."""
-    exists = final.exists() or final.is_symlink()
-    if exists and not overwrite:
+    if (final.exists() or final.is_symlink()) and not overwrite:
         raise OutputError(f"{final} appeared while writing it; pass overwrite=True (--overwrite) or choose another path")
-    if exists and (temp.is_dir() or final.is_dir()):
-        # os.replace cannot put a folder over a non-empty folder (or a file over a folder): move
-        # the old output aside first, then drop it once the new one is in place.
-        trash = temp_name(final)
-        os.replace(final, trash)
-        os.replace(temp, final)
-        _remove(trash)
-    else:
-        os.replace(temp, final)
+    replace_path(temp, final)
 
 
 class StreamingCloudWriter:
@@ -178,7 +153,7 @@ class StreamingCloudWriter:
 
     # -- staging helpers for subclasses -------------------------------------------------------
     def _stage_file(self, final: Path) -> Path:
-        temp = temp_name(final)
+        temp = temp_path(final)
         os.close(os.open(temp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
         self._staged.append((temp, final))
         return temp
@@ -200,7 +175,7 @@ class StreamingCloudWriter:
         return output_error(cause, self.path) if cause is not None else exc
 
     def _stage_dir(self, final: Path) -> Path:
-        temp = temp_name(final)
+        temp = temp_path(final)
         temp.mkdir()
         self._staged.append((temp, final))
         return temp
@@ -293,7 +268,7 @@ class StreamingCloudWriter:
             pass  # the output is being discarded; a failing close changes nothing
         for temp, _ in self._staged:
             try:
-                _remove(temp)
+                remove_path(temp)
             except OSError:
                 pass  # best effort: an undeletable temporary must not hide the original error
 

@@ -31,7 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.errors import InputFileError, OutputError
-from bimscan.io._writer import commit_output, temp_name, output_error
+from bimscan.files import temp_path
+from bimscan.io._writer import commit_output, output_error
 from bimscan.types import BimScene
 
 COORD_FORMAT = "%.6f"
@@ -105,7 +106,7 @@ def export_obj(scene: BimScene, out_dir: str | Path, *, helios: bool = False, ov
     if len(mesh.face_component) and mesh.face_component.min() < 0:
         raise OutputError(f"scene {scene.source}: some triangles have a negative component id; the scene mesh is invalid")
     created = not out_dir.exists()
-    stage = temp_name(out_dir / "obj-export")
+    stage = temp_path(out_dir / "obj-export")
     done = False
     try:
         out_dir.mkdir(exist_ok=True)

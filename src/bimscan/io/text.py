@@ -24,9 +24,7 @@ and dropped: :class:`~bimscan.types.PointCloud` carries no colour. Labels must b
 from __future__ import annotations
 
 import itertools
-import os
 import re
-import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,6 +32,7 @@ from typing import TextIO
 
 import numpy as np
 
+from bimscan.files import atomic_output
 from bimscan.errors import InputFileError, OutputError
 from bimscan.types import PointCloud
 
@@ -177,22 +176,14 @@ def write_text_cloud(path: str | Path, cloud: PointCloud, *, overwrite: bool = F
         raise OutputError(f"{path}: already exists; pass overwrite=True (--overwrite) or choose another name")
     if not path.parent.is_dir():
         raise OutputError(f"{path}: folder {path.parent} does not exist; create it first")
-    handle, temp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    finished = False
-    try:
-        with os.fdopen(handle, "w", encoding="utf-8", newline="\n") as out:
-            out.write("# x y z" + (" label\n" if cloud.label is not None else "\n"))
-            step = 500_000  # bounded formatting memory for big clouds
-            for start in range(0, len(cloud), step):
-                xyz = cloud.xyz[start:start + step]
-                if cloud.label is None:
-                    np.savetxt(out, xyz, fmt="%.6f %.6f %.6f")
-                else:
-                    table = np.column_stack([xyz, cloud.label[start:start + step].astype(np.float64)])
-                    np.savetxt(out, table, fmt="%.6f %.6f %.6f %d")
-        os.replace(temp_name, path)
-        finished = True
-    finally:
-        if not finished:  # never leave a half-written file behind, whatever went wrong
-            Path(temp_name).unlink(missing_ok=True)
+    with atomic_output(path) as temp, temp.open("w", encoding="utf-8", newline="\n") as out:
+        out.write("# x y z" + (" label\n" if cloud.label is not None else "\n"))
+        step = 500_000  # bounded formatting memory for big clouds
+        for start in range(0, len(cloud), step):
+            xyz = cloud.xyz[start:start + step]
+            if cloud.label is None:
+                np.savetxt(out, xyz, fmt="%.6f %.6f %.6f")
+            else:
+                table = np.column_stack([xyz, cloud.label[start:start + step].astype(np.float64)])
+                np.savetxt(out, table, fmt="%.6f %.6f %.6f %d")
     return path

@@ -19,14 +19,13 @@ no timestamp, so the same panels give the same bytes.
 from __future__ import annotations
 
 import io
-import os
-import secrets
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from bimscan.errors import OutputError
+from bimscan.files import write_atomic
 from bimscan.types import LabelScheme
 
 TITLE_PX = 46
@@ -95,12 +94,8 @@ def compose_png(panels: list[Panel], *, legend: list[tuple[str, tuple[int, int, 
                       bbox_to_anchor=(0.5, 2 / height), handlelength=1.2, columnspacing=1.2)
     buffer = io.BytesIO()
     figure.savefig(buffer, format="png", dpi=DPI, metadata={"Software": "bimscan"})
-    temp = out.with_name(f".{out.name}.{secrets.token_hex(6)}.tmp")
     try:
-        temp.write_bytes(buffer.getvalue())
-        os.replace(temp, out)
+        write_atomic(out, buffer.getvalue())
     except OSError as exc:
         raise OutputError(f"could not write {out} ({exc.strerror}); check the folder and free space") from exc
-    finally:
-        temp.unlink(missing_ok=True)
     return out

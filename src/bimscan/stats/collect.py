@@ -17,8 +17,10 @@ from bimscan.dataset.manifest import UNIT_NAME, read_json, read_manifest
 from bimscan.errors import DatasetError
 from bimscan.types import LabelClass
 
-# Which file of a unit to stream when recounting: the cheapest to decode first.
-READ_PREFERENCE = ("npy", "las", "ply", "laz")
+# Which file of a unit to stream when recounting: exact coordinates first (PLY doubles, LAS/LAZ
+# 0.1 mm), cheapest to decode among those; the NumPy copy (float32 around an origin) last, so the
+# recounted extents match unit.json's.
+READ_PREFERENCE = ("ply", "las", "laz", "npy")
 
 
 @dataclass(frozen=True)
@@ -107,23 +109,16 @@ def _from_meta(entry: dict[str, Any], meta: dict[str, Any]) -> UnitStats:
 
 def _recount(folder: Path, entry: dict[str, Any], classes: list[LabelClass], *, chunk_points: int) -> UnitStats:
     from bimscan.io import iter_cloud_chunks
+    from bimscan.process.checks import CloudSummary
 
     files = entry["files"]
     fmt = next((f for f in READ_PREFERENCE if f in files), None)
     if fmt is None:
         raise DatasetError(f"unit {entry['id']}: no readable cloud listed in the manifest ({files}); rebuild it")
-    points = 0
-    low, high = np.full(3, np.inf), np.full(3, -np.inf)
-    counts = np.zeros(256, dtype=np.int64)
+    summary = CloudSummary()
     for chunk in iter_cloud_chunks(folder / files[fmt], chunk_points=chunk_points):
-        if len(chunk) == 0:
-            continue
-        points += len(chunk)
-        np.minimum(low, chunk.xyz.min(axis=0), out=low)
-        np.maximum(high, chunk.xyz.max(axis=0), out=high)
-        if chunk.label is not None:
-            counts += np.bincount(chunk.label, minlength=256)[:256]
-    if points == 0:
-        low, high = np.zeros(3), np.zeros(3)
+        summary.add(chunk)
+    points, counts = summary.points, summary.class_counts
+    low, high = (summary.minimum, summary.maximum) if points else (np.zeros(3), np.zeros(3))
     return UnitStats(unit=entry["id"], scene=entry["scene"], config=entry["config"], points=points, minimum=low,
                      maximum=high, class_counts={c.name: int(counts[c.id]) for c in classes})

@@ -19,7 +19,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from bimscan.dataset.manifest import write_bytes
+from bimscan.files import write_atomic
 from bimscan.stats.collect import collect_units
 from bimscan.stats.plots import plot_classes, plot_extents, plot_points
 from bimscan.stats.summary import AXES, DatasetStats, summarize_dataset
@@ -152,7 +152,7 @@ def _class_rows(stats: DatasetStats) -> list[list[object]]:
 
 def write_stats(dataset_dir: str | Path, out_dir: str | Path | None = None, *, from_clouds: bool = False) -> StatsOutputs:
     """Compute and write the statistics of a built dataset (default output: ``DATASET_DIR/stats``)."""
-    from bimscan.errors import DatasetError
+    from bimscan.errors import DatasetError, OutputError
 
     dataset = Path(dataset_dir)
     collected = collect_units(dataset, from_clouds=from_clouds)
@@ -160,7 +160,10 @@ def write_stats(dataset_dir: str | Path, out_dir: str | Path | None = None, *, f
         raise DatasetError(f"{dataset}: no finished unit to summarise; run 'bimscan build' first")
     stats = summarize_dataset(collected)
     out = Path(out_dir) if out_dir is not None else dataset / "stats"
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"cannot create the statistics folder {out} ({exc.strerror}); choose another --out") from exc
     outputs = {
         "units.csv": _csv(units_table(stats)),
         "configs.csv": _csv(configs_table(stats)),
@@ -172,5 +175,5 @@ def write_stats(dataset_dir: str | Path, out_dir: str | Path | None = None, *, f
         "report.md": format_report(stats, title=f"Statistics of {dataset.resolve().name}").encode("utf-8"),
     }
     for name, data in outputs.items():
-        write_bytes(out / name, data)
+        write_atomic(out / name, data)
     return StatsOutputs(out_dir=out, files=tuple(out / n for n in outputs), stats=stats)

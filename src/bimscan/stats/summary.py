@@ -130,8 +130,10 @@ def summarize_dataset(collected: CollectedDataset) -> DatasetStats:
         members = [u for u in units if u.scene == scene]
         if not members:
             continue
-        sizes = np.array([u.size for u in members])
-        shares = np.array([u.proportions_pct(classes) for u in members])
+        # a unit without points has no extent or proportions to compare (its count still shows)
+        measured = [u for u in members if u.points > 0] or members
+        sizes = np.array([u.size for u in measured])
+        shares = np.array([u.proportions_pct(classes) for u in measured])
         mean = sizes.mean(axis=0)
         spread = np.where(mean > 0, (sizes.max(axis=0) - sizes.min(axis=0)) / np.where(mean > 0, mean, 1.0), 0.0)
         scenes.append(SceneStats(

@@ -1,0 +1,75 @@
+"""File plumbing every stage shares: atomic outputs (temporary name + rename) and content hashes.
+
+An output is written under a hidden temporary name in its destination folder and renamed into
+place only when complete, so a reader never sees half a file, whatever stopped the writer.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import secrets
+import shutil
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+
+def file_sha256(path: str | Path) -> str:
+    """Hex SHA-256 of a file's bytes, read in 8 MiB blocks."""
+    digest = hashlib.sha256()
+    with Path(path).open("rb") as handle:
+        while block := handle.read(8 << 20):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def temp_path(final: str | Path) -> Path:
+    """A hidden, unique sibling name for staging ``final`` (``.<name>.<random>.tmp``)."""
+    final = Path(final)
+    return final.with_name(f".{final.name}.{secrets.token_hex(6)}.tmp")
+
+
+def remove_path(path: Path) -> None:
+    """Delete a file or a folder tree; absent is fine."""
+    try:
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path)
+        else:
+            path.unlink()
+    except FileNotFoundError:
+        pass
+
+
+def replace_path(staged: Path, final: Path) -> None:
+    """Move ``staged`` (a file or a folder) to ``final``, replacing what is there.
+
+    ``os.replace`` cannot put a folder over a non-empty folder (or a file over a folder): the old
+    output is moved aside first and dropped once the new one is in place.
+    """
+    if (final.exists() or final.is_symlink()) and (staged.is_dir() or final.is_dir()):
+        trash = temp_path(final)
+        os.replace(final, trash)
+        os.replace(staged, final)
+        remove_path(trash)
+    else:
+        os.replace(staged, final)
+
+
+@contextmanager
+def atomic_output(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary path to write ``path``'s content to; it is renamed to ``path`` when the
+    block ends normally and removed when it raises."""
+    path = Path(path)
+    temp = temp_path(path)
+    try:
+        yield temp
+        replace_path(temp, path)
+    finally:
+        remove_path(temp)  # gone already when the rename succeeded
+
+
+def write_atomic(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically."""
+    with atomic_output(path) as temp:
+        temp.write_bytes(data)
