@@ -64,12 +64,14 @@ def test_a_foreign_pointcept_folder_reads_with_a_named_label_file(tmp_path):
     assert cloud.component is None and read_cloud_header(folder) is None
 
 
-def test_pointcept_ignore_labels_are_an_input_error(tmp_path):
+def test_pointcept_ignore_labels_read_as_unlabelled_and_other_negatives_are_refused(tmp_path):
     folder = tmp_path / "scene"
     folder.mkdir()
     np.save(folder / "coord.npy", np.zeros((3, 3), np.float32))
     np.save(folder / "segment.npy", np.array([0, -1, 2], np.int32))
-    with pytest.raises(InputFileError, match="found -1"):
+    assert read_cloud(folder).label.tolist() == [0, 255, 2]
+    np.save(folder / "segment.npy", np.array([0, -2, 2], np.int32))
+    with pytest.raises(InputFileError, match="found -2"):
         read_cloud(folder)
 
 

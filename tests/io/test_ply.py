@@ -124,3 +124,17 @@ def test_a_file_without_ply_magic_is_an_input_error(tmp_path):
     (tmp_path / "x.ply").write_bytes(b"solid stl\n")
     with pytest.raises(InputFileError, match="not a PLY file"):
         read_cloud(tmp_path / "x.ply")
+
+
+def test_a_sidecar_that_does_not_match_the_points_is_not_trusted(tmp_path, header):
+    from bimscan.types import PointCloud
+
+    small, large = tmp_path / "small" / "scan.ply", tmp_path / "scan.ply"
+    small.parent.mkdir()
+    for path, n in ((small, 3), (large, 5)):
+        write(path, header, PointCloud(xyz=np.zeros((n, 3)), label=np.zeros(n, np.uint8)))
+    assert read_cloud_header(large).components is not None  # its own sidecar: everything
+    sidecar_path(large).write_bytes(sidecar_path(small).read_bytes())  # a stale sidecar of 3 points
+    stale = read_cloud_header(large)
+    assert stale.components is None
+    assert [c.name for c in stale.scheme.classes] == [c.name for c in header.scheme.classes]

@@ -178,17 +178,23 @@ def parse_document(raw: bytes, *, where: str) -> dict[str, Any] | None:
     return document
 
 
+UNLABELLED = 255  # the label of points without ground truth (learn's IGNORE_LABEL)
+
+
 def as_labels(values: np.ndarray, *, field: str, where: str) -> np.ndarray:
     """``values`` as (N,) uint8 class ids; anything but integers in 0..255 is an InputFileError.
 
     Float columns (CloudCompare stores scalar fields as float) are accepted when every value is
-    a whole number in range.
+    a whole number in range. -1, the "ignore" label of Pointcept folders, becomes 255
+    (``UNLABELLED``), which losses and metrics skip.
     """
     values = np.asarray(values)
+    if values.dtype.kind in "if" and len(values) and (values == -1).any():
+        values = np.where(values == -1, UNLABELLED, values)
     if len(values) == 0:
         return np.zeros(0, dtype=np.uint8)
     if values.dtype.kind not in "iuf" and values.dtype.kind != "b":
-        raise InputFileError(f"{where}: labels in {field!r} have dtype {values.dtype}, not integers; pick another field with label_field=")
+        raise InputFileError(f"{where}: labels in {field!r} have dtype {values.dtype}, not integers; name another label field")
     if values.dtype.kind == "f":
         bad = ~np.isfinite(values) | (values != np.round(values)) | (values < 0) | (values > 255)
     elif values.dtype.kind in "iu":
@@ -199,6 +205,6 @@ def as_labels(values: np.ndarray, *, field: str, where: str) -> np.ndarray:
         example = values[np.flatnonzero(bad)[0]].item()
         raise InputFileError(
             f"{where}: labels in {field!r} must be integers in 0..255, found {example!r} "
-            f"({int(bad.sum())} such values); pick another field with label_field="
+            f"({int(bad.sum())} such values); name another label field"
         )
     return values.astype(np.uint8)

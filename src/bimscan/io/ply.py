@@ -241,16 +241,20 @@ def _scheme_from_comments(comments: tuple[str, ...]) -> tuple[LabelScheme, tuple
 def read_ply_header(path: str | Path) -> CloudHeader | None:
     """The ``CloudHeader`` bimscan stored with a PLY file, or None for a foreign file.
 
-    Reads the sidecar; without it, rebuilds the scheme (no rules) and origin from the comments.
+    Reads the sidecar when it matches the file's vertex count; otherwise rebuilds the scheme (no
+    rules) and origin from the comments.
     """
     path = check_input_path(path)
+    with path.open("rb") as handle:
+        layout = read_ply_layout(handle, where=str(path))
     sidecar = sidecar_path(path)
     if sidecar.is_file():
         document = parse_document(sidecar.read_bytes(), where=str(sidecar))
-        if document is not None:
+        vertices = next((e.count for e in layout.elements if e.name == "vertex"), None)
+        # a sidecar left from another write of this name (the two files are renamed one after the
+        # other) does not describe these points: fall back to the PLY's own comments
+        if document is not None and document.get("n_points") == vertices:
             return header_from_document(document, where=str(sidecar))
-    with path.open("rb") as handle:
-        layout = read_ply_layout(handle, where=str(path))
     found = _scheme_from_comments(layout.comments)
     if found is None:
         return None
