@@ -75,6 +75,16 @@ def resolve_settings(options: ScanOptions) -> tuple[ScannerModel, ScanSettings, 
     return model, settings, warnings
 
 
+def choose_stations(scene: BimScene, scanner: VirtualScanner, mode: str) -> tuple[tuple[Station, ...], PlanReport | None]:
+    """The stations of a scene: planned (``mode == "auto"``, each then checked) or read from a CSV file."""
+    if mode != "auto":
+        return read_stations(mode, scene, scanner), None
+    stations, plan = plan_stations(scene, scanner)
+    for station in stations:
+        check_station(station, scene, scanner)
+    return stations, plan
+
+
 def prepare_survey(scene: BimScene, options: ScanOptions, *, scanner: VirtualScanner | None = None,
                    stations: tuple[Station, ...] | None = None) -> Survey:
     """Place the scanner in the scene and fix the stations (planned or from a file).
@@ -91,12 +101,7 @@ def prepare_survey(scene: BimScene, options: ScanOptions, *, scanner: VirtualSca
             raise StationError(f"{scene.source}: an empty station list was given; pass at least one station")
         return Survey(scene=scene, scanner=scanner, settings=settings, stations=tuple(stations), plan=None,
                       warnings=tuple(warnings))
-    if options.stations == "auto":
-        stations, plan = plan_stations(scene, scanner)
-        for station in stations:
-            check_station(station, scene, scanner)
-    else:
-        stations, plan = read_stations(options.stations, scene, scanner), None
+    stations, plan = choose_stations(scene, scanner, options.stations)
     return Survey(scene=scene, scanner=scanner, settings=settings, stations=stations, plan=plan, warnings=tuple(warnings))
 
 

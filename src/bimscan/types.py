@@ -248,6 +248,15 @@ class Station:
     storey: str = ""
     room: str = ""
 
+    @staticmethod
+    def from_dict(data: Mapping[str, object]) -> Station:
+        """The inverse of ``dataclasses.asdict`` (as stored in JSON); KeyError/TypeError/ValueError if damaged."""
+        floor_z = data.get("floor_z")
+        return Station(id=int(data["id"]), position=tuple(float(v) for v in data["position"]),  # type: ignore[arg-type, attr-defined]
+                       heading_deg=float(data.get("heading_deg", 0.0)),  # type: ignore[arg-type]
+                       floor_z=None if floor_z is None else float(floor_z),  # type: ignore[arg-type]
+                       storey=str(data.get("storey", "")), room=str(data.get("room", "")))
+
 
 @dataclass(frozen=True)
 class PointCloud:

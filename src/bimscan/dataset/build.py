@@ -102,9 +102,7 @@ class SceneOutcome:
     scene: str
     error: str | None = None
     n_stations: int = 0
-    planned: bool = False  # False when the stations of an earlier run were reused
     parse_s: float = 0.0
-    plan_s: float = 0.0
     notes: tuple[str, ...] = ()
 
 
@@ -464,7 +462,7 @@ def run_scene_job(job: SceneJob) -> SceneOutcome:
     from bimscan.scan.scanner import load_scanner
     from bimscan.scan.scanning import VirtualScanner
     from bimscan.semantics import load_scheme
-    from bimscan.survey.stations import check_station, plan_stations, read_stations
+    from bimscan.pipeline import choose_stations
 
     try:
         start = time.perf_counter()
@@ -475,27 +473,20 @@ def run_scene_job(job: SceneJob) -> SceneOutcome:
             try:
                 stored = read_json(path)
                 if stored.get("key") == job.stations_key:
-                    return SceneOutcome(scene=job.scene, n_stations=len(stored["stations"]), planned=False,
+                    return SceneOutcome(scene=job.scene, n_stations=len(stored["stations"]),
                                         parse_s=parse_s, notes=tuple(stored.get("notes", ())))
             except (DatasetError, KeyError, TypeError):
                 pass  # damaged: plan again
-        start = time.perf_counter()
         scanner = VirtualScanner(scene.mesh, scene.components.label, scanner=load_scanner(job.scanner),
                                  engine=job.engine, threads=job.threads)
+        stations, plan = choose_stations(scene, scanner, job.stations)
         notes: list[str] = []
-        if job.stations == "auto":
-            stations, plan = plan_stations(scene, scanner)
-            for station in stations:
-                check_station(station, scene, scanner)
-            if plan.rooms_without_station:
-                notes.append("rooms without a station: " + ", ".join(plan.rooms_without_station))
-        else:
-            stations = read_stations(job.stations, scene, scanner)
+        if plan is not None and plan.rooms_without_station:
+            notes.append("rooms without a station: " + ", ".join(plan.rooms_without_station))
         write_json(path, {"format": "bimscan-stations", "version": STATIONS_VERSION, "key": job.stations_key,
                           "scene": job.scene, "stations": [dataclasses.asdict(s) for s in stations],
                           "notes": notes})
-        return SceneOutcome(scene=job.scene, n_stations=len(stations), planned=True, parse_s=parse_s,
-                            plan_s=time.perf_counter() - start, notes=tuple(notes))
+        return SceneOutcome(scene=job.scene, n_stations=len(stations), parse_s=parse_s, notes=tuple(notes))
     except (BimscanError, OSError) as exc:
         return SceneOutcome(scene=job.scene, error=_one_line(exc))
 
@@ -504,10 +495,7 @@ def read_stations_file(path: str | Path) -> tuple[Station, ...]:
     """The stations a scene task stored (``scenes/<scene>.stations.json``)."""
     document = read_json(Path(path))
     try:
-        return tuple(Station(id=int(s["id"]), position=tuple(float(v) for v in s["position"]),  # type: ignore[arg-type]
-                             heading_deg=float(s["heading_deg"]),
-                             floor_z=None if s["floor_z"] is None else float(s["floor_z"]),
-                             storey=str(s["storey"]), room=str(s["room"])) for s in document["stations"])
+        return tuple(Station.from_dict(s) for s in document["stations"])
     except (KeyError, TypeError, ValueError) as exc:
         raise DatasetError(f"{path}: damaged station file ({exc}); delete it and run the build again") from exc
 

@@ -30,35 +30,6 @@ generate = { seed = 1, storeys = 2 }
 name = "office-1f"
 generate = { seed = 2, storeys = 1 }
 
-[[configs]]
-name = "exp1"
-preset = "exp1"
-head_deg_per_s = {head}
-
-[[configs]]
-name = "exp2"
-preset = "exp2"
-head_deg_per_s = {head}
-
-[[configs]]
-name = "exp3"
-preset = "exp3"
-head_deg_per_s = {head}
-
-[[configs]]
-name = "exp4"
-preset = "exp4"
-head_deg_per_s = {head}
-
-[[configs]]
-name = "exp5"
-preset = "exp5"
-head_deg_per_s = {head}
-
-[[configs]]
-name = "exp6"
-preset = "exp6"
-head_deg_per_s = {head}
 """
 DEFAULT_HEAD_DEG_PER_S = 60.0
 RENDER_CONFIG = "exp3"  # the configuration pictured for each scene
@@ -68,10 +39,10 @@ def demo_spec(*, head_deg_per_s: float = DEFAULT_HEAD_DEG_PER_S) -> str:
     """The demo's dataset spec (TOML text) at a head speed in deg/s (faster: fewer points)."""
     ratio = 10.0 / head_deg_per_s  # the presets turn at 10 deg/s
     share = f"1/{1 / ratio:g}" if ratio < 1 else f"{ratio:g} times"
-    return _TEMPLATE.replace("{head}", repr(float(head_deg_per_s))).replace("{ratio}", share)
-
-
-DEMO_SPEC = demo_spec()
+    head = repr(float(head_deg_per_s))
+    configs = "\n".join(f'[[configs]]\nname = "{p}"\npreset = "{p}"\nhead_deg_per_s = {head}\n'
+                         for p in ("exp1", "exp2", "exp3", "exp4", "exp5", "exp6"))
+    return _TEMPLATE.replace("{head}", head).replace("{ratio}", share) + configs
 
 
 def write_demo_spec(path: Path, *, head_deg_per_s: float = DEFAULT_HEAD_DEG_PER_S) -> Path:

@@ -111,9 +111,6 @@ class DatasetSpec:
     def scene(self, name: str) -> SceneSpec:
         return next(s for s in self.scenes if s.name == name)
 
-    def config(self, name: str) -> ConfigSpec:
-        return next(c for c in self.configs if c.name == name)
-
 
 def unit_id(scene: str, config: str) -> str:
     """The id (and folder name) of the unit of ``scene`` scanned with ``config``."""

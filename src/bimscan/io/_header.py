@@ -140,15 +140,7 @@ def header_from_document(document: Mapping[str, Any], *, where: str) -> CloudHea
                 label=np.array(table_doc["label"], dtype=np.uint8),
                 class_ancestry={k: tuple(v) for k, v in table_doc.get("class_ancestry", {}).items()},
             )
-        stations = tuple(
-            Station(
-                id=int(s["id"]), position=tuple(float(v) for v in s["position"]),  # type: ignore[arg-type]
-                heading_deg=float(s.get("heading_deg", 0.0)),
-                floor_z=None if s.get("floor_z") is None else float(s["floor_z"]),
-                storey=str(s.get("storey", "")), room=str(s.get("room", "")),
-            )
-            for s in document.get("stations", ())
-        )
+        stations = tuple(Station.from_dict(s) for s in document.get("stations", ()))
         origin = tuple(float(v) for v in document.get("origin_m", (0.0, 0.0, 0.0)))
         return CloudHeader(
             scheme=scheme, components=table, stations=stations,
