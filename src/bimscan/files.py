@@ -7,12 +7,16 @@ place only when complete, so a reader never sees half a file, whatever stopped t
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import secrets
 import shutil
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 
 def file_sha256(path: str | Path) -> str:
@@ -73,3 +77,28 @@ def write_atomic(path: str | Path, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically."""
     with atomic_output(path) as temp:
         temp.write_bytes(data)
+
+
+def _json_default(value: object) -> object:
+    # Metadata often carries NumPy scalars/arrays, paths and tuples: store them as plain JSON values.
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, set | frozenset):
+        return sorted(value)
+    raise TypeError(f"{type(value).__name__} {value!r} is not JSON-able")
+
+
+def dump_json(document: Any, *, indent: int | None = 1) -> bytes:
+    """Canonical UTF-8 JSON bytes (sorted keys, finite numbers only), for byte-identical outputs.
+
+    ``indent=None`` writes compact JSON; otherwise indented with a final newline. Raises
+    TypeError/ValueError for values JSON cannot hold.
+    """
+    separators = (",", ": ") if indent is not None else (",", ":")
+    text = json.dumps(document, sort_keys=True, indent=indent, separators=separators, ensure_ascii=False,
+                      allow_nan=False, default=_json_default)
+    return text.encode("utf-8") + (b"\n" if indent is not None else b"")

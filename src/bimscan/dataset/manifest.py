@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from bimscan.errors import DatasetError, InputFileError
-from bimscan.files import file_sha256, temp_path, write_atomic
+from bimscan.files import dump_json, file_sha256, temp_path, write_atomic
 
 MANIFEST_NAME = "manifest.json"
 DATASET_NAME = "dataset.json"
@@ -46,11 +46,6 @@ MANIFEST_VERSION = 1
 UNIT_FORMAT = "bimscan-unit"
 UNIT_VERSION = 1
 STATUSES = ("done", "failed", "pending")
-
-
-def dump_json(document: Mapping[str, Any]) -> bytes:
-    """Canonical JSON bytes: sorted keys, one-space indentation, a final newline."""
-    return (json.dumps(document, sort_keys=True, indent=1, ensure_ascii=False, allow_nan=False) + "\n").encode("utf-8")
 
 
 def write_json(path: Path, document: Mapping[str, Any]) -> None:

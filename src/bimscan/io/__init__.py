@@ -24,10 +24,10 @@ from pathlib import Path
 
 from bimscan.errors import InputFileError, OutputError
 from bimscan.io._writer import CloudWriter, WrittenCloud, check_input_path
-from bimscan.io.las import iter_las_chunks, open_las_writer, open_laz_writer, read_las, read_las_header
-from bimscan.io.npdir import iter_npdir_chunks, open_npdir_writer, read_npdir, read_npdir_header
+from bimscan.io.las import iter_las_chunks, open_las_writer, open_laz_writer, read_las_header
+from bimscan.io.npdir import iter_npdir_chunks, open_npdir_writer, read_npdir_header
 from bimscan.io.obj import ObjExport, export_obj, read_obj
-from bimscan.io.ply import iter_ply_chunks, open_ply_writer, read_ply, read_ply_header
+from bimscan.io.ply import iter_ply_chunks, open_ply_writer, read_ply_header
 from bimscan.types import CloudHeader, PointCloud
 
 # Format key: the lower-case suffix; "" is a NumPy folder.
@@ -36,12 +36,6 @@ WRITERS: dict[str, Callable[..., CloudWriter]] = {
     ".laz": open_laz_writer,
     ".ply": open_ply_writer,
     "": open_npdir_writer,
-}
-READERS: dict[str, Callable[..., PointCloud]] = {
-    ".las": read_las,
-    ".laz": read_las,
-    ".ply": read_ply,
-    "": read_npdir,
 }
 CHUNK_READERS: dict[str, Callable[..., Iterator[PointCloud]]] = {
     ".las": iter_las_chunks,
@@ -68,7 +62,7 @@ def output_format(path: str | Path) -> str:
 
 def _input_format(path: Path) -> str:
     key = "" if path.is_dir() else path.suffix.lower()
-    if key not in READERS or (key == "" and not path.is_dir()):
+    if key not in CHUNK_READERS or (key == "" and not path.is_dir()):
         raise InputFileError(f"{path}: unknown cloud format {path.suffix!r}; bimscan reads {_SUPPORTED}")
     return key
 
@@ -106,8 +100,8 @@ def read_cloud(path: str | Path, *, label_field: str | None = None) -> PointClou
     foreign files -> ``classification`` (LAS) or a label-like property (PLY) when present.
     Columns a file lacks are None.
     """
-    path = check_input_path(path)
-    return READERS[_input_format(path)](path, label_field=label_field)
+    chunks = list(iter_cloud_chunks(path, chunk_points=1 << 62, label_field=label_field))
+    return chunks[0] if len(chunks) == 1 else PointCloud.concatenate(chunks)
 
 
 def iter_cloud_chunks(
@@ -125,7 +119,7 @@ def read_cloud_header(path: str | Path) -> CloudHeader | None:
 
 
 __all__ = [
-    "CHUNK_READERS", "HEADER_READERS", "READERS", "WRITERS", "CloudWriter", "ObjExport", "WrittenCloud",
+    "CHUNK_READERS", "HEADER_READERS", "WRITERS", "CloudWriter", "ObjExport", "WrittenCloud",
     "check_cloud_output", "export_obj", "iter_cloud_chunks", "open_cloud_writer", "output_format", "read_cloud",
     "read_cloud_header", "read_obj",
 ]

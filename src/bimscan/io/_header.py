@@ -16,11 +16,11 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from bimscan.files import dump_json as canonical_json
 from bimscan.errors import InputFileError, OutputError
 from bimscan.types import (
     CloudHeader,
@@ -37,33 +37,15 @@ HEADER_KEY = "bimscan_cloud"
 _TABLE_COLUMNS = ("global_id", "ifc_class", "predefined_type", "name", "storey", "parent_class")
 
 
-def _json_default(value: object) -> object:
-    # Metadata often carries NumPy scalars/arrays and paths; store them as plain JSON values.
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, Path):
-        return str(value)
-    if isinstance(value, tuple | set | frozenset):
-        return sorted(value) if isinstance(value, set | frozenset) else list(value)
-    raise TypeError(f"{type(value).__name__} {value!r} is not JSON-able")
-
-
 def dump_json(document: Mapping[str, Any], *, indent: int | None = None) -> bytes:
-    """Canonical UTF-8 JSON bytes of ``document`` (sorted keys), for byte-identical outputs."""
-    separators = (",", ": ") if indent is not None else (",", ":")
+    """Canonical JSON bytes of a header document (compact unless ``indent``); OutputError if not JSON-able."""
     try:
-        text = json.dumps(
-            document, sort_keys=True, indent=indent, separators=separators, ensure_ascii=False,
-            allow_nan=False, default=_json_default,
-        )
+        return canonical_json(document, indent=indent)
     except (TypeError, ValueError) as exc:
         raise OutputError(
             f"cloud header is not JSON-able ({exc}); keep CloudHeader.metadata to dicts, lists, "
             "strings, finite numbers and booleans"
         ) from exc
-    return text.encode("utf-8") + (b"\n" if indent is not None else b"")
 
 
 def present_columns(chunk: PointCloud) -> tuple[str, ...]:

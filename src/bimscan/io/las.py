@@ -309,16 +309,7 @@ def iter_las_chunks(
             raise InputFileError(f"{path}: the point data is damaged ({exc}); check the file") from exc
 
 
-def read_las(path: str | Path, *, label_field: str | None = None) -> PointCloud:
-    """Read a whole LAS/LAZ file as one ``PointCloud`` (see ``iter_las_chunks`` for the columns)."""
-    path = check_input_path(path)
-    with _open(path) as reader:
-        n_points = int(reader.header.point_count)
-    chunks = list(iter_las_chunks(path, chunk_points=max(n_points, 1), label_field=label_field))
-    return chunks[0] if len(chunks) == 1 else PointCloud.concatenate(chunks)
-
-
 __all__ = [
     "LAS_SCALE_M", "LAZ_CHUNK_POINTS", "LasCloudWriter", "iter_las_chunks", "lookup_name",
-    "open_las_writer", "open_laz_writer", "read_las", "read_las_header",
+    "open_las_writer", "open_laz_writer", "read_las_header",
 ]

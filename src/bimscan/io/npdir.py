@@ -181,13 +181,7 @@ def iter_npdir_chunks(
         yield PointCloud(xyz=xyz, **columns)
 
 
-def read_npdir(path: str | Path, *, label_field: str | None = None) -> PointCloud:
-    """Read a whole NumPy folder as one ``PointCloud`` (see ``iter_npdir_chunks``)."""
-    chunks = list(iter_npdir_chunks(path, chunk_points=1 << 62, label_field=label_field))
-    return chunks[0] if len(chunks) == 1 else PointCloud.concatenate(chunks)
-
-
 __all__ = [
     "NPDIR_FILES", "NpdirCloudWriter", "iter_npdir_chunks", "npy_header", "open_npdir_writer",
-    "read_npdir", "read_npdir_header",
+    "read_npdir_header",
 ]

@@ -383,13 +383,7 @@ def iter_ply_chunks(
             remaining -= take
 
 
-def read_ply(path: str | Path, *, label_field: str | None = None) -> PointCloud:
-    """Read the vertices of a whole PLY file as one ``PointCloud`` (see ``iter_ply_chunks``)."""
-    chunks = list(iter_ply_chunks(path, chunk_points=1 << 62, label_field=label_field))
-    return chunks[0] if len(chunks) == 1 else PointCloud.concatenate(chunks)
-
-
 __all__ = [
     "PLY_PROPERTIES", "PlyCloudWriter", "PlyLayout", "iter_ply_chunks", "open_ply_writer",
-    "read_ply", "read_ply_header", "read_ply_layout", "sidecar_path",
+    "read_ply_header", "read_ply_layout", "sidecar_path",
 ]

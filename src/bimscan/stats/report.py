@@ -15,11 +15,10 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from bimscan.files import write_atomic
+from bimscan.files import dump_json, write_atomic
 from bimscan.stats.collect import collect_units
 from bimscan.stats.plots import plot_classes, plot_extents, plot_points
 from bimscan.stats.summary import AXES, DatasetStats, summarize_dataset
@@ -168,7 +167,7 @@ def write_stats(dataset_dir: str | Path, out_dir: str | Path | None = None, *, f
         "units.csv": _csv(units_table(stats)),
         "configs.csv": _csv(configs_table(stats)),
         "scenes.csv": _csv(scenes_table(stats)),
-        "stats.json": (json.dumps(stats.to_json(), indent=1, sort_keys=True) + "\n").encode("utf-8"),
+        "stats.json": dump_json(stats.to_json()),
         "points.png": plot_points(stats),
         "extents.png": plot_extents(stats),
         "classes.png": plot_classes(stats),
