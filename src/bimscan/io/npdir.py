@@ -78,8 +78,9 @@ class NpdirCloudWriter(StreamingCloudWriter):
     def _append(self, chunk: PointCloud) -> None:
         for column, handle in self._files.items():
             _, dtype, _ = NPDIR_FILES[column]
-            if column == "xyz":
-                values = (chunk.xyz - self._origin).astype(dtype)
+            if column == "xyz":  # float32 around the origin, without a float64 temporary
+                values = np.empty(chunk.xyz.shape, dtype=dtype)
+                np.subtract(chunk.xyz, self._origin, out=values, casting="same_kind")
             else:
                 values = np.ascontiguousarray(getattr(chunk, column), dtype=dtype)
             handle.write(memoryview(values).cast("B"))

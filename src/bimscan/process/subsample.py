@@ -122,14 +122,16 @@ class UniformSampler:
         if n == 0:
             return
         keys = self._rng.random(n)
-        order = np.arange(self.seen, self.seen + n, dtype=np.int64)
+        first = self.seen
         self.seen += n
         if np.isfinite(self._threshold):
             # about k * n / seen points pass: a long stream costs one comparison per point
             enter = np.flatnonzero(keys < self._threshold)  # indices: cheaper than a mask for few rows
             if len(enter) == 0:
                 return
-            chunk, keys, order = chunk.take(enter), keys[enter], order[enter]
+            chunk, keys, order = chunk.take(enter), keys[enter], enter + first
+        else:
+            order = np.arange(first, first + n, dtype=np.int64)
         self._parts.append((chunk, keys, order))
         self._buffered += len(keys)
         if self._buffered >= 2 * self.k:
