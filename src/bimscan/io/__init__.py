@@ -23,7 +23,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from bimscan.errors import InputFileError, OutputError
-from bimscan.io._writer import CloudWriter, WrittenCloud, check_input_path
+from bimscan.io._writer import CloudWriter, WrittenCloud, check_input_path, check_output_path
 from bimscan.io.las import iter_las_chunks, open_las_writer, open_laz_writer, read_las_header
 from bimscan.io.npdir import iter_npdir_chunks, open_npdir_writer, read_npdir_header
 from bimscan.io.obj import ObjExport, export_obj, read_obj
@@ -60,6 +60,13 @@ def output_format(path: str | Path) -> str:
     return Path(text).suffix.lower()
 
 
+def _writer_key(path: str | Path) -> str:
+    key = output_format(path)
+    if key not in WRITERS:
+        raise OutputError(f"{path}: unknown cloud format {key!r}; write {_SUPPORTED}")
+    return key
+
+
 def _input_format(path: Path) -> str:
     key = "" if path.is_dir() else path.suffix.lower()
     if key not in CHUNK_READERS or (key == "" and not path.is_dir()):
@@ -76,20 +83,13 @@ def open_cloud_writer(
     (file, folder, or PLY sidecar) without ``overwrite``. ``checksum`` makes ``close()`` report
     the SHA-256 of every file written (one extra read of the output, from the page cache).
     """
-    key = output_format(path)
-    if key not in WRITERS:
-        raise OutputError(f"{path}: unknown cloud format {key!r}; write {_SUPPORTED}")
-    return WRITERS[key](Path(path), header=header, overwrite=overwrite, checksum=checksum)
+    return WRITERS[_writer_key(path)](Path(path), header=header, overwrite=overwrite, checksum=checksum)
 
 
 def check_cloud_output(path: str | Path, *, overwrite: bool = False) -> None:
     """Raise OutputError now for an output ``open_cloud_writer`` would refuse (unknown suffix,
     missing folder, existing output), so a long job fails before it starts rather than at the end."""
-    from bimscan.io._writer import check_output_path
-
-    key = output_format(path)
-    if key not in WRITERS:
-        raise OutputError(f"{path}: unknown cloud format {key!r}; write {_SUPPORTED}")
+    _writer_key(path)
     check_output_path(Path(path), overwrite=overwrite)
 
 
