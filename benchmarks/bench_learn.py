@@ -7,7 +7,7 @@ Rows, measured side by side in one run:
 - CPU, tiny model (configs/train_tiny_cpu.toml's network): one training step (forward,
   masked loss, backward, Adam, BatchNorm commit, EMA) at batch 2, and inference passes
   (forward + softmax + vote accumulation, the code path of evaluate/predict) at batch 2.
-- CPU, full model (Table 2, 2.4M parameters) with --full-cpu: about 19 s per training step on
+- CPU, full model (Table 2, 2.4M parameters) with --full-cpu: about 25 s per training step on
   2 cores (PERFORMANCE.md), so off by default.
 - CUDA, full model, when a GPU is visible: AMP float16 with GradScaler as in training, and
   bfloat16; the same functions the training loop and the block runner call.

@@ -111,3 +111,51 @@ def test_same_cloud_gives_the_same_bytes(tmp_path: Path) -> None:
     write_text_cloud(tmp_path / "b.txt", _cloud(300, seed=9))
 
     assert (tmp_path / "a.txt").read_bytes() == (tmp_path / "b.txt").read_bytes()
+
+
+@pytest.mark.parametrize(
+    "lines",
+    [
+        "1 2 3 -1200\n4 5 6 300\n",  # x y z intensity
+        "1 2 3 -1200 10 20 30\n4 5 6 300 10 20 30\n",  # x y z intensity r g b
+    ],
+)
+def test_leica_pts_columns_after_xyz_are_intensity_and_colour_never_a_label(tmp_path: Path, lines: str) -> None:
+    path = tmp_path / "scan.pts"
+    path.write_text("2\n" + lines)
+
+    cloud = read_text_cloud(path)
+
+    np.testing.assert_array_equal(cloud.xyz, [[1, 2, 3], [4, 5, 6]])
+    assert cloud.label is None
+
+
+def test_a_label_field_names_a_header_column_and_needs_a_header(tmp_path: Path) -> None:
+    named = tmp_path / "named.txt"
+    named.write_text("x y z label gt\n1 2 3 9 1\n4 5 6 9 2\n")
+    bare = tmp_path / "bare.txt"
+    bare.write_text("1 2 3 4\n")
+
+    (chunk,) = iter_text_chunks(named, label_field="GT")
+
+    assert chunk.label.tolist() == [1, 2]
+    with pytest.raises(InputFileError, match="no column 'truth' to read labels from"):
+        list(iter_text_chunks(named, label_field="truth"))
+    with pytest.raises(InputFileError, match="no header line naming its columns, so label field 'gt' cannot apply"):
+        list(iter_text_chunks(bare, label_field="gt"))
+
+
+def test_labels_that_are_not_wanted_are_neither_read_nor_checked(tmp_path: Path) -> None:
+    path = tmp_path / "scan.txt"
+    path.write_text("1 2 3 4.5\n4 5 6 300\n")  # a scalar field where a label would be
+
+    (chunk,) = iter_text_chunks(path, labels=False)
+
+    assert chunk.label is None and len(chunk) == 2
+    with pytest.raises(InputFileError, match="not an integer in 0..255"):
+        read_text_cloud(path)
+
+
+def test_writing_into_a_missing_folder_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(OutputError, match="does not exist"):
+        write_text_cloud(tmp_path / "missing" / "scan.txt", _cloud(3))

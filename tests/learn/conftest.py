@@ -73,6 +73,24 @@ def make_room(seed: int, *, size_m: tuple[float, float] = (6.0, 4.0), height_m: 
     return PointCloud(xyz=np.ascontiguousarray(xyz[order]), label=label[order])
 
 
+def write_foreign_las(path: Path, cloud: PointCloud, *, classification: int | None = None) -> Path:
+    """A LAS 1.4 as another tool writes it (no bimscan header): the labels in an extra dimension
+    ``gt``; ``classification`` holds the labels too, or the one ASPRS class given (1 =
+    unclassified) on every point."""
+    import laspy
+
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.offsets = np.floor(cloud.xyz.min(axis=0))
+    header.scales = np.array([0.001, 0.001, 0.001])
+    header.add_extra_dim(laspy.ExtraBytesParams(name="gt", type=np.uint8))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = cloud.xyz[:, 0], cloud.xyz[:, 1], cloud.xyz[:, 2]
+    las.gt = cloud.label
+    las.classification = cloud.label if classification is None else np.full(len(cloud), classification, np.uint8)
+    las.write(path)
+    return path
+
+
 TINY_CONFIG = """\
 [data]
 train = [{train}]
@@ -158,6 +176,12 @@ def trained_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     config, base = load_train_config(write_tiny_config(folder, train=train, val=["real.txt"], epochs=3))
     train_model(config, base_dir=base, log=lambda text: None)
     return folder
+
+
+@pytest.fixture
+def foreign_las() -> Callable[..., Path]:
+    """The foreign LAS writer (see ``write_foreign_las``)."""
+    return write_foreign_las
 
 
 @pytest.fixture

@@ -3,25 +3,29 @@ bounded memory, and blocks that depend only on (seed, epoch, tile)."""
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from bimscan.dataset.manifest import manifest_entry, write_manifest
 from bimscan.errors import InputFileError, LearnError
 from bimscan.io.text import write_text_cloud
 from bimscan.learn.blocks import locate_columns, encode_column_key
 from bimscan.learn.config import DEFAULT_CLASS_NAMES, BlockConfig
 from bimscan.learn.data import (
-    TileDataset, collect_scene_tiles, list_scenes, load_or_collect_tiles, load_scene,
+    TileDataset, _sort_by_column_and_key, collect_scene_tiles, list_scenes, load_or_collect_tiles, load_scene,
 )
+from bimscan.learn.mapping import LabelMapping
 from bimscan.types import PointCloud
 
 
 def _write_manifest(folder: Path, units: list[dict[str, object]]) -> None:
-    (folder / "manifest.json").write_text(json.dumps({"format": "bimscan-dataset", "version": 1, "units": units}))
+    write_manifest(folder, [
+        manifest_entry(unit=u["id"], scene="s", config="c", status=u["status"], files=u["files"])  # type: ignore[arg-type]
+        for u in units
+    ])
 
 
 def test_dataset_folder_expands_to_its_done_units_preferring_the_numpy_folder(tmp_path: Path) -> None:
@@ -175,3 +179,61 @@ def test_a_stored_scheme_in_another_order_is_mapped_by_class_name(
         writer.write(stored)
 
     np.testing.assert_array_equal(load_scene(tmp_path / "scene.laz").label, cloud.label)
+
+
+@pytest.mark.parametrize("classification", [0, 1])
+def test_a_foreign_las_never_classified_has_no_ground_truth(
+    tmp_path: Path, room: Callable[..., PointCloud], foreign_las: Callable[..., Path], classification: int,
+) -> None:
+    cloud = room(9, points_per_m2=10)
+    path = foreign_las(tmp_path / "site.las", cloud, classification=classification)
+    blocks = BlockConfig(size_m=2.0, eval_stride_m=1.0, points=32, min_points=8, cache_points=64)
+
+    with pytest.raises(LearnError, match="no ground-truth labels: its LAS classification is only 0/1.*--label-field"):
+        load_scene(path)
+    with pytest.raises(LearnError, match="no ground-truth labels"):
+        collect_scene_tiles(list_scenes([path])[0], blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=0)
+    np.testing.assert_array_equal(load_scene(path, label_field="gt").label, cloud.label)
+    everything_others = LabelMapping(name="all-others", default="Others")
+    assert set(load_scene(path, mapping=everything_others).label.tolist()) == {4}
+
+
+def test_a_foreign_las_with_classes_keeps_them(
+    tmp_path: Path, room: Callable[..., PointCloud], foreign_las: Callable[..., Path],
+) -> None:
+    cloud = room(10, points_per_m2=10)
+
+    back = load_scene(foreign_las(tmp_path / "site.las", cloud))
+
+    np.testing.assert_array_equal(back.label, cloud.label)
+
+
+def test_a_label_field_names_a_text_header_column_and_cannot_apply_to_s3dis_rooms(tmp_path: Path) -> None:
+    (tmp_path / "scan.txt").write_text("x y z label gt\n0 0 0 9 1\n1 1 1 9 2\n")
+    room = tmp_path / "Area_1" / "office_1"
+    (room / "Annotations").mkdir(parents=True)
+    (room / "Annotations" / "wall_1.txt").write_text("0 0 0 1 2 3\n")
+
+    assert load_scene(tmp_path / "scan.txt", label_field="gt").label.tolist() == [1, 2]
+    with pytest.raises(LearnError, match="label field 'gt' cannot apply to S3DIS rooms"):
+        list_scenes([tmp_path / "Area_1"], label_field="gt")
+    # in a list with other scans it names their field; the rooms keep their annotation labels
+    scenes = list_scenes([tmp_path / "scan.txt", tmp_path / "Area_1"], label_field="gt")
+    assert [(s.kind, s.label_field) for s in scenes] == [("text", "gt"), ("s3dis", None)]
+
+
+def test_sorting_by_column_and_random_key_equals_lexsort_ties_included() -> None:
+    rng = np.random.default_rng(0)
+    for spread in (3, 1000, 1 << 29):  # few columns: every random-key bit fits; many: ties to resolve
+        ix = rng.integers(-spread, spread, 5000)
+        iy = rng.integers(-spread, spread, 5000)
+        ix[:2000], iy[:2000] = ix[0], iy[0]  # one crowded column
+        key = encode_column_key(ix, iy)
+        prio = np.floor(rng.random(5000) * 2**20) / 2**20  # coarse: exact ties too
+        prio[100:110] = prio[99]
+
+        order, column = _sort_by_column_and_key(key, prio)
+
+        np.testing.assert_array_equal(order, np.lexsort((prio, key)))
+        changes = np.flatnonzero(np.diff(key[order]) != 0)
+        np.testing.assert_array_equal(changes, np.flatnonzero(np.diff(column.astype(np.int64)) != 0))

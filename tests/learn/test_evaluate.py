@@ -62,3 +62,19 @@ def test_evaluation_leaves_denormal_floats_working(tmp_path: Path, trained_run: 
     # inference flushes denormals to zero for speed; that must not outlive it
     assert np.nextafter(0.0, 1.0) > 0.0
     assert np.float32(1e-40) != 0.0
+
+
+def test_an_unclassified_foreign_las_is_refused_for_evaluation_but_predicted(
+    tmp_path: Path, trained_run: Path, room: Callable[..., PointCloud], foreign_las: Callable[..., Path],
+) -> None:
+    from bimscan.learn.predict import predict_cloud
+
+    scan = foreign_las(tmp_path / "site.las", room(42, points_per_m2=10), classification=1)
+
+    with pytest.raises(LearnError, match="no ground-truth labels: its LAS classification is only 0/1"):
+        evaluate_checkpoint(trained_run / "run" / "last.pt", [scan], device="cpu")
+    result = predict_cloud(trained_run / "run" / "last.pt", scan, tmp_path / "labelled.laz", device="cpu")
+
+    assert result.points > 0
+    (scored,) = evaluate_checkpoint(trained_run / "run" / "last.pt", [scan], label_field="gt", device="cpu")
+    assert scored.labels.labelled == scored.labels.points  # with the right field it scores

@@ -5,7 +5,6 @@ dimension and an S3DIS room as the "real" scans; bad input gives one line and ex
 from __future__ import annotations
 
 import csv
-import json
 from collections.abc import Callable
 from pathlib import Path
 
@@ -14,6 +13,7 @@ import numpy as np
 import pytest
 
 from bimscan.cli.main import main
+from bimscan.dataset.manifest import manifest_entry, write_manifest
 from bimscan.io import open_cloud_writer
 from bimscan.semantics.scheme import load_scheme
 from bimscan.types import CloudHeader, PointCloud
@@ -29,9 +29,10 @@ def _write_dataset(folder: Path, room: Callable[..., PointCloud]) -> None:
             for start in range(0, len(cloud), 1000):  # streamed, as the scanner writes
                 writer.write(cloud.take(slice(start, start + 1000)))
         key = "laz" if file.endswith(".laz") else "npy"
-        units.append({"id": unit, "status": "done", "files": {key: f"units/{unit}/{file}"}})
-    units.append({"id": "u3", "status": "failed", "files": {}})
-    (folder / "manifest.json").write_text(json.dumps({"format": "bimscan-dataset", "version": 1, "units": units}))
+        units.append(manifest_entry(unit=unit, scene=f"room{i}", config="tls", status="done", points=len(cloud),
+                                    files={key: f"units/{unit}/{file}"}))
+    units.append(manifest_entry(unit="u3", scene="room3", config="tls", status="failed", error="test"))
+    write_manifest(folder, units)
 
 
 def _write_foreign_las(path: Path, cloud: PointCloud) -> None:
@@ -167,3 +168,52 @@ def test_evaluate_with_a_missing_checkpoint_is_one_error_line(project: Path, cap
     err = capsys.readouterr().err
     assert status == 1 and err.startswith("error: ") and err.count("\n") == 1
     assert "no such checkpoint" in err
+
+
+def test_predict_checks_its_output_before_any_work(project: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    (project / "taken.laz").write_bytes(b"keep me")
+
+    for out, message in (("taken.laz", "already exists"), ("out.xyz", "unknown cloud format"),
+                         ("missing/out.laz", "does not exist")):
+        # the checkpoint does not exist either: the output is checked first
+        status = main(["predict", str(project / "nope.pt"), str(project / "site.las"), str(project / out)])
+
+        err = capsys.readouterr().err
+        assert status == 1 and err.startswith("error: ") and err.count("\n") == 1, err
+        assert message in err
+    assert (project / "taken.laz").read_bytes() == b"keep me"
+
+
+def test_evaluation_inputs_without_ground_truth_or_readable_weights_are_one_error_line(
+    project: Path, trained_run: Path, capsys: pytest.CaptureFixture[str], foreign_las: Callable[..., Path],
+    room: Callable[..., PointCloud],
+) -> None:
+    checkpoint = str(trained_run / "run" / "last.pt")
+    foreign_las(project / "bare.las", room(52, points_per_m2=10), classification=0)
+    (project / "bad.pt").write_bytes(b"\x80\x02junk" * 50)
+
+    for argv, message in (
+        ([checkpoint, str(project / "bare.las")], "no ground-truth labels"),
+        ([str(project / "bad.pt"), str(project / "site.las")], "not a readable checkpoint"),
+        ([checkpoint, str(project / "Area_1"), "--label-field", "gt"], "cannot apply to S3DIS rooms"),
+    ):
+        status = main(["evaluate", *argv, "--device", "cpu"])
+
+        err = capsys.readouterr().err
+        assert status == 1 and err.startswith("error: ") and err.count("\n") == 1, err
+        assert message in err
+
+
+def test_training_with_an_unlabelled_validation_set_is_one_error_line(
+    project: Path, capsys: pytest.CaptureFixture[str], foreign_las: Callable[..., Path],
+    room: Callable[..., PointCloud],
+) -> None:
+    foreign_las(project / "bare.las", room(53, points_per_m2=40), classification=1)
+    config = project / "train.toml"
+    config.write_text(config.read_text().replace('val = ["site.las"]\nval_label_field = "gt"', 'val = ["bare.las"]'))
+
+    status = main(["train", str(config)])
+
+    err = capsys.readouterr().err
+    assert status == 1 and err.startswith("error: ") and err.count("\n") == 1, err
+    assert "no ground-truth labels" in err

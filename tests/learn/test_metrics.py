@@ -122,3 +122,17 @@ def test_no_counted_points_give_nan_metrics() -> None:
 def test_predictions_outside_the_classes_are_rejected() -> None:
     with pytest.raises(ValueError, match="predictions must lie in 0..2"):
         compute_confusion(np.array([0, 1]), np.array([0, 3]), num_classes=3)
+
+
+def test_kappa_is_exact_on_huge_confusion_matrices() -> None:
+    # p_o = p_e = 1 - 1e-12: chance agreement, kappa 0 (a float test of p_e == 1 took it for 1)
+    chance = compute_metrics(np.array([[10**12, 1], [0, 0]], dtype=np.int64))
+    single = compute_metrics(np.array([[0, 0], [0, 4 * 10**18]], dtype=np.int64))  # N**2 overflows int64
+    skewed = np.array([[10**13, 10**6, 0], [3 * 10**6, 5 * 10**9, 7], [0, 11, 10**4]], dtype=np.int64)
+
+    assert chance.kappa == 0.0
+    assert single.kappa == 1.0
+    n = skewed.sum()
+    p_o = np.trace(skewed) / n
+    p_e = float(np.sum(skewed.sum(axis=0).astype(float) * skewed.sum(axis=1).astype(float)) / float(n) ** 2)
+    assert compute_metrics(skewed).kappa == pytest.approx((p_o - p_e) / (1 - p_e), rel=1e-4)

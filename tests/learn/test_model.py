@@ -145,3 +145,50 @@ def test_tiny_model_overfits_one_block(room: Callable[..., PointCloud]) -> None:
     assert len(np.unique(block.label)) == 5  # a real task: all five classes in the block
     assert start_accuracy < 0.7
     assert accuracy >= 0.97, f"tiny PCT reached only {accuracy:.3f} accuracy on one block in 200 steps"
+
+
+def test_offset_attention_does_not_overflow_float16_when_every_query_attends_one_key() -> None:
+    # every query gives most weight to point 0: its column sum is about 0.8 N = 1600, and
+    # values of 50 make the un-normalised attended value 8e4, beyond float16's 65504
+    torch.manual_seed(5)
+    layer = OffsetAttention(16).eval()
+    points = 2048
+    with torch.no_grad():
+        layer.qk.weight.zero_()
+        layer.qk.weight[0, 0, 0] = 1.0
+        layer.v.weight.zero_()
+        layer.v.bias.fill_(50.0)
+    x = torch.zeros(1, 16, points)
+    x[0, 0, :] = 1.0
+    x[0, 0, 0] = 10.0
+
+    reference = layer(x, None)
+    with torch.autocast("cpu", dtype=torch.float16):
+        mixed = layer(x, None)
+
+    assert torch.isfinite(mixed).all()
+    torch.testing.assert_close(mixed.float(), reference, atol=0.1, rtol=5e-3)
+
+
+def test_batch_statistics_of_all_layers_travel_in_one_all_reduce(monkeypatch: pytest.MonkeyPatch) -> None:
+    import bimscan.learn.model as model_module
+
+    torch.manual_seed(6)
+    per_layer, flat = build_model(5, TINY), build_model(5, TINY)
+    flat.load_state_dict(per_layer.state_dict())
+    xyz = torch.randn(2, 64, 3)
+    for model in (per_layer, flat):
+        model.train()(xyz)
+    for norm in per_layer.modules():
+        if isinstance(norm, MaskedBatchNorm1d):
+            norm.commit_statistics()  # no process group: nothing to reduce
+    calls: list[int] = []
+    monkeypatch.setattr(model_module.dist, "is_initialized", lambda: True)
+    monkeypatch.setattr(model_module.dist, "all_reduce", lambda tensor, group=None: calls.append(tensor.numel()))
+
+    commit_batch_statistics(flat)
+
+    norms = [m for m in flat.modules() if isinstance(m, MaskedBatchNorm1d)]
+    assert calls == [sum(len(m.pending) for m in norms)]
+    for a, b in zip(per_layer.state_dict().values(), flat.state_dict().values(), strict=True):
+        torch.testing.assert_close(a, b, atol=0.0, rtol=0.0)

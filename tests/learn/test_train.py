@@ -20,6 +20,8 @@ from bimscan.errors import ConfigError, LearnError
 from bimscan.learn.config import load_train_config
 from bimscan.learn.plots import CSV_COLUMNS
 from bimscan.learn.train import GlobalBatchSampler, train_model
+from bimscan.io.text import write_text_cloud
+from bimscan.types import PointCloud
 
 
 def _run(config_path: Path, **options: object) -> Path:
@@ -194,3 +196,64 @@ def test_shipped_example_configs_load(name: str) -> None:
         assert (config.blocks.points, config.train.batch_size, config.train.accumulation_steps) == (8192, 2, 4)
         assert (config.train.max_lr, config.train.weight_decay, config.train.ema_alpha) == (2e-3, 5e-4, 0.99)
         assert config.train.amp == "float16" and len(config.data.class_names) == 5
+
+
+def test_a_validation_set_without_labels_is_refused_before_training(
+    tmp_path: Path, room_files: dict[str, list[str]], tiny_config: Callable[..., Path], room: Callable[..., PointCloud],
+) -> None:
+    write_text_cloud(tmp_path / "bare.xyz", PointCloud(xyz=room(60, points_per_m2=40).xyz))
+    steps: list[int] = []
+
+    with pytest.raises(LearnError, match=r"\[data\] val: no column of its 1 scene\(s\) has ground truth"):
+        _run(tiny_config(tmp_path, train=room_files["train"], val=["bare.xyz"], out_dir="bare"),
+             on_step_end=lambda epoch, step: steps.append(step))
+
+    assert steps == [] and not (tmp_path / "bare" / "last.pt").exists()
+
+
+def test_the_logged_learning_rate_is_the_last_one_each_epoch_applied(trained_run: Path) -> None:
+    checkpoint = _load(trained_run / "run" / "last.pt")
+    settings = checkpoint["config"]["train"]
+    total = checkpoint["scheduler"]["total_steps"]
+    per_epoch = total // settings["epochs"]
+    parameter = torch.nn.Parameter(torch.zeros(1))
+    optimizer = torch.optim.Adam([parameter], lr=settings["max_lr"])
+    scheduler = torch.optim.lr_scheduler.OneCycleLR(
+        optimizer, max_lr=settings["max_lr"], total_steps=total, pct_start=settings["pct_start"],
+        anneal_strategy="cos", div_factor=settings["div_factor"], final_div_factor=settings["final_div_factor"],
+    )
+    applied = []
+    for _ in range(total):
+        applied.append(optimizer.param_groups[0]["lr"])
+        optimizer.step()
+        scheduler.step()
+
+    logged = [row["lr"] for row in checkpoint["history"]]
+
+    assert logged == pytest.approx([applied[(epoch + 1) * per_epoch - 1] for epoch in range(settings["epochs"])])
+
+
+def test_resuming_on_another_kind_of_device_is_refused(
+    tmp_path: Path, room_files: dict[str, list[str]], tiny_config: Callable[..., Path],
+) -> None:
+    config = tiny_config(tmp_path, **room_files, epochs=1)
+    last = _run(config)
+    payload = _load(last)
+    used, other = payload["device"], "cuda" if payload["device"] == "cpu" else "cpu"
+    payload["device"] = other
+    torch.save(payload, last)
+
+    with pytest.raises(LearnError, match=f"the run trained on {other} and would resume on {used}"):
+        _run(config, resume=True)
+
+
+def test_cycling_adam_beta1_with_the_learning_rate_is_a_setting(
+    tmp_path: Path, room_files: dict[str, list[str]], tiny_config: Callable[..., Path],
+) -> None:
+    cycled = _run(tiny_config(tmp_path, **room_files, epochs=1, out_dir="cycled", name="cycled.toml"))
+    fixed_config = tiny_config(tmp_path, **room_files, epochs=1, out_dir="fixed", name="fixed.toml")
+    fixed_config.write_text(fixed_config.read_text().replace("max_lr = 0.01", "max_lr = 0.01\ncycle_momentum = false"))
+    fixed = _run(fixed_config)
+
+    assert _load(cycled)["optimizer"]["param_groups"][0]["betas"][0] != 0.9  # PyTorch's default: cycled
+    assert _load(fixed)["optimizer"]["param_groups"][0]["betas"][0] == 0.9

@@ -3,11 +3,30 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 import click
 
 DEVICES = click.Choice(["auto", "cpu", "cuda"])
+F = TypeVar("F", bound=Callable[..., object])
+
+
+def inference_options(command: F) -> F:
+    """The options evaluate and predict share: --device, --batch-size, --max-passes, --weights, --seed."""
+    options = [
+        click.option("--device", type=DEVICES, default="auto", show_default=True),
+        click.option("--batch-size", type=click.IntRange(min=1), default=8, show_default=True,
+                     help="Blocks per forward pass."),
+        click.option("--max-passes", type=click.IntRange(min=0), default=0, show_default=True,
+                     help="Passes per block at most (0: every point seen; else the rest from nearest neighbours)."),
+        click.option("--weights", type=click.Choice(["ema", "live"]), default="ema", show_default=True),
+        click.option("--seed", type=int, default=0, show_default=True),
+    ]
+    for option in reversed(options):  # decorators apply bottom-up: keep the listed order in --help
+        command = option(command)
+    return command
 
 
 @click.command("train")
@@ -38,15 +57,12 @@ def train(config: Path, resume: bool, out_dir: Path | None) -> None:
 @click.argument("scenes", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(path_type=Path, file_okay=False), default=None,
               help="Folder for evaluation.md and evaluation.csv.")
-@click.option("--label-field", default=None, help="LAS/PLY dimension holding the ground truth (default: classification/label).")
+@click.option("--label-field", default=None,
+              help="Field holding the ground truth: LAS/PLY dimension, NumPy folder file, text header column "
+                   "(default: classification/label; S3DIS rooms: their annotation names).")
 @click.option("--mapping", type=click.Path(path_type=Path, dir_okay=False), default=None,
               help="Mapping TOML from the scenes' classes to the checkpoint's (S3DIS rooms: built in).")
-@click.option("--device", type=DEVICES, default="auto", show_default=True)
-@click.option("--batch-size", type=click.IntRange(min=1), default=8, show_default=True, help="Blocks per forward pass.")
-@click.option("--max-passes", type=click.IntRange(min=0), default=0, show_default=True,
-              help="Passes per block at most (0: every point seen; else the rest from nearest neighbours).")
-@click.option("--weights", type=click.Choice(["ema", "live"]), default="ema", show_default=True)
-@click.option("--seed", type=int, default=0, show_default=True)
+@inference_options
 def evaluate(
     checkpoint: Path, scenes: tuple[Path, ...], out_dir: Path | None, label_field: str | None, mapping: Path | None,
     device: str, batch_size: int, max_passes: int, weights: str, seed: int,
@@ -56,7 +72,6 @@ def evaluate(
     SCENE: clouds (.las .laz .ply .txt ...), NumPy cloud folders, bimscan dataset folders,
     S3DIS rooms or areas. Prints the table (as the paper's Table 3) in Markdown.
     """
-    from bimscan.learn.checkpoint import read_checkpoint
     from bimscan.learn.evaluate import evaluate_checkpoint, format_markdown, write_evaluation
     from bimscan.learn.mapping import load_label_mapping
 
@@ -67,8 +82,7 @@ def evaluate(
     )
     click.echo(format_markdown(results), nl=False)
     if out_dir is not None:
-        class_names = tuple(read_checkpoint(checkpoint)["class_names"])
-        markdown, table = write_evaluation(results, out_dir, class_names)
+        markdown, table = write_evaluation(results, out_dir, results[0].class_names)
         click.echo(f"wrote {markdown} and {table}")
 
 
@@ -77,26 +91,21 @@ def evaluate(
 @click.argument("in_path", metavar="IN", type=click.Path(path_type=Path))
 @click.argument("out_path", metavar="OUT", type=click.Path(path_type=Path))
 @click.option("--overwrite", is_flag=True, help="Replace OUT when it exists.")
-@click.option("--label-field", default=None, help="LAS/PLY dimension holding labels to replace (default: classification).")
-@click.option("--device", type=DEVICES, default="auto", show_default=True)
-@click.option("--batch-size", type=click.IntRange(min=1), default=8, show_default=True, help="Blocks per forward pass.")
-@click.option("--max-passes", type=click.IntRange(min=0), default=0, show_default=True,
-              help="Passes per block at most (0: every point seen; else the rest from nearest neighbours).")
-@click.option("--weights", type=click.Choice(["ema", "live"]), default="ema", show_default=True)
-@click.option("--seed", type=int, default=0, show_default=True)
+@inference_options
 def predict(
-    checkpoint: Path, in_path: Path, out_path: Path, overwrite: bool, label_field: str | None, device: str,
-    batch_size: int, max_passes: int, weights: str, seed: int,
+    checkpoint: Path, in_path: Path, out_path: Path, overwrite: bool, device: str, batch_size: int, max_passes: int,
+    weights: str, seed: int,
 ) -> None:
     """Label every point of the scan IN with CHECKPOINT and write OUT (.laz/.las/.ply or a folder).
 
-    The class goes to `classification` (LAS/LAZ) or `label` (PLY/NumPy); other columns are kept.
+    The class goes to `classification` (LAS/LAZ) or `label` (PLY/NumPy), replacing whatever
+    labels IN had (they are not read); other columns are kept.
     """
     from bimscan.learn.predict import predict_cloud
 
     result = predict_cloud(
-        checkpoint, in_path, out_path, label_field=label_field, device=device, batch_size=batch_size,
-        max_passes=max_passes, weights=weights, seed=seed, overwrite=overwrite,
+        checkpoint, in_path, out_path, device=device, batch_size=batch_size, max_passes=max_passes,
+        weights=weights, seed=seed, overwrite=overwrite,
     )
     shares = ", ".join(
         f"{name} {100.0 * count / max(result.points, 1):.1f}%"

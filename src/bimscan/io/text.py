@@ -2,23 +2,24 @@
 
 This is the lowest common denominator of real scans exchanged between tools (CloudCompare
 "ASCII cloud", S3DIS-style files, ``.xyz``/``.pts`` exports). Columns are separated by
-whitespace or commas; ``#`` and ``//`` start comment lines. The column meaning comes from the
-count on the first data line:
+whitespace or commas; ``#`` and ``//`` start comment lines. The column meaning comes from a
+header line of names when there is one (``x,y,z,red,green,blue,classification``; ``label``,
+``class``, ``classification``, ``scalar_label`` and ``scalar_classification`` name the label,
+or the name given as ``label_field``), else from the count on the first data line:
 
-==========  =====================
-columns     meaning
-==========  =====================
-3           x y z
-4           x y z label
-6           x y z r g b
-7           x y z r g b label
-==========  =====================
+==========  ==========================  ==============================
+columns     meaning                     in Leica ``.pts`` files
+==========  ==========================  ==============================
+3           x y z                       x y z
+4           x y z label                 x y z intensity
+6           x y z r g b                 x y z r g b
+7           x y z r g b label           x y z intensity r g b
+==========  ==========================  ==============================
 
-or from a header line of names (``x,y,z,red,green,blue,classification``; ``label``, ``class``,
-``classification``, ``scalar_label`` and ``scalar_classification`` name the label). A first line
-holding one integer (the point count of Leica ``.pts`` files) is skipped. Colours are read past
-and dropped: :class:`~bimscan.types.PointCloud` carries no colour. Labels must be integers in
-0..255 (uint8, as everywhere in bimscan).
+A first line holding one integer (the point count of ``.pts`` files) is skipped. Colours and
+intensities are read past and dropped: :class:`~bimscan.types.PointCloud` carries no colour,
+and ``.pts`` intensities (-2048..2047) are no LAS intensity. Labels must be integers in 0..255
+(uint8, as everywhere in bimscan).
 """
 
 from __future__ import annotations
@@ -32,12 +33,16 @@ from typing import TextIO
 
 import numpy as np
 
+from bimscan.errors import InputFileError
 from bimscan.files import atomic_output
-from bimscan.errors import InputFileError, OutputError
+from bimscan.io._writer import check_output_path
 from bimscan.types import PointCloud
 
 TEXT_SUFFIXES = (".txt", ".xyz", ".pts", ".csv", ".asc")
 LABEL_NAMES = ("label", "labels", "class", "classification", "scalar_label", "scalar_classification")
+# label column by column count, for files without a header line
+LABEL_COLUMN = {3: None, 4: 3, 6: None, 7: 6}
+PTS_LABEL_COLUMN = {3: None, 4: None, 6: None, 7: None}  # Leica: intensity, not a label
 _COMMENT = ("#", "//")
 _SPLIT = re.compile(r"[,\s]+")
 
@@ -59,7 +64,7 @@ def _is_number(token: str) -> bool:
     return True
 
 
-def _detect_layout(path: Path, handle: TextIO) -> _Layout:
+def _detect_layout(path: Path, handle: TextIO, *, label_field: str | None = None, labels: bool = True) -> _Layout:
     consumed = 0
     for line in handle:
         consumed += 1
@@ -78,16 +83,27 @@ def _detect_layout(path: Path, handle: TextIO) -> _Layout:
                     f"{path}: header line {consumed} {stripped!r} names no column {missing[0]!r}; "
                     "name the coordinate columns x, y, z or drop the header"
                 )
-            label = next((names.index(n) for n in LABEL_NAMES if n in names), None)
+            if label_field is not None and label_field.lower() not in names:
+                raise InputFileError(
+                    f"{path}: no column {label_field!r} to read labels from; the header names {', '.join(tokens)}"
+                )
+            wanted = (label_field.lower(),) if label_field is not None else LABEL_NAMES
+            label = next((names.index(n) for n in wanted if n in names), None)
             xyz = (names.index("x"), names.index("y"), names.index("z"))
-            return _Layout(delimiter, xyz, label, len(names), consumed)
-        layouts = {3: None, 4: 3, 6: None, 7: 6}
+            return _Layout(delimiter, xyz, label if labels else None, len(names), consumed)
+        if label_field is not None:
+            raise InputFileError(
+                f"{path}: no header line naming its columns, so label field {label_field!r} cannot apply; "
+                "add a header line (e.g. 'x y z r g b label') or drop --label-field"
+            )
+        layouts = PTS_LABEL_COLUMN if path.suffix.lower() == ".pts" else LABEL_COLUMN
         if len(tokens) not in layouts:
             raise InputFileError(
                 f"{path}: line {consumed} has {len(tokens)} columns; expected 3 (x y z), "
                 "4 (x y z label), 6 (x y z r g b) or 7 (x y z r g b label), or a header line naming them"
             )
-        return _Layout(delimiter, (0, 1, 2), layouts[len(tokens)], len(tokens), consumed - 1)
+        label = layouts[len(tokens)] if labels else None
+        return _Layout(delimiter, (0, 1, 2), label, len(tokens), consumed - 1)
     raise InputFileError(f"{path}: holds no points; pass a text file with one 'x y z [r g b] [label]' per line")
 
 
@@ -125,11 +141,16 @@ def _parse_lines(path: Path, lines: list[str], layout: _Layout, first_line: int)
     return PointCloud(xyz=xyz, label=label)
 
 
-def iter_text_chunks(path: str | Path, *, chunk_points: int = 1_000_000) -> Iterator[PointCloud]:
+def iter_text_chunks(
+    path: str | Path, *, chunk_points: int = 1_000_000, label_field: str | None = None, labels: bool = True,
+) -> Iterator[PointCloud]:
     """Stream a text cloud as :class:`PointCloud` chunks of at most ``chunk_points`` points.
 
     xyz (N, 3) float64 in the file's units (metres expected); label (N,) uint8 when the file has
-    a label column, else None. Memory stays bounded by the chunk size.
+    a label column, else None. ``label_field`` names the label column of a file with a header
+    line (InputFileError for a file without one). ``labels`` False skips the label column
+    (label None, its values unchecked), for callers that do not use labels. Memory stays
+    bounded by the chunk size.
     """
     path = Path(path)
     if chunk_points < 1:
@@ -138,7 +159,7 @@ def iter_text_chunks(path: str | Path, *, chunk_points: int = 1_000_000) -> Iter
         raise InputFileError(f"{path}: no such file; check the path")
     with path.open("r", encoding="utf-8", errors="strict") as handle:
         try:
-            layout = _detect_layout(path, handle)
+            layout = _detect_layout(path, handle, label_field=label_field, labels=labels)
         except UnicodeDecodeError as exc:
             raise InputFileError(f"{path}: not a text file ({exc.reason}); pass 'x y z [label]' text") from exc
     with path.open("r", encoding="utf-8") as handle:
@@ -172,10 +193,7 @@ def write_text_cloud(path: str | Path, cloud: PointCloud, *, overwrite: bool = F
     keeps xyz within 5e-7 m and the labels exactly.
     """
     path = Path(path)
-    if path.exists() and not overwrite:
-        raise OutputError(f"{path}: already exists; pass overwrite=True (--overwrite) or choose another name")
-    if not path.parent.is_dir():
-        raise OutputError(f"{path}: folder {path.parent} does not exist; create it first")
+    check_output_path(path, overwrite=overwrite)
     with atomic_output(path) as temp, temp.open("w", encoding="utf-8", newline="\n") as out:
         out.write("# x y z" + (" label\n" if cloud.label is not None else "\n"))
         step = 500_000  # bounded formatting memory for big clouds

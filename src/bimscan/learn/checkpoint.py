@@ -8,57 +8,91 @@ file holds tensors and plain data only, never pickled code.
 
 from __future__ import annotations
 
-import os
-import pickle
 import random
-import tempfile
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 import torch
+from torch import nn
 
 from bimscan.errors import InputFileError, LearnError
+from bimscan.files import atomic_output
 from bimscan.learn.config import TrainRunConfig, parse_config
 from bimscan.learn.model import PCTSegmentation, build_model
 
 CHECKPOINT_FORMAT = "bimscan-pct-checkpoint"
 CHECKPOINT_VERSION = 1
+# what evaluation and prediction read; training adds RESUME_KEYS (train.py)
+MODEL_KEYS = ("config", "class_names", "epoch", "model", "ema")
+_KINDS: dict[str, type | tuple[type, ...]] = {
+    "config": dict, "class_names": (list, tuple), "epoch": int, "model": dict, "ema": dict, "optimizer": dict,
+    "scheduler": dict, "scaler": dict, "rng": dict, "history": list, "ema_steps": int, "world_size": int,
+    "accumulation_steps": int, "global_batch": int, "device": str,
+}
 
 
 def save_checkpoint(path: Path, payload: dict[str, Any]) -> None:
-    """Write ``payload`` to ``path`` via a temporary file in the same folder and a rename."""
-    path = Path(path)
+    """Write ``payload`` to ``path`` atomically (temporary file in the same folder, then a rename)."""
     payload = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, **payload}
-    handle, temp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    finished = False
-    try:
-        with os.fdopen(handle, "wb") as out:
-            torch.save(payload, out)
-        os.replace(temp, path)
-        finished = True
-    finally:
-        if not finished:  # an interrupted save must not leave a torn file behind
-            Path(temp).unlink(missing_ok=True)
+    with atomic_output(path) as temp:
+        torch.save(payload, temp)
 
 
-def read_checkpoint(path: str | Path) -> dict[str, Any]:
-    """Load a checkpoint onto the CPU; one-line errors for missing or foreign files."""
+def _first_line(exc: BaseException, *, limit: int = 160) -> str:
+    """The first sentence of an exception's message, at most ``limit`` characters."""
+    line = next((line.strip() for line in str(exc).splitlines() if line.strip()), type(exc).__name__)
+    line = line.split(". ")[0]
+    return line if len(line) <= limit else line[:limit - 3] + "..."
+
+
+def read_checkpoint(path: str | Path, *, require: tuple[str, ...] = MODEL_KEYS) -> dict[str, Any]:
+    """Load a checkpoint onto the CPU; one-line errors for missing, damaged, foreign or incomplete
+    files (``require``: the keys the caller reads)."""
     path = Path(path)
     if not path.is_file():
         raise InputFileError(f"{path}: no such checkpoint; pass the last.pt or best.pt of a training run")
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, OSError, ValueError) as exc:
-        # torch reports a broken zip container as RuntimeError, foreign pickles as UnpicklingError
-        first = (str(exc).splitlines() or [type(exc).__name__])[0]
-        raise InputFileError(f"{path}: not a readable checkpoint ({first}); pass a bimscan checkpoint") from exc
+    except Exception as exc:  # deliberately broad, at this one boundary:
+        # a damaged or foreign file makes torch.load raise almost anything (UnpicklingError,
+        # RuntimeError for a broken zip, KeyError, IndexError, struct.error, EOFError, ...);
+        # every one of them means the same to the user
+        raise InputFileError(f"{path}: not a readable checkpoint ({_first_line(exc)}); pass a bimscan checkpoint") from exc
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
         raise InputFileError(f"{path}: not a bimscan PCT checkpoint; pass the last.pt or best.pt of 'bimscan train'")
     if payload.get("version") != CHECKPOINT_VERSION:
         raise InputFileError(f"{path}: checkpoint version {payload.get('version')!r} is not supported ({CHECKPOINT_VERSION} is)")
+    missing = [key for key in require if key not in payload]
+    if missing:
+        raise InputFileError(f"{path}: incomplete checkpoint, no {', '.join(repr(k) for k in missing)} (damaged, or "
+                             "written by another bimscan version); pass a last.pt or best.pt of this version")
+    for key in require:
+        value = payload[key]
+        kind = _KINDS.get(key)
+        if kind is not None and (not isinstance(value, kind) or isinstance(value, bool)
+                                 or (key == "class_names" and not all(isinstance(n, str) for n in value))):
+            raise InputFileError(f"{path}: damaged checkpoint, {key!r} is a {type(value).__name__}; "
+                                 "pass a bimscan checkpoint")
     return payload
+
+
+def load_state(module: nn.Module | Any, state: Mapping[str, Any], *, what: str, path: str | Path) -> None:
+    """``module.load_state_dict(state)`` with a one-line LearnError when they do not fit.
+
+    torch lists every mismatching tensor on its own line; the message keeps the first and counts the rest.
+    """
+    try:
+        module.load_state_dict(state)
+    except (KeyError, RuntimeError, ValueError, TypeError, IndexError) as exc:
+        details = [line.strip() for line in str(exc).splitlines()[1:] if line.strip()] or [_first_line(exc)]
+        more = f" and {len(details) - 1} more" if len(details) > 1 else ""
+        raise LearnError(
+            f"{path}: the stored {what} do not fit ({details[0].rstrip('.')}{more}); pass a checkpoint of this "
+            "bimscan version and configuration"
+        ) from exc
 
 
 def capture_rng_state() -> dict[str, Any]:
@@ -106,11 +140,10 @@ def load_trained_model(
     payload = read_checkpoint(path)
     config = parse_config(payload["config"], where=f"{path} [config]")
     class_names = tuple(payload["class_names"])
+    if len(class_names) < 2:
+        raise InputFileError(f"{path}: damaged checkpoint, {len(class_names)} class name(s); pass a bimscan checkpoint")
     model = build_model(len(class_names), config.model)
     key = "ema" if weights == "ema" else "model"
-    try:
-        model.load_state_dict(payload[key])
-    except (KeyError, RuntimeError) as exc:
-        raise LearnError(f"{path}: the {key} weights do not fit the stored model configuration ({exc})") from exc
+    load_state(model, payload[key], what=f"{key} weights", path=path)
     model.to(device).eval()
     return TrainedModel(model=model, config=config, class_names=class_names, epoch=int(payload["epoch"]), weights=weights)

@@ -114,6 +114,10 @@ class TrainConfig:
     """Optimisation (Table 2): Adam, OneCycleLR (cosine), EMA, AMP, accumulation, DDP.
 
     The global batch is ``batch_size`` (per process) x processes x ``accumulation_steps``.
+    OneCycleLR runs from ``max_lr / div_factor`` up to ``max_lr`` over the first ``pct_start``
+    of the steps and down to ``max_lr / div_factor / final_div_factor``. ``cycle_momentum``
+    (true: PyTorch's default, kept) makes it also cycle Adam's beta1 inversely to the LR,
+    from 0.95 down to 0.85 at the peak and back to 0.95; false leaves beta1 at Adam's 0.9.
     ``amp``: "float16" (Table 2's AMP with GradScaler; the default), "bfloat16" (no scaler
     needed: bf16 has float32's range) or "off". AMP applies on CUDA only; CPU runs use float32.
     ``device``: "auto" (CUDA when present), "cpu", "cuda". ``out_dir`` holds the checkpoints,
@@ -128,6 +132,7 @@ class TrainConfig:
     pct_start: float = 0.3
     div_factor: float = 25.0
     final_div_factor: float = 1e4
+    cycle_momentum: bool = True
     ema_alpha: float = 0.99
     amp: Literal["float16", "bfloat16", "off"] = "float16"
     num_workers: int = 4

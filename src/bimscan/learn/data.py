@@ -20,25 +20,26 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
 import zlib
 from collections.abc import Iterator, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
+from bimscan.dataset.manifest import MANIFEST_NAME, read_manifest
 from bimscan.errors import InputFileError, LearnError
+from bimscan.files import atomic_output
+from bimscan.io.text import TEXT_SUFFIXES
 from bimscan.learn.blocks import locate_columns, encode_column_key, sample_block, decode_column_key
 from bimscan.learn.config import DEFAULT_CLASS_NAMES, IGNORE_LABEL, BlockConfig
 from bimscan.learn.mapping import (
     LabelMapping, apply_label_table, build_label_table, load_s3dis_mapping,
 )
-from bimscan.types import PointCloud
+from bimscan.types import CloudHeader, PointCloud
 
 CLOUD_SUFFIXES = (".las", ".laz", ".ply")
-DATASET_FORMAT = "bimscan-dataset"
+ASPRS_UNCLASSIFIED = (0, 1)  # LAS classification "created, never classified" and "unclassified"
 DATASET_FILE_PREFERENCE = ("npy", "laz", "las", "ply")  # the NumPy folder reads fastest
 CHUNK_POINTS = 1_000_000
 
@@ -57,44 +58,27 @@ class SceneSource:
     mapping: LabelMapping | None = None
 
 
-def _text_suffixes() -> tuple[str, ...]:
-    from bimscan.io.text import TEXT_SUFFIXES
-
-    return TEXT_SUFFIXES
-
-
 def _is_npdir(path: Path) -> bool:
     return path.is_dir() and (path / "coord.npy").is_file()
 
 
 def _dataset_units(path: Path) -> list[tuple[str, Path]]:
-    manifest_path = path / "manifest.json"
-    try:
-        manifest = json.loads(manifest_path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputFileError(f"{manifest_path}: unreadable dataset manifest ({exc}); rebuild the dataset") from exc
-    if not isinstance(manifest, dict) or manifest.get("format") != DATASET_FORMAT:
-        raise InputFileError(
-            f"{manifest_path}: 'format' is {manifest.get('format') if isinstance(manifest, dict) else None!r}, "
-            f"expected {DATASET_FORMAT!r}; pass a bimscan dataset folder"
-        )
-    if manifest.get("version") != 1:
-        raise InputFileError(f"{manifest_path}: dataset version {manifest.get('version')!r} is not supported (1 is)")
+    manifest_path = path / MANIFEST_NAME
     units = []
-    for unit in manifest.get("units", []):
-        if not isinstance(unit, dict) or unit.get("status") != "done":
+    for unit in read_manifest(path)["units"]:
+        if unit["status"] != "done":
             continue
-        files = unit.get("files", {})
+        files = unit["files"] if isinstance(unit["files"], dict) else {}
         choice = next((files[k] for k in DATASET_FILE_PREFERENCE if isinstance(files.get(k), str)), None)
         if choice is None:
             raise InputFileError(
-                f"{manifest_path}: unit {unit.get('id')!r} lists no cloud among {', '.join(DATASET_FILE_PREFERENCE)}; "
+                f"{manifest_path}: unit {unit['id']!r} lists no cloud among {', '.join(DATASET_FILE_PREFERENCE)}; "
                 "rebuild the unit"
             )
         unit_path = path / choice
         if not unit_path.exists():
-            raise InputFileError(f"{manifest_path}: unit {unit.get('id')!r} cloud {unit_path} is missing; rebuild the unit")
-        units.append((str(unit.get("id")), unit_path))
+            raise InputFileError(f"{manifest_path}: unit {unit['id']!r} cloud {unit_path} is missing; rebuild the unit")
+        units.append((str(unit["id"]), unit_path))
     if not units:
         raise LearnError(f"{path}: the dataset has no unit with status 'done'; build it first (or resume the build)")
     return units
@@ -105,9 +89,13 @@ def list_scenes(
 ) -> list[SceneSource]:
     """Expand user paths into scenes: datasets into their done units, S3DIS areas into rooms.
 
-    Raises InputFileError for paths that do not exist or hold no known kind of scene.
+    ``label_field`` names the field holding the labels: a LAS/LAZ dimension, a PLY property, a
+    NumPy folder's ``<name>.npy``, a column named in a text cloud's header line. S3DIS rooms have
+    no fields (their labels are the annotation file names) and do not take it, so a list of
+    S3DIS rooms only with a ``label_field`` is refused. Raises InputFileError for paths that do
+    not exist or hold no known kind of scene.
     """
-    from bimscan.io.s3dis import is_s3dis_room, list_s3dis_rooms
+    from bimscan.io.s3dis import list_s3dis_rooms
 
     scenes: list[SceneSource] = []
     for raw in paths:
@@ -117,29 +105,47 @@ def list_scenes(
         suffix = path.suffix.lower()
         if path.is_file() and suffix in CLOUD_SUFFIXES:
             scenes.append(SceneSource(path, "cloud", path.stem, label_field, mapping))
-        elif path.is_file() and suffix in _text_suffixes():
+        elif path.is_file() and suffix in TEXT_SUFFIXES:
             scenes.append(SceneSource(path, "text", path.stem, label_field, mapping))
-        elif path.is_dir() and (path / "manifest.json").is_file():
+        elif path.is_dir() and (path / MANIFEST_NAME).is_file():
             for unit_id, unit_path in _dataset_units(path):
                 kind = "npdir" if _is_npdir(unit_path) or unit_path.suffix == "" else "cloud"
                 scenes.append(SceneSource(unit_path, kind, unit_id, label_field, mapping))
         elif _is_npdir(path):
             scenes.append(SceneSource(path, "npdir", path.name, label_field, mapping))
-        elif path.is_dir() and is_s3dis_room(path):
-            scenes.append(SceneSource(path, "s3dis", path.name, label_field, mapping))
-        elif path.is_dir() and list_s3dis_rooms(path):
-            for room in list_s3dis_rooms(path):
-                scenes.append(SceneSource(room, "s3dis", f"{room.parent.name}/{room.name}", label_field, mapping))
+        elif path.is_dir() and (rooms := list_s3dis_rooms(path)):
+            for room in rooms:
+                name = room.name if room == path else f"{room.parent.name}/{room.name}"
+                scenes.append(SceneSource(room, "s3dis", name, None, mapping))
         else:
             raise InputFileError(
                 f"{path}: not a scene; pass a .las/.laz/.ply/.txt/.xyz/.pts/.csv cloud, a bimscan NumPy "
                 "cloud folder or dataset folder, or an S3DIS room/area folder"
             )
+    if label_field is not None and scenes and all(s.kind == "s3dis" for s in scenes):
+        raise LearnError(
+            f"label field {label_field!r} cannot apply to S3DIS rooms: their labels are the annotation file "
+            "names; drop --label-field (the *_label_field setting)"
+        )
     return scenes
 
 
-def build_scene_label_table(source: SceneSource, *, class_names: Sequence[str]) -> np.ndarray:
-    """The (256,) int16 table mapping this scene's label ids to training ids."""
+def _stored_header(source: SceneSource) -> CloudHeader | None:
+    """The CloudHeader bimscan stored with a LAS/LAZ/PLY/NumPy scene, or None (foreign, text, S3DIS)."""
+    if source.kind not in ("cloud", "npdir"):
+        return None
+    from bimscan.io import read_cloud_header
+
+    return read_cloud_header(source.path)
+
+
+def build_scene_label_table(
+    source: SceneSource, *, class_names: Sequence[str], header: CloudHeader | None = None,
+) -> np.ndarray:
+    """The (256,) int16 table mapping this scene's label ids to training ids.
+
+    ``header``: the scene's stored header when the caller has read it already.
+    """
     from bimscan.io.s3dis import S3DIS_CLASSES
 
     if source.kind == "s3dis":
@@ -148,17 +154,27 @@ def build_scene_label_table(source: SceneSource, *, class_names: Sequence[str]) 
             class_names=class_names, mapping=mapping, source_names=dict(enumerate(S3DIS_CLASSES)),
         )
     names = None
-    if source.kind in ("cloud", "npdir") and source.label_field is None:
-        from bimscan.io import read_cloud_header
-
-        header = read_cloud_header(source.path)
+    if source.label_field is None:
+        header = header if header is not None else _stored_header(source)
         if header is not None:
             names = header.scheme.names
     return build_label_table(class_names=class_names, mapping=source.mapping, source_names=names)
 
 
-def iter_raw_chunks(source: SceneSource, *, chunk_points: int = CHUNK_POINTS) -> Iterator[PointCloud]:
-    """The scene's points as stored (labels unmapped), in a fixed order, chunk by chunk."""
+def _reads_asprs_classification(source: SceneSource, header: CloudHeader | None) -> bool:
+    """True when the scene's labels are a foreign LAS/LAZ file's ASPRS ``classification`` taken as is."""
+    return (source.kind == "cloud" and source.path.suffix.lower() in (".las", ".laz") and header is None
+            and source.label_field is None and source.mapping is None)
+
+
+def iter_raw_chunks(
+    source: SceneSource, *, chunk_points: int = CHUNK_POINTS, labels: bool = True,
+) -> Iterator[PointCloud]:
+    """The scene's points as stored (labels unmapped), in a fixed order, chunk by chunk.
+
+    ``labels`` False: the labels are not needed (prediction); text clouds then skip reading
+    and checking their label column (``label`` is None).
+    """
     if source.kind in ("cloud", "npdir"):
         from bimscan.io import iter_cloud_chunks
 
@@ -166,7 +182,8 @@ def iter_raw_chunks(source: SceneSource, *, chunk_points: int = CHUNK_POINTS) ->
     elif source.kind == "text":
         from bimscan.io.text import iter_text_chunks
 
-        yield from iter_text_chunks(source.path, chunk_points=chunk_points)
+        yield from iter_text_chunks(source.path, chunk_points=chunk_points, label_field=source.label_field,
+                                    labels=labels)
     elif source.kind == "s3dis":
         from bimscan.io.s3dis import read_s3dis_room
 
@@ -182,9 +199,15 @@ def iter_scene_chunks(
 ) -> Iterator[PointCloud]:
     """The scene chunk by chunk with labels mapped to training ids (255 where unlabelled).
 
-    Every chunk carries ``label`` (N,) uint8; coordinates are checked to be finite.
+    Every chunk carries ``label`` (N,) uint8; coordinates are checked to be finite. A foreign
+    LAS/LAZ whose ``classification`` holds only ASPRS 0/1 ("never classified"/"unclassified")
+    has no ground truth: LearnError once the stream ends (before any result is used), unless a
+    label field or a mapping says where its labels are.
     """
-    table = build_scene_label_table(source, class_names=class_names)
+    header = _stored_header(source)
+    table = build_scene_label_table(source, class_names=class_names, header=header)
+    asprs = _reads_asprs_classification(source, header)
+    classified = False
     for chunk in iter_raw_chunks(source, chunk_points=chunk_points):
         if not np.isfinite(chunk.xyz).all():
             bad = int((~np.isfinite(chunk.xyz)).any(axis=1).sum())
@@ -192,10 +215,15 @@ def iter_scene_chunks(
         if chunk.label is None:
             label = np.full(len(chunk), IGNORE_LABEL, dtype=np.uint8)
         else:
+            if asprs and not classified:
+                classified = bool((chunk.label > max(ASPRS_UNCLASSIFIED)).any())
             label = apply_label_table(chunk.label, table, where=str(source.path))
-        yield PointCloud(
-            xyz=chunk.xyz, label=label, component=chunk.component, station=chunk.station,
-            intensity=chunk.intensity, time=chunk.time,
+        yield replace(chunk, label=label)
+    if asprs and not classified:
+        raise LearnError(
+            f"{source.path}: no ground-truth labels: its LAS classification is only 0/1 (never classified/"
+            "unclassified); pass --label-field (*_label_field) naming the dimension with the labels, or "
+            "--mapping (*_mapping)"
         )
 
 
@@ -278,47 +306,114 @@ def collect_scene_tiles(
     Each point gets a random key; each column keeps its points with the smallest keys, i.e. a
     uniform random subset without replacement, independent of how the stream is chunked.
     Columns with fewer than ``blocks.min_points`` points or no labelled point are dropped.
+
+    Cost: a chunk's points that cannot enter their (full) column are dropped by one lookup;
+    the rest wait until they are a quarter of the kept points, then are sorted and merged
+    with the (already sorted) kept ones in one stable sort and cut back to ``cache_points``
+    per column, each column gathered once. The kept points are never re-sorted per chunk.
     """
     limit = blocks.cache_points
     rng = np.random.default_rng(_scene_seed(seed, source))
-    kept_key = np.empty(0, np.int64)
-    kept_prio = np.empty(0, np.float64)
-    kept_xyz = np.empty((0, 3), np.float64)
-    kept_label = np.empty(0, np.uint8)
-    full_key = np.empty(0, np.int64)  # columns holding `limit` points, with their largest key
+    # kept: the smallest keys per column so far, sorted by (column, key); pending: later
+    # candidates in stream order, merged in by _keep_smallest once they are a quarter of kept
+    kept_key, kept_prio = np.empty(0, np.int64), np.empty(0, np.float64)
+    kept_xyz, kept_label = np.empty((0, 3), np.float64), np.empty(0, np.uint8)
+    pending: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+    pending_points = 0
+    full_key = np.empty(0, np.int64)  # columns holding `limit` kept points, with their largest key
     full_prio = np.empty(0, np.float64)
-    counts: dict[int, int] = {}
+    column_keys: list[np.ndarray] = []
+    column_counts: list[np.ndarray] = []
     for chunk in iter_scene_chunks(source, class_names=class_names, chunk_points=chunk_points):
         ix, iy = locate_columns(chunk.xyz[:, :2], size_m=blocks.size_m)
         key = encode_column_key(ix, iy)
         prio = rng.random(len(key))
         unique, unique_counts = np.unique(key, return_counts=True)
-        for k, c in zip(unique.tolist(), unique_counts.tolist(), strict=True):
-            counts[k] = counts.get(k, 0) + c
+        column_keys.append(unique)
+        column_counts.append(unique_counts)
+        xyz, label = chunk.xyz, chunk.label
         if len(full_key):
-            # drop points that cannot enter an already full column: cheap, keeps merges small
+            # points above their full column's largest kept key can never enter it
             pos = np.clip(np.searchsorted(full_key, key), 0, len(full_key) - 1)
             threshold = np.where(full_key[pos] == key, full_prio[pos], np.inf)
             take = prio < threshold
-            key, prio = key[take], prio[take]
-            xyz, label = chunk.xyz[take], chunk.label[take]
-        else:
-            xyz, label = chunk.xyz, chunk.label
-        all_key = np.concatenate([kept_key, key])
-        all_prio = np.concatenate([kept_prio, prio])
-        order = np.lexsort((all_prio, all_key))
-        all_key, all_prio = all_key[order], all_prio[order]
-        starts = np.flatnonzero(np.r_[True, all_key[1:] != all_key[:-1]])
-        sizes = np.diff(np.r_[starts, len(all_key)])
-        rank = np.arange(len(all_key)) - np.repeat(starts, sizes)
-        keep = rank < limit
-        kept_key, kept_prio = all_key[keep], all_prio[keep]
-        kept_xyz = np.concatenate([kept_xyz, xyz])[order][keep]
-        kept_label = np.concatenate([kept_label, label])[order][keep]
-        full = sizes >= limit
-        full_key = all_key[starts[full]]
-        full_prio = all_prio[starts[full] + limit - 1]
+            key, prio, xyz, label = key[take], prio[take], xyz[take], label[take]
+        pending.append((key, prio, xyz, label))
+        pending_points += len(key)
+        if pending_points >= len(kept_key) // 4:  # measured: a quarter beats a half or a tenth
+            kept_key, kept_prio, kept_xyz, kept_label, full_key, full_prio = _keep_smallest(
+                [(kept_key, kept_prio, kept_xyz, kept_label), *pending], limit=limit,
+            )
+            pending, pending_points = [], 0
+    if pending:
+        kept_key, kept_prio, kept_xyz, kept_label, _, _ = _keep_smallest(
+            [(kept_key, kept_prio, kept_xyz, kept_label), *pending], limit=limit,
+        )
+    if column_keys:
+        keys, inverse = np.unique(np.concatenate(column_keys), return_inverse=True)
+        totals = np.bincount(inverse, weights=np.concatenate(column_counts)).astype(np.int64)
+        counts = dict(zip(keys.tolist(), totals.tolist(), strict=True))
+    else:
+        counts = {}
     return _tiles_from_points(source, kept_key, kept_xyz, kept_label, counts, blocks=blocks)
+
+
+def _keep_smallest(
+    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]], *, limit: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The ``limit`` points with the smallest random keys of each column among ``parts``.
+
+    ``parts``: (column key (M,) int64, random key (M,) float64, xyz (M, 3), label (M,)) in
+    stream order. Returns those four columns sorted by (column, random key), ties in stream
+    order, then the full columns (F,) int64 with their largest kept random key (F,) float64.
+    """
+    key = np.concatenate([p[0] for p in parts])
+    prio = np.concatenate([p[1] for p in parts])
+    order, sorted_column = _sort_by_column_and_key(key, prio)
+    n = len(key)
+    starts = np.flatnonzero(np.r_[True, sorted_column[1:] != sorted_column[:-1]]) if n else np.empty(0, np.int64)
+    sizes = np.diff(np.r_[starts, n])
+    taken = np.minimum(sizes, limit)
+    # the first min(size, limit) of each column: True/False runs, one pair per column
+    keep = np.repeat(np.tile([True, False], len(starts)), np.column_stack([taken, sizes - taken]).ravel())
+    index = order[keep]
+    full = starts[sizes >= limit]
+    return (
+        key[index], prio[index], np.concatenate([p[2] for p in parts])[index],
+        np.concatenate([p[3] for p in parts])[index], key[order[full]], prio[order[full + limit - 1]],
+    )
+
+
+def _sort_by_column_and_key(key: np.ndarray, prio: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Stable argsort of (M,) column keys then (M,) random keys in [0, 1), and the sorted
+    column number of each position (equal within a column).
+
+    Same order as ``np.lexsort((prio, key))``, about three times faster: both go into one
+    uint64 per point (column number within the bounding box of the columns, then as many
+    leading bits of the random key as fit) sorted by one stable sort, which also merges an
+    already sorted leading run in linear time; points sharing the uint64 but not the random
+    key (rare) are then put in order by a lexsort of those points only.
+    """
+    if not len(key):
+        return np.empty(0, np.int64), np.empty(0, np.uint64)
+    ix, iy = key >> 32, key & 0xFFFFFFFF  # encode_column_key: ix * 2**32 + offset iy
+    ix -= ix.min()
+    iy -= iy.min()
+    ix *= int(iy.max()) + 1
+    ix += iy  # the column's number in its bounding box, ordered as the key
+    del iy
+    composite = ix.view(np.uint64)
+    bits = min(53, 64 - int(composite.max()).bit_length())  # random keys are multiples of 2**-53
+    composite <<= np.uint64(bits)
+    composite |= (prio * 2.0**53).astype(np.uint64) >> np.uint64(53 - bits)
+    order = np.argsort(composite, kind="stable")
+    ordered = composite[order]
+    tie = ordered[1:] == ordered[:-1]
+    if tie.any():
+        at = np.flatnonzero(np.r_[tie, False] | np.r_[False, tie])
+        sub = order[at]
+        order[at] = sub[np.lexsort((prio[sub], composite[sub]))]  # stable: stream order kept
+    return order, ordered >> np.uint64(bits)
 
 
 def _tiles_from_points(
@@ -397,19 +492,11 @@ def load_or_collect_tiles(
         raise LearnError(f"{path}: tile cache missing (rank 0 should have written it); rerun the training")
     tiles = collect_scene_tiles(source, blocks=blocks, class_names=class_names, seed=seed)
     cache_dir.mkdir(parents=True, exist_ok=True)
-    handle, temp = tempfile.mkstemp(prefix=".tiles-", suffix=".npz", dir=cache_dir)
-    finished = False
-    try:
-        with os.fdopen(handle, "wb") as out:
-            np.savez(
-                out, xyz=tiles.xyz, label=tiles.label, offsets=tiles.offsets, origin=tiles.origin,
-                key=tiles.key, count=tiles.count, scene=tiles.scene,
-            )
-        os.replace(temp, path)
-        finished = True
-    finally:
-        if not finished:
-            Path(temp).unlink(missing_ok=True)
+    with atomic_output(path) as temp, temp.open("wb") as out:
+        np.savez(
+            out, xyz=tiles.xyz, label=tiles.label, offsets=tiles.offsets, origin=tiles.origin,
+            key=tiles.key, count=tiles.count, scene=tiles.scene,
+        )
     return tiles
 
 

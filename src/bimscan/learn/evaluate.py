@@ -11,42 +11,34 @@ from __future__ import annotations
 import csv
 import io
 import math
-import os
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from bimscan.errors import LearnError
+from bimscan.files import write_atomic
 from bimscan.learn.checkpoint import load_trained_model
 from bimscan.learn.data import list_scenes
 from bimscan.learn.infer import SceneLabels, label_scene
 from bimscan.learn.mapping import LabelMapping
 from bimscan.learn.metrics import METRIC_NAMES, SegmentationMetrics, compute_metrics
+from bimscan.learn.model import pick_device
 
 HEADINGS = {"oa": "OA", "miou": "mIoU", "macc": "mAcc", "fwiou": "FWIoU", "kappa": "κ"}
 
 
 @dataclass(frozen=True)
 class SceneEvaluation:
-    """One scene's result: its labelling summary and the metrics of its confusion matrix."""
+    """One scene's result: its labelling summary and the metrics of its confusion matrix, whose
+    rows and columns are ``class_names`` (the checkpoint's classes)."""
 
     scene: str
     path: Path
     labels: SceneLabels
     metrics: SegmentationMetrics
-
-
-def pick_device(setting: str) -> torch.device:
-    """"auto" -> CUDA when present else CPU; "cpu"/"cuda" as asked (LearnError without CUDA)."""
-    if setting == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if setting.startswith("cuda") and not torch.cuda.is_available():
-        raise LearnError(f"device {setting!r} asked for but no CUDA device is visible; use --device cpu")
-    return torch.device(setting)
+    class_names: tuple[str, ...]
 
 
 def evaluate_checkpoint(
@@ -73,7 +65,9 @@ def evaluate_checkpoint(
                 f"{source.path}: no point has a ground-truth class among {', '.join(trained.class_names)}; "
                 "evaluation needs labels (check --label-field/--mapping, or use 'bimscan predict')"
             )
-        results.append(SceneEvaluation(source.name, source.path, labels, compute_metrics(labels.confusion)))
+        results.append(SceneEvaluation(
+            source.name, source.path, labels, compute_metrics(labels.confusion), trained.class_names,
+        ))
     return results
 
 
@@ -121,24 +115,10 @@ def format_csv(results: Sequence[SceneEvaluation], class_names: Sequence[str]) -
     return buffer.getvalue()
 
 
-def write_text_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename."""
-    handle, temp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    finished = False
-    try:
-        with os.fdopen(handle, "w", encoding="utf-8", newline="\n") as out:
-            out.write(text)
-        os.replace(temp, path)
-        finished = True
-    finally:
-        if not finished:
-            Path(temp).unlink(missing_ok=True)
-
-
 def write_evaluation(results: Sequence[SceneEvaluation], out_dir: Path, class_names: Sequence[str]) -> tuple[Path, Path]:
     """Write ``evaluation.md`` and ``evaluation.csv`` into ``out_dir`` (created if missing)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     markdown, table = out_dir / "evaluation.md", out_dir / "evaluation.csv"
-    write_text_atomic(markdown, format_markdown(results))
-    write_text_atomic(table, format_csv(results, class_names))
+    write_atomic(markdown, format_markdown(results).encode("utf-8"))
+    write_atomic(table, format_csv(results, class_names).encode("utf-8"))
     return markdown, table

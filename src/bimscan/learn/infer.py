@@ -25,7 +25,7 @@ from __future__ import annotations
 import tempfile
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -91,13 +91,13 @@ class BlockRunner:
     def flush(self) -> None:
         if not self.queue:
             return
+        if self.votes is None:
+            raise RuntimeError("BlockRunner.votes must be set before blocks are added")
         xyz = torch.from_numpy(np.stack([b.xyz for b in self.queue])).to(self.device)
         mask = torch.from_numpy(np.stack([b.mask for b in self.queue])).to(self.device)
         with autocast_context(self.device, self.amp):
             logits = self.model(xyz, mask)
         probs = torch.softmax(logits.float(), dim=-1).cpu().numpy()
-        if self.votes is None:
-            raise RuntimeError("BlockRunner.votes must be set before blocks are added")
         for block, prob in zip(self.queue, probs, strict=True):
             # indices are unique within one pass, so plain fancy-index addition is exact
             self.votes[block.index[block.mask]] += prob[block.mask]
@@ -214,7 +214,7 @@ def _bucket_points(
     cy_min, cy_max = None, None
     total = 0
     chunks = (iter_scene_chunks(source, class_names=class_names, chunk_points=chunk_points) if use_labels
-              else iter_raw_chunks(source, chunk_points=chunk_points))
+              else iter_raw_chunks(source, chunk_points=chunk_points, labels=False))
     for chunk in chunks:
         n = len(chunk)
         if n == 0:
@@ -272,7 +272,4 @@ def _decide(
 
 def replace_labels(chunk: PointCloud, label: np.ndarray) -> PointCloud:
     """``chunk`` with its label column replaced by (N,) uint8 ``label``."""
-    return PointCloud(
-        xyz=chunk.xyz, label=label, component=chunk.component, station=chunk.station,
-        intensity=chunk.intensity, time=chunk.time,
-    )
+    return replace(chunk, label=label)

@@ -98,9 +98,29 @@ def compute_metrics(confusion: np.ndarray) -> SegmentationMetrics:
     miou = float(np.mean(iou[present]))
     macc = float(np.mean(acc[support > 0]))
     fwiou = float(np.sum((support / total)[support > 0] * iou[support > 0]))
-    p_e = float(np.sum(support * predicted) / (total * total))
-    kappa = 1.0 if math.isclose(p_e, 1.0) else (oa - p_e) / (1.0 - p_e)
+    kappa = _cohen_kappa(np.asarray(confusion), cm)
     return SegmentationMetrics(
-        oa=oa, miou=miou, macc=macc, fwiou=fwiou, kappa=float(kappa), iou=iou, acc=acc,
+        oa=oa, miou=miou, macc=macc, fwiou=fwiou, kappa=kappa, iou=iou, acc=acc,
         present=present, support=support.astype(np.int64), total=int(total),
     )
+
+
+def _cohen_kappa(counts: np.ndarray, cm: np.ndarray) -> float:
+    """kappa = (N * agree - chance) / (N**2 - chance), chance = sum_c support_c * predicted_c.
+
+    Integer counts are summed as Python integers, so p_e = 1 (one class in ground truth and
+    prediction, kappa taken as 1) is tested exactly and kappa is correctly rounded whatever N
+    (N**2 overflows int64 past 3e9 points). A tolerance on a float p_e took near-chance
+    predictions on huge matrices (p_e = 1 - 1e-12) for perfect ones.
+    """
+    if counts.dtype.kind in "iu":
+        support = [int(v) for v in counts.sum(axis=1)]
+        predicted = [int(v) for v in counts.sum(axis=0)]
+        n, agree = sum(support), sum(int(counts[c, c]) for c in range(len(support)))
+    else:  # float counts (not produced by bimscan): the same formula in float64
+        support, predicted = cm.sum(axis=1).tolist(), cm.sum(axis=0).tolist()
+        n, agree = float(cm.sum()), float(np.trace(cm))
+    chance = sum(s * p for s, p in zip(support, predicted, strict=True))
+    if chance == n * n:
+        return 1.0
+    return float((n * agree - chance) / (n * n - chance))

@@ -27,6 +27,7 @@ import torch
 import torch.distributed as dist
 from torch import nn
 
+from bimscan.errors import LearnError
 from bimscan.learn.config import ModelConfig
 
 
@@ -37,7 +38,8 @@ class MaskedBatchNorm1d(nn.Module):
     The running statistics are not updated per forward: the layer accumulates the sums of
     every training forward and :meth:`commit_statistics` folds them in once per optimizer
     step (summed over processes under DDP), so the running statistics do not depend on how a
-    global batch was split into micro-batches and processes.
+    global batch was split into micro-batches and processes. Neither step waits for the GPU
+    (no value goes to the host).
     """
 
     def __init__(self, channels: int, *, momentum: float = 0.1, eps: float = 1e-5) -> None:
@@ -57,9 +59,10 @@ class MaskedBatchNorm1d(nn.Module):
         dtype = x.dtype
         x = x.float()
         if self.training:
+            count: torch.Tensor | float
             if mask is None:
                 var, mean = torch.var_mean(x, dim=(0, 2), correction=0)
-                count = torch.tensor(float(x.shape[0] * x.shape[2]), device=x.device)
+                count = float(x.shape[0] * x.shape[2])  # a Python number: no host-to-device copy
             else:
                 # masked_fill, not a product with the mask: padded values may be anything
                 padded = ~mask.unsqueeze(1)  # (B, 1, N)
@@ -68,7 +71,7 @@ class MaskedBatchNorm1d(nn.Module):
                 centred = (x - mean[None, :, None]).masked_fill(padded, 0.0)
                 var = (centred * centred).sum(dim=(0, 2)) / count
             with torch.no_grad():  # sums for the running statistics, from this batch's moments
-                n = count.double()
+                n = count.double() if isinstance(count, torch.Tensor) else count
                 mean_d = mean.detach().double()
                 self.pending[0] += n
                 self.pending[1:1 + self.channels] += mean_d * n
@@ -84,13 +87,24 @@ class MaskedBatchNorm1d(nn.Module):
         """Fold the accumulated sums into the running statistics (all-reduced under DDP)."""
         if dist.is_available() and dist.is_initialized():
             dist.all_reduce(self.pending, group=group)
-        count = float(self.pending[0])
-        if count >= 2:
-            mean = self.pending[1:1 + self.channels] / count
-            var = (self.pending[1 + self.channels:] / count - mean * mean).clamp_min(0.0)
-            var = var * count / (count - 1.0)  # unbiased, as nn.BatchNorm's running_var
-            self.running_mean.mul_(1.0 - self.momentum).add_(self.momentum * mean.float())
-            self.running_var.mul_(1.0 - self.momentum).add_(self.momentum * var.float())
+        self.fold_pending()
+
+    @torch.no_grad()
+    def fold_pending(self) -> None:
+        """Fold this process's pending sums (already all-reduced) into the running statistics.
+
+        Tensor operations only (a step with fewer than 2 points leaves them unchanged), so the
+        GPU is never waited for.
+        """
+        count = self.pending[0]
+        mean = self.pending[1:1 + self.channels] / count
+        var = (self.pending[1 + self.channels:] / count - mean * mean).clamp_min(0.0)
+        var = var * count / (count - 1.0)  # unbiased, as nn.BatchNorm's running_var
+        update = count >= 2
+        new_mean = self.running_mean * (1.0 - self.momentum) + self.momentum * mean.float()
+        new_var = self.running_var * (1.0 - self.momentum) + self.momentum * var.float()
+        self.running_mean.copy_(torch.where(update, new_mean, self.running_mean))
+        self.running_var.copy_(torch.where(update, new_var, self.running_var))
         self.pending.zero_()
 
 
@@ -115,7 +129,8 @@ class OffsetAttention(nn.Module):
     column division is applied to x_v A instead of to A (the same numbers: it scales columns),
     which saves two N x N tensors per layer; at N = 8192 one is 256 MiB per block in float32.
     Padded points are masked out as keys (-inf energy) and as queries (zero values, and left
-    out of the column sums).
+    out of the column sums). Everything from the energy to the normalised attended values runs
+    in float32 under AMP (see forward).
     """
 
     def __init__(self, channels: int) -> None:
@@ -144,8 +159,11 @@ class OffsetAttention(nn.Module):
         values = self.v(x)
         if mask is not None:
             values = values.masked_fill(~mask[:, None, :], 0.0)  # padded queries send nothing
-        attended = torch.bmm(values, attention.to(values.dtype))  # (B, D, N): output j sums over i
-        attended = (attended.float() / (1e-9 + column_sum)).to(x.dtype)
+        with torch.autocast(device_type=x.device.type, enabled=False):
+            # float32 too: the columns of the softmax are not yet L1-normalised, so a column sum
+            # (up to N = 8192 queries) times large values would overflow float16 before the division
+            attended = torch.bmm(values.float(), attention) / (1e-9 + column_sum)  # (B, D, N): j sums over i
+        attended = attended.to(x.dtype)
         offset = self.act(self.norm(self.trans(x - attended), mask))
         return x + offset
 
@@ -214,10 +232,32 @@ def count_parameters(model: nn.Module) -> int:
 
 
 def commit_batch_statistics(model: nn.Module) -> None:
-    """Fold every masked BatchNorm's pending sums into its running statistics (call per step)."""
-    for module in model.modules():
-        if isinstance(module, MaskedBatchNorm1d):
-            module.commit_statistics()
+    """Fold every masked BatchNorm's pending sums into its running statistics (call per step).
+
+    Under DDP the sums of all layers travel in one all-reduce, not one per layer.
+    """
+    norms = [m for m in model.modules() if isinstance(m, MaskedBatchNorm1d)]
+    if not norms:
+        return
+    if dist.is_available() and dist.is_initialized():
+        flat = torch.cat([m.pending for m in norms])
+        dist.all_reduce(flat)
+        for norm, part in zip(norms, flat.split([len(m.pending) for m in norms]), strict=True):
+            norm.pending.copy_(part)
+    for norm in norms:
+        norm.fold_pending()
+
+
+def pick_device(setting: str) -> torch.device:
+    """The device for "auto" (CUDA when present, else CPU), "cpu" or "cuda"/"cuda:N".
+
+    LearnError when CUDA is asked for and none is visible.
+    """
+    if setting == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if setting.startswith("cuda") and not torch.cuda.is_available():
+        raise LearnError(f"device {setting!r} asked for but no CUDA device is visible; use device 'auto' or 'cpu'")
+    return torch.device(setting)
 
 
 @contextlib.contextmanager

@@ -4,11 +4,12 @@ for the synthetic training set and the real validation set, as one PNG (matplotl
 from __future__ import annotations
 
 import csv
+import io
 import math
-import os
-import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+
+from bimscan.files import atomic_output, write_atomic
 
 PANELS = (("loss", "Loss"), ("oa", "OA"), ("miou", "mIoU"), ("macc", "mAcc"), ("fwiou", "FWIoU"), ("kappa", "Cohen's kappa"))
 CSV_COLUMNS = (
@@ -18,32 +19,21 @@ CSV_COLUMNS = (
 )
 
 
-def _atomic_target(path: Path) -> tuple[int, str]:
-    return tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-
-
 def write_history_csv(history: Sequence[Mapping[str, float]], path: Path) -> None:
     """One row per epoch, columns ``CSV_COLUMNS``; NaN (no validation set) written empty."""
-    handle, temp = _atomic_target(path)
-    finished = False
-    try:
-        with os.fdopen(handle, "w", encoding="utf-8", newline="") as out:
-            writer = csv.writer(out, lineterminator="\n")
-            writer.writerow(CSV_COLUMNS)
-            for row in history:
-                cells = []
-                for column in CSV_COLUMNS:
-                    value = row.get(column, math.nan)
-                    if column == "epoch":
-                        cells.append(str(int(value)))
-                    else:
-                        cells.append("" if value is None or math.isnan(float(value)) else f"{float(value):.6g}")
-                writer.writerow(cells)
-        os.replace(temp, path)
-        finished = True
-    finally:
-        if not finished:
-            Path(temp).unlink(missing_ok=True)
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(CSV_COLUMNS)
+    for row in history:
+        cells = []
+        for column in CSV_COLUMNS:
+            value = row.get(column, math.nan)
+            if column == "epoch":
+                cells.append(str(int(value)))
+            else:
+                cells.append("" if value is None or math.isnan(float(value)) else f"{float(value):.6g}")
+        writer.writerow(cells)
+    write_atomic(path, buffer.getvalue().encode("utf-8"))
 
 
 def plot_training_curves(history: Sequence[Mapping[str, float]], path: Path, *, title: str = "") -> None:
@@ -70,14 +60,8 @@ def plot_training_curves(history: Sequence[Mapping[str, float]], path: Path, *, 
     axes.flat[0].legend(loc="best", fontsize="small")
     if title:
         figure.suptitle(title)
-    handle, temp = _atomic_target(path)
-    os.close(handle)
-    finished = False
     try:
-        figure.savefig(temp, format="png", dpi=110, metadata={"Software": None})
-        os.replace(temp, path)
-        finished = True
+        with atomic_output(path) as temp:
+            figure.savefig(temp, format="png", dpi=110, metadata={"Software": None})
     finally:
         plt.close(figure)
-        if not finished:
-            Path(temp).unlink(missing_ok=True)

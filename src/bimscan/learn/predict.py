@@ -10,11 +10,11 @@ from pathlib import Path
 
 import numpy as np
 
-from bimscan.errors import LearnError, OutputError
+from bimscan.errors import LearnError
 from bimscan.learn.checkpoint import load_trained_model
 from bimscan.learn.data import CHUNK_POINTS, SceneSource, iter_raw_chunks, list_scenes
-from bimscan.learn.evaluate import pick_device
 from bimscan.learn.infer import label_scene, replace_labels
+from bimscan.learn.model import pick_device
 from bimscan.types import CloudHeader, LabelClass, LabelScheme
 
 # Tableau 10, the palette of the built-in spc5 scheme: the five default classes get the same
@@ -52,25 +52,23 @@ def build_prediction_scheme(class_names: tuple[str, ...], stored: LabelScheme | 
 
 
 def predict_cloud(
-    checkpoint: str | Path, in_path: str | Path, out_path: str | Path, *, label_field: str | None = None,
-    device: str = "auto", batch_size: int = 8, max_passes: int = 0, weights: str = "ema", seed: int = 0,
-    overwrite: bool = False, chunk_points: int = CHUNK_POINTS,
+    checkpoint: str | Path, in_path: str | Path, out_path: str | Path, *, device: str = "auto",
+    batch_size: int = 8, max_passes: int = 0, weights: str = "ema", seed: int = 0, overwrite: bool = False,
+    chunk_points: int = CHUNK_POINTS,
 ) -> PredictionResult:
     """Label every point of ``in_path`` and write ``out_path`` (format by suffix, see bimscan.io).
 
     The input's other columns (intensity, time, station, component) are kept; its own labels
-    are replaced. Nothing is left at ``out_path`` when anything fails.
+    (if any: they are neither read for use nor checked) are replaced. ``out_path`` is checked
+    before any work; nothing is left at it when anything fails.
     """
-    from bimscan.io import open_cloud_writer, read_cloud_header
+    from bimscan.io import check_cloud_output, open_cloud_writer, read_cloud_header
 
     out_path = Path(out_path)
-    if out_path.exists() and not overwrite:
-        raise OutputError(f"{out_path}: already exists; pass --overwrite or choose another name")
-    if not out_path.parent.is_dir():
-        raise OutputError(f"{out_path}: folder {out_path.parent} does not exist; create it first")
+    check_cloud_output(out_path, overwrite=overwrite)
     torch_device = pick_device(device)
     trained = load_trained_model(checkpoint, device=torch_device, weights="ema" if weights == "ema" else "live")
-    sources = list_scenes([in_path], label_field=label_field)
+    sources = list_scenes([in_path])
     if len(sources) != 1:
         raise LearnError(f"{in_path}: holds {len(sources)} scenes; predict one cloud at a time")
     source: SceneSource = sources[0]
@@ -114,7 +112,7 @@ def predict_cloud(
         counts = np.zeros(len(trained.class_names), dtype=np.int64)
         start = 0
         with open_cloud_writer(out_path, header=header, overwrite=overwrite) as writer:
-            for chunk in iter_raw_chunks(source, chunk_points=chunk_points):
+            for chunk in iter_raw_chunks(source, chunk_points=chunk_points, labels=False):
                 label = np.asarray(labels[start:start + len(chunk)])
                 counts += np.bincount(label, minlength=len(counts))[: len(counts)]
                 writer.write(replace_labels(chunk, label))

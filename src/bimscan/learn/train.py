@@ -39,21 +39,25 @@ from torch import nn
 
 from bimscan.errors import LearnError
 from bimscan.learn.checkpoint import (
-    capture_rng_state, read_checkpoint, restore_rng_state, save_checkpoint,
+    MODEL_KEYS, capture_rng_state, load_state, read_checkpoint, restore_rng_state, save_checkpoint,
 )
-from bimscan.learn.config import IGNORE_LABEL, TrainConfig, TrainRunConfig, dump_config, resolve_path
+from bimscan.learn.config import IGNORE_LABEL, TrainConfig, TrainRunConfig, dump_config, parse_config, resolve_path
 from bimscan.learn.data import SceneSource, TileDataset, TileSet, list_scenes, load_or_collect_tiles
 from bimscan.learn.mapping import load_label_mapping
 from bimscan.learn.metrics import METRIC_NAMES, compute_metrics
 from bimscan.learn.model import (
     PCTSegmentation, autocast_context, build_model, commit_batch_statistics, count_parameters, flush_denormals,
+    pick_device,
 )
 from bimscan.learn.plots import plot_training_curves, write_history_csv
 from bimscan.progress import progress_bar
 
 VAL_EPOCH_KEY = 2**31  # validation blocks are drawn once, with this fixed "epoch"
-# settings a resumed run may change: they do not alter the computation
+# settings a resumed run may change: they do not alter the computation ("device" may change as
+# long as it picks the same kind of device: that is checked on its own, see _train)
 RESUMABLE_CHANGES = {("train", "num_workers"), ("train", "device"), ("train", "eval_batch_size"), ("train", "out_dir")}
+# what resuming reads from last.pt besides MODEL_KEYS
+RESUME_KEYS = (*MODEL_KEYS, "ema_steps", "optimizer", "scheduler", "scaler", "rng", "history", "world_size", "device")
 
 
 @dataclass(frozen=True)
@@ -73,9 +77,7 @@ class DistributedContext:
 
 def init_distributed(device_setting: str) -> DistributedContext:
     """Join the ``torchrun`` process group when WORLD_SIZE > 1 and pick this process's device."""
-    if device_setting == "cuda" and not torch.cuda.is_available():
-        raise LearnError("device = 'cuda' but no CUDA device is visible; use device = 'auto' or 'cpu'")
-    use_cuda = device_setting == "cuda" or (device_setting == "auto" and torch.cuda.is_available())
+    use_cuda = pick_device(device_setting).type == "cuda"
     world = int(os.environ.get("WORLD_SIZE", "1"))
     if world <= 1:
         return DistributedContext(1, 0, 0, torch.device("cuda", 0) if use_cuda else torch.device("cpu"), False)
@@ -138,7 +140,7 @@ class WeightEMA:
     """Exponential moving average of the weights: ema = d * ema + (1 - d) * weights, per step.
 
     d = min(alpha, (1 + t) / (10 + t)) at optimizer step t (the warm-up of timm's ModelEma):
-    Table 2's alpha = 0.99 from step 881 on, while early on the average is not dominated by
+    Table 2's alpha = 0.99 from step 890 on, while early on the average is not dominated by
     the random initial weights (with a fixed 0.99, 25 % of the EMA would still be the initial
     weights after 138 steps). BatchNorm running statistics are averaged the same way, so they
     match the averaged weights.
@@ -216,30 +218,18 @@ def finish_step(
 
 
 def _update_confusion(confusion: torch.Tensor, logits: torch.Tensor, label: torch.Tensor) -> None:
+    # fixed-size tensor operations only (no boolean indexing, no bincount): the GPU is not waited for
     classes = confusion.shape[0]
-    valid = label != IGNORE_LABEL
-    pairs = label[valid] * classes + logits.argmax(dim=-1)[valid]
-    confusion += torch.bincount(pairs, minlength=classes * classes).view(classes, classes)
+    pairs = torch.where(label != IGNORE_LABEL, label * classes + logits.argmax(dim=-1), classes * classes).reshape(-1)
+    counts = torch.zeros(classes * classes + 1, dtype=confusion.dtype, device=confusion.device)
+    counts.index_add_(0, pairs, torch.ones_like(pairs))  # unlabelled points land in the extra last bin
+    confusion += counts[:-1].view(classes, classes)
 
 
 def _all_reduce(tensor: torch.Tensor, ctx: DistributedContext) -> torch.Tensor:
     if ctx.world > 1:
         dist.all_reduce(tensor)
     return tensor
-
-
-class _NoBar:
-    def __enter__(self) -> _NoBar:
-        return self
-
-    def __exit__(self, *args: object) -> None:
-        return None
-
-    def update(self, n: int = 1) -> None:
-        return None
-
-    def set_postfix_str(self, text: str) -> None:
-        return None
 
 
 @dataclass(frozen=True)
@@ -267,8 +257,7 @@ def _collect_tiles(
     tile cache, then all read the whole cache: one pass over the data, spread over processes."""
     mine = [s for i, s in enumerate(sources) if i % ctx.world == ctx.rank]
     built: dict[Path, TileSet] = {}
-    bar = progress_bar(total=len(mine), desc="reading scenes", unit="scene") if ctx.is_main else _NoBar()
-    with bar:
+    with progress_bar(total=len(mine), desc="reading scenes", unit="scene", enabled=ctx.is_main) as bar:
         for source in mine:
             built[source.path] = load_or_collect_tiles(
                 source, blocks=config.blocks, class_names=config.data.class_names, seed=config.train.seed,
@@ -288,6 +277,8 @@ def _collect_tiles(
 
 
 def _check_resumable(stored: dict[str, Any], current: dict[str, Any], where: Path) -> None:
+    """LearnError naming the first setting that differs from the interrupted run's, except
+    ``RESUMABLE_CHANGES``. ``stored`` is complete (keys added since then carry their defaults)."""
     for section, values in current.items():
         for key, value in values.items():
             old = stored.get(section, {}).get(key)
@@ -375,12 +366,16 @@ def _train(
     classes = len(config.data.class_names)
     cache_dir = out / "tile-cache"
 
-    train_tiles = _collect_tiles(train_sources, config=config, cache_dir=cache_dir, ctx=ctx)
+    # the validation scenes first: they are few, and unusable ones should stop the run early
     val_tiles = _collect_tiles(val_sources, config=config, cache_dir=cache_dir, ctx=ctx) if val_sources else None
+    if val_tiles is not None and len(val_tiles) == 0:
+        raise LearnError(
+            f"[data] val: no column of its {len(val_sources)} scene(s) has ground truth and at least blocks.min_points "
+            f"({config.blocks.min_points}) points; give the val scenes labels (val_label_field / val_mapping) or set val = []"
+        )
+    train_tiles = _collect_tiles(train_sources, config=config, cache_dir=cache_dir, ctx=ctx)
     train_set = TileDataset(train_tiles, points=config.blocks.points, seed=settings.seed)
-    val_set = None if val_tiles is None or len(val_tiles) == 0 else TileDataset(
-        val_tiles, points=config.blocks.points, seed=settings.seed,
-    )
+    val_set = None if val_tiles is None else TileDataset(val_tiles, points=config.blocks.points, seed=settings.seed)
 
     torch.manual_seed(settings.seed)  # the same initial weights in every process
     model: PCTSegmentation = build_model(classes, config.model).to(ctx.device)
@@ -393,7 +388,7 @@ def _train(
     scheduler = torch.optim.lr_scheduler.OneCycleLR(
         optimizer, max_lr=settings.max_lr, total_steps=settings.epochs * sampler.steps_per_epoch,
         pct_start=settings.pct_start, anneal_strategy="cos", div_factor=settings.div_factor,
-        final_div_factor=settings.final_div_factor,
+        final_div_factor=settings.final_div_factor, cycle_momentum=settings.cycle_momentum,
     )
     use_scaler = ctx.device.type == "cuda" and settings.amp == "float16"
     scaler = torch.amp.GradScaler(ctx.device.type, enabled=use_scaler)
@@ -402,18 +397,25 @@ def _train(
     best_miou = -math.inf
     config_dict = dump_config(config)
     if resume:
-        state = read_checkpoint(last_path)
-        _check_resumable(state["config"], config_dict, last_path)
-        if state["world_size"] * state["accumulation_steps"] != ctx.world * settings.accumulation_steps:
+        state = read_checkpoint(last_path, require=RESUME_KEYS)
+        stored = dump_config(parse_config(state["config"], where=f"{last_path} [config]"))
+        _check_resumable(stored, config_dict, last_path)  # accumulation_steps among them
+        if state["device"] != ctx.device.type:
             raise LearnError(
-                f"{last_path}: the run used a global batch of {state['global_batch']} blocks; resume with "
-                "processes x accumulation_steps giving the same global batch"
+                f"{last_path}: the run trained on {state['device']} and would resume on {ctx.device.type}; "
+                f"resume it on {state['device']} ([train] device = \"{state['device']}\") or start a new run in another out_dir"
             )
-        model.load_state_dict(state["model"])
-        ema.load_state_dict(state["ema"], steps=int(state["ema_steps"]))
-        optimizer.load_state_dict(state["optimizer"])
-        scheduler.load_state_dict(state["scheduler"])
-        scaler.load_state_dict(state["scaler"])
+        if state["world_size"] != ctx.world:
+            raise LearnError(
+                f"{last_path}: the run used {state['world_size']} process(es), this one {ctx.world}; resume with "
+                f"the same number (torchrun --nproc_per_node {state['world_size']}) or start a new run"
+            )
+        load_state(model, state["model"], what="model weights", path=last_path)
+        load_state(ema.module, state["ema"], what="EMA weights", path=last_path)
+        ema.steps = state["ema_steps"]
+        load_state(optimizer, state["optimizer"], what="optimizer state", path=last_path)
+        load_state(scheduler, state["scheduler"], what="scheduler state", path=last_path)
+        load_state(scaler, state["scaler"], what="gradient scaler state", path=last_path)
         restore_rng_state(state["rng"])
         history = list(state["history"])
         start_epoch = int(state["epoch"])
@@ -448,9 +450,9 @@ def _train(
         model.train()
         confusion = torch.zeros(classes, classes, dtype=torch.int64, device=ctx.device)
         sums = torch.zeros(2, dtype=torch.float64, device=ctx.device)
-        bar = progress_bar(total=sampler.steps_per_epoch, desc=f"epoch {epoch + 1}/{settings.epochs}", unit="step") \
-            if ctx.is_main else _NoBar()
-        with bar:
+        last_lr = math.nan
+        with progress_bar(total=sampler.steps_per_epoch, desc=f"epoch {epoch + 1}/{settings.epochs}", unit="step",
+                          enabled=ctx.is_main) as bar:
             for index, batch in enumerate(loader):
                 step, k = divmod(index, accumulation)
                 torch.manual_seed(_seed_int(settings.seed, 11, epoch, step, ctx.rank * accumulation + k))
@@ -468,13 +470,14 @@ def _train(
                     _update_confusion(confusion, logits.detach(), label)
                 if not last_micro:
                     continue
+                last_lr = optimizer.param_groups[0]["lr"]  # the LR this step applies; finish_step moves on
                 finish_step(model, optimizer=optimizer, scaler=scaler, scheduler=scheduler, ema=ema)
                 bar.update(1)
                 if on_step_end is not None:
                     on_step_end(epoch, step)
         _all_reduce(confusion, ctx)
         _all_reduce(sums, ctx)
-        row: dict[str, float] = {"epoch": epoch + 1, "lr": float(scheduler.get_last_lr()[0])}
+        row: dict[str, float] = {"epoch": epoch + 1, "lr": float(last_lr)}
         row.update(_metric_row("train", confusion, float(sums[0]), float(sums[1])))
         if val_set is not None:
             val_confusion, val_loss, val_points = _validate(
@@ -492,6 +495,7 @@ def _train(
                 "optimizer": optimizer.state_dict(),
                 "scheduler": scheduler.state_dict(), "scaler": scaler.state_dict(), "rng": capture_rng_state(),
                 "history": history, "world_size": ctx.world, "accumulation_steps": accumulation,
+                "device": ctx.device.type,
                 "global_batch": sampler.global_batch, "parameters": parameters,
                 "best_val_miou": max(best_miou, row["val_miou"]) if not math.isnan(row["val_miou"]) else best_miou,
             }
