@@ -165,14 +165,17 @@ def demo(out_dir: Path, workers: int | None, executor: str, head_deg_per_s: floa
     from bimscan.dataset.demo import RENDER_CONFIG, write_demo_spec
     from bimscan.dataset.manifest import read_manifest
     from bimscan.dataset.spec import device_warnings, load_spec, unit_id
-    from bimscan.errors import DatasetError
+    from bimscan.errors import DatasetError, OutputError
     from bimscan.ifc.load import load_ifc
     from bimscan.render.cloud import render_cloud
     from bimscan.render.figure import render_figure
     from bimscan.semantics import load_scheme
     from bimscan.stats.report import write_stats
 
-    out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"cannot create {out_dir} ({exc.strerror}); choose another OUT_DIR") from exc
     spec_path = write_demo_spec(out_dir / "dataset.toml", head_deg_per_s=head_deg_per_s)
     spec = load_spec(spec_path)
     dataset = out_dir / "dataset"

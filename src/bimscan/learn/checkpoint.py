@@ -60,7 +60,8 @@ def read_checkpoint(path: str | Path, *, require: tuple[str, ...] = MODEL_KEYS) 
         # a damaged or foreign file makes torch.load raise almost anything (UnpicklingError,
         # RuntimeError for a broken zip, KeyError, IndexError, struct.error, EOFError, ...);
         # every one of them means the same to the user
-        raise InputFileError(f"{path}: not a readable checkpoint ({_first_line(exc)}); pass a bimscan checkpoint") from exc
+        raise InputFileError(f"{path}: not a readable checkpoint ({type(exc).__name__}: {_first_line(exc)}); "
+                             "pass the last.pt or best.pt of a training run") from exc
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
         raise InputFileError(f"{path}: not a bimscan PCT checkpoint; pass the last.pt or best.pt of 'bimscan train'")
     if payload.get("version") != CHECKPOINT_VERSION:
