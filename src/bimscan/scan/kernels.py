@@ -163,8 +163,8 @@ def _keep(t: float, triangle: np.uint32, n_faces: int, min_range: float, max_ran
 
 @nb.njit(cache=True, parallel=True, fastmath=_FAST)
 def finish_hits(t_hit: np.ndarray, triangle: np.ndarray, rays: np.ndarray, pulse: np.ndarray,
-                face_component: np.ndarray, component_label: np.ndarray, face_normal: np.ndarray,
-                component_reflectance: np.ndarray, origin_world: np.ndarray, min_range: float,
+                face_component: np.ndarray, face_label: np.ndarray, face_brightness: np.ndarray,
+                origin_world: np.ndarray, min_range: float,
                 max_range: float, key: np.uint64, range_sigma_m: float, angle_sigma_rad: float,
                 time0_s: float, pulse_period_s: float, intensity_ref_m: float, station_id: int,
                 xyz: np.ndarray, label: np.ndarray, component: np.ndarray, station: np.ndarray,
@@ -220,12 +220,13 @@ def finish_hits(t_hit: np.ndarray, triangle: np.ndarray, rays: np.ndarray, pulse
             xyz[out, 0] = ox + r * mx
             xyz[out, 1] = oy + r * my
             xyz[out, 2] = oz + r * mz
-            comp = face_component[tri]
-            component[out] = comp
-            label[out] = component_label[comp]
-            cos_inc = abs(dx * face_normal[tri, 0] + dy * face_normal[tri, 1] + dz * face_normal[tri, 2])
+            # per-triangle tables, so no lookup waits on another: component, label, and the unit
+            # normal scaled by 65535 * reflectance (|d . n| * that = the unscaled intensity)
+            component[out] = face_component[tri]
+            label[out] = face_label[tri]
             fall = min(1.0, intensity_ref_m / t)
-            value = 65535.0 * component_reflectance[comp] * cos_inc * fall * fall
+            value = abs(dx * face_brightness[tri, 0] + dy * face_brightness[tri, 1]
+                        + dz * face_brightness[tri, 2]) * fall * fall
             intensity[out] = np.uint16(min(65535.0, max(0.0, value + 0.5)))
             station[out] = station_id
             time[out] = time0_s + p * pulse_period_s

@@ -57,7 +57,10 @@ class VirtualScanner:
         self.reflectance = (np.full(n_components, DEFAULT_REFLECTANCE, dtype=np.float32) if reflectance is None
                             else np.ascontiguousarray(reflectance, dtype=np.float32))
         self.face_component = np.ascontiguousarray(mesh.face_component, dtype=np.int32)
-        self.face_normal = mesh.face_normals().astype(np.float32)
+        # what the hit kernel reads per triangle (see finish_hits)
+        self.face_label = self.component_label[self.face_component]
+        self.face_brightness = (mesh.face_normals() * (65535.0 * self.reflectance[self.face_component])[:, None]
+                                ).astype(np.float32)
         # Working buffers of scan_station, reused (outputs are fresh arrays): one scan at a time
         # per VirtualScanner.
         self._ray_buffer = np.empty((0, 6), dtype=np.float32)
@@ -106,8 +109,8 @@ class VirtualScanner:
             xyz, label, component, station_column, intensity, time = self._outputs(n, reuse_buffers)
             if on_pulses is not None:
                 on_pulses(n)
-            kept = finish_hits(t_hit, triangle, rays, pulse, self.face_component, self.component_label,
-                               self.face_normal, self.reflectance, origin_world, self.scanner.min_range_m,
+            kept = finish_hits(t_hit, triangle, rays, pulse, self.face_component, self.face_label,
+                               self.face_brightness, origin_world, self.scanner.min_range_m,
                                self.scanner.max_range_m, key, noise.range_sigma_m, angle_sigma, time0_s,
                                1.0 / pattern.pulse_freq_hz, INTENSITY_REFERENCE_M, station.id, xyz, label, component,
                                station_column, intensity, time)
