@@ -19,16 +19,16 @@ DEFAULT = sorted((HERE.parent.parent / "shared" / "data" / "ifc").glob("*.ifc"))
 
 def main(paths: list[Path]) -> None:
     os.environ["BIMSCAN_CACHE_DIR"] = tempfile.mkdtemp(prefix="bimscan-bench-cache-")
-    from bimscan.ifc.load import load_ifc
+    from bimscan.pipeline import load_scene
 
     print(f"{'model':<24} {'comps':>6} {'tris':>8} {'cold s':>7} {'comp/s':>8} {'Mtri/s':>7} "
           f"{'cached s':>9} {'comp/s':>9} {'Mtri/s':>7} {'speed-up':>8}")
     for path in paths:
         start = time.perf_counter()
-        scene = load_ifc(path)
+        scene = load_scene(path)
         cold = time.perf_counter() - start
         start = time.perf_counter()
-        load_ifc(path)
+        load_scene(path)
         cached = time.perf_counter() - start
         n, t = len(scene.components), scene.mesh.n_triangles
         print(f"{path.name:<24} {n:>6} {t:>8} {cold:>7.2f} {n / cold:>8.0f} {t / cold / 1e6:>7.3f} "

@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from bimscan.learn.blocks import pad_block
-from bimscan.learn.config import ModelConfig, load_train_config
+from bimscan.learn.train_config import ModelConfig, load_train_config
 from bimscan.learn.data import TileDataset, TileSet
 from bimscan.learn.infer import BlockRunner
 from bimscan.learn.model import build_model, count_parameters, flush_denormals

@@ -55,18 +55,18 @@ def main() -> None:
     parser.add_argument("--memory", action="store_true", help="also measure peak memory of 10M/100M point scans")
     args = parser.parse_args()
     os.environ.setdefault("BIMSCAN_CACHE_DIR", tempfile.mkdtemp(prefix="bimscan-bench-"))
-    from bimscan.ifc.load import load_ifc
+    from bimscan.pipeline import load_scene
     from bimscan.scan.engine import make_engine
     from bimscan.scan.kernels import generate_rays
     from bimscan.scan.noise import NoiseModel
     from bimscan.scan.pattern import PulsePattern
-    from bimscan.scan.scanner import SCANNERS, ScanSettings
-    from bimscan.scan.scanning import VirtualScanner
+    from bimscan.scan.device import SCANNERS, ScanSettings
+    from bimscan.scan.virtual_scanner import VirtualScanner
     from bimscan.survey.stations import plan_stations
 
     work = Path(tempfile.mkdtemp(prefix="bimscan-bench-scan-"))
     model = args.model or default_model(work)
-    scene = load_ifc(model)
+    scene = load_scene(model)
     vz400 = SCANNERS["riegl_vz400"]
     scanner = VirtualScanner(scene.mesh, scene.components.label, scanner=vz400)
     stations, _ = plan_stations(scene, scanner)

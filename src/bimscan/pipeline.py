@@ -17,14 +17,15 @@ from typing import Any
 
 from bimscan import __version__
 from bimscan.errors import StationError
-from bimscan.process.checks import CloudSummary, check_semantics, filter_invalid
+from bimscan.process.checks import check_semantics, filter_invalid
+from bimscan.process.summary import CloudSummary
 from bimscan.progress import progress_bar
 from bimscan.scan.noise import NoiseModel
-from bimscan.scan.scanner import ScannerModel, ScanSettings, check_settings, load_scanner, load_settings, with_overrides
-from bimscan.scan.scanning import DEFAULT_CHUNK_PULSES, VirtualScanner
+from bimscan.scan.device import ScannerModel, ScanSettings, check_settings, load_scanner, load_settings, with_overrides
+from bimscan.scan.virtual_scanner import DEFAULT_CHUNK_PULSES, VirtualScanner
 from bimscan.survey.run import run_survey, survey_pulses
 from bimscan.survey.stations import PlanReport, check_station, plan_stations, read_stations
-from bimscan.types import BimScene, CloudHeader, PointCloud, Station
+from bimscan.types import BimScene, CloudHeader, LabelScheme, PointCloud, Station
 
 
 @dataclass(frozen=True)
@@ -186,16 +187,37 @@ def scan_survey(survey: Survey, out: str | Path, options: ScanOptions, *, overwr
                       seconds=time.perf_counter() - start, metadata=metadata)
 
 
+def load_label_scheme(source: str | Path | LabelScheme | None = None) -> LabelScheme:
+    """A label scheme (None: spc5; a built-in name, a TOML file, or one already loaded) whose rules
+    name only IFC classes that some supported schema knows (a misspelt class is a SchemeError)."""
+    from bimscan.ifc.schema import known_classes
+    from bimscan.semantics import check_rule_classes, load_scheme
+
+    scheme = source if isinstance(source, LabelScheme) else load_scheme(source)
+    check_rule_classes(scheme, known_classes())
+    return scheme
+
+
+def load_scene(path: str | Path, *, scheme: str | Path | LabelScheme | None = None, use_cache: bool = True,
+               threads: int | None = None) -> BimScene:
+    """IFC file -> labelled scene: stage 1 (``load_ifc``) then stage 3 (``label_model``).
+
+    The scheme is checked before the (slow) parse.
+    """
+    from bimscan.ifc.load import load_ifc
+    from bimscan.semantics import label_model
+
+    label_scheme = load_label_scheme(scheme)
+    return label_model(load_ifc(path, use_cache=use_cache, threads=threads), label_scheme)
+
+
 def scan_model(model: str | Path, out: str | Path, options: ScanOptions = ScanOptions(), *, scheme: str | None = None,
                overwrite: bool = False, progress: bool = True) -> ScanResult:
     """IFC file -> labelled multi-station cloud file: the whole of ``bimscan scan``."""
-    from bimscan.ifc.load import load_ifc
-    from bimscan.semantics import load_scheme
-
     from bimscan.io import check_cloud_output
 
     check_cloud_output(out, overwrite=overwrite)  # output and settings errors before the (slow) parse
     resolve_settings(options)
-    scene = load_ifc(model, scheme=load_scheme(scheme))
+    scene = load_scene(model, scheme=scheme)
     survey = prepare_survey(scene, options)
     return scan_survey(survey, out, options, overwrite=overwrite, progress=progress)

@@ -215,8 +215,23 @@ class FailedElement:
 
 
 @dataclass(frozen=True)
+class ParsedModel:
+    """Stage 1's output: an IFC model's scannable mesh, component table, storeys, spaces and
+    failures, before any label scheme (``components.label`` is all zeros)."""
+
+    source: str
+    file_sha256: str
+    schema: str
+    mesh: SceneMesh
+    components: ComponentTable
+    storeys: tuple[Storey, ...]
+    spaces: tuple[Space, ...]
+    failed: tuple[FailedElement, ...]
+
+
+@dataclass(frozen=True)
 class BimScene:
-    """A parsed IFC model: scannable mesh, component table, storeys, spaces and failures."""
+    """A parsed IFC model with its components labelled under ``scheme`` (see ``ParsedModel``)."""
 
     source: str
     file_sha256: str

@@ -50,13 +50,13 @@ def test_export_obj_round_trips_triangles_per_component(shared_ifc, tmp_path, ca
 
     import numpy as np
 
-    from bimscan.ifc.load import load_ifc
+    from bimscan.pipeline import load_scene
     from bimscan.io import read_obj
 
     model = shared_ifc("AC20-FZK-Haus.ifc")
     out = tmp_path / "obj"
     assert main(["export-obj", str(model), str(out), "--helios"]) == 0
-    scene = load_ifc(model)
+    scene = load_scene(model)
     groups = read_obj(out / "model.obj")
     per_component = np.bincount(scene.mesh.face_component, minlength=len(scene.components))
     assert len(groups) == len(scene.components)

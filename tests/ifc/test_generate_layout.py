@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bimscan.ifc.generate_layout import (
+from bimscan.ifc.generate.layout import (
     EXTERIOR_WALL_M,
     BuildingPlan,
     Rect,

@@ -1,4 +1,4 @@
-"""load_ifc on the real sample models, on tiny models built in code, and on bad input."""
+"""Loading IFC (load_ifc, labelled by load_scene) on the real sample models, on tiny models built in code, and on bad input."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from bimscan.errors import EmptyModelError, IfcError, InputFileError
-from bimscan.ifc.load import load_ifc
+from bimscan.pipeline import load_scene
 
 # Per-class counts of the shared models, from shared/data/ATTRIBUTION.md (elements with a body;
 # decomposed IfcRoof/IfcWindow/IfcStair aggregates without their own body are not components).
@@ -44,7 +44,7 @@ SPC5 = {
 @pytest.mark.parametrize("name", sorted(SHARED_EXPECTED))
 def test_shared_models_load_with_the_expected_counts_per_class_and_label(name, shared_ifc):
     schema, per_class, spaces = SHARED_EXPECTED[name]
-    scene = load_ifc(shared_ifc(name))
+    scene = load_scene(shared_ifc(name))
     assert scene.schema.startswith(schema)
     assert dict(Counter(scene.components.ifc_class.tolist())) == per_class
     assert len(scene.spaces) == spaces
@@ -59,7 +59,7 @@ def test_shared_models_load_with_the_expected_counts_per_class_and_label(name, s
 
 
 def test_millimetre_models_come_out_in_metres(shared_ifc):
-    scene = load_ifc(shared_ifc("example.ifc"))  # authored in millimetres
+    scene = load_scene(shared_ifc("example.ifc"))  # authored in millimetres
     lo, hi = scene.mesh.bounds()
     height = hi[2] - lo[2]
     assert 4.0 < height < 8.0, f"a two-storey frame should be a few metres tall, got {height}"
@@ -67,8 +67,8 @@ def test_millimetre_models_come_out_in_metres(shared_ifc):
 
 
 def test_global_ids_are_unique_and_components_are_sorted_deterministically(shared_ifc):
-    first = load_ifc(shared_ifc("AC20-FZK-Haus.ifc"), use_cache=False)
-    second = load_ifc(shared_ifc("AC20-FZK-Haus.ifc"), use_cache=False)
+    first = load_scene(shared_ifc("AC20-FZK-Haus.ifc"), use_cache=False)
+    second = load_scene(shared_ifc("AC20-FZK-Haus.ifc"), use_cache=False)
     assert len(set(first.components.global_id.tolist())) == len(first.components)
     assert first.components.global_id.tolist() == second.components.global_id.tolist()
     assert np.array_equal(first.mesh.vertices, second.mesh.vertices)
@@ -77,11 +77,11 @@ def test_global_ids_are_unique_and_components_are_sorted_deterministically(share
 
 def test_cached_load_equals_a_fresh_parse_and_skips_the_parse(shared_ifc, private_cache):
     path = shared_ifc("duplex.ifc")
-    fresh = load_ifc(path, use_cache=False)
-    load_ifc(path)  # fills the cache
+    fresh = load_scene(path, use_cache=False)
+    load_scene(path)  # fills the cache
     assert list((private_cache / "ifc").glob("*.npz")), "a cache entry should have been written"
     start = time.perf_counter()
-    cached = load_ifc(path)
+    cached = load_scene(path)
     cached_seconds = time.perf_counter() - start
     assert np.array_equal(cached.mesh.vertices, fresh.mesh.vertices)
     assert np.array_equal(cached.mesh.faces, fresh.mesh.faces)
@@ -95,15 +95,15 @@ def test_cached_load_equals_a_fresh_parse_and_skips_the_parse(shared_ifc, privat
 
 def test_a_damaged_cache_entry_is_parsed_again(shared_ifc, private_cache):
     path = shared_ifc("IfcOpenHouse_IFC4.ifc")
-    load_ifc(path)
+    load_scene(path)
     for entry in (private_cache / "ifc").glob("*.npz"):
         entry.write_bytes(b"not an npz")
-    scene = load_ifc(path)
+    scene = load_scene(path)
     assert len(scene.components) == 34
 
 
 def test_spaces_stay_out_of_the_scannable_mesh(shared_ifc):
-    scene = load_ifc(shared_ifc("duplex.ifc"))
+    scene = load_scene(shared_ifc("duplex.ifc"))
     assert "IfcSpace" not in set(scene.components.ifc_class.tolist())
     assert "IfcOpeningElement" not in set(scene.components.ifc_class.tolist())
     assert all(len(s.faces) > 0 for s in scene.spaces)
@@ -116,7 +116,7 @@ def test_tiny_models_of_every_schema_load_with_world_coordinates(schema, tiny_mo
     model = tiny_model(schema)
     model.add_box("IfcWall", origin=(10.0, 20.0, 0.0), size=(4.0, 0.2, 3.0))
     model.add_box("IfcSlab", origin=(10.0, 20.0, -0.2), size=(4.0, 4.0, 0.2), predefined_type="FLOOR")
-    scene = load_ifc(model.write(tmp_path / "tiny.ifc"))
+    scene = load_scene(model.write(tmp_path / "tiny.ifc"))
     lo, hi = scene.mesh.bounds()
     np.testing.assert_allclose(lo, [10.0, 20.0, -0.2], atol=1e-6)
     np.testing.assert_allclose(hi, [14.0, 24.0, 3.0], atol=1e-6)
@@ -128,7 +128,7 @@ def test_a_model_with_one_broken_element_still_loads_and_reports_it(tiny_model, 
     model = tiny_model("IFC4")
     model.add_box("IfcWall", size=(4.0, 0.2, 3.0))
     broken = model.add_broken("IfcColumn")
-    scene = load_ifc(model.write(tmp_path / "broken.ifc"))
+    scene = load_scene(model.write(tmp_path / "broken.ifc"))
     assert scene.components.ifc_class.tolist() == ["IfcWall"]
     assert len(scene.failed) == 1
     failure = scene.failed[0]
@@ -140,22 +140,22 @@ def test_a_model_whose_only_element_is_broken_is_an_empty_model_error(tiny_model
     model = tiny_model("IFC4")
     model.add_broken("IfcColumn")
     with pytest.raises(EmptyModelError, match="no element produced geometry"):
-        load_ifc(model.write(tmp_path / "all-broken.ifc"))
+        load_scene(model.write(tmp_path / "all-broken.ifc"))
 
 
 def test_a_model_without_geometric_elements_is_an_empty_model_error(tiny_model, tmp_path):
     with pytest.raises(EmptyModelError, match="no building elements with 3D geometry"):
-        load_ifc(tiny_model("IFC4").write(tmp_path / "empty.ifc"))
+        load_scene(tiny_model("IFC4").write(tmp_path / "empty.ifc"))
 
 
 def test_a_missing_file_is_an_input_error(tmp_path):
     with pytest.raises(InputFileError, match="no such file"):
-        load_ifc(tmp_path / "missing.ifc")
+        load_scene(tmp_path / "missing.ifc")
 
 
 def test_a_folder_is_an_input_error(tmp_path):
     with pytest.raises(InputFileError, match="folder"):
-        load_ifc(tmp_path)
+        load_scene(tmp_path)
 
 
 @pytest.mark.parametrize("content, message", [
@@ -167,7 +167,7 @@ def test_files_that_are_not_ifc_are_rejected_clearly(content, message, tmp_path)
     path = tmp_path / "bad.ifc"
     path.write_bytes(content)
     with pytest.raises(IfcError, match=message):
-        load_ifc(path)
+        load_scene(path)
 
 
 def test_a_truncated_ifc_is_rejected(shared_ifc, tmp_path):
@@ -175,7 +175,7 @@ def test_a_truncated_ifc_is_rejected(shared_ifc, tmp_path):
     path = tmp_path / "truncated.ifc"
     path.write_bytes(data[: len(data) // 2])
     with pytest.raises(IfcError, match="truncated"):
-        load_ifc(path)
+        load_scene(path)
 
 
 def test_a_garbled_ifc_is_rejected(shared_ifc, tmp_path):
@@ -185,7 +185,7 @@ def test_a_garbled_ifc_is_rejected(shared_ifc, tmp_path):
     junk = b"\n#999999=IFCWALL(((garbage;;\n"
     path.write_bytes(data[:middle] + junk + data[middle + len(junk):])
     with pytest.raises(IfcError, match="garbled"):
-        load_ifc(path)
+        load_scene(path)
 
 
 def test_binary_noise_inside_an_ifc_is_rejected(shared_ifc, tmp_path):
@@ -195,7 +195,7 @@ def test_binary_noise_inside_an_ifc_is_rejected(shared_ifc, tmp_path):
     path = tmp_path / "noise.ifc"
     path.write_bytes(data[:middle] + junk + data[middle + len(junk):])
     with pytest.raises(IfcError, match="could not be parsed|garbled"):
-        load_ifc(path)
+        load_scene(path)
 
 
 def test_an_ifczip_loads_like_the_ifc_inside(shared_ifc, tmp_path):
@@ -205,8 +205,8 @@ def test_an_ifczip_loads_like_the_ifc_inside(shared_ifc, tmp_path):
     archive = tmp_path / "house.ifczip"
     with zipfile.ZipFile(archive, "w", compression=zipfile.ZIP_DEFLATED) as z:
         z.write(model, "IfcOpenHouse_IFC4.ifc")
-    scene = load_ifc(archive)
-    plain = load_ifc(model)
+    scene = load_scene(archive)
+    plain = load_scene(model)
     assert scene.source == str(archive)
     assert scene.components.global_id.tolist() == plain.components.global_id.tolist()
     assert np.array_equal(scene.mesh.vertices, plain.mesh.vertices)
@@ -220,4 +220,4 @@ def test_a_zip_without_exactly_one_ifc_is_refused(tmp_path):
         z.writestr("a.ifc", "ISO-10303-21;")
         z.writestr("b.ifc", "ISO-10303-21;")
     with pytest.raises(IfcError, match="exactly one"):
-        load_ifc(archive)
+        load_scene(archive)

@@ -1,4 +1,4 @@
-"""load_ifc on generated demo buildings: what the generator placed is what the loader finds."""
+"""Loading IFC (load_ifc, labelled by load_scene) on generated demo buildings: what the generator placed is what the loader finds."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from bimscan.ifc.generate import make_building
-from bimscan.ifc.load import load_ifc
+from bimscan.pipeline import load_scene
 
 EXPECTED_LABEL = {"IfcWall": "Wall&Column", "IfcColumn": "Wall&Column", "IfcBeam": "Beam",
                   "IfcCovering": "Covering", "IfcSlab": "Slab"}
@@ -17,7 +17,7 @@ EXPECTED_LABEL = {"IfcWall": "Wall&Column", "IfcColumn": "Wall&Column", "IfcBeam
 @pytest.mark.parametrize("seed, storeys", [(0, 1), (3, 2), (11, 3)])
 def test_generated_buildings_load_with_the_placed_counts_labels_and_bounds(seed, storeys, tmp_path):
     building = make_building(tmp_path / "b.ifc", seed=seed, storeys=storeys)
-    scene = load_ifc(building.path)
+    scene = load_scene(building.path)
     assert scene.failed == ()
     assert dict(Counter(scene.components.ifc_class.tolist())) == dict(building.placed)
     names = scene.scheme.names

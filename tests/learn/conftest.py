@@ -163,7 +163,7 @@ def room_files(tmp_path: Path) -> dict[str, list[str]]:
 @pytest.fixture(scope="session")
 def trained_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """One tiny model trained for 3 epochs on three rooms (shared; read-only for tests)."""
-    from bimscan.learn.config import load_train_config
+    from bimscan.learn.train_config import load_train_config
     from bimscan.learn.train import train_model
 
     torch.set_num_threads(1)

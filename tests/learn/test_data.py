@@ -13,7 +13,7 @@ from bimscan.dataset.manifest import manifest_entry, write_manifest
 from bimscan.errors import InputFileError, LearnError
 from bimscan.io.text import write_text_cloud
 from bimscan.learn.blocks import locate_columns, encode_column_key
-from bimscan.learn.config import DEFAULT_CLASS_NAMES, BlockConfig
+from bimscan.learn.train_config import DEFAULT_CLASS_NAMES, BlockConfig
 from bimscan.learn.data import (
     TileDataset, _sort_by_column_and_key, collect_scene_tiles, list_scenes, load_or_collect_tiles, load_scene,
 )

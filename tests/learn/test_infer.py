@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from bimscan.io.text import write_text_cloud
-from bimscan.learn.config import DEFAULT_CLASS_NAMES, BlockConfig, ModelConfig
+from bimscan.learn.train_config import DEFAULT_CLASS_NAMES, BlockConfig, ModelConfig
 from bimscan.learn.data import list_scenes
 from bimscan.learn.infer import label_scene
 from bimscan.learn.metrics import compute_confusion

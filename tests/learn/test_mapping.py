@@ -9,7 +9,7 @@ import pytest
 
 from bimscan.errors import ConfigError, LearnError
 from bimscan.io.s3dis import S3DIS_CLASSES
-from bimscan.learn.config import DEFAULT_CLASS_NAMES
+from bimscan.learn.train_config import DEFAULT_CLASS_NAMES
 from bimscan.learn.mapping import (
     UNMAPPED, apply_label_table, build_label_table, load_label_mapping, load_s3dis_mapping,
 )

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from bimscan.learn.blocks import sample_block
-from bimscan.learn.config import ModelConfig
+from bimscan.learn.train_config import ModelConfig
 from bimscan.learn.model import (
     MaskedBatchNorm1d, OffsetAttention, build_model, commit_batch_statistics, count_parameters,
 )

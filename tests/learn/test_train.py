@@ -17,7 +17,7 @@ import torch
 
 import bimscan
 from bimscan.errors import ConfigError, LearnError
-from bimscan.learn.config import load_train_config
+from bimscan.learn.train_config import load_train_config
 from bimscan.learn.plots import CSV_COLUMNS
 from bimscan.learn.train import GlobalBatchSampler, train_model
 from bimscan.io.text import write_text_cloud

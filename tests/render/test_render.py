@@ -156,10 +156,10 @@ def test_the_same_cloud_renders_to_the_same_bytes(tmp_path: Path) -> None:
 
 
 def test_the_figure_shows_the_model_and_its_scan_side_by_side(tmp_path: Path, box_room_ifc: Path) -> None:
-    from bimscan.ifc.load import load_ifc
+    from bimscan.pipeline import load_scene
     from bimscan.render.figure import render_figure
 
-    scene = load_ifc(box_room_ifc)
+    scene = load_scene(box_room_ifc)
     cloud = _write(_room_cloud(), tmp_path / "room.laz")
     render_figure(scene.mesh, scene.components.label, scene.scheme, cloud, tmp_path / "fig.png", real=cloud,
                   width=900, height=360, max_points=60_000)

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings as hsettings, strategies as st
 
 from bimscan.scan.pattern import PulsePattern
-from bimscan.scan.scanner import PRESETS, SCANNERS, ScanSettings
+from bimscan.scan.device import PRESETS, SCANNERS, ScanSettings
 
 VZ400 = SCANNERS["riegl_vz400"]
 

@@ -8,11 +8,11 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from bimscan.ifc.load import load_ifc
+from bimscan.pipeline import load_scene
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.pattern import PulsePattern
-from bimscan.scan.scanner import PRESETS, SCANNERS, ScanSettings
-from bimscan.scan.scanning import VirtualScanner
+from bimscan.scan.device import PRESETS, SCANNERS, ScanSettings
+from bimscan.scan.virtual_scanner import VirtualScanner
 from bimscan.types import PointCloud, Station
 
 VZ400 = SCANNERS["riegl_vz400"]
@@ -22,7 +22,7 @@ CENTRE = Station(id=0, position=(4.0, 3.0, 1.7))
 
 @pytest.fixture(scope="module")
 def box(box_room_ifc):
-    scene = load_ifc(box_room_ifc)
+    scene = load_scene(box_room_ifc)
     return scene, VirtualScanner(scene.mesh, scene.components.label, scanner=VZ400)
 
 
@@ -107,7 +107,7 @@ def test_output_is_identical_whatever_the_chunk_size(box):
 
 
 def test_output_is_identical_whatever_the_thread_count(box_room_ifc):
-    scene = load_ifc(box_room_ifc)
+    scene = load_scene(box_room_ifc)
     clouds = []
     for threads in (1, 2):
         scanner = VirtualScanner(scene.mesh, scene.components.label, scanner=VZ400, threads=threads)
@@ -125,7 +125,7 @@ def test_different_seeds_and_stations_draw_different_noise(box):
 
 
 def test_points_beyond_range_limits_are_dropped(box_room_ifc):
-    scene = load_ifc(box_room_ifc)
+    scene = load_scene(box_room_ifc)
     from dataclasses import replace
 
     short = replace(VZ400, max_range_m=3.0)
@@ -152,7 +152,7 @@ def test_rays_through_an_opening_yield_no_points(tiny_model, tmp_path):
     model = tiny_model("IFC4")
     model.add_box("IfcSlab", origin=(-5, -5, -0.3), size=(10, 10, 0.3))
     model.add_box("IfcWall", origin=(-5, 3, 0), size=(10, 0.2, 3))
-    scene = load_ifc(model.write(tmp_path / "open.ifc"))
+    scene = load_scene(model.write(tmp_path / "open.ifc"))
     scanner = VirtualScanner(scene.mesh, scene.components.label, scanner=VZ400)
     cloud = scan(scanner, Station(id=0, position=(0.0, 0.0, 1.7)))
     pattern_count = PulsePattern.of(EXACT, VZ400).count()
@@ -177,7 +177,7 @@ def test_extents_stay_while_counts_grow_with_the_pulse_rate(box):
 
 def test_registration_error_moves_each_station_rigidly_by_the_configured_sigmas(box):
     from bimscan.scan.kernels import noise_key
-    from bimscan.scan.scanning import registration_error
+    from bimscan.scan.virtual_scanner import registration_error
 
     _, scanner = box
     noise = NoiseModel(range_sigma_m=0.0, angle_sigma_deg=0.0, registration_sigma_m=0.01, registration_sigma_deg=0.05)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from bimscan.errors import ConfigError, ScannerSettingsError
-from bimscan.scan.scanner import PRESETS, SCANNERS, ScanSettings, check_settings, load_scanner, load_settings
+from bimscan.scan.device import PRESETS, SCANNERS, ScanSettings, check_settings, load_scanner, load_settings
 
 VZ400 = SCANNERS["riegl_vz400"]
 

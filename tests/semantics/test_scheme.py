@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from bimscan.errors import SchemeError
-from bimscan.ifc.load import load_ifc
+from bimscan.pipeline import load_scene
 from bimscan.ifc.schema import class_ancestry, known_classes
 from bimscan.semantics import check_rule_classes, load_scheme, map_labels, parse_scheme
 from bimscan.types import ComponentTable
@@ -100,7 +100,7 @@ def test_a_user_scheme_applies_to_a_real_model(shared_ifc, tmp_path):
     path.write_text('default = "rest"\n[[classes]]\nid = 0\nname = "column"\ncolor = "#000000"\n'
                     '[[classes]]\nid = 1\nname = "rest"\ncolor = "#ffffff"\n'
                     '[[rules]]\nifc_class = "IfcColumn"\nlabel = "column"\n')
-    scene = load_ifc(shared_ifc("example.ifc"), scheme=load_scheme(path))
+    scene = load_scene(shared_ifc("example.ifc"), scheme=path)
     assert int((scene.components.label == 0).sum()) == 42
 
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 
 from bimscan.errors import InputFileError, StationError
-from bimscan.ifc.load import load_ifc
-from bimscan.scan.scanner import SCANNERS
-from bimscan.scan.scanning import VirtualScanner
+from bimscan.pipeline import load_scene
+from bimscan.scan.device import SCANNERS
+from bimscan.scan.virtual_scanner import VirtualScanner
 from bimscan.survey.stations import check_station, plan_stations, read_stations
 from bimscan.types import Station
 
@@ -16,7 +16,7 @@ VZ400 = SCANNERS["riegl_vz400"]
 
 @pytest.fixture(scope="module")
 def box(box_room_ifc):
-    scene = load_ifc(box_room_ifc)
+    scene = load_scene(box_room_ifc)
     return scene, VirtualScanner(scene.mesh, scene.components.label, scanner=VZ400)
 
 
@@ -31,7 +31,7 @@ def test_a_single_room_gets_one_station_on_the_floor_at_instrument_height(box):
 
 
 def test_planned_stations_on_a_real_house_reach_every_room_with_a_floor(shared_ifc):
-    scene = load_ifc(shared_ifc("duplex.ifc"))
+    scene = load_scene(shared_ifc("duplex.ifc"))
     scanner = VirtualScanner(scene.mesh, scene.components.label, scanner=VZ400)
     stations, report = plan_stations(scene, scanner)
     rooms = {s.name for s in scene.spaces}
@@ -107,7 +107,7 @@ def test_a_missing_station_file_is_an_input_error(box, tmp_path):
 def test_a_model_with_no_room_for_a_tripod_is_refused(tiny_model, tmp_path):
     model = tiny_model("IFC4")
     model.add_box("IfcSlab", origin=(0, 0, -0.3), size=(1.0, 1.0, 0.3))  # a 1 m table of floor, no roof
-    scene = load_ifc(model.write(tmp_path / "tiny.ifc"))
+    scene = load_scene(model.write(tmp_path / "tiny.ifc"))
     scanner = VirtualScanner(scene.mesh, scene.components.label, scanner=VZ400)
     with pytest.raises(StationError, match="no place for a station"):
         plan_stations(scene, scanner)

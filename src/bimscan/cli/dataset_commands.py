@@ -130,7 +130,7 @@ def figure(model: Path, cloud: Path, out: Path, real: Path | None, scheme: str |
            cut: str) -> None:
     """Side by side: the BIM MODEL (IFC) shaded by class, its synthetic CLOUD, optionally a --real scan."""
     from bimscan.errors import InputFileError
-    from bimscan.ifc.load import load_ifc
+    from bimscan.pipeline import load_scene
     from bimscan.render.compose import check_png_output
     from bimscan.render.figure import render_figure
     from bimscan.semantics import load_scheme
@@ -141,7 +141,7 @@ def figure(model: Path, cloud: Path, out: Path, real: Path | None, scheme: str |
     for path in (cloud, real):
         if path is not None and not path.exists():  # before the (slow) parse
             raise InputFileError(f"{path}: no such file or folder; check the path")
-    scene = load_ifc(model, scheme=label_scheme)
+    scene = load_scene(model, scheme=label_scheme)
     result = render_figure(scene.mesh, scene.components.label, label_scheme, cloud, out, real=real, width=width,
                            height=height, max_points=max_points, cut=cut, model_name=model.name)
     click.echo(f"{result.path}: " + " | ".join(result.panels))
@@ -166,7 +166,7 @@ def demo(out_dir: Path, workers: int | None, executor: str, head_deg_per_s: floa
     from bimscan.dataset.manifest import read_manifest
     from bimscan.dataset.spec import device_warnings, load_spec, unit_id
     from bimscan.errors import DatasetError, OutputError
-    from bimscan.ifc.load import load_ifc
+    from bimscan.pipeline import load_scene
     from bimscan.render.cloud import render_cloud
     from bimscan.render.figure import render_figure
     from bimscan.semantics import load_scheme
@@ -202,7 +202,7 @@ def demo(out_dir: Path, workers: int | None, executor: str, head_deg_per_s: floa
             continue
         cloud = dataset / entry["files"]["laz"]
         picture = render_cloud(cloud, out_dir / "pictures" / f"{scene.name}_{RENDER_CONFIG}.png")
-        model = load_ifc(dataset / "scenes" / f"{scene.name}.ifc", scheme=scheme)
+        model = load_scene(dataset / "scenes" / f"{scene.name}.ifc", scheme=scheme)
         both = render_figure(model.mesh, model.components.label, scheme, cloud,
                              out_dir / "pictures" / f"{scene.name}_model_and_scan.png",
                              model_name=f"{scene.name} (generated)")

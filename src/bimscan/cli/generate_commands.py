@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 # The layout module is plain NumPy: importing it keeps --help free of IfcOpenShell.
-from bimscan.ifc.generate_layout import MAX_STOREYS, MIN_STOREYS
+from bimscan.ifc.generate.layout import MAX_STOREYS, MIN_STOREYS
 
 
 @click.command("make-building")

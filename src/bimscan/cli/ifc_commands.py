@@ -17,11 +17,10 @@ SCHEME_HELP = "Label scheme: a built-in name (spc5) or a TOML file. Default: spc
 @click.option("--no-cache", is_flag=True, help="Parse again even if this file's geometry is cached.")
 def info(model: Path, as_json: bool, scheme: str | None, no_cache: bool) -> None:
     """Parse MODEL.ifc and summarise its components, labels, failures and bounds."""
-    from bimscan.ifc.load import load_ifc
+    from bimscan.pipeline import load_scene
     from bimscan.ifc.summary import format_summary, summarize_scene
-    from bimscan.semantics import load_scheme
 
-    scene = load_ifc(model, scheme=load_scheme(scheme), use_cache=not no_cache)
+    scene = load_scene(model, scheme=scheme, use_cache=not no_cache)
     summary = summarize_scene(scene)
     click.echo(json.dumps(summary, indent=2) if as_json else format_summary(summary))
 
@@ -36,11 +35,10 @@ def export_obj_command(model: Path, out_dir: Path, helios: bool, scheme: str | N
     """Export MODEL.ifc as OBJ: model.obj (one group per component), components/c<id>.obj
     (one file per component, as HELIOS++ wants), classes.mtl and index.csv (component id,
     GlobalId, IFC class, label)."""
-    from bimscan.ifc.load import load_ifc
+    from bimscan.pipeline import load_scene
     from bimscan.io import export_obj
-    from bimscan.semantics import load_scheme
 
-    scene = load_ifc(model, scheme=load_scheme(scheme))
+    scene = load_scene(model, scheme=scheme)
     result = export_obj(scene, out_dir, helios=helios, overwrite=overwrite)
     click.echo(f"{result.out_dir}: {len(result.component_files)} component files, {result.n_triangles:,} triangles; "
                f"index {result.index_csv.name}" + (f"; HELIOS++ scene {result.helios_scene}" if result.helios_scene else ""))

@@ -41,7 +41,7 @@ def train(config: Path, resume: bool, out_dir: Path | None) -> None:
     For DDP start it with torchrun, e.g.
     `torchrun --nproc_per_node 4 -m bimscan.cli.main train CONFIG.toml`.
     """
-    from bimscan.learn.config import load_train_config
+    from bimscan.learn.train_config import load_train_config
     from bimscan.learn.train import train_model
 
     settings, base = load_train_config(config)

@@ -42,11 +42,10 @@ def scan(model: Path, out: Path, preset: str, stations: str, seed: int, no_noise
     in the Pointcept layout. Class ids go to LAS classification; component and station are
     extra dimensions; class names and the component table are stored with the file.
     """
-    from bimscan.ifc.load import load_ifc
+    from bimscan.pipeline import load_scene
     from bimscan.io import check_cloud_output
     from bimscan.pipeline import ScanOptions, prepare_survey, resolve_settings, scan_survey
     from bimscan.scan.noise import NoiseModel
-    from bimscan.semantics import load_scheme
 
     noise = NoiseModel.off() if no_noise else NoiseModel(
         range_sigma_m=range_sigma_m, angle_sigma_deg=angle_sigma_deg,
@@ -57,7 +56,7 @@ def scan(model: Path, out: Path, preset: str, stations: str, seed: int, no_noise
     _, _, warnings = resolve_settings(options)
     for warning in warnings:
         click.echo(f"warning: {warning}", err=True)
-    scene = load_ifc(model, scheme=load_scheme(scheme))
+    scene = load_scene(model, scheme=scheme)
     survey = prepare_survey(scene, options)
     if survey.plan is not None and survey.plan.rooms_without_station:
         click.echo("warning: rooms without a station (too small for a tripod or no floor): "

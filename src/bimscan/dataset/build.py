@@ -71,13 +71,13 @@ from bimscan.errors import BimscanError, DatasetError, OutputError
 from bimscan.files import file_sha256, replace_path
 from bimscan.progress import progress_bar
 from bimscan.scan.noise import NoiseModel
-from bimscan.scan.scanner import ScannerModel, ScanSettings
-from bimscan.scan.scanning import DEFAULT_CHUNK_PULSES
+from bimscan.scan.device import ScannerModel, ScanSettings
+from bimscan.scan.virtual_scanner import DEFAULT_CHUNK_PULSES
 from bimscan.types import Station
 
 if TYPE_CHECKING:
     from bimscan.io import CloudWriter, WrittenCloud
-    from bimscan.process.checks import CloudSummary
+    from bimscan.process.summary import CloudSummary
 
 STATIONS_VERSION = 1
 
@@ -458,15 +458,14 @@ def _one_line(error: BaseException) -> str:
 
 def run_scene_job(job: SceneJob) -> SceneOutcome:
     """Parse the scene (filling the geometry cache) and plan or read its stations once."""
-    from bimscan.ifc.load import load_ifc
-    from bimscan.scan.scanner import load_scanner
-    from bimscan.scan.scanning import VirtualScanner
-    from bimscan.semantics import load_scheme
+    from bimscan.pipeline import load_scene
+    from bimscan.scan.device import load_scanner
+    from bimscan.scan.virtual_scanner import VirtualScanner
     from bimscan.pipeline import choose_stations
 
     try:
         start = time.perf_counter()
-        scene = load_ifc(job.ifc, scheme=load_scheme(job.scheme), threads=job.threads)
+        scene = load_scene(job.ifc, scheme=job.scheme, threads=job.threads)
         parse_s = time.perf_counter() - start
         path = Path(job.stations_file)
         if path.is_file():
@@ -503,18 +502,18 @@ def read_stations_file(path: str | Path) -> tuple[Station, ...]:
 def run_unit_job(job: UnitJob) -> UnitOutcome:
     """Scan one unit into a staging folder, check it, and move it into place."""
     from bimscan.io import open_cloud_writer
-    from bimscan.ifc.load import load_ifc
+    from bimscan.pipeline import load_scene
     from bimscan.pipeline import ScanOptions, cloud_header, prepare_survey, stream_survey
-    from bimscan.process.checks import CloudSummary, SemanticError
+    from bimscan.process.checks import SemanticError
+    from bimscan.process.summary import CloudSummary
     from bimscan.process.subsample import VoxelSubsampler
-    from bimscan.semantics import load_scheme
 
     start = time.perf_counter()
     out = Path(job.out_dir)
     staged: Path | None = None
     writers: dict[str, CloudWriter] = {}
     try:
-        scene = load_ifc(job.ifc, scheme=load_scheme(job.scheme), threads=job.threads)
+        scene = load_scene(job.ifc, scheme=job.scheme, threads=job.threads)
         load_s = time.perf_counter() - start
         stations = read_stations_file(job.stations_file)
         options = ScanOptions(settings=job.settings, scanner=job.scanner, seed=job.seed, noise=job.noise,

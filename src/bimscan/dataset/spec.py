@@ -46,10 +46,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from bimscan.config import build_dataclass, load_toml
+from bimscan.toml_files import build_dataclass, load_toml
 from bimscan.errors import BimscanError, ConfigError, InputFileError
 from bimscan.scan.noise import NoiseModel
-from bimscan.scan.scanner import (
+from bimscan.scan.device import (
     PRESETS, ScannerModel, ScanSettings, check_settings, load_scanner, load_settings, with_overrides,
 )
 from bimscan.types import LabelScheme

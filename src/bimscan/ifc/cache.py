@@ -10,15 +10,11 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bimscan.files import atomic_output, write_atomic
-from bimscan.types import ComponentTable, FailedElement, SceneMesh, Space, Storey
-
-if TYPE_CHECKING:
-    from bimscan.ifc.load import ParsedModel
+from bimscan.types import ComponentTable, FailedElement, ParsedModel, SceneMesh, Space, Storey
 
 _TABLE_COLUMNS = ("global_id", "ifc_class", "predefined_type", "name", "storey", "parent_class")
 
@@ -31,8 +27,6 @@ def cache_dir() -> Path:
 
 def load_parsed(key: str) -> ParsedModel | None:
     """The cached parse for ``key``, or None when absent or unreadable (then it is re-parsed)."""
-    from bimscan.ifc.load import ParsedModel
-
     folder = cache_dir() / "ifc"
     arrays_path, meta_path = folder / f"{key}.npz", folder / f"{key}.json"
     if not (arrays_path.is_file() and meta_path.is_file()):
@@ -55,7 +49,7 @@ def load_parsed(key: str) -> ParsedModel | None:
             for s, v, f in zip(meta["spaces"], space_vertices, space_faces)
         )
         return ParsedModel(
-            schema=meta["schema"], mesh=mesh, components=table,
+            source="", file_sha256="", schema=meta["schema"], mesh=mesh, components=table,
             storeys=tuple(Storey(**s) for s in meta["storeys"]), spaces=spaces,
             failed=tuple(FailedElement(**f) for f in meta["failed"]),
         )

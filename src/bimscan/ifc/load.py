@@ -3,7 +3,7 @@
 ``load_ifc`` reads IFC2X3, IFC4 and IFC4X3 through IfcOpenShell's geometry iterator on all
 cores, in world coordinates, metres, Z up, openings cut from their hosts. Every building element
 with 3D geometry becomes one component (dense id, GlobalId, IFC class, PredefinedType, name,
-storey, label). Room volumes (IfcSpace) are kept aside for station planning; openings, virtual
+storey). Labels are applied afterwards, by a scheme (``bimscan.semantics.label_model``). Room volumes (IfcSpace) are kept aside for station planning; openings, virtual
 elements, annotations and grids are not scannable. Elements whose geometry fails are reported
 (GlobalId, class, reason) and skipped. Parsed geometry is cached by file content hash.
 """
@@ -24,10 +24,9 @@ import numpy as np
 from bimscan.errors import EmptyModelError, IfcError, InputFileError
 from bimscan.files import file_sha256
 from bimscan.ifc import cache as geometry_cache
-from bimscan.ifc.schema import SUPPORTED_SCHEMAS, class_ancestry, known_classes
+from bimscan.ifc.schema import SUPPORTED_SCHEMAS, class_ancestry
 from bimscan.progress import progress_bar
-from bimscan.semantics import check_rule_classes, load_scheme, map_labels
-from bimscan.types import BimScene, ComponentTable, FailedElement, LabelScheme, SceneMesh, Space, Storey
+from bimscan.types import ComponentTable, FailedElement, ParsedModel, SceneMesh, Space, Storey
 
 # Bumped whenever what _parse_model produces changes, so stale cache entries are never used.
 LOADER_VERSION = 1
@@ -41,28 +40,10 @@ _NON_BODY_IDENTIFIERS = {
 _NOT_SCANNABLE = ("IfcFeatureElement", "IfcVirtualElement")
 
 
-@dataclass(frozen=True)
-class ParsedModel:
-    """What the IFC parse produces before labels: cached as is, keyed by file hash."""
+def load_ifc(path: str | Path, *, use_cache: bool = True, threads: int | None = None) -> ParsedModel:
+    """Parse an IFC file into a ParsedModel (no labels yet).
 
-    schema: str
-    mesh: SceneMesh
-    components: ComponentTable  # label column all zeros until a scheme is applied
-    storeys: tuple[Storey, ...]
-    spaces: tuple[Space, ...]
-    failed: tuple[FailedElement, ...]
-
-
-def load_ifc(
-    path: str | Path,
-    *,
-    scheme: LabelScheme | None = None,
-    use_cache: bool = True,
-    threads: int | None = None,
-) -> BimScene:
-    """Parse an IFC file into a labelled BimScene.
-
-    path: an IFC-SPF file (.ifc) or a zip of one (.ifczip). scheme: label scheme (default: the five SPC classes).
+    path: an IFC-SPF file (.ifc) or a zip of one (.ifczip).
     use_cache: reuse geometry parsed before (keyed by file content hash and loader version;
     folder ``$BIMSCAN_CACHE_DIR`` or ``~/.cache/bimscan``). threads: geometry threads (all cores).
     Raises InputFileError (missing/unreadable), IfcError (not IFC, truncated, garbled,
@@ -70,10 +51,8 @@ def load_ifc(
     """
     path = Path(path)
     if path.is_file() and zipfile.is_zipfile(path):
-        return _load_ifczip(path, scheme=scheme, use_cache=use_cache, threads=threads)
+        return _load_ifczip(path, use_cache=use_cache, threads=threads)
     _check_ifc_file(path)
-    scheme = scheme or load_scheme()
-    check_rule_classes(scheme, known_classes())
     digest = file_sha256(path)
     key = f"{digest}-v{LOADER_VERSION}"
     parsed = geometry_cache.load_parsed(key) if use_cache else None
@@ -81,22 +60,10 @@ def load_ifc(
         parsed = _parse_model(path, threads=threads or os.cpu_count() or 1)
         if use_cache:
             geometry_cache.store_parsed(key, parsed)
-    mapping = map_labels(parsed.components, scheme)
-    return BimScene(
-        source=str(path),
-        file_sha256=digest,
-        schema=parsed.schema,
-        mesh=parsed.mesh,
-        components=replace(parsed.components, label=mapping.labels),
-        scheme=scheme,
-        storeys=parsed.storeys,
-        spaces=parsed.spaces,
-        failed=parsed.failed,
-        unmapped_classes=mapping.unmapped,
-    )
+    return replace(parsed, source=str(path), file_sha256=digest)
 
 
-def _load_ifczip(path: Path, *, scheme: LabelScheme | None, use_cache: bool, threads: int | None) -> BimScene:
+def _load_ifczip(path: Path, *, use_cache: bool, threads: int | None) -> ParsedModel:
     """An .ifczip (a zip archive holding one IFC-SPF file): extract it to a temporary folder."""
     with zipfile.ZipFile(path) as archive:
         members = [m for m in archive.namelist() if m.lower().endswith(".ifc") and not m.endswith("/")]
@@ -106,8 +73,8 @@ def _load_ifczip(path: Path, *, scheme: LabelScheme | None, use_cache: bool, thr
             extracted = Path(folder) / Path(members[0]).name
             with archive.open(members[0]) as source, extracted.open("wb") as target:
                 shutil.copyfileobj(source, target, 8 << 20)
-            scene = load_ifc(extracted, scheme=scheme, use_cache=use_cache, threads=threads)
-    return replace(scene, source=str(path))
+            model = load_ifc(extracted, use_cache=use_cache, threads=threads)
+    return replace(model, source=str(path))
 
 
 def _check_ifc_file(path: Path) -> None:
@@ -185,7 +152,7 @@ def _parse_model(path: Path, *, threads: int) -> ParsedModel:
     storeys = _storeys(model, unit_scale)
     table = _component_table(components, schema)
     spaces = _spaces(model, threads=threads)
-    return ParsedModel(schema=schema, mesh=mesh, components=table, storeys=storeys, spaces=spaces, failed=tuple(failed))
+    return ParsedModel(source=str(path), file_sha256="", schema=schema, mesh=mesh, components=table, storeys=storeys, spaces=spaces, failed=tuple(failed))
 
 
 def _scannable_elements(model):  # -> list[entity_instance]

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bimscan.learn.config import IGNORE_LABEL
+from bimscan.learn.train_config import IGNORE_LABEL
 
 _KEY_OFFSET = 1 << 31
 

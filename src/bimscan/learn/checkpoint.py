@@ -20,7 +20,7 @@ from torch import nn
 
 from bimscan.errors import InputFileError, LearnError
 from bimscan.files import atomic_output
-from bimscan.learn.config import TrainRunConfig, parse_config
+from bimscan.learn.train_config import TrainRunConfig, parse_config
 from bimscan.learn.model import PCTSegmentation, build_model
 
 CHECKPOINT_FORMAT = "bimscan-pct-checkpoint"

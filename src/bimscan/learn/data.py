@@ -32,7 +32,7 @@ from bimscan.errors import InputFileError, LearnError
 from bimscan.files import atomic_output
 from bimscan.io.text import TEXT_SUFFIXES
 from bimscan.learn.blocks import locate_columns, encode_column_key, sample_block, decode_column_key
-from bimscan.learn.config import DEFAULT_CLASS_NAMES, IGNORE_LABEL, BlockConfig
+from bimscan.learn.train_config import DEFAULT_CLASS_NAMES, IGNORE_LABEL, BlockConfig
 from bimscan.learn.mapping import (
     LabelMapping, apply_label_table, build_label_table, load_s3dis_mapping,
 )

@@ -34,7 +34,7 @@ from torch import nn
 
 from bimscan.errors import LearnError
 from bimscan.learn.blocks import Block, pad_block, plan_passes
-from bimscan.learn.config import IGNORE_LABEL, BlockConfig
+from bimscan.learn.train_config import IGNORE_LABEL, BlockConfig
 from bimscan.learn.data import CHUNK_POINTS, SceneSource, iter_raw_chunks, iter_scene_chunks
 from bimscan.learn.metrics import compute_confusion
 from bimscan.learn.model import autocast_context, flush_denormals

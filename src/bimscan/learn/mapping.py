@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from bimscan.config import build_dataclass, load_toml
+from bimscan.toml_files import build_dataclass, load_toml
 from bimscan.errors import ConfigError, LearnError
-from bimscan.learn.config import IGNORE_LABEL
+from bimscan.learn.train_config import IGNORE_LABEL
 
 MAPPINGS_DIR = Path(__file__).resolve().parent / "mappings"
 S3DIS_MAPPING_PATH = MAPPINGS_DIR / "s3dis_to_spc5.toml"

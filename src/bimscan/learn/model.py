@@ -28,7 +28,7 @@ import torch.distributed as dist
 from torch import nn
 
 from bimscan.errors import LearnError
-from bimscan.learn.config import ModelConfig
+from bimscan.learn.train_config import ModelConfig
 
 
 class MaskedBatchNorm1d(nn.Module):

@@ -41,7 +41,7 @@ from bimscan.errors import LearnError
 from bimscan.learn.checkpoint import (
     MODEL_KEYS, capture_rng_state, load_state, read_checkpoint, restore_rng_state, save_checkpoint,
 )
-from bimscan.learn.config import IGNORE_LABEL, TrainConfig, TrainRunConfig, dump_config, parse_config, resolve_path
+from bimscan.learn.train_config import IGNORE_LABEL, TrainConfig, TrainRunConfig, dump_config, parse_config, resolve_path
 from bimscan.learn.data import SceneSource, TileDataset, TileSet, list_scenes, load_or_collect_tiles
 from bimscan.learn.mapping import load_label_mapping
 from bimscan.learn.metrics import METRIC_NAMES, compute_metrics

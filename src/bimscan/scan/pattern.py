@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bimscan.scan.scanner import ScannerModel, ScanSettings
+from bimscan.scan.device import ScannerModel, ScanSettings
 
 # Absorbs float rounding at exact line/window boundaries (a phase of 1/3 computed as 0.333...3).
 _EPS = 1e-7

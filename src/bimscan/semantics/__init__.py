@@ -5,13 +5,13 @@ from bimscan.semantics.scheme import (
     LabelMapping,
     builtin_schemes,
     check_rule_classes,
+    label_model,
     load_scheme,
     map_labels,
     parse_scheme,
-    relabel,
 )
 
 __all__ = [
-    "DEFAULT_SCHEME", "LabelMapping", "builtin_schemes", "check_rule_classes", "load_scheme",
-    "map_labels", "parse_scheme", "relabel",
+    "DEFAULT_SCHEME", "LabelMapping", "builtin_schemes", "check_rule_classes", "label_model", "load_scheme",
+    "map_labels", "parse_scheme",
 ]

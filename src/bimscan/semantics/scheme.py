@@ -22,16 +22,16 @@ from __future__ import annotations
 import re
 from collections import Counter
 from collections.abc import Collection, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from bimscan.config import load_toml
+from bimscan.toml_files import load_toml
 from bimscan.errors import SchemeError
-from bimscan.types import ComponentTable, LabelClass, LabelRule, LabelScheme
+from bimscan.types import BimScene, ComponentTable, LabelClass, LabelRule, LabelScheme, ParsedModel
 
 DEFAULT_SCHEME = "spc5"
 _COLOR = re.compile(r"^#[0-9a-fA-F]{6}$")
@@ -185,9 +185,11 @@ def _match(key: tuple[str, str, str], class_ancestry: Mapping[str, tuple[str, ..
     return best_label
 
 
-def relabel(components: ComponentTable, scheme: LabelScheme) -> tuple[ComponentTable, dict[str, int]]:
-    """The component table with labels under ``scheme``, and the unmapped IFC classes."""
-    from dataclasses import replace
-
-    mapping = map_labels(components, scheme)
-    return replace(components, label=mapping.labels), mapping.unmapped
+def label_model(model: ParsedModel, scheme: LabelScheme) -> BimScene:
+    """Stage 3 applied to stage 1's output: every component of ``model`` labelled under ``scheme``."""
+    mapping = map_labels(model.components, scheme)
+    return BimScene(
+        source=model.source, file_sha256=model.file_sha256, schema=model.schema, mesh=model.mesh,
+        components=replace(model.components, label=mapping.labels), scheme=scheme, storeys=model.storeys,
+        spaces=model.spaces, failed=model.failed, unmapped_classes=mapping.unmapped,
+    )

@@ -109,7 +109,7 @@ def _from_meta(entry: dict[str, Any], meta: dict[str, Any]) -> UnitStats:
 
 def _recount(folder: Path, entry: dict[str, Any], classes: list[LabelClass], *, chunk_points: int) -> UnitStats:
     from bimscan.io import iter_cloud_chunks
-    from bimscan.process.checks import CloudSummary
+    from bimscan.process.summary import CloudSummary
 
     files = entry["files"]
     fmt = next((f for f in READ_PREFERENCE if f in files), None)

@@ -11,8 +11,8 @@ from collections.abc import Callable, Iterator
 
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.pattern import PulsePattern
-from bimscan.scan.scanner import ScanSettings
-from bimscan.scan.scanning import DEFAULT_CHUNK_PULSES, VirtualScanner
+from bimscan.scan.device import ScanSettings
+from bimscan.scan.virtual_scanner import DEFAULT_CHUNK_PULSES, VirtualScanner
 from bimscan.types import PointCloud, Station
 
 

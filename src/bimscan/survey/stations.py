@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.errors import InputFileError, StationError
-from bimscan.scan.scanning import VirtualScanner, sphere_directions
+from bimscan.scan.virtual_scanner import VirtualScanner, sphere_directions
 from bimscan.types import BimScene, Station
 
 FLOOR_CLASSES = ("IfcSlab", "IfcCovering", "IfcRamp", "IfcRampFlight", "IfcPlate")

@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
 
-from bimscan.config import build_dataclass, load_toml
+from bimscan.toml_files import build_dataclass, load_toml
 from bimscan.errors import ConfigError, ScannerSettingsError
 
 

@@ -2,7 +2,7 @@
 
 ``plan_building`` turns (seed, storeys) into a ``BuildingPlan``: footprint, storey height,
 structural grid (columns, downstand beams), stairwell, and per storey the rooms, walls with their
-door and window openings, ceilings and furniture. ``generate.py`` turns a plan into IFC4. Keeping
+door and window openings, ceilings and furniture. ``building.py`` turns a plan into IFC4. Keeping
 the two apart lets the layout rules be read (and tested) without any geometry kernel.
 
 The building is a double-loaded corridor block, the commonest office/school plan: a corridor

@@ -12,7 +12,7 @@ from bimscan.scan.engine import RayEngine, make_engine
 from bimscan.scan.kernels import finish_hits, generate_rays, noise_key, station_normals
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.pattern import PulsePattern
-from bimscan.scan.scanner import ScannerModel, ScanSettings
+from bimscan.scan.device import ScannerModel, ScanSettings
 from bimscan.types import PointCloud, SceneMesh, Station
 
 DEFAULT_CHUNK_PULSES = 1 << 20  # ~70 MB of working arrays per chunk

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from bimscan.config import build_dataclass, load_toml
+from bimscan.toml_files import build_dataclass, load_toml
 from bimscan.errors import ConfigError
 
 DEFAULT_CLASS_NAMES = ("Wall&Column", "Beam", "Covering", "Slab", "Others")

@@ -1,7 +1,7 @@
 """Procedural demo buildings as valid IFC4 files: ``make_building``.
 
 The embedded default of bimscan: the quickstart, the demo dataset and most tests scan these
-buildings. Each is a seeded double-loaded corridor block (see ``generate_layout.py`` for the
+buildings. Each is a seeded double-loaded corridor block (see ``layout.py`` for the
 plan rules) authored with ``ifcopenshell.api``: project, site, building, storeys in metres;
 exterior and interior walls with door and window openings cut by IfcOpeningElements and filled
 with parametric doors and windows; a column grid with downstand beams under every slab; floor,
@@ -42,7 +42,7 @@ from ifcopenshell.util.shape_builder import ShapeBuilder
 
 from bimscan.files import atomic_output
 from bimscan.errors import ConfigError, OutputError
-from bimscan.ifc.generate_layout import (
+from bimscan.ifc.generate.layout import (
     CEILING_M,
     LANDING_DEPTH_M,
     MAX_STOREYS,
