@@ -37,14 +37,15 @@ def spec_text(head_deg_per_s: float, formats: list[str]) -> str:
 
 def single_scan(folder: Path, scene_ifc: Path, *, head_deg_per_s: float) -> tuple[int, float]:
     """One unit the way `bimscan scan` runs it (stations planned beforehand, not timed): points, seconds."""
-    from bimscan.pipeline import load_scene
-    from bimscan.pipeline import ScanOptions, prepare_survey, scan_survey
+    from bimscan.pipeline import load_scene, scan_survey
+    from bimscan.scan.recipe import ScanRecipe
+    from bimscan.survey.survey import prepare_survey
 
-    options = ScanOptions(preset="exp5", head_deg_per_s=head_deg_per_s)
+    recipe = ScanRecipe.resolve(preset="exp5", head_deg_per_s=head_deg_per_s)
     scene = load_scene(scene_ifc)
-    survey = prepare_survey(scene, options)
+    survey = prepare_survey(scene, recipe)
     start = time.perf_counter()
-    result = scan_survey(survey, folder / "single.laz", options, progress=False, overwrite=True)
+    result = scan_survey(survey, folder / "single.laz", progress=False, overwrite=True)
     return result.points, time.perf_counter() - start
 
 

@@ -61,6 +61,7 @@ def main() -> None:
     from bimscan.scan.noise import NoiseModel
     from bimscan.scan.pattern import PulsePattern
     from bimscan.scan.device import SCANNERS, ScanSettings
+    from bimscan.scan.recipe import ScanRecipe
     from bimscan.scan.virtual_scanner import VirtualScanner
     from bimscan.survey.stations import plan_stations
 
@@ -105,8 +106,10 @@ def main() -> None:
 
     print("\n2. whole scan path vs raw engine (interleaved rounds, best of each)")
     for label, noise in (("noise on ", NoiseModel()), ("noise off", NoiseModel.off())):
+        recipe = ScanRecipe(scanner=vz400, settings=settings, preset=None, noise=noise, seed=1)
+
         def path_once() -> int:  # as the pipeline runs it: reused output buffers
-            return sum(len(c) for c in scanner.scan_station(station, settings, noise=noise, seed=1, reuse_buffers=True))
+            return sum(len(c) for c in scanner.scan_station(station, recipe, reuse_buffers=True))
 
         points = path_once()  # JIT warm-up
         raw, path = float("inf"), float("inf")

@@ -15,6 +15,7 @@ from functools import cached_property
 import numpy as np
 
 NO_COMPONENT = -1  # component id of points that belong to no BIM component (real scans)
+UNLABELLED = 255  # label id of points without ground truth (skipped by losses and metrics); no scheme class may use it
 
 
 def _check(name: str, array: np.ndarray | None, dtype: str, shape: tuple[int | None, ...]) -> None:

@@ -9,8 +9,8 @@ import pytest
 
 from bimscan.cli.main import main
 from bimscan.io import read_cloud, read_cloud_header
-from bimscan.pipeline import ScanOptions, scan_model
-from bimscan.scan.noise import NoiseModel
+from bimscan.pipeline import scan_model
+from bimscan.scan.recipe import ScanRecipe
 
 FAST = ["--preset", "exp1", "--head-speed", "60"]
 
@@ -46,11 +46,11 @@ def test_same_seed_same_bytes_different_seed_different_bytes(box_room_ifc, tmp_p
 
 @pytest.mark.parametrize("suffix", [".laz", ".ply", ""])
 def test_output_bytes_do_not_depend_on_chunk_size(box_room_ifc, tmp_path, suffix):
-    options = dict(preset="exp1", head_deg_per_s=60.0, seed=4, noise=NoiseModel())
+    recipe = ScanRecipe.resolve(preset="exp1", head_deg_per_s=60.0, seed=4)
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
-    a = scan_model(box_room_ifc, tmp_path / "a" / f"cloud{suffix}", ScanOptions(**options), progress=False).path
-    b = scan_model(box_room_ifc, tmp_path / "b" / f"cloud{suffix}", ScanOptions(**options, chunk_pulses=20_000),
+    a = scan_model(box_room_ifc, tmp_path / "a" / f"cloud{suffix}", recipe, progress=False).path
+    b = scan_model(box_room_ifc, tmp_path / "b" / f"cloud{suffix}", recipe.with_fields(chunk_pulses=20_000),
                    progress=False).path
     files_a = sorted(p.relative_to(a.parent) for p in a.parent.rglob("*") if p.is_file())
     files_b = sorted(p.relative_to(b.parent) for p in b.parent.rglob("*") if p.is_file())
@@ -105,7 +105,7 @@ def test_an_interrupted_scan_leaves_no_file(box_room_ifc, tmp_path, monkeypatch)
     monkeypatch.setattr(pipeline, "run_survey", interrupted)
     out = tmp_path / "cut.laz"
     with pytest.raises(KeyboardInterrupt):
-        scan_model(box_room_ifc, out, ScanOptions(preset="exp3", head_deg_per_s=60.0, chunk_pulses=20_000), progress=False)
+        scan_model(box_room_ifc, out, ScanRecipe.resolve(head_deg_per_s=60.0, chunk_pulses=20_000), progress=False)
     assert list(tmp_path.iterdir()) == []
 
 

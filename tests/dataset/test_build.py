@@ -51,9 +51,9 @@ def test_unit_metadata_records_inputs_counts_and_checksums_that_match_the_files(
         folder = out / "units" / entry["id"]
         meta = json.loads((folder / "unit.json").read_text())
         assert meta["scene"] == entry["scene"] and meta["config"] == entry["config"]
-        assert meta["inputs"]["seed"] == 3
-        assert meta["inputs"]["noise"]["range_sigma_m"] == 0.005 and meta["inputs"]["noise"]["angle_sigma_deg"] == 0.03
-        assert meta["inputs"]["config"]["settings"]["head_deg_per_s"] == 360.0
+        assert meta["inputs"]["recipe"]["seed"] == 3
+        assert meta["inputs"]["recipe"]["noise"]["range_sigma_m"] == 0.005 and meta["inputs"]["recipe"]["noise"]["angle_sigma_deg"] == 0.03
+        assert meta["inputs"]["recipe"]["settings"]["head_deg_per_s"] == 360.0
         assert meta["inputs"]["scene"]["sha256"] == _sha256(out / "scenes" / f"{entry['scene']}.ifc")
         assert meta["ifc_schema"] == "IFC4" and meta["inputs"]["software"].startswith("bimscan ")
         assert len(meta["stations"]) >= 2
@@ -120,7 +120,7 @@ def test_a_changed_spec_rebuilds_the_units_it_changes(reference_dataset: BuiltDa
     report = build_dataset(load_spec(spec), out, executor="serial", progress=False)
     assert (report.built, report.reused) == (2, 2)  # the two "dense" units
     meta = json.loads((out / "units" / "north__dense" / "unit.json").read_text())
-    assert meta["inputs"]["config"]["preset"] == "exp4"
+    assert meta["inputs"]["recipe"]["preset"] == "exp4"
 
 
 def _children(pid: int) -> list[int]:

@@ -48,18 +48,36 @@ def _write(folder: Path, text: str) -> Path:
 
 
 def test_a_spec_loads_with_paths_made_absolute_and_settings_resolved(spec_folder: Path) -> None:
-    from bimscan.dataset.spec import config_settings
-
     spec = load_spec(_write(spec_folder, GOOD))
     assert spec.unit_ids() == ["room__paper-exp2", "room__mine", "generated__paper-exp2", "generated__mine"]
     room, generated = spec.scenes
     assert room.ifc == str((spec_folder / "models" / "room.ifc").resolve())
     assert room.stations == str((spec_folder / "stations.csv").resolve())
     assert generated.ifc is None and generated.generate.seed == 4 and generated.generate.storeys == 3
-    assert spec.noise.range_sigma_m == 0.002 and spec.noise.angle_sigma_deg == 0.03
+    assert spec.noise.range_sigma_m == 0.002 and spec.noise.angle_sigma_deg is None  # None: the scanner's accuracy
     assert spec.formats == ("laz", "ply") and spec.voxel_size_m == 0.02 and spec.seed == 7
-    assert config_settings(spec.configs[0]).scan_freq_hz == 360
-    assert config_settings(spec.configs[1]).head_deg_per_s == 20
+    room_exp2, room_mine = (spec.recipe(room, config) for config in spec.configs)
+    assert room_exp2.settings.scan_freq_hz == 360 and room_exp2.preset == "exp2"
+    assert room_mine.settings.head_deg_per_s == 20 and room_mine.preset is None
+    assert room_exp2.noise.range_sigma_m == 0.002 and room_exp2.noise.angle_sigma_deg == 0.03 and room_exp2.seed == 7
+    assert room_exp2.stations_from == room.stations and spec.recipe(generated, spec.configs[0]).stations_from == "auto"
+
+
+def test_every_unit_of_a_spec_draws_its_own_noise_stream(spec_folder: Path) -> None:
+    spec = load_spec(_write(spec_folder, GOOD))
+    recipes = [spec.recipe(scene, config) for scene in spec.scenes for config in spec.configs]
+    assert [r.noise_stream for r in recipes] == spec.unit_ids()
+    assert len({r.fingerprint() for r in recipes}) == len(recipes)
+
+
+def test_a_scheme_with_a_misspelt_ifc_class_is_refused_before_any_work(spec_folder: Path) -> None:
+    from bimscan.errors import SchemeError
+
+    scheme = spec_folder / "scheme.toml"
+    scheme.write_text('name = "typo"\ndefault = "b"\n[[classes]]\nid = 0\nname = "a"\n[[classes]]\nid = 1\nname = "b"\n'
+                      '[[rules]]\nifc_class = "IfcWal"\nlabel = "a"\n')
+    with pytest.raises(SchemeError, match="unknown IFC class 'IfcWal'"):
+        load_spec(_write(spec_folder, GOOD.replace('name = "two"', 'name = "two"\nscheme = "scheme.toml"')))
 
 
 @pytest.mark.parametrize(("edit", "error", "message"), [

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bimscan.dataset.manifest import manifest_entry, write_manifest
+from bimscan.dataset.layout import DatasetFolder, Manifest, ManifestEntry
 from bimscan.errors import InputFileError, LearnError
 from bimscan.io.text import write_text_cloud
 from bimscan.learn.blocks import locate_columns, encode_column_key
@@ -22,10 +22,10 @@ from bimscan.types import PointCloud
 
 
 def _write_manifest(folder: Path, units: list[dict[str, object]]) -> None:
-    write_manifest(folder, [
-        manifest_entry(unit=u["id"], scene="s", config="c", status=u["status"], files=u["files"])  # type: ignore[arg-type]
+    DatasetFolder(folder).write_manifest(Manifest(units=tuple(
+        ManifestEntry(id=u["id"], scene="s", config="c", status=u["status"], files=u["files"])  # type: ignore[arg-type]
         for u in units
-    ])
+    )))
 
 
 def test_dataset_folder_expands_to_its_done_units_preferring_the_numpy_folder(tmp_path: Path) -> None:

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from bimscan.cli.main import main
-from bimscan.dataset.manifest import manifest_entry, write_manifest
+from bimscan.dataset.layout import DatasetFolder, Manifest, ManifestEntry
 from bimscan.io import open_cloud_writer
 from bimscan.semantics.scheme import load_scheme
 from bimscan.types import CloudHeader, PointCloud
@@ -29,10 +29,10 @@ def _write_dataset(folder: Path, room: Callable[..., PointCloud]) -> None:
             for start in range(0, len(cloud), 1000):  # streamed, as the scanner writes
                 writer.write(cloud.take(slice(start, start + 1000)))
         key = "laz" if file.endswith(".laz") else "npy"
-        units.append(manifest_entry(unit=unit, scene=f"room{i}", config="tls", status="done", points=len(cloud),
-                                    files={key: f"units/{unit}/{file}"}))
-    units.append(manifest_entry(unit="u3", scene="room3", config="tls", status="failed", error="test"))
-    write_manifest(folder, units)
+        units.append(ManifestEntry(id=unit, scene=f"room{i}", config="tls", status="done", points=len(cloud),
+                                   files={key: f"units/{unit}/{file}"}))
+    units.append(ManifestEntry(id="u3", scene="room3", config="tls", status="failed", error="test"))
+    DatasetFolder(folder).write_manifest(Manifest(units=tuple(units)))
 
 
 def _write_foreign_las(path: Path, cloud: PointCloud) -> None:

@@ -12,6 +12,7 @@ from bimscan.pipeline import load_scene
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.pattern import PulsePattern
 from bimscan.scan.device import PRESETS, SCANNERS, ScanSettings
+from bimscan.scan.recipe import ScanRecipe
 from bimscan.scan.virtual_scanner import VirtualScanner
 from bimscan.types import PointCloud, Station
 
@@ -26,8 +27,9 @@ def box(box_room_ifc):
     return scene, VirtualScanner(scene.mesh, scene.components.label, scanner=VZ400)
 
 
-def scan(scanner, station=CENTRE, settings=EXACT, noise=NoiseModel.off(), seed=0, **kw) -> PointCloud:
-    return PointCloud.concatenate(list(scanner.scan_station(station, settings, noise=noise, seed=seed, **kw)))
+def scan(scanner, station=CENTRE, settings=EXACT, noise=NoiseModel.off(), seed=0, **recipe_fields) -> PointCloud:
+    recipe = ScanRecipe(scanner=scanner.scanner, settings=settings, preset=None, noise=noise, seed=seed, **recipe_fields)
+    return PointCloud.concatenate(list(scanner.scan_station(station, recipe)))
 
 
 def distances_to_components(scene, cloud: PointCloud) -> np.ndarray:

@@ -107,7 +107,8 @@ def test_a_user_scheme_applies_to_a_real_model(shared_ifc, tmp_path):
 BAD_SCHEMES = [
     ('default = "a"\n', "at least one"),
     ('default = "b"\n[[classes]]\nid = 0\nname = "a"\n', "'default' must name one of the classes"),
-    ('default = "a"\n[[classes]]\nid = 300\nname = "a"\n', "0..255"),
+    ('default = "a"\n[[classes]]\nid = 300\nname = "a"\n', "0..254"),
+    ('default = "a"\n[[classes]]\nid = 255\nname = "a"\n', "255 means unlabelled"),
     ('default = "a"\n[[classes]]\nid = 0\nname = "a"\n[[classes]]\nid = 0\nname = "b"\n', "appear more than once"),
     ('default = "a"\n[[classes]]\nid = 0\nname = "a"\ncolor = "red"\n', "#rrggbb"),
     ('default = "a"\n[[classes]]\nid = 0\nname = "a"\n[[rules]]\nifc_class = "IfcWall"\nlabel = "zzz"\n', "not one of the classes"),

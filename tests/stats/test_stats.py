@@ -1,4 +1,5 @@
-"""Dataset statistics on a small dataset written by hand: the numbers, the files, the report."""
+"""Dataset statistics on a small dataset of chosen figures, written through the dataset layout's
+own records: the numbers, the files, the report."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import numpy as np
 import pytest
 
 from bimscan.cli.main import main
-from bimscan.dataset.manifest import manifest_entry, write_json, write_manifest
+from bimscan.dataset.layout import DatasetFolder, Manifest, ManifestEntry, UnitRecord, write_unit_record
 from bimscan.stats.collect import collect_units
 from bimscan.stats.report import write_stats
 from bimscan.stats.summary import summarize_dataset
@@ -26,21 +27,24 @@ UNITS = {
 }
 
 
-def _write_dataset(folder: Path) -> Path:
+def _write_dataset(path: Path) -> Path:
+    folder = DatasetFolder(path)
     entries = []
     for uid, (points, low, high, counts) in UNITS.items():
         scene, config = uid.split("__")
-        unit = folder / "units" / uid
-        unit.mkdir(parents=True)
-        write_json(unit / "unit.json", {
-            "points": points, "extents": {"min": list(low), "max": list(high)},
-            "class_histogram": {c["name"]: n for c, n in zip(CLASSES, counts)},
-            "inputs": {"scheme": {"classes": CLASSES}}})
-        entries.append(manifest_entry(unit=uid, scene=scene, config=config, status="done", points=points,
-                                      files={"npy": f"units/{uid}/cloud"}))
-    entries.append(manifest_entry(unit="B__c3", scene="B", config="c3", status="failed", error="disk full"))
-    write_manifest(folder, entries)
-    return folder
+        folder.unit_dir(uid).mkdir(parents=True)
+        write_unit_record(folder.unit_dir(uid), UnitRecord(
+            id=uid, scene=scene, config=config, fingerprint="f", inputs={"scheme": {"classes": CLASSES}},
+            ifc_schema="IFC4", stations=(), device_warnings=(), points=points, points_scanned=points, dropped_invalid=0,
+            dropped_by_voxel=0, extents={"min": list(low), "max": list(high),
+                                         "size": [h - lo for lo, h in zip(low, high)]},
+            class_histogram={c["name"]: n for c, n in zip(CLASSES, counts)}, station_counts={"0": points},
+            files={"npy": "cloud"}, checksums={}, bytes=0))
+        entries.append(ManifestEntry(id=uid, scene=scene, config=config, status="done", points=points,
+                                     files=folder.unit_files(uid, {"npy": "cloud"})))
+    entries.append(ManifestEntry(id="B__c3", scene="B", config="c3", status="failed", error="disk full"))
+    folder.write_manifest(Manifest(units=tuple(entries)))
+    return path
 
 
 @pytest.fixture
@@ -65,7 +69,7 @@ def test_statistics_equal_the_hand_computed_values(dataset: Path) -> None:
     assert b.max_extent_spread == 0.0 and b.max_class_spread_pp == 0.0
     assert stats.max_extent_spread() == pytest.approx((0.3 / 3.15, "A", "z"))
     assert stats.max_class_spread() == pytest.approx((2.0, "A", "Slab"))
-    assert [m["id"] for m in stats.missing] == ["B__c3"]
+    assert [m.id for m in stats.missing] == ["B__c3"]
 
 
 def test_stats_writes_tables_plots_and_a_report_that_states_stability_in_numbers(dataset: Path, tmp_path: Path) -> None:

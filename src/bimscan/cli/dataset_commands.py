@@ -32,11 +32,11 @@ def _report_build(report: BuildReport) -> None:
         for note in scene.notes:
             click.echo(f"warning: scene {scene.scene}: {note}", err=True)
     for entry in report.entries:
-        if entry["status"] == "failed":
-            click.echo(f"failed: {entry['id']}: {entry['error']}", err=True)
+        if entry.status == "failed":
+            click.echo(f"failed: {entry.id}: {entry.error}", err=True)
     click.echo(f"{report.out_dir}: {report.summary()}")
     if not report.ok:
-        pending = sum(e["status"] == "pending" for e in report.entries)
+        pending = sum(e.status == "pending" for e in report.entries)
         raise DatasetError(f"{report.failed} of {len(report.entries)} units failed"
                            f"{f' and {pending} are pending' if pending else ''}; fix the causes above and run the "
                            "same command again to finish them")
@@ -161,54 +161,22 @@ def demo(out_dir: Path, workers: int | None, executor: str, head_deg_per_s: floa
     minutes), then `bimscan stats` and pictures of each scene. Run it again to resume.
     OUT_DIR/dataset.toml is the spec: change it and run `bimscan build` on it for your own.
     """
-    from bimscan.dataset.build import build_dataset
-    from bimscan.dataset.demo import RENDER_CONFIG, write_demo_spec
-    from bimscan.dataset.manifest import read_manifest
-    from bimscan.dataset.spec import device_warnings, load_spec, unit_id
-    from bimscan.errors import DatasetError, OutputError
-    from bimscan.pipeline import load_scene
-    from bimscan.render.cloud import render_cloud
-    from bimscan.render.figure import render_figure
-    from bimscan.semantics import load_scheme
-    from bimscan.stats.report import write_stats
+    from bimscan.dataset.demo import run_demo
+    from bimscan.errors import DatasetError
 
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"cannot create {out_dir} ({exc.strerror}); choose another OUT_DIR") from exc
-    spec_path = write_demo_spec(out_dir / "dataset.toml", head_deg_per_s=head_deg_per_s)
-    spec = load_spec(spec_path)
-    dataset = out_dir / "dataset"
-    click.echo(f"building {len(spec.scenes)} scenes x {len(spec.configs)} configurations into {dataset}")
-    warnings = device_warnings(spec)
-    if warnings:
-        click.echo(f"note: {len(warnings)} settings of the paper's presets lie outside the scanner's limits, as in "
-                   f"the paper (`bimscan build {spec_path} ...` lists them)", err=True)
-    report = build_dataset(spec, dataset, workers=workers, executor=executor)
+    result = run_demo(out_dir, workers=workers, executor=executor, head_deg_per_s=head_deg_per_s,
+                      log=lambda line: click.echo(line, err=line.startswith("note:")))
     failure: DatasetError | None = None
     try:
-        _report_build(report)
+        _report_build(result.build)
     except DatasetError as exc:
-        failure = exc  # statistics and pictures of the finished units are still worth making
-    done = {e["id"]: e for e in read_manifest(dataset)["units"] if e["status"] == "done"}
-    if done:
-        result = write_stats(dataset, out_dir / "stats")
-        click.echo(f"statistics: {result.out_dir / 'report.md'}")
-    scheme = load_scheme(spec.scheme)
-    (out_dir / "pictures").mkdir(exist_ok=True)
-    for scene in spec.scenes:
-        entry = done.get(unit_id(scene.name, RENDER_CONFIG))
-        if entry is None:
-            continue
-        cloud = dataset / entry["files"]["laz"]
-        picture = render_cloud(cloud, out_dir / "pictures" / f"{scene.name}_{RENDER_CONFIG}.png")
-        model = load_scene(dataset / "scenes" / f"{scene.name}.ifc", scheme=scheme)
-        both = render_figure(model.mesh, model.components.label, scheme, cloud,
-                             out_dir / "pictures" / f"{scene.name}_model_and_scan.png",
-                             model_name=f"{scene.name} (generated)")
-        click.echo(f"pictures: {picture.path}, {both.path}")
-    click.echo(f"spec: {spec_path} (edit it and run 'bimscan build {spec_path} {dataset}' to rebuild)")
-    click.echo(f"manifest: {dataset / 'manifest.json'}")
+        failure = exc  # statistics and pictures of the finished units were still made
+    if result.stats_report is not None:
+        click.echo(f"statistics: {result.stats_report}")
+    for first, second in zip(result.pictures[::2], result.pictures[1::2]):
+        click.echo(f"pictures: {first}, {second}")
+    click.echo(f"spec: {result.spec} (edit it and run 'bimscan build {result.spec} {result.dataset}' to rebuild)")
+    click.echo(f"manifest: {result.dataset / 'manifest.json'}")
     if failure is not None:
         raise failure
 

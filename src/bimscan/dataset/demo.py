@@ -1,16 +1,22 @@
-"""The dataset of ``bimscan demo``: generated buildings, small enough for a laptop.
+"""``bimscan demo``: the whole pipeline on generated buildings, small enough for a laptop.
 
 Two seeded demo buildings (one and two storeys) scanned with all six of the paper's
 configurations, at a head speed of 60 deg/s (the VZ-400's fastest, six times the presets'
 10 deg/s: a sixth of the points, the same pulse and line rates, so the density ratios between
-configurations stay the paper's). The command (``cli/dataset_commands.py``) writes this spec
-beside the dataset, builds it, and makes the statistics (Figs. 4-6) and pictures (Fig. 3);
-running it again resumes where it stopped.
+configurations stay the paper's). ``run_demo`` writes this spec beside the dataset, builds it,
+and makes the statistics (Figs. 4-6) and pictures (Fig. 3); running it again resumes where it
+stopped.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from bimscan.dataset.build import BuildReport
 
 _TEMPLATE = """\
 # The dataset of 'bimscan demo': two generated buildings x the paper's six configurations.
@@ -51,3 +57,62 @@ def write_demo_spec(path: Path, *, head_deg_per_s: float = DEFAULT_HEAD_DEG_PER_
 
     write_atomic(path, demo_spec(head_deg_per_s=head_deg_per_s).encode("utf-8"))
     return path
+
+
+@dataclass(frozen=True)
+class DemoResult:
+    """What ``run_demo`` made: the spec, the dataset's build report, the statistics report (None
+    when no unit finished) and the pictures."""
+
+    spec: Path
+    dataset: Path
+    build: BuildReport
+    stats_report: Path | None
+    pictures: list[Path] = field(default_factory=list)
+
+
+def run_demo(out_dir: str | Path, *, workers: int | None = None, executor: str = "local",
+             head_deg_per_s: float = DEFAULT_HEAD_DEG_PER_S, log: Callable[[str], None] = lambda line: None) -> DemoResult:
+    """The demo in ``out_dir``: spec, dataset (``out_dir/dataset``), statistics and pictures.
+
+    Statistics and pictures are made for the units that finished even when others failed (the
+    build report says which). ``log`` receives progress lines.
+    """
+    from bimscan.dataset.build import build_dataset
+    from bimscan.dataset.layout import DatasetFolder, unit_id
+    from bimscan.dataset.spec import device_warnings, load_spec
+    from bimscan.errors import OutputError
+    from bimscan.pipeline import load_scene
+    from bimscan.render.cloud import render_cloud
+    from bimscan.render.figure import render_figure
+    from bimscan.stats.report import write_stats
+
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"cannot create {out} ({exc.strerror}); choose another OUT_DIR") from exc
+    spec_path = write_demo_spec(out / "dataset.toml", head_deg_per_s=head_deg_per_s)
+    spec = load_spec(spec_path)
+    folder = DatasetFolder(out / "dataset")
+    log(f"building {len(spec.scenes)} scenes x {len(spec.configs)} configurations into {folder.root}")
+    warnings = device_warnings(spec)
+    if warnings:
+        log(f"note: {len(warnings)} settings of the paper's presets lie outside the scanner's limits, as in "
+            f"the paper (`bimscan build {spec_path} ...` lists them)")
+    report = build_dataset(spec, folder.root, workers=workers, executor=executor)
+    done = {e.id: e for e in folder.read_manifest().done()}
+    stats_report = write_stats(folder.root, out / "stats").out_dir / "report.md" if done else None
+    pictures: list[Path] = []
+    (out / "pictures").mkdir(exist_ok=True)
+    for scene in spec.scenes:
+        entry = done.get(unit_id(scene.name, RENDER_CONFIG))
+        if entry is None:
+            continue
+        cloud = entry.cloud_file(folder.root)
+        pictures.append(render_cloud(cloud, out / "pictures" / f"{scene.name}_{RENDER_CONFIG}.png").path)
+        model = load_scene(folder.generated_scene_path(scene.name), scheme=spec.scheme)
+        pictures.append(render_figure(model.mesh, model.components.label, model.scheme, cloud,
+                                      out / "pictures" / f"{scene.name}_model_and_scan.png",
+                                      model_name=f"{scene.name} (generated)").path)
+    return DemoResult(spec=spec_path, dataset=folder.root, build=report, stats_report=stats_report, pictures=pictures)

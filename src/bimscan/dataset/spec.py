@@ -11,7 +11,7 @@ A spec is one TOML file (paths inside it are relative to the file)::
     engine = "open3d"             # ray engine
     strict = false                # settings outside the device's limits are errors
 
-    [noise]                       # optional; the paper's values by default
+    [noise]                       # optional; default: the scanner's accuracies
     range_sigma_m = 0.005
     angle_sigma_deg = 0.03
 
@@ -34,8 +34,10 @@ A spec is one TOML file (paths inside it are relative to the file)::
     settings = { pulse_freq_hz = 300000, scan_freq_hz = 100, head_deg_per_s = 20 }
 
 ``load_spec`` checks everything a build needs before any work starts: unknown keys, bad
-values, names, missing IFC or station files, unknown presets, schemes, scanners and engines,
-impossible settings. Each (scene, configuration) pair is one data unit ``<scene>__<config>``.
+values, names, missing IFC or station files, unknown presets, schemes (and the IFC classes their
+rules name), scanners and engines, impossible settings. Each (scene, configuration) pair is one
+data unit ``<scene>__<config>``, scanned with the ``ScanRecipe`` that ``DatasetSpec.recipe``
+resolves for it.
 """
 
 from __future__ import annotations
@@ -46,17 +48,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from bimscan.toml_files import build_dataclass, load_toml
+from bimscan.dataset.layout import FORMAT_FILES, UNIT_SEPARATOR, unit_id
 from bimscan.errors import BimscanError, ConfigError, InputFileError
+from bimscan.scan.device import DEFAULT_SCANNER, ScanSettings
+from bimscan.scan.engine import DEFAULT_ENGINE
 from bimscan.scan.noise import NoiseModel
-from bimscan.scan.device import (
-    PRESETS, ScannerModel, ScanSettings, check_settings, load_scanner, load_settings, with_overrides,
-)
+from bimscan.scan.recipe import AUTO_STATIONS, ScanRecipe
+from bimscan.toml_files import build_dataclass, load_toml
 from bimscan.types import LabelScheme
 
-# format key -> the unit's cloud file name (a folder for NumPy)
-FORMAT_FILES: dict[str, str] = {"laz": "cloud.laz", "las": "cloud.las", "ply": "cloud.ply", "npy": "cloud"}
-UNIT_SEPARATOR = "__"
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
 
@@ -75,7 +75,7 @@ class SceneSpec:
     name: str
     ifc: str | None = None
     generate: GeneratedScene | None = None
-    stations: str = "auto"  # "auto" or a station CSV file (absolute once loaded)
+    stations: str = AUTO_STATIONS  # "auto" or a station CSV file (absolute once loaded)
 
 
 @dataclass(frozen=True)
@@ -95,10 +95,10 @@ class DatasetSpec:
     name: str = "dataset"
     seed: int = 0
     scheme: str = "spc5"
-    scanner: str = "riegl_vz400"
+    scanner: str = DEFAULT_SCANNER
     formats: tuple[str, ...] = ("laz",)
     voxel_size_m: float | None = None
-    engine: str = "open3d"
+    engine: str = DEFAULT_ENGINE
     strict: bool = False
     noise: NoiseModel = field(default_factory=NoiseModel)
     scenes: tuple[SceneSpec, ...] = ()
@@ -111,10 +111,19 @@ class DatasetSpec:
     def scene(self, name: str) -> SceneSpec:
         return next(s for s in self.scenes if s.name == name)
 
+    def config(self, name: str) -> ConfigSpec:
+        return next(c for c in self.configs if c.name == name)
 
-def unit_id(scene: str, config: str) -> str:
-    """The id (and folder name) of the unit of ``scene`` scanned with ``config``."""
-    return f"{scene}{UNIT_SEPARATOR}{config}"
+    def recipe(self, scene: SceneSpec, config: ConfigSpec) -> ScanRecipe:
+        """The scan recipe of the unit (scene, config): its own noise stream (the unit id), so no
+        two units share a noise sequence. Raises ConfigError/ScannerSettingsError when impossible."""
+        if (config.preset is None) == (config.settings is None):
+            raise ConfigError(f"give exactly one of 'preset' (exp1..exp6 or a settings file) or 'settings' (a table), "
+                              f"not {'both' if config.preset else 'neither'}")
+        return ScanRecipe.resolve(preset=config.preset, settings=config.settings, scanner=self.scanner,
+                                  head_deg_per_s=config.head_deg_per_s, noise=self.noise, seed=self.seed,
+                                  noise_stream=unit_id(scene.name, config.name), engine=self.engine,
+                                  stations_from=scene.stations, strict=self.strict)
 
 
 def load_spec(path: str | Path) -> DatasetSpec:
@@ -174,8 +183,6 @@ def _scene(raw: Any, *, base: Path, where: str) -> SceneSpec:
 
 def check_spec(spec: DatasetSpec, *, where: str) -> None:
     """Raise a BimscanError for the first thing in ``spec`` a build could not do."""
-    from bimscan.scan.engine import ENGINES
-
     for kind, names in (("scene", [s.name for s in spec.scenes]), ("configuration", [c.name for c in spec.configs])):
         for name in names:
             if not _NAME.match(name) or UNIT_SEPARATOR in name:
@@ -195,22 +202,15 @@ def check_spec(spec: DatasetSpec, *, where: str) -> None:
     if spec.voxel_size_m is not None and not spec.voxel_size_m > 0:
         raise ConfigError(f"{where}: voxel_size_m = {spec.voxel_size_m} is impossible; give an edge > 0 in metres "
                           "or leave it out for no subsampling")
-    if spec.seed < 0:
-        raise ConfigError(f"{where}: seed = {spec.seed} is impossible; give an integer >= 0")
-    if spec.engine not in ENGINES:
-        raise ConfigError(f"{where}: unknown ray engine {spec.engine!r}; use one of {', '.join(ENGINES)}")
     try:
         resolve_scheme(spec)
-        scanner = resolve_scanner(spec)
     except BimscanError as exc:
         raise type(exc)(f"{where}: {exc}") from exc
     for config in spec.configs:
-        config_where = f"{where} [[configs]] {config.name!r}"
         try:
-            settings = config_settings(config)
-            check_settings(settings, scanner, strict=spec.strict)
+            spec.recipe(spec.scenes[0], config)  # settings, scanner, noise, seed, engine: the same for every scene
         except BimscanError as exc:
-            raise type(exc)(f"{config_where}: {exc}") from exc
+            raise type(exc)(f"{where} [[configs]] {config.name!r}: {exc}") from exc
     for scene in spec.scenes:
         if scene.generate is not None:
             from bimscan.ifc.generate import check_building_options
@@ -235,36 +235,13 @@ def _absolute(spec: DatasetSpec, *, base: Path) -> DatasetSpec:
 
 
 def resolve_scheme(spec: DatasetSpec) -> LabelScheme:
-    """The spec's label scheme (a built-in name or a scheme file)."""
-    from bimscan.semantics import load_scheme
+    """The spec's label scheme (a built-in name or a scheme file), its rules' IFC classes checked."""
+    from bimscan.pipeline import load_label_scheme
 
-    return load_scheme(spec.scheme)
-
-
-def resolve_scanner(spec: DatasetSpec) -> ScannerModel:
-    """The spec's scanner model (a built-in name or a scanner file)."""
-    return load_scanner(spec.scanner)
+    return load_label_scheme(spec.scheme)
 
 
 def device_warnings(spec: DatasetSpec) -> list[str]:
     """One line per configuration setting outside the scanner's limits (allowed unless ``strict``)."""
-    scanner = resolve_scanner(spec)
     return [f"configuration {config.name!r}: {warning}" for config in spec.configs
-            for warning in check_settings(config_settings(config), scanner)]
-
-
-def preset_name(preset: str | None) -> str | None:
-    """How a unit records its preset: the name, or a settings file's file name (never a path, so
-    that moving the dataset's folder changes neither fingerprints nor bytes)."""
-    if preset is None or preset in PRESETS:
-        return preset
-    return Path(preset).name
-
-
-def config_settings(config: ConfigSpec) -> ScanSettings:
-    """The scan settings of a configuration, head speed override applied."""
-    if (config.preset is None) == (config.settings is None):
-        raise ConfigError(f"give exactly one of 'preset' (exp1..exp6 or a settings file) or 'settings' (a table), "
-                          f"not {'both' if config.preset else 'neither'}")
-    settings = config.settings if config.settings is not None else load_settings(config.preset)  # type: ignore[arg-type]
-    return with_overrides(settings, head_deg_per_s=config.head_deg_per_s)
+            for warning in spec.recipe(spec.scenes[0], config).warnings]

@@ -24,10 +24,10 @@ from pathlib import Path
 
 from bimscan.errors import InputFileError, OutputError
 from bimscan.io._writer import CloudWriter, WrittenCloud, check_input_path, check_output_path
-from bimscan.io.las import iter_las_chunks, open_las_writer, open_laz_writer, read_las_header
-from bimscan.io.npdir import iter_npdir_chunks, open_npdir_writer, read_npdir_header
+from bimscan.io.las import count_las_points, iter_las_chunks, open_las_writer, open_laz_writer, read_las_header
+from bimscan.io.npdir import count_npdir_points, iter_npdir_chunks, open_npdir_writer, read_npdir_header
 from bimscan.io.obj import ObjExport, export_obj, read_obj
-from bimscan.io.ply import iter_ply_chunks, open_ply_writer, read_ply_header
+from bimscan.io.ply import count_ply_points, iter_ply_chunks, open_ply_writer, read_ply_header
 from bimscan.types import CloudHeader, PointCloud
 
 # Format key: the lower-case suffix; "" is a NumPy folder.
@@ -48,6 +48,12 @@ HEADER_READERS: dict[str, Callable[[str | Path], CloudHeader | None]] = {
     ".laz": read_las_header,
     ".ply": read_ply_header,
     "": read_npdir_header,
+}
+POINT_COUNTERS: dict[str, Callable[[str | Path], int]] = {
+    ".las": count_las_points,
+    ".laz": count_las_points,
+    ".ply": count_ply_points,
+    "": count_npdir_points,
 }
 _SUPPORTED = ".las, .laz, .ply, or a folder path without suffix (NumPy)"
 
@@ -112,6 +118,12 @@ def iter_cloud_chunks(
     return CHUNK_READERS[_input_format(path)](path, chunk_points=chunk_points, label_field=label_field)
 
 
+def count_points(path: str | Path) -> int:
+    """The number of points a cloud file says it holds (its header; bodies shorter than that are refused)."""
+    path = check_input_path(path)
+    return POINT_COUNTERS[_input_format(path)](path)
+
+
 def read_cloud_header(path: str | Path) -> CloudHeader | None:
     """The ``CloudHeader`` bimscan stored with a cloud, or None for a foreign file."""
     path = check_input_path(path)
@@ -119,7 +131,7 @@ def read_cloud_header(path: str | Path) -> CloudHeader | None:
 
 
 __all__ = [
-    "CHUNK_READERS", "HEADER_READERS", "WRITERS", "CloudWriter", "ObjExport", "WrittenCloud",
-    "check_cloud_output", "export_obj", "iter_cloud_chunks", "open_cloud_writer", "output_format", "read_cloud",
+    "CHUNK_READERS", "HEADER_READERS", "POINT_COUNTERS", "WRITERS", "CloudWriter", "ObjExport", "WrittenCloud",
+    "check_cloud_output", "count_points", "export_obj", "iter_cloud_chunks", "open_cloud_writer", "output_format", "read_cloud",
     "read_cloud_header", "read_obj",
 ]

@@ -30,6 +30,7 @@ from bimscan.types import (
     LabelScheme,
     PointCloud,
     Station,
+    UNLABELLED,
 )
 
 HEADER_VERSION = 1
@@ -152,7 +153,6 @@ def parse_document(raw: bytes, *, where: str) -> dict[str, Any] | None:
     return document
 
 
-UNLABELLED = 255  # the label of points without ground truth (learn's IGNORE_LABEL)
 
 
 def as_labels(values: np.ndarray, *, field: str, where: str) -> np.ndarray:

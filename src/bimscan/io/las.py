@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import datetime as dt
 import os
+import struct
 import unicodedata
 import uuid
 from collections.abc import Iterator
@@ -251,6 +252,42 @@ def read_las_header(path: str | Path) -> CloudHeader | None:
     return None if document is None else header_from_document(document, where=str(path))
 
 
+_EVLR_HEADER = struct.Struct("<H16sHQ32s")  # reserved, user id, record id, record length, description
+
+
+def count_las_points(path: str | Path) -> int:
+    """Points a LAS/LAZ file holds by its header.
+
+    InputFileError when the file is shorter than its header says: the uncompressed point records,
+    or the extended VLRs that LAS 1.4 stores after the points (bimscan's metadata is one: a
+    truncated LAZ, whose compressed points cannot be sized, is caught by that).
+    """
+    path = check_input_path(path)
+    with _open(path) as reader:
+        header = reader.header
+        count = int(header.point_count)
+        end = header.offset_to_point_data
+        if not header.are_points_compressed:
+            end += count * header.point_format.size
+        n_evlrs = int(getattr(header, "number_of_evlrs", 0) or 0)
+        start_of_evlrs = int(getattr(header, "start_of_first_evlr", 0) or 0)
+    size = path.stat().st_size
+    if n_evlrs and start_of_evlrs:
+        end = max(end, start_of_evlrs)
+        with path.open("rb") as handle:
+            for _ in range(n_evlrs):
+                handle.seek(end)
+                raw = handle.read(_EVLR_HEADER.size)
+                if len(raw) < _EVLR_HEADER.size:
+                    end = size + 1
+                    break
+                end += _EVLR_HEADER.size + _EVLR_HEADER.unpack(raw)[3]
+    if size < end:
+        raise InputFileError(f"{path}: the file ends at byte {size} but its header describes {end} bytes "
+                             f"({count} points); the file is truncated")
+    return count
+
+
 def iter_las_chunks(
     path: str | Path, *, chunk_points: int = 2_000_000, label_field: str | None = None
 ) -> Iterator[PointCloud]:
@@ -310,6 +347,6 @@ def iter_las_chunks(
 
 
 __all__ = [
-    "LAS_SCALE_M", "LAZ_CHUNK_POINTS", "LasCloudWriter", "iter_las_chunks", "lookup_name",
+    "LAS_SCALE_M", "LAZ_CHUNK_POINTS", "LasCloudWriter", "count_las_points", "iter_las_chunks", "lookup_name",
     "open_las_writer", "open_laz_writer", "read_las_header",
 ]

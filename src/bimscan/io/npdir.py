@@ -128,6 +128,13 @@ def _load(path: Path) -> np.ndarray:
         raise InputFileError(f"{path}: not a readable .npy file ({exc}); check the file") from exc
 
 
+def count_npdir_points(path: str | Path) -> int:
+    """Rows of a NumPy folder's ``coord.npy`` (its header; a short file is refused by NumPy)."""
+    folder = check_input_path(path)
+    coord = _load(folder / "coord.npy")
+    return int(coord.shape[0])
+
+
 def iter_npdir_chunks(
     path: str | Path, *, chunk_points: int = 2_000_000, label_field: str | None = None
 ) -> Iterator[PointCloud]:
@@ -183,6 +190,6 @@ def iter_npdir_chunks(
 
 
 __all__ = [
-    "NPDIR_FILES", "NpdirCloudWriter", "iter_npdir_chunks", "npy_header", "open_npdir_writer",
+    "NPDIR_FILES", "NpdirCloudWriter", "count_npdir_points", "iter_npdir_chunks", "npy_header", "open_npdir_writer",
     "read_npdir_header",
 ]

@@ -301,6 +301,23 @@ def _as_uint16(values: np.ndarray, *, field: str, where: str) -> np.ndarray:
     return values.astype(np.uint16)
 
 
+def count_ply_points(path: str | Path) -> int:
+    """Vertices a PLY file holds by its header; InputFileError when a binary body is shorter."""
+    path = check_input_path(path)
+    where = str(path)
+    with path.open("rb") as handle:
+        layout = read_ply_layout(handle, where=where)
+    vertex = next((e for e in layout.elements if e.name == "vertex"), None)
+    if vertex is None:
+        raise InputFileError(f"{where}: PLY file has no vertex element; it holds no points")
+    if layout.format != "ascii" and not any(e.has_lists for e in layout.elements):
+        row_bytes = sum(np.dtype(t).itemsize * e.count for e in layout.elements for _, t in e.properties)
+        if path.stat().st_size < layout.body_offset + row_bytes:
+            raise InputFileError(f"{where}: the header says {vertex.count} vertices but the file ends before them; "
+                                 "the file is truncated")
+    return int(vertex.count)
+
+
 def iter_ply_chunks(
     path: str | Path, *, chunk_points: int = 2_000_000, label_field: str | None = None
 ) -> Iterator[PointCloud]:

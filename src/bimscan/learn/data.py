@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bimscan.dataset.manifest import MANIFEST_NAME, read_manifest
+from bimscan.dataset.layout import DatasetFolder
 from bimscan.errors import InputFileError, LearnError
 from bimscan.files import atomic_output
 from bimscan.io.text import TEXT_SUFFIXES
@@ -40,7 +40,6 @@ from bimscan.types import CloudHeader, PointCloud
 
 CLOUD_SUFFIXES = (".las", ".laz", ".ply")
 ASPRS_UNCLASSIFIED = (0, 1)  # LAS classification "created, never classified" and "unclassified"
-DATASET_FILE_PREFERENCE = ("npy", "laz", "las", "ply")  # the NumPy folder reads fastest
 CHUNK_POINTS = 1_000_000
 
 
@@ -63,22 +62,8 @@ def _is_npdir(path: Path) -> bool:
 
 
 def _dataset_units(path: Path) -> list[tuple[str, Path]]:
-    manifest_path = path / MANIFEST_NAME
-    units = []
-    for unit in read_manifest(path)["units"]:
-        if unit["status"] != "done":
-            continue
-        files = unit["files"] if isinstance(unit["files"], dict) else {}
-        choice = next((files[k] for k in DATASET_FILE_PREFERENCE if isinstance(files.get(k), str)), None)
-        if choice is None:
-            raise InputFileError(
-                f"{manifest_path}: unit {unit['id']!r} lists no cloud among {', '.join(DATASET_FILE_PREFERENCE)}; "
-                "rebuild the unit"
-            )
-        unit_path = path / choice
-        if not unit_path.exists():
-            raise InputFileError(f"{manifest_path}: unit {unit['id']!r} cloud {unit_path} is missing; rebuild the unit")
-        units.append((str(unit["id"]), unit_path))
+    folder = DatasetFolder(path)
+    units = [(entry.id, entry.cloud_file(path)) for entry in folder.read_manifest().done()]
     if not units:
         raise LearnError(f"{path}: the dataset has no unit with status 'done'; build it first (or resume the build)")
     return units
@@ -107,7 +92,7 @@ def list_scenes(
             scenes.append(SceneSource(path, "cloud", path.stem, label_field, mapping))
         elif path.is_file() and suffix in TEXT_SUFFIXES:
             scenes.append(SceneSource(path, "text", path.stem, label_field, mapping))
-        elif path.is_dir() and (path / MANIFEST_NAME).is_file():
+        elif path.is_dir() and DatasetFolder(path).is_dataset():
             for unit_id, unit_path in _dataset_units(path):
                 kind = "npdir" if _is_npdir(unit_path) or unit_path.suffix == "" else "cloud"
                 scenes.append(SceneSource(unit_path, kind, unit_id, label_field, mapping))

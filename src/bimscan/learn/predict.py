@@ -15,12 +15,13 @@ from bimscan.learn.checkpoint import load_trained_model
 from bimscan.learn.data import CHUNK_POINTS, SceneSource, iter_raw_chunks, list_scenes
 from bimscan.learn.infer import label_scene, replace_labels
 from bimscan.learn.model import pick_device
+from bimscan.semantics import DEFAULT_SCHEME, load_scheme
 from bimscan.types import CloudHeader, LabelClass, LabelScheme
 
-# Tableau 10, the palette of the built-in spc5 scheme: the five default classes get the same
-# colours as in bimscan's synthetic clouds; other class lists cycle through it
+# Tableau 10 (the palette of the built-in spc5 scheme) for classes the default scheme does not
+# name; the default scheme's classes keep its colours, as in bimscan's synthetic clouds
 PALETTE = ("#4e79a7", "#f28e2b", "#e15759", "#76b7b2", "#59a14f", "#edc948", "#b07aa1", "#ff9da7", "#9c755f", "#bab0ac")
-CLASS_COLORS = {"Wall&Column": "#4e79a7", "Beam": "#f28e2b", "Covering": "#59a14f", "Slab": "#9c755f", "Others": "#e15759"}
+CLASS_COLORS = {c.name: c.color for c in load_scheme(DEFAULT_SCHEME).classes}
 
 
 @dataclass(frozen=True)

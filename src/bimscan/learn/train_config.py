@@ -12,11 +12,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from bimscan.toml_files import build_dataclass, load_toml
 from bimscan.errors import ConfigError
+from bimscan.semantics import DEFAULT_SCHEME, load_scheme
+from bimscan.toml_files import build_dataclass, load_toml
+from bimscan.types import UNLABELLED
 
-DEFAULT_CLASS_NAMES = ("Wall&Column", "Beam", "Covering", "Slab", "Others")
-IGNORE_LABEL = 255  # "unlabelled": skipped by the loss and the metrics
+# The default classes are the default label scheme's (spc5: the paper's five), in id order.
+DEFAULT_CLASS_NAMES = tuple(c.name for c in sorted(load_scheme(DEFAULT_SCHEME).classes, key=lambda c: c.id))
+IGNORE_LABEL = UNLABELLED  # skipped by the loss and the metrics
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from bimscan.toml_files import build_dataclass, load_toml
 from bimscan.errors import ConfigError, ScannerSettingsError
+from bimscan.scan.noise import MAX_ANGLE_SIGMA_DEG
 
 
 @dataclass(frozen=True)
@@ -48,6 +49,12 @@ class ScannerModel:
 
     def __post_init__(self) -> None:
         problems = []
+        for name in ("range_accuracy_m", "angle_accuracy_deg", "beam_divergence_rad"):
+            value = getattr(self, name)
+            if not math.isfinite(value) or value < 0:
+                problems.append(f"{name} must be a number >= 0, got {value}")
+        if math.isfinite(self.angle_accuracy_deg) and self.angle_accuracy_deg > MAX_ANGLE_SIGMA_DEG:
+            problems.append(f"angle_accuracy_deg must be at most {MAX_ANGLE_SIGMA_DEG:g}, got {self.angle_accuracy_deg}")
         if not 0 < self.mirror_sweep_deg <= 360:
             problems.append(f"mirror_sweep_deg must be in (0, 360], got {self.mirror_sweep_deg}")
         half = self.mirror_sweep_deg / 2
@@ -136,6 +143,7 @@ SCANNERS: dict[str, ScannerModel] = {
 }
 
 DEFAULT_SCANNER = "riegl_vz400"
+DEFAULT_PRESET = "exp3"
 
 
 def load_scanner(source: str | Path | None = None) -> ScannerModel:

@@ -3,12 +3,14 @@
 ``generate_rays`` turns a range of mirror lines into float32 rays; ``finish_hits`` turns the
 engine's hits into labelled points (range filter, range and angle noise, coordinates, labels,
 intensity, time) and compacts them. Each line's rays have fixed slots and the compaction runs
-over fixed-size blocks, so the output does not depend on the number of threads. Noise comes from a counter-based generator keyed by
-(seed, station) and indexed by the pulse number, so it does not depend on chunking either.
+over fixed-size blocks, so the output does not depend on the number of threads. Noise comes from
+a counter-based generator keyed by (seed, noise stream, station) and indexed by the pulse number,
+so it does not depend on chunking either.
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
 
 import numba as nb
@@ -40,10 +42,24 @@ def _mix64(z: np.uint64) -> np.uint64:
     return z ^ (z >> np.uint64(31))
 
 
+_UNIT = np.uint64(0x8CB92BA72F3D8DD7)
+
+
+def stream_id(name: str) -> int:
+    """A 64-bit number for a noise stream's name ("" -> 0: a single scan keeps its old key)."""
+    if not name:
+        return 0
+    return int.from_bytes(hashlib.sha256(name.encode("utf-8")).digest()[:8], "little")
+
+
 @nb.njit(cache=True)
-def noise_key(seed: int, station: int) -> np.uint64:
-    """The generator key of one station of one seeded survey."""
-    return _mix64(_mix64(np.uint64(seed) ^ _GOLDEN) ^ (np.uint64(station) * _STREAM))
+def _noise_key(seed: np.uint64, stream: np.uint64, station: np.uint64) -> np.uint64:
+    return _mix64(_mix64(seed ^ _GOLDEN) ^ (stream * _UNIT) ^ (station * _STREAM))
+
+
+def noise_key(seed: int, station: int, stream: str = "") -> np.uint64:
+    """The generator key of one station of one seeded survey in one noise stream (a dataset unit)."""
+    return _noise_key(np.uint64(seed), np.uint64(stream_id(stream)), np.uint64(station))
 
 
 @intrinsic

@@ -1,19 +1,31 @@
-"""Measurement noise of the virtual scanner (the paper's intrinsic scanning errors)."""
+"""Measurement noise of the virtual scanner (the paper's intrinsic scanning errors).
+
+The scanner's datasheet drives it: a sigma left unset (None) is the scanner model's accuracy
+(``ScannerModel.range_accuracy_m``, ``angle_accuracy_deg``), so a custom scanner file changes the
+noise. ``NoiseModel.resolved(scanner)`` fills those in; a ``ScanRecipe`` holds the resolved model.
+"""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 from bimscan.errors import ScannerSettingsError
+
+if TYPE_CHECKING:
+    from bimscan.scan.device import ScannerModel
+
+MAX_ANGLE_SIGMA_DEG = 5.0  # beyond this no laser scanner measures; a typo for radians or arc minutes
 
 
 @dataclass(frozen=True)
 class NoiseModel:
     """Zero-mean Gaussian noise: along the beam (metres) and on azimuth and elevation (degrees).
 
-    Defaults are the SPC paper's: 5 mm range, 0.03 degrees on each angle. ``NoiseModel.off()``
-    gives exact points on the hit surfaces.
+    ``range_sigma_m``/``angle_sigma_deg`` None: the scanner's range and angle accuracy (the SPC
+    paper's 5 mm and 0.03 degrees for the RIEGL VZ-400). ``NoiseModel.off()`` gives exact points
+    on the hit surfaces.
 
     Registration error (off by default, as in the paper; real multi-station surveys have a few
     millimetres): each station's points are moved by one rigid transform drawn per station: a
@@ -21,26 +33,31 @@ class NoiseModel:
     axis with ``registration_sigma_deg``, as left by target- or cloud-based registration.
     """
 
-    range_sigma_m: float = 0.005
-    angle_sigma_deg: float = 0.03
+    range_sigma_m: float | None = None
+    angle_sigma_deg: float | None = None
     registration_sigma_m: float = 0.0
     registration_sigma_deg: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("range_sigma_m", "angle_sigma_deg", "registration_sigma_m", "registration_sigma_deg"):
             value = getattr(self, name)
-            if not math.isfinite(value) or value < 0:
+            if value is not None and (not math.isfinite(value) or value < 0):
                 raise ScannerSettingsError(f"{name} = {value} is impossible; allowed: a number >= 0")
-        if self.angle_sigma_deg > 5:
-            raise ScannerSettingsError(f"angle_sigma_deg = {self.angle_sigma_deg} is impossible for a laser scanner; allowed: 0..5")
+        if self.angle_sigma_deg is not None and self.angle_sigma_deg > MAX_ANGLE_SIGMA_DEG:
+            raise ScannerSettingsError(f"angle_sigma_deg = {self.angle_sigma_deg} is impossible for a laser scanner; "
+                                       f"allowed: 0..{MAX_ANGLE_SIGMA_DEG:g}")
 
     @staticmethod
     def off() -> NoiseModel:
         return NoiseModel(range_sigma_m=0.0, angle_sigma_deg=0.0)
 
-    @property
-    def enabled(self) -> bool:
-        return self.range_sigma_m > 0 or self.angle_sigma_deg > 0 or self.registers_with_error
+    def resolved(self, scanner: ScannerModel) -> NoiseModel:
+        """This model with unset sigmas taken from the scanner's accuracies."""
+        return replace(
+            self,
+            range_sigma_m=scanner.range_accuracy_m if self.range_sigma_m is None else self.range_sigma_m,
+            angle_sigma_deg=scanner.angle_accuracy_deg if self.angle_sigma_deg is None else self.angle_sigma_deg,
+        )
 
     @property
     def registers_with_error(self) -> bool:

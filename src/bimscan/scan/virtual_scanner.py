@@ -12,10 +12,10 @@ from bimscan.scan.engine import RayEngine, make_engine
 from bimscan.scan.kernels import finish_hits, generate_rays, noise_key, station_normals
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.pattern import PulsePattern
-from bimscan.scan.device import ScannerModel, ScanSettings
+from bimscan.scan.device import ScannerModel
+from bimscan.scan.recipe import ScanRecipe
 from bimscan.types import PointCloud, SceneMesh, Station
 
-DEFAULT_CHUNK_PULSES = 1 << 20  # ~70 MB of working arrays per chunk
 DEFAULT_REFLECTANCE = 0.5
 INTENSITY_REFERENCE_M = 5.0  # intensity falls with (5 m / range)^2 beyond 5 m
 
@@ -72,26 +72,30 @@ class VirtualScanner:
         if self.threads:
             numba.set_num_threads(min(self.threads, numba.config.NUMBA_NUM_THREADS))
 
-    def scan_station(self, station: Station, settings: ScanSettings, *, noise: NoiseModel, seed: int,
-                     time0_s: float = 0.0, chunk_pulses: int = DEFAULT_CHUNK_PULSES,
+    def scan_station(self, station: Station, recipe: ScanRecipe, *, time0_s: float = 0.0,
                      on_pulses: Callable[[int], None] | None = None,
                      reuse_buffers: bool = False) -> Iterator[PointCloud]:
-        """Stream the labelled points of one station, chunk by chunk.
+        """Stream the labelled points of one station scanned with ``recipe``, chunk by chunk.
 
-        Chunks follow mirror lines and hold about ``chunk_pulses`` pulses; output points are the
-        same whatever the chunk size (noise is indexed by pulse number). ``on_pulses(n)`` is
+        ``recipe.scanner`` must be this scanner's model. Chunks follow mirror lines and hold about
+        ``recipe.chunk_pulses`` pulses; output points are the same whatever the chunk size (noise
+        is indexed by pulse number). ``on_pulses(n)`` is
         called with each chunk's pulse count (for progress bars). With ``reuse_buffers`` the
         chunks are views into output arrays that the next chunk overwrites (no fresh memory per
         chunk, about 5 % faster): for consumers that write each chunk out before asking for the next.
         """
+        if recipe.scanner != self.scanner:
+            raise ValueError(f"the recipe's scanner {recipe.scanner.name!r} is not this VirtualScanner's "
+                             f"{self.scanner.name!r}")
         self._set_threads()
-        pattern = PulsePattern.of(settings, self.scanner)
+        noise = recipe.noise
+        pattern = PulsePattern.of(recipe.settings, self.scanner)
         origin_world = np.asarray(station.position, dtype=np.float64)
         origin_local = origin_world - self.engine.centre
-        key = np.uint64(noise_key(seed, station.id))
+        key = np.uint64(noise_key(recipe.seed, station.id, recipe.noise_stream))
         angle_sigma = math.radians(noise.angle_sigma_deg)
         registration = registration_error(noise, key) if noise.registers_with_error else None
-        for first_line, stop_line in pattern.chunks(chunk_pulses):
+        for first_line, stop_line in pattern.chunks(recipe.chunk_pulses):
             start, stop = pattern.line_pulses(first_line, stop_line)
             counts = stop - start
             offsets = np.zeros(len(counts), dtype=np.int64)

@@ -2,7 +2,7 @@
 
 from bimscan.semantics.scheme import (
     DEFAULT_SCHEME,
-    LabelMapping,
+    ComponentLabels,
     builtin_schemes,
     check_rule_classes,
     label_model,
@@ -12,6 +12,6 @@ from bimscan.semantics.scheme import (
 )
 
 __all__ = [
-    "DEFAULT_SCHEME", "LabelMapping", "builtin_schemes", "check_rule_classes", "label_model", "load_scheme",
+    "DEFAULT_SCHEME", "ComponentLabels", "builtin_schemes", "check_rule_classes", "label_model", "load_scheme",
     "map_labels", "parse_scheme",
 ]

@@ -4,7 +4,7 @@ A scheme is a TOML file (see ``schemes/spc5.toml``, the default: the SPC paper's
 
     name = "my-scheme"
     default = "Other"              # class for everything no rule matches
-    [[classes]]                    # ids 0..255 (LAS classification is one byte)
+    [[classes]]                    # ids 0..254 (LAS classification is one byte; 255 is "unlabelled")
     id = 0
     name = "Wall"
     color = "#4e79a7"
@@ -31,7 +31,7 @@ import numpy as np
 
 from bimscan.toml_files import load_toml
 from bimscan.errors import SchemeError
-from bimscan.types import BimScene, ComponentTable, LabelClass, LabelRule, LabelScheme, ParsedModel
+from bimscan.types import UNLABELLED, BimScene, ComponentTable, LabelClass, LabelRule, LabelScheme, ParsedModel
 
 DEFAULT_SCHEME = "spc5"
 _COLOR = re.compile(r"^#[0-9a-fA-F]{6}$")
@@ -82,8 +82,9 @@ def parse_scheme(data: Mapping[str, Any], *, where: str) -> LabelScheme:
         if extra:
             raise SchemeError(f"{at}: unknown key(s) {', '.join(map(repr, extra))}; allowed: color, id, name")
         cid, cname, color = entry.get("id"), entry.get("name"), entry.get("color", "#7f7f7f")
-        if isinstance(cid, bool) or not isinstance(cid, int) or not 0 <= cid <= 255:
-            raise SchemeError(f"{at}: 'id' must be an integer in 0..255 (one LAS classification byte), got {cid!r}")
+        if isinstance(cid, bool) or not isinstance(cid, int) or not 0 <= cid < UNLABELLED:
+            raise SchemeError(f"{at}: 'id' must be an integer in 0..{UNLABELLED - 1} (one LAS classification byte; "
+                              f"{UNLABELLED} means unlabelled), got {cid!r}")
         if not isinstance(cname, str) or not cname.strip():
             raise SchemeError(f"{at}: 'name' must be a non-empty string, got {cname!r}")
         if not isinstance(color, str) or not _COLOR.match(color):
@@ -130,7 +131,7 @@ def check_rule_classes(scheme: LabelScheme, known_classes: Collection[str]) -> N
 
 
 @dataclass(frozen=True)
-class LabelMapping:
+class ComponentLabels:
     """Result of mapping components onto a scheme.
 
     labels: (C,) uint8 class id per component; unmapped: IFC class -> number of components that
@@ -141,7 +142,7 @@ class LabelMapping:
     unmapped: dict[str, int]
 
 
-def map_labels(components: ComponentTable, scheme: LabelScheme) -> LabelMapping:
+def map_labels(components: ComponentTable, scheme: LabelScheme) -> ComponentLabels:
     """Class id of every component under ``scheme``, and the IFC classes that fell through."""
     ids = {c.name: c.id for c in scheme.classes}
     default = ids[scheme.default_label]
@@ -157,7 +158,7 @@ def map_labels(components: ComponentTable, scheme: LabelScheme) -> LabelMapping:
             unmapped[key[0]] += 1
             label = default
         labels[i] = label
-    return LabelMapping(labels=labels, unmapped=dict(sorted(unmapped.items())))
+    return ComponentLabels(labels=labels, unmapped=dict(sorted(unmapped.items())))
 
 
 def _ancestry(cls: str, class_ancestry: Mapping[str, tuple[str, ...]]) -> tuple[str, ...]:

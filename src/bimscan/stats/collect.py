@@ -1,26 +1,20 @@
 """Per-unit figures of a built dataset: point count, extents, class counts.
 
 ``collect_units`` reads them from each finished unit's ``unit.json`` (counted while the unit
-was written), or, with ``from_clouds``, recounts them by streaming the unit's cloud file in
-chunks (``iter_cloud_chunks``): never a whole cloud in memory.
+was written), or, with ``from_clouds``, recounts them by streaming the unit's cloud file (the one
+``ManifestEntry.cloud_file`` chooses) in chunks: never a whole cloud in memory.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
-from bimscan.dataset.manifest import UNIT_NAME, read_json, read_manifest
+from bimscan.dataset.layout import DatasetFolder, ManifestEntry, UnitRecord
 from bimscan.errors import DatasetError
 from bimscan.types import LabelClass
-
-# Which file of a unit to stream when recounting: exact coordinates first (PLY doubles, LAS/LAZ
-# 0.1 mm), cheapest to decode among those; the NumPy copy (float32 around an origin) last, so the
-# recounted extents match unit.json's.
-READ_PREFERENCE = ("ply", "las", "laz", "npy")
 
 
 @dataclass(frozen=True)
@@ -52,73 +46,67 @@ class CollectedDataset:
 
     units: list[UnitStats]
     classes: list[LabelClass]
-    missing: list[dict[str, Any]]  # manifest rows of units not done (status, error)
+    missing: list[ManifestEntry]  # manifest rows of units not done (status, error)
     configs: list[str]  # in manifest order
     scenes: list[str]
 
 
 def collect_units(dataset_dir: str | Path, *, from_clouds: bool = False, chunk_points: int = 2_000_000) -> CollectedDataset:
     """Figures of every finished unit of the dataset in ``dataset_dir`` (see the module docs)."""
-    folder = Path(dataset_dir)
-    manifest = read_manifest(folder)
+    folder = DatasetFolder(dataset_dir)
+    manifest = folder.read_manifest()
     units: list[UnitStats] = []
-    missing: list[dict[str, Any]] = []
+    missing: list[ManifestEntry] = []
     classes: list[LabelClass] = []
     configs: list[str] = []
     scenes: list[str] = []
-    for entry in manifest["units"]:
-        if entry["config"] not in configs:
-            configs.append(entry["config"])
-        if entry["scene"] not in scenes:
-            scenes.append(entry["scene"])
-        if entry["status"] != "done":
+    for entry in manifest.units:
+        if entry.config not in configs:
+            configs.append(entry.config)
+        if entry.scene not in scenes:
+            scenes.append(entry.scene)
+        if entry.status != "done":
             missing.append(entry)
             continue
-        meta = read_json(folder / "units" / entry["id"] / UNIT_NAME)
-        unit_classes = _classes_of(meta, where=str(folder / "units" / entry["id"] / UNIT_NAME))
+        record = folder.read_unit(entry.id)
+        unit_classes = _classes_of(record, where=str(folder.unit_record_path(entry.id)))
         if not classes:
             classes = unit_classes
         elif [c.name for c in unit_classes] != [c.name for c in classes]:
-            raise DatasetError(f"unit {entry['id']} uses classes {[c.name for c in unit_classes]}, other units "
+            raise DatasetError(f"unit {entry.id} uses classes {[c.name for c in unit_classes]}, other units "
                                f"{[c.name for c in classes]}; statistics need one label scheme per dataset")
         if from_clouds:
             units.append(_recount(folder, entry, unit_classes, chunk_points=chunk_points))
         else:
-            units.append(_from_meta(entry, meta))
+            units.append(_from_record(entry, record))
     return CollectedDataset(units=units, classes=classes, missing=missing, configs=configs, scenes=scenes)
 
 
-def _classes_of(meta: dict[str, Any], *, where: str) -> list[LabelClass]:
+def _classes_of(record: UnitRecord, *, where: str) -> list[LabelClass]:
     try:
-        raw = meta["inputs"]["scheme"]["classes"]
-        return [LabelClass(id=int(c["id"]), name=str(c["name"]), color=str(c["color"])) for c in raw]
+        return [LabelClass(id=int(c["id"]), name=str(c["name"]), color=str(c["color"])) for c in record.scheme_classes()]
     except (KeyError, TypeError, ValueError) as exc:
         raise DatasetError(f"{where}: no label scheme in the unit metadata ({exc}); rebuild the unit") from exc
 
 
-def _from_meta(entry: dict[str, Any], meta: dict[str, Any]) -> UnitStats:
+def _from_record(entry: ManifestEntry, record: UnitRecord) -> UnitStats:
     try:
-        extents = meta["extents"]
-        return UnitStats(unit=entry["id"], scene=entry["scene"], config=entry["config"], points=int(meta["points"]),
-                         minimum=np.asarray(extents["min"], dtype=np.float64),
-                         maximum=np.asarray(extents["max"], dtype=np.float64),
-                         class_counts={str(k): int(v) for k, v in meta["class_histogram"].items()})
+        return UnitStats(unit=entry.id, scene=entry.scene, config=entry.config, points=record.points,
+                         minimum=np.asarray(record.extents["min"], dtype=np.float64),
+                         maximum=np.asarray(record.extents["max"], dtype=np.float64),
+                         class_counts={str(k): int(v) for k, v in record.class_histogram.items()})
     except (KeyError, TypeError, ValueError) as exc:
-        raise DatasetError(f"unit {entry['id']}: unit.json lacks counts or extents ({exc}); rebuild the unit") from exc
+        raise DatasetError(f"unit {entry.id}: unit.json lacks counts or extents ({exc}); rebuild the unit") from exc
 
 
-def _recount(folder: Path, entry: dict[str, Any], classes: list[LabelClass], *, chunk_points: int) -> UnitStats:
+def _recount(folder: DatasetFolder, entry: ManifestEntry, classes: list[LabelClass], *, chunk_points: int) -> UnitStats:
     from bimscan.io import iter_cloud_chunks
     from bimscan.process.summary import CloudSummary
 
-    files = entry["files"]
-    fmt = next((f for f in READ_PREFERENCE if f in files), None)
-    if fmt is None:
-        raise DatasetError(f"unit {entry['id']}: no readable cloud listed in the manifest ({files}); rebuild it")
     summary = CloudSummary()
-    for chunk in iter_cloud_chunks(folder / files[fmt], chunk_points=chunk_points):
+    for chunk in iter_cloud_chunks(entry.cloud_file(folder.root), chunk_points=chunk_points):
         summary.add(chunk)
     points, counts = summary.points, summary.class_counts
     low, high = (summary.minimum, summary.maximum) if points else (np.zeros(3), np.zeros(3))
-    return UnitStats(unit=entry["id"], scene=entry["scene"], config=entry["config"], points=points, minimum=low,
+    return UnitStats(unit=entry.id, scene=entry.scene, config=entry.config, points=points, minimum=low,
                      maximum=high, class_counts={c.name: int(counts[c.id]) for c in classes})

@@ -95,7 +95,7 @@ def format_report(stats: DatasetStats, *, title: str) -> str:
     if stats.missing:
         out.append("")
         out.append(f"{len(stats.missing)} unit(s) are not in these statistics: "
-                   + "; ".join(f"{m['id']} ({m['status']}{': ' + m['error'] if m.get('error') else ''})"
+                   + "; ".join(f"{m.id} ({m.status}{': ' + m.error if m.error else ''})"
                                for m in stats.missing))
     out += ["", "## Stability across configurations", ""]
     if not multi:

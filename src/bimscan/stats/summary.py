@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from bimscan.dataset.layout import ManifestEntry
 from bimscan.stats.collect import CollectedDataset, UnitStats
 
 AXES = ("x", "y", "z")
@@ -61,7 +62,7 @@ class DatasetStats:
     configs: list[ConfigStats]
     scenes: list[SceneStats]
     units: list[UnitStats]
-    missing: list[dict[str, Any]] = field(default_factory=list)
+    missing: list[ManifestEntry] = field(default_factory=list)
 
     def max_extent_spread(self) -> tuple[float, str, str]:
         """(largest relative extent spread, its scene, its axis) over scenes with 2+ configurations."""
@@ -102,7 +103,7 @@ class DatasetStats:
             "stability": {"max_extent_spread": extent, "max_extent_spread_scene": extent_scene,
                           "max_extent_spread_axis": extent_axis, "max_class_spread_pp": share,
                           "max_class_spread_scene": share_scene, "max_class_spread_class": share_class},
-            "missing_units": [{"id": m["id"], "status": m["status"], "error": m.get("error")} for m in self.missing],
+            "missing_units": [{"id": m.id, "status": m.status, "error": m.error} for m in self.missing],
         }
 
 

@@ -1,0 +1,160 @@
+"""Planning a build: which units are finished, which must be (re)built, and the jobs that do it.
+
+A unit is reused when its folder exists, was built from the same inputs and its files still
+match their checksums. Its inputs (``unit_inputs``) are everything its bytes depend on: the scan
+recipe (``ScanRecipe.to_json``: scanner, settings, noise, seed and noise stream, engine, how the
+stations are chosen), the scene file (by content) and station file (by content), the label
+scheme, the output formats, the voxel size and the software version; their fingerprint decides
+reuse. Jobs are small picklable records the executors send to worker processes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from bimscan import __version__
+from bimscan.dataset.layout import DatasetFolder, ManifestEntry, STATIONS_VERSION, unit_id, verify_unit
+from bimscan.dataset.spec import DatasetSpec, SceneSpec, resolve_scheme
+from bimscan.errors import BimscanError
+from bimscan.files import dump_json, file_sha256
+from bimscan.scan.recipe import AUTO_STATIONS, ScanRecipe
+
+
+@dataclass(frozen=True)
+class SceneJob:
+    """What a scene task needs: parse the IFC (into the geometry cache) and plan or read the stations."""
+
+    scene: str
+    ifc: str
+    scheme: str
+    recipe: ScanRecipe  # the scanner, engine, threads and station source of the scene's units
+    stations_file: str  # where the chosen stations go
+    stations_key: str  # fingerprint of what the stations depend on
+
+
+@dataclass(frozen=True)
+class UnitJob:
+    """What a unit task needs to scan one scene with one recipe into a unit folder."""
+
+    unit: str
+    scene: str
+    config: str
+    ifc: str
+    scheme: str
+    recipe: ScanRecipe
+    formats: tuple[str, ...]
+    voxel_size_m: float | None
+    out_dir: str
+    inputs: Mapping[str, Any]
+    fingerprint: str
+
+
+@dataclass(frozen=True)
+class BuildPlan:
+    """The manifest rows of every unit (finished ones verified, the rest pending or failed), the jobs
+    of the units to build, and the scene jobs they wait for."""
+
+    entries: list[ManifestEntry]
+    unit_jobs: dict[str, UnitJob]
+    scene_jobs: list[SceneJob]
+
+
+def fingerprint(inputs: Mapping[str, Any]) -> str:
+    """SHA-256 of the canonical JSON of a unit's inputs: equal inputs, equal fingerprint."""
+    return hashlib.sha256(dump_json(inputs)).hexdigest()
+
+
+def generate_scenes(spec: DatasetSpec, folder: DatasetFolder) -> tuple[dict[str, Path], dict[str, str]]:
+    """The IFC file of every scene (writing generated buildings not there yet) and per-scene errors."""
+    files: dict[str, Path] = {}
+    errors: dict[str, str] = {}
+    for scene in spec.scenes:
+        if scene.ifc is not None:
+            files[scene.name] = Path(scene.ifc)
+            continue
+        path = folder.generated_scene_path(scene.name)
+        generate = scene.generate
+        if not path.is_file() and generate is not None:
+            try:
+                from bimscan.ifc.generate import make_building
+
+                make_building(path, seed=generate.seed, storeys=generate.storeys)
+            except BimscanError as exc:
+                errors[scene.name] = f"could not generate scene {scene.name!r}: {exc}"
+                continue
+        files[scene.name] = path
+    return files, errors
+
+
+def scene_inputs(scene: SceneSpec, scene_file: Path) -> dict[str, Any]:
+    """The inputs of one scene: its file (by content) and its station file (by content) when given."""
+    stations: Any = AUTO_STATIONS
+    if scene.stations != AUTO_STATIONS:
+        stations = {"file": Path(scene.stations).name, "sha256": file_sha256(Path(scene.stations))}
+    return {"scene": {"name": scene.name, "file": scene_file.name, "sha256": file_sha256(scene_file),
+                      "generated": None if scene.generate is None else dataclasses.asdict(scene.generate)},
+            "stations": stations}
+
+
+def unit_inputs(spec: DatasetSpec, scheme: Mapping[str, Any], scene: Mapping[str, Any], config: str,
+                recipe: ScanRecipe) -> dict[str, Any]:
+    """Everything a unit's bytes depend on (JSON-able); its fingerprint decides reuse."""
+    return {**scene, "config": config, "recipe": recipe.to_json(), "scheme": dict(scheme),
+            "formats": list(spec.formats), "voxel_size_m": spec.voxel_size_m, "software": f"bimscan {__version__}"}
+
+
+def stations_key(scene: Mapping[str, Any], recipe: ScanRecipe) -> str:
+    """Fingerprint of what a scene's chosen stations depend on: the scene and station files, the
+    scanner and the planner's version (not the configuration: every one scans the same stations)."""
+    return fingerprint({"ifc": scene["scene"]["sha256"], "stations": scene["stations"],
+                        "scanner": dataclasses.asdict(recipe.scanner), "software": __version__,
+                        "version": STATIONS_VERSION})
+
+
+def plan_build(spec: DatasetSpec, folder: DatasetFolder, scene_files: dict[str, Path], scene_errors: dict[str, str],
+               *, chunk_pulses: int | None = None) -> BuildPlan:
+    """Manifest rows for every unit (finished ones verified) and jobs for the rest.
+
+    ``chunk_pulses`` goes into every job's recipe (it does not change the output); the driver
+    sets the threads once it knows how many units run at once.
+    """
+    entries: list[ManifestEntry] = []
+    unit_jobs: dict[str, UnitJob] = {}
+    scene_jobs: list[SceneJob] = []
+    scheme = dataclasses.asdict(resolve_scheme(spec))
+    runtime: dict[str, Any] = {} if chunk_pulses is None else {"chunk_pulses": chunk_pulses}
+    for scene in spec.scenes:
+        inputs_of_scene = None if scene.name in scene_errors else scene_inputs(scene, scene_files[scene.name])
+        scene_recipe: ScanRecipe | None = None
+        for config in spec.configs:
+            uid = unit_id(scene.name, config.name)
+            if inputs_of_scene is None:
+                entries.append(ManifestEntry(id=uid, scene=scene.name, config=config.name, status="failed",
+                                             error=scene_errors[scene.name]))
+                continue
+            recipe = spec.recipe(scene, config).with_fields(**runtime)
+            inputs = unit_inputs(spec, scheme, inputs_of_scene, config.name, recipe)
+            key = fingerprint(inputs)
+            unit_folder = folder.unit_dir(uid)
+            if unit_folder.exists() and verify_unit(unit_folder, expected_fingerprint=key) is None:
+                record = folder.read_unit(uid)
+                entries.append(ManifestEntry(id=uid, scene=scene.name, config=config.name, status="done",
+                                             points=record.points, files=folder.unit_files(uid, record.files)))
+                continue
+            # stale or damaged: rebuilt; the old folder is swapped out only once the new one is complete
+            entries.append(ManifestEntry(id=uid, scene=scene.name, config=config.name, status="pending"))
+            unit_jobs[uid] = UnitJob(unit=uid, scene=scene.name, config=config.name, ifc=str(scene_files[scene.name]),
+                                     scheme=spec.scheme, recipe=recipe, formats=spec.formats,
+                                     voxel_size_m=spec.voxel_size_m, out_dir=str(folder.root), inputs=inputs,
+                                     fingerprint=key)
+            scene_recipe = scene_recipe or recipe
+        if scene_recipe is not None and inputs_of_scene is not None:
+            scene_jobs.append(SceneJob(scene=scene.name, ifc=str(scene_files[scene.name]), scheme=spec.scheme,
+                                       recipe=scene_recipe, stations_file=str(folder.stations_path(scene.name)),
+                                       stations_key=stations_key(inputs_of_scene, scene_recipe)))
+    return BuildPlan(entries=entries, unit_jobs=unit_jobs, scene_jobs=scene_jobs)

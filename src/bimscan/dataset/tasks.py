@@ -1,0 +1,194 @@
+"""The work of a build, run in worker processes: scene tasks and unit tasks.
+
+A *scene task* parses a scene once (filling the on-disk geometry cache) and plans its stations
+once (``scenes/<scene>.stations.json``): every configuration of the scene scans from the same
+viewpoints, as in the paper. A *unit task* scans the survey with its recipe and streams the
+merged cloud through the post-processing (invalid points dropped and counted, semantic checks,
+optional voxel subsampling) into every requested format at once, checks what was written, and
+writes ``unit.json`` (reproducible) and ``timings.json`` (not). The unit is built in a hidden
+staging folder and renamed into place when whole. Tasks are module-level functions so they
+pickle by name; they return outcomes and never raise for a user error.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import errno
+import shutil
+import time
+from collections.abc import Mapping
+from concurrent.futures import BrokenExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from bimscan.dataset.executors import driver_alive, report_pulses
+from bimscan.dataset.layout import (
+    FORMAT_FILES, STATIONS_FORMAT, STATIONS_VERSION, TIMINGS_NAME, DatasetFolder, UnitRecord, read_json, write_json,
+    write_unit_record,
+)
+from bimscan.dataset.plan import SceneJob, UnitJob
+from bimscan.errors import BimscanError, DatasetError
+from bimscan.files import replace_path
+
+if TYPE_CHECKING:
+    from bimscan.io import CloudWriter, WrittenCloud
+    from bimscan.process.summary import CloudSummary
+
+
+@dataclass(frozen=True)
+class SceneOutcome:
+    scene: str
+    error: str | None = None
+    n_stations: int = 0
+    parse_s: float = 0.0
+    notes: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class UnitOutcome:
+    unit: str
+    status: str  # "done" or "failed"
+    error: str | None = None
+    points: int = 0
+    files: dict[str, str] = field(default_factory=dict)  # format -> name in the unit folder
+    load_s: float = 0.0
+    seconds: float = 0.0
+
+
+def task_error(error: BaseException) -> str:
+    """One line for an exception that escaped a task (a crash, not a user error)."""
+    if isinstance(error, BrokenExecutor):
+        return "the worker process died (killed, or out of memory); run the build again to retry"
+    text = " ".join(str(error).split())
+    return f"{type(error).__name__}: {text}" if text else type(error).__name__
+
+
+def _one_line(error: BaseException) -> str:
+    if isinstance(error, BimscanError):
+        return " ".join(str(error).split())
+    if isinstance(error, OSError) and error.errno in (errno.ENOSPC, errno.EDQUOT):
+        return f"disk full while writing {error.filename or 'the unit'}; free space and run the build again"
+    return task_error(error)
+
+
+def run_scene_job(job: SceneJob) -> SceneOutcome:
+    """Parse the scene (filling the geometry cache) and plan or read its stations once."""
+    from bimscan.pipeline import load_scene
+    from bimscan.survey.survey import choose_stations, place_scanner
+
+    try:
+        start = time.perf_counter()
+        scene = load_scene(job.ifc, scheme=job.scheme, threads=job.recipe.threads)
+        parse_s = time.perf_counter() - start
+        path = Path(job.stations_file)
+        if path.is_file():
+            try:
+                stored = read_json(path)
+                if stored.get("key") == job.stations_key:
+                    return SceneOutcome(scene=job.scene, n_stations=len(stored["stations"]),
+                                        parse_s=parse_s, notes=tuple(stored.get("notes", ())))
+            except (DatasetError, KeyError, TypeError):
+                pass  # damaged: plan again
+        stations, plan = choose_stations(scene, place_scanner(scene, job.recipe), job.recipe.stations_from)
+        notes: list[str] = []
+        if plan is not None and plan.rooms_without_station:
+            notes.append("rooms without a station: " + ", ".join(plan.rooms_without_station))
+        write_json(path, {"format": STATIONS_FORMAT, "version": STATIONS_VERSION, "key": job.stations_key,
+                          "scene": job.scene, "stations": [dataclasses.asdict(s) for s in stations],
+                          "notes": notes})
+        return SceneOutcome(scene=job.scene, n_stations=len(stations), parse_s=parse_s, notes=tuple(notes))
+    except (BimscanError, OSError) as exc:
+        return SceneOutcome(scene=job.scene, error=_one_line(exc))
+
+
+def run_unit_job(job: UnitJob) -> UnitOutcome:
+    """Scan one unit into a staging folder, check what was written, and move it into place."""
+    from bimscan.io import open_cloud_writer
+    from bimscan.pipeline import load_scene, stream_checked
+    from bimscan.process.checks import SemanticError
+    from bimscan.process.subsample import VoxelSubsampler
+    from bimscan.process.summary import CloudSummary
+    from bimscan.survey.survey import cloud_header, prepare_survey
+
+    start = time.perf_counter()
+    folder = DatasetFolder(job.out_dir)
+    staged: Path | None = None
+    writers: dict[str, CloudWriter] = {}
+    try:
+        scene = load_scene(job.ifc, scheme=job.scheme, threads=job.recipe.threads)
+        load_s = time.perf_counter() - start
+        stations = folder.read_stations(job.scene)
+        survey = prepare_survey(scene, job.recipe, stations=stations)
+        header = cloud_header(survey, extra_metadata={
+            "unit": {"id": job.unit, "scene": job.scene, "config": job.config, "voxel_size_m": job.voxel_size_m,
+                     "fingerprint": job.fingerprint}})
+        staged = folder.staging_dir(job.unit)
+        writers = {fmt: open_cloud_writer(staged / FORMAT_FILES[fmt], header=header) for fmt in job.formats}
+        scanned = CloudSummary()
+        kept = CloudSummary() if job.voxel_size_m else scanned  # without subsampling, what is kept is what was scanned
+        subsampler = VoxelSubsampler(job.voxel_size_m, origin=header.origin) if job.voxel_size_m else None
+        scan_start = time.perf_counter()
+        for chunk in stream_checked(survey, summary=scanned, on_pulses=report_pulses):
+            if not driver_alive():
+                raise DatasetError("the build driver is gone; unit abandoned (run the build again to finish it)")
+            if subsampler is not None:
+                chunk = subsampler.filter(chunk)
+                kept.add(chunk)
+            for writer in writers.values():
+                writer.write(chunk)
+        written = {fmt: writer.close() for fmt, writer in writers.items()}
+        scan_s = time.perf_counter() - scan_start
+        check_written(kept, written)
+        checksums: dict[str, str] = {}
+        n_bytes = 0
+        for cloud in written.values():
+            checksums.update(cloud.sha256)
+            n_bytes += cloud.n_bytes
+        files = {fmt: FORMAT_FILES[fmt] for fmt in job.formats}
+        record = UnitRecord(
+            id=job.unit, scene=job.scene, config=job.config, fingerprint=job.fingerprint, inputs=job.inputs,
+            ifc_schema=scene.schema, stations=stations, device_warnings=job.recipe.warnings, points=kept.points,
+            points_scanned=scanned.points, dropped_invalid=scanned.dropped_invalid,
+            dropped_by_voxel=scanned.points - kept.points, extents=kept.extents(),
+            class_histogram=kept.histogram(scene.scheme.names),
+            station_counts={str(k): v for k, v in sorted(kept.station_counts.items())}, files=files,
+            checksums=checksums, bytes=n_bytes,
+        )
+        write_unit_record(staged, record)
+        write_json(staged / TIMINGS_NAME, {"load_s": round(load_s, 3), "scan_write_s": round(scan_s, 3),
+                                           "total_s": round(time.perf_counter() - start, 3),
+                                           "threads": job.recipe.threads,
+                                           "points_per_s": round(kept.points / max(scan_s, 1e-9))})
+        replace_path(staged, folder.unit_dir(job.unit))
+        staged = None
+        return UnitOutcome(unit=job.unit, status="done", points=kept.points, files=files, load_s=load_s,
+                           seconds=time.perf_counter() - start)
+    except (BimscanError, SemanticError, OSError, ValueError) as exc:
+        return UnitOutcome(unit=job.unit, status="failed", error=_one_line(exc), seconds=time.perf_counter() - start)
+    finally:
+        for writer in writers.values():
+            writer.abort()  # a no-op for writers that closed
+        if staged is not None:
+            shutil.rmtree(staged, ignore_errors=True)
+
+
+def check_written(kept: CloudSummary, written: Mapping[str, WrittenCloud]) -> None:
+    """The unit's post-checks on what was written, read back from the files: every output holds
+    as many points as the stream had (its header count; bodies shorter than the header are
+    caught), and the stream was not empty. (Every point's label was checked against its
+    component's class while it streamed: ``stream_checked`` runs ``check_semantics`` on each chunk.)
+    Raises SemanticError."""
+    from bimscan.io import count_points
+    from bimscan.process.checks import SemanticError
+
+    if kept.points == 0:
+        raise SemanticError("the scan has no point (no station sees a surface within the scanner's range); "
+                            "check the scene and its stations")
+    for fmt, cloud in written.items():
+        try:
+            stored = count_points(cloud.path)
+        except BimscanError as exc:
+            raise SemanticError(f"the {fmt} output cannot be read back ({exc})") from exc
+        if stored != kept.points:
+            raise SemanticError(f"the {fmt} output holds {stored} points, the stream had {kept.points}")

@@ -1,0 +1,118 @@
+"""Multi-station surveys: a scene with its scanner, recipe and stations, scanned into one stream.
+
+``prepare_survey`` places the scanner in the scene and fixes the stations (planned, read from a
+file, or given); the ``Survey`` keeps the recipe it was prepared with, so what is scanned and what
+the cloud's metadata records cannot disagree. ``run_survey`` scans the stations in id order and
+concatenates their chunks: the merged cloud is the stations' clouds one after another, each point
+keeping its station id. Station ``k``'s clock starts where station ``k - 1``'s rotation ended.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from bimscan import __version__
+from bimscan.errors import StationError
+from bimscan.scan.pattern import PulsePattern
+from bimscan.scan.recipe import AUTO_STATIONS, ScanRecipe
+from bimscan.scan.virtual_scanner import VirtualScanner
+from bimscan.survey.stations import PlanReport, check_station, plan_stations, read_stations
+from bimscan.types import BimScene, CloudHeader, PointCloud, Station
+
+
+@dataclass(frozen=True)
+class Survey:
+    """A scene ready to scan: the scanner placed in it, the recipe, the stations (and the plan
+    report when they were planned)."""
+
+    scene: BimScene
+    scanner: VirtualScanner
+    recipe: ScanRecipe
+    stations: tuple[Station, ...]
+    plan: PlanReport | None = None
+
+    def pulses(self) -> int:
+        """Emitted pulses of the whole survey (for progress bars and size estimates)."""
+        return station_pulses(self.recipe) * len(self.stations)
+
+
+def station_pulses(recipe: ScanRecipe) -> int:
+    """Emitted pulses of one station scanned with ``recipe`` (exact, line by line)."""
+    return PulsePattern.of(recipe.settings, recipe.scanner).count()
+
+
+def choose_stations(scene: BimScene, scanner: VirtualScanner, stations_from: str) -> tuple[tuple[Station, ...], PlanReport | None]:
+    """The stations of a scene: planned (``"auto"``, each then checked) or read from a CSV file."""
+    if stations_from != AUTO_STATIONS:
+        return read_stations(stations_from, scene, scanner), None
+    stations, plan = plan_stations(scene, scanner)
+    for station in stations:
+        check_station(station, scene, scanner)
+    return stations, plan
+
+
+def place_scanner(scene: BimScene, recipe: ScanRecipe) -> VirtualScanner:
+    """The recipe's scanner placed in the scene's mesh, on its engine and threads."""
+    return VirtualScanner(scene.mesh, scene.components.label, scanner=recipe.scanner, engine=recipe.engine,
+                          threads=recipe.threads)
+
+
+def prepare_survey(scene: BimScene, recipe: ScanRecipe, *, scanner: VirtualScanner | None = None,
+                   stations: tuple[Station, ...] | None = None) -> Survey:
+    """Place the scanner in the scene and fix the stations (``recipe.stations_from``).
+
+    ``scanner``: reuse a VirtualScanner already built over this scene with the recipe's model.
+    ``stations`` given: use them as they are (planned once per scene and reused for every
+    configuration, as the dataset builder does); ``recipe.stations_from`` is then not consulted.
+    """
+    if scanner is None or scanner.scanner != recipe.scanner:
+        scanner = place_scanner(scene, recipe)
+    if stations is not None:
+        if not stations:
+            raise StationError(f"{scene.source}: an empty station list was given; pass at least one station")
+        return Survey(scene=scene, scanner=scanner, recipe=recipe, stations=tuple(stations))
+    chosen, plan = choose_stations(scene, scanner, recipe.stations_from)
+    return Survey(scene=scene, scanner=scanner, recipe=recipe, stations=chosen, plan=plan)
+
+
+def run_survey(survey: Survey, *, on_pulses: Callable[[int], None] | None = None,
+               reuse_buffers: bool = False) -> Iterator[PointCloud]:
+    """Stream the merged, labelled cloud of all stations (raw: not yet filtered or checked).
+
+    on_pulses(n) is called after each chunk with the number of pulses it covered (progress).
+    reuse_buffers: chunks are overwritten by the next one (see VirtualScanner.scan_station).
+    """
+    duration = survey.recipe.settings.duration_s()
+    for index, station in enumerate(survey.stations):
+        yield from survey.scanner.scan_station(station, survey.recipe, time0_s=index * duration, on_pulses=on_pulses,
+                                               reuse_buffers=reuse_buffers)
+
+
+def cloud_origin(scene: BimScene) -> tuple[float, float, float]:
+    """Local origin for the writers: the model's lower corner in whole metres."""
+    lo, _ = scene.mesh.bounds()
+    return tuple(float(math.floor(v)) for v in lo)  # type: ignore[return-value]
+
+
+def survey_metadata(survey: Survey) -> dict[str, Any]:
+    """What a cloud file records about how it was made (JSON-able): the recipe, the source, the
+    stations and the device warnings."""
+    scene = survey.scene
+    return survey.recipe.to_json() | {
+        "software": f"bimscan {__version__}",
+        "source": {"file": Path(scene.source).name, "sha256": scene.file_sha256, "schema": scene.schema},
+        "stations": [dataclasses.asdict(s) for s in survey.stations],
+        "device_warnings": list(survey.recipe.warnings),
+    }
+
+
+def cloud_header(survey: Survey, *, extra_metadata: dict[str, Any] | None = None) -> CloudHeader:
+    """The header every writer stores with the survey's cloud (scheme, components, stations, metadata)."""
+    scene = survey.scene
+    return CloudHeader(scheme=scene.scheme, components=scene.components, stations=survey.stations,
+                       origin=cloud_origin(scene), metadata=survey_metadata(survey) | (extra_metadata or {}))
