@@ -14,7 +14,6 @@ from functools import cached_property
 
 import numpy as np
 
-NO_COMPONENT = -1  # component id of points that belong to no BIM component (real scans)
 UNLABELLED = 255  # label id of points without ground truth (skipped by losses and metrics); no scheme class may use it
 
 
@@ -169,12 +168,6 @@ class LabelScheme:
     rules: tuple[LabelRule, ...]
     default_label: str
 
-    def class_by_name(self, name: str) -> LabelClass:
-        for cls in self.classes:
-            if cls.name == name:
-                return cls
-        raise KeyError(name)
-
     @property
     def names(self) -> dict[int, str]:
         return {c.id: c.name for c in self.classes}
@@ -231,18 +224,10 @@ class ParsedModel:
 
 
 @dataclass(frozen=True)
-class BimScene:
-    """A parsed IFC model with its components labelled under ``scheme`` (see ``ParsedModel``)."""
+class BimScene(ParsedModel):
+    """A parsed IFC model with its components labelled under ``scheme`` (``components.label``)."""
 
-    source: str
-    file_sha256: str
-    schema: str
-    mesh: SceneMesh
-    components: ComponentTable
     scheme: LabelScheme
-    storeys: tuple[Storey, ...]
-    spaces: tuple[Space, ...]
-    failed: tuple[FailedElement, ...]
     unmapped_classes: Mapping[str, int]  # IFC class -> components that fell to the default class
 
     def __post_init__(self) -> None:
@@ -279,7 +264,7 @@ class PointCloud:
     """A (chunk of a) labelled point cloud; every column has N rows.
 
     xyz: (N, 3) float64 metres. label: (N,) uint8 semantic class id. component: (N,) int32
-    component id (NO_COMPONENT for none). station: (N,) uint16. intensity: (N,) uint16.
+    component id. station: (N,) uint16. intensity: (N,) uint16.
     time: (N,) float64 seconds since the start of the survey. Only ``xyz`` is required (real scans
     may lack the rest).
     """

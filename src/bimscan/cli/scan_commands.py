@@ -60,6 +60,9 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
     names = result.survey.scene.scheme.names
     click.echo(f"{result.path}: {result.points:,} points from {len(result.survey.stations)} stations in "
                f"{result.seconds:.1f} s ({result.points / max(result.seconds, 1e-9) / 1e6:.2f} Mpts/s)")
+    plan = result.survey.plan
+    if plan is not None and plan.stations_per_storey:
+        click.echo("  stations per storey: " + ", ".join(f"{k} {v}" for k, v in plan.stations_per_storey.items()))
     click.echo("  extent (m): " + " x ".join(f"{v:.2f}" for v in extents["size"]))
     click.echo("  classes: " + ", ".join(f"{k} {v:,}" for k, v in result.summary.histogram(names).items()))
 

@@ -81,7 +81,6 @@ class SerialExecutor:
     def __init__(self, *, workers: int = 1, environment: dict[str, str] | None = None, address: str | None = None) -> None:
         self._pending: dict[int, tuple[TaskFunction, Any]] = {}
         self._next = 0
-        self._pulses = 0
         if environment:
             os.environ.update(environment)
 

@@ -71,8 +71,6 @@ class VoxelSubsampler:
         self.voxel_size_m = float(voxel_size_m)
         self.origin = np.asarray(origin, dtype=np.float64)
         self._seen = _SortedKeySet()
-        self.points_in = 0
-        self.points_out = 0
 
     def voxel_keys(self, xyz: np.ndarray) -> np.ndarray:
         """(N,) int64 voxel key of each point of ``xyz`` (N, 3) float64 metres."""
@@ -86,7 +84,6 @@ class VoxelSubsampler:
 
     def filter(self, chunk: PointCloud) -> PointCloud:
         """The points of ``chunk`` that fall in voxels no earlier point occupied, in stream order."""
-        self.points_in += len(chunk)
         if len(chunk) == 0:
             return chunk
         keys = self.voxel_keys(chunk.xyz)
@@ -94,7 +91,6 @@ class VoxelSubsampler:
         new = ~self._seen.contains(unique)
         self._seen.add(unique[new])
         keep = np.sort(first[new])
-        self.points_out += len(keep)
         return chunk if len(keep) == len(chunk) else chunk.take(keep)
 
 

@@ -104,20 +104,18 @@ class ScanRecipe:
     def to_json(self) -> dict[str, Any]:
         """The recipe as JSON-able data (what clouds and units record; the fingerprint's input).
 
-        A station file is recorded by its name (a dataset adds its checksum), so moving a
-        dataset's folder changes neither fingerprints nor bytes.
+        Every field but ``RUNTIME_FIELDS``, nested settings as dicts. A station file is recorded
+        by its name (a dataset adds its checksum), so moving a dataset's folder changes neither
+        fingerprints nor bytes.
         """
-        return {
-            "scanner": dataclasses.asdict(self.scanner),
-            "preset": self.preset,
-            "settings": dataclasses.asdict(self.settings),
-            "noise": dataclasses.asdict(self.noise),
-            "seed": self.seed,
-            "noise_stream": self.noise_stream,
-            "engine": self.engine,
-            "stations_from": self.stations_from if self.stations_from == AUTO_STATIONS else Path(self.stations_from).name,
-            "strict": self.strict,
-        }
+        document = {}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.name not in RUNTIME_FIELDS:
+                document[f.name] = dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
+        if self.stations_from != AUTO_STATIONS:
+            document["stations_from"] = Path(self.stations_from).name
+        return document
 
     def fingerprint(self) -> str:
         """SHA-256 of the canonical JSON of ``to_json()``: equal output-deciding settings, equal value."""

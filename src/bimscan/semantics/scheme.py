@@ -22,7 +22,7 @@ from __future__ import annotations
 import re
 from collections import Counter
 from collections.abc import Collection, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -189,8 +189,6 @@ def _match(key: tuple[str, str, str], class_ancestry: Mapping[str, tuple[str, ..
 def label_model(model: ParsedModel, scheme: LabelScheme) -> BimScene:
     """Stage 3 applied to stage 1's output: every component of ``model`` labelled under ``scheme``."""
     mapping = map_labels(model.components, scheme)
-    return BimScene(
-        source=model.source, file_sha256=model.file_sha256, schema=model.schema, mesh=model.mesh,
-        components=replace(model.components, label=mapping.labels), scheme=scheme, storeys=model.storeys,
-        spaces=model.spaces, failed=model.failed, unmapped_classes=mapping.unmapped,
-    )
+    parsed = {f.name: getattr(model, f.name) for f in fields(ParsedModel)}
+    return BimScene(**parsed | {"components": replace(model.components, label=mapping.labels)}, scheme=scheme,
+                    unmapped_classes=mapping.unmapped)

@@ -38,7 +38,6 @@ class PlanReport:
 
     stations_per_storey: dict[str, int] = field(default_factory=dict)
     rooms_without_station: tuple[str, ...] = ()
-    candidates_per_storey: dict[str, int] = field(default_factory=dict)
 
 
 def read_stations(path: str | Path, scene: BimScene, scanner: VirtualScanner) -> tuple[Station, ...]:
@@ -130,7 +129,6 @@ def plan_stations(scene: BimScene, scanner: VirtualScanner, *, grid_m: float = 1
     levels = _levels(scene, lo[2], hi[2])
     stations: list[Station] = []
     per_storey: dict[str, int] = {}
-    candidates_per_storey: dict[str, int] = {}
     rooms_without: list[str] = []
     for index, (name, elevation, next_elevation) in enumerate(levels):
         spots = _tripod_spots(scanner, gx, gy, elevation, next_elevation, floor_components, instrument, clearance_m)
@@ -148,7 +146,6 @@ def plan_stations(scene: BimScene, scanner: VirtualScanner, *, grid_m: float = 1
             fine = fine[_in_room(room, fine)] if len(fine) else fine
             if len(fine):
                 spots = np.concatenate([spots, fine]) if len(spots) else fine
-        candidates_per_storey[name] = len(spots)
         if len(spots) == 0:
             rooms_without += [r.name for r in rooms if _room_has_floor(r, elevation, next_elevation)]
             continue
@@ -161,7 +158,7 @@ def plan_stations(scene: BimScene, scanner: VirtualScanner, *, grid_m: float = 1
     if not stations:
         raise StationError(f"{scene.source}: no place for a station found (no floor with {instrument + 0.3:.1f} m of "
                            "headroom and a clear tripod spot); give stations in a file with --stations FILE")
-    return tuple(stations), PlanReport(per_storey, tuple(rooms_without), candidates_per_storey)
+    return tuple(stations), PlanReport(per_storey, tuple(rooms_without))
 
 
 def _components_of(scene: BimScene, classes: tuple[str, ...]) -> np.ndarray:
