@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from bimscan.errors import StationError
 from bimscan.process.checks import check_semantics, filter_invalid
 from bimscan.process.summary import CloudSummary
 from bimscan.progress import progress_bar
@@ -92,6 +93,10 @@ def scan_survey(survey: Survey, out: str | Path, *, overwrite: bool = False, pro
         with progress_bar(total=survey.pulses(), desc="scanning", unit="pulse", enabled=progress) as bar:
             for chunk in stream_checked(survey, summary=summary, on_pulses=bar.update):
                 writer.write(chunk)
+        if summary.points == 0:
+            raise StationError(f"the scan of {survey.scene.source} has no point: no station sees a surface between "
+                               f"{survey.recipe.scanner.min_range_m:g} and {survey.recipe.scanner.max_range_m:g} m; "
+                               "check the stations and the scanner's range")
         written = writer.close()
         finished = True
     finally:
@@ -109,7 +114,7 @@ def scan_model(model: str | Path, out: str | Path, recipe: ScanRecipe, *,
     Output and scheme errors come before the (slow) parse. ``warn`` receives one line per thing a
     user should know (settings outside the device's limits, rooms left without a station).
     """
-    from bimscan.io import check_cloud_output
+    from bimscan.io import check_cloud_output, check_free_space
 
     check_cloud_output(out, overwrite=overwrite)
     for warning in recipe.warnings:
@@ -120,4 +125,5 @@ def scan_model(model: str | Path, out: str | Path, recipe: ScanRecipe, *,
     if warn is not None and survey.plan is not None and survey.plan.rooms_without_station:
         warn("rooms without a station (too small for a tripod or no floor): "
              + ", ".join(survey.plan.rooms_without_station))
+    check_free_space(out, points=survey.pulses())
     return scan_survey(survey, out, overwrite=overwrite, progress=progress)

@@ -116,3 +116,50 @@ def test_an_existing_output_is_kept_unless_overwrite(box_room_ifc, tmp_path, cap
     assert out.read_bytes() == b"precious"
     assert main(["scan", str(box_room_ifc), str(out), *FAST, "--overwrite"]) == 0
     assert out.read_bytes() != b"precious"
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--seed", str(2**70)], "seed = 1180591620717411303424 is impossible"),
+    (["--threads", "-1"], "threads = -1 is impossible"),
+    (["--head-speed", "1e-300"], "would fire inf pulses"),
+    (["--range-sigma", "nan"], "range_sigma_m = nan is impossible"),
+])
+def test_settings_that_would_crash_or_run_forever_are_one_line_errors(box_room_ifc, tmp_path, capsys, args, message):
+    out = tmp_path / "x.laz"
+    assert main(["scan", str(box_room_ifc), str(out), *args]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and message in err[0]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_scan_that_sees_nothing_is_an_error_not_an_empty_file(box_room_ifc, tmp_path, capsys):
+    blind = tmp_path / "blind.toml"  # nothing in the 8 x 6 m room lies within 0.5 m of the centre
+    blind.write_text('name = "blind"\nmin_range_m = 0.0\nmax_range_m = 0.5\n')
+    out = tmp_path / "none.laz"
+    assert main(["scan", str(box_room_ifc), str(out), *FAST, "--scanner", str(blind)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("error: the scan of ") and "has no point" in err[-1]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["blind.toml"]
+
+
+def test_an_unwritable_output_folder_fails_before_the_scan(box_room_ifc, tmp_path, capsys, monkeypatch):
+    import bimscan.io._writer as writer_module
+
+    # the tests may run as root, who can write anywhere: make the permission check see a read-only folder
+    monkeypatch.setattr(writer_module, "folder_writable", lambda folder: False)
+    assert main(["scan", str(box_room_ifc), str(tmp_path / "x.laz"), *FAST]) == 1
+    assert "is not writable; check its permissions" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_file_name_that_is_not_utf8_is_reported_in_one_printable_line(tmp_path, capfdbinary):
+    import os
+    import subprocess
+    import sys
+
+    name = os.fsdecode(b"model-\xff.ifc")
+    result = subprocess.run([sys.executable, "-m", "bimscan.cli.main", "info", str(tmp_path / name)],
+                            capture_output=True, env=os.environ | {"BIMSCAN_PROGRESS": "0"})
+    assert result.returncode == 1
+    lines = result.stderr.decode("utf-8").strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and "model-\\udcff.ifc" in lines[0]

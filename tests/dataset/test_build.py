@@ -275,3 +275,40 @@ def test_the_build_command_exits_non_zero_with_a_summary_when_a_unit_failed(
     (failure,) = [line for line in lines if line.startswith("failed: ")]
     assert failure.startswith("failed: broken__fast: ") and "not an IFC file" in failure
     assert lines[-1].startswith("error: 1 of 2 units failed;") and "run the same command again" in lines[-1]
+
+
+def test_a_generated_scene_follows_its_seed_and_one_edited_by_hand_is_made_again(
+        tmp_path: Path, session_env: Path) -> None:
+    spec = _small_spec(tmp_path)
+    first = build_dataset(load_spec(spec), tmp_path / "out", executor="serial", progress=False)
+    scene = tmp_path / "out" / "scenes" / "good.ifc"
+    original = scene.read_bytes()
+    assert first.ok and first.notes == ()
+    spec.write_text(spec.read_text().replace("seed = 1,", "seed = 2,"))
+    second = build_dataset(load_spec(spec), tmp_path / "out", executor="serial", progress=False)
+    assert second.built == 1 and scene.read_bytes() != original  # the new seed's building, not the old file
+    meta = json.loads((tmp_path / "out" / "units" / "good__fast" / "unit.json").read_text())
+    assert meta["inputs"]["scene"]["generated"]["seed"] == 2 and meta["inputs"]["scene"]["sha256"] == _sha256(scene)
+    regenerated = scene.read_bytes()
+    scene.write_bytes(regenerated + b"/* edited */\n")
+    third = build_dataset(load_spec(spec), tmp_path / "out", executor="serial", progress=False)
+    assert scene.read_bytes() == regenerated and third.reused == 1 and third.built == 0
+    assert len(third.notes) == 1 and "was changed since it was generated" in third.notes[0]
+
+
+@pytest.mark.parametrize("edit", [
+    lambda t: t.replace("head_deg_per_s = 360.0", "head_deg_per_s = nan"),
+    lambda t: t.replace("head_deg_per_s = 360.0", "head_deg_per_s = inf"),
+    lambda t: t.replace('formats = ["npy"]', 'formats = ["npy"]\nvoxel_size_m = nan'),
+    lambda t: t.replace('formats = ["npy"]', 'formats = ["npy"]\n[noise]\nrange_sigma_m = inf'),
+])
+def test_nan_or_inf_in_a_spec_is_one_line_and_leaves_no_dataset_folder(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], edit) -> None:
+    from bimscan.cli.main import main
+
+    spec = _small_spec(tmp_path)
+    spec.write_text(edit(spec.read_text()))
+    assert main(["build", str(spec), str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {spec}") and "impossible" in err[0]
+    assert not (tmp_path / "out").exists()

@@ -119,3 +119,40 @@ def test_the_scan_command_takes_its_noise_from_a_scanner_file(box_room_ifc, tmp_
     on_face = np.minimum.reduce([np.abs(x - 0.0), np.abs(x - 8.0), np.abs(y - 0.0), np.abs(y - 6.0),
                                  np.abs(z - 0.0), np.abs(z - 3.5)])
     assert on_face.max() < 1e-3
+
+
+@pytest.mark.parametrize("fields, message", [
+    ({"head_deg_per_s": 1e-300}, "would fire inf pulses"),
+    ({"head_deg_per_s": 1e-3}, "would fire 1.5e\\+10 pulses, more than the budget"),
+    ({"settings": ScanSettings(pulse_freq_hz=1e5, scan_freq_hz=1e-9, head_deg_per_s=10)}, "would sweep 3.6e-08 mirror lines"),
+    ({"settings": ScanSettings(pulse_freq_hz=1e5, scan_freq_hz=100, head_deg_per_s=10, head_stop_deg=1e-9)},
+     "mirror lines"),
+    ({"seed": 2**70}, "seed = 1180591620717411303424 is impossible"),
+    ({"seed": -1}, "seed = -1 is impossible"),
+    ({"threads": -1}, "threads = -1 is impossible"),
+])
+def test_settings_that_cannot_make_a_sensible_scan_are_refused_before_any_work(fields, message):
+    with pytest.raises((ConfigError, ScannerSettingsError), match=message):
+        ScanRecipe.resolve(**fields)
+
+
+def test_a_range_sigma_in_millimetres_by_mistake_is_refused():
+    with pytest.raises(ScannerSettingsError, match="range_sigma_m = 5.0 is impossible .*not millimetres"):
+        NoiseModel(range_sigma_m=5.0)
+
+
+def test_a_larger_pulse_budget_admits_a_slow_head():
+    recipe = ScanRecipe.resolve(head_deg_per_s=1e-3, max_station_pulses=20_000_000_000)
+    assert recipe.settings.expected_pulses(recipe.scanner) == pytest.approx(1.5e10)
+    assert recipe.fingerprint() == recipe.with_fields(max_station_pulses=10**11).fingerprint()
+
+
+@pytest.mark.parametrize("keys, message", [
+    ({"scan_freq_min_hz": 200.0}, "scan_freq_min_hz <= scan_freq_max_hz"),
+    ({"head_deg_per_s_max": -60.0}, "head_deg_per_s_max must be > 0"),
+    ({"pulse_freqs_hz": [100000, -5]}, "pulse_freqs_hz must all be > 0"),
+    ({"tripod_height_m": -1.5}, "tripod_height_m must be a number >= 0"),
+])
+def test_nonsense_scanner_files_are_refused(tmp_path, keys, message):
+    with pytest.raises(ScannerSettingsError, match=message):
+        load_scanner(scanner_file(tmp_path, **keys))

@@ -111,3 +111,21 @@ def test_a_model_with_no_room_for_a_tripod_is_refused(tiny_model, tmp_path):
     scanner = VirtualScanner(scene.mesh, scene.components.label, scanner=VZ400)
     with pytest.raises(StationError, match="no place for a station"):
         plan_stations(scene, scanner)
+
+
+@pytest.mark.parametrize("content, message", [
+    (b"x,y,height\n", "no stations in the file"),
+    (b"x,y,z\n4,3,1.7\n".replace(b"4", b"\xff\xfe"), "not a UTF-8 text file"),
+    (b"x,y,z,heading_deg\n4,3,1.7,nan\n", "not a finite number"),
+    (b"x,y,z\ninf,3,1.7\n", "not a finite number"),
+    (b"x,y,z\n4,3,-5\n", "nothing under it to stand on"),  # 5 m under the floor slab
+    (b"x,y,z\n4,3,0.0\n", "closer than a scanner head allows"),  # on the floor slab's top face
+    (b"x,y,z\n4,3,0.05\n", "closer than a scanner head allows"),
+])
+def test_nonsense_station_files_are_refused_with_one_line(box, tmp_path, content, message):
+    scene, scanner = box
+    path = tmp_path / "stations.csv"
+    path.write_bytes(content)
+    with pytest.raises(StationError, match=message) as caught:
+        read_stations(path, scene, scanner)
+    assert "\n" not in str(caught.value)

@@ -28,6 +28,8 @@ def _report_build(report: BuildReport) -> None:
     """Print the build's warnings, failures and summary; raise DatasetError if a unit failed."""
     from bimscan.errors import DatasetError
 
+    for note in report.notes:
+        click.echo(f"warning: {note}", err=True)
     for scene in report.scenes:
         for note in scene.notes:
             click.echo(f"warning: scene {scene.scene}: {note}", err=True)

@@ -37,31 +37,38 @@ def _register() -> None:
 _register()
 
 
+def _error(message: str) -> None:
+    """Print ``error: <message>`` on stderr as one line, whatever the message holds (file names that
+    are not valid UTF-8 reach Python as surrogate escapes, which a terminal cannot print)."""
+    line = " ".join(message.split()).encode("utf-8", "backslashreplace").decode("utf-8")
+    click.echo(f"error: {line}", err=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit status."""
     try:
         status = cli.main(args=argv, prog_name="bimscan", standalone_mode=False)
     except click.exceptions.Abort:
-        click.echo("error: interrupted", err=True)
+        _error("interrupted")
         return 130
     except click.UsageError as exc:  # a bad option or argument: one line, like every other error
         command = f"bimscan {exc.ctx.command_path.split(' ', 1)[1]} " if exc.ctx and " " in exc.ctx.command_path else "bimscan "
-        click.echo(f"error: {exc.format_message()} (see '{command}--help')", err=True)
+        _error(f"{exc.format_message()} (see '{command}--help')")
         return exc.exit_code
     except click.ClickException as exc:
-        click.echo(f"error: {exc.format_message()}", err=True)
+        _error(exc.format_message())
         return exc.exit_code
     except BimscanError as exc:
-        click.echo(f"error: {exc}", err=True)
+        _error(str(exc))
         return exc.exit_code
     except KeyboardInterrupt:
-        click.echo("error: interrupted; finished work is kept, run the same command to resume", err=True)
+        _error("interrupted; finished work is kept, run the same command to resume")
         return 130
     except OSError as exc:
         if exc.errno == errno.ENOSPC:
-            click.echo(f"error: disk full while writing {exc.filename or 'output'}; free space and run again", err=True)
+            _error(f"disk full while writing {exc.filename or 'output'}; free space and run again")
         else:
-            click.echo(f"error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "), err=True)
+            _error(f"{exc.strerror or exc}: {exc.filename or ''}".rstrip(": "))
         return 1
     return status if isinstance(status, int) else 0
 

@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from bimscan.cli.ifc_commands import SCHEME_HELP
+from bimscan.scan.recipe import DEFAULT_MAX_STATION_PULSES
 
 
 @click.command("scan")
@@ -33,11 +34,13 @@ from bimscan.cli.ifc_commands import SCHEME_HELP
 @click.option("--scheme", default=None, help=SCHEME_HELP)
 @click.option("--engine", default="open3d", show_default=True, help="Ray engine: open3d or embreex.")
 @click.option("--threads", default=0, show_default=True, type=int, help="Cores to use (0 = all).")
+@click.option("--max-station-pulses", default=DEFAULT_MAX_STATION_PULSES, show_default=True, type=int,
+              help="Refuse settings under which one station would fire more pulses (a guard against typos).")
 @click.option("--overwrite", is_flag=True, help="Replace OUT if it exists.")
 def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, no_noise: bool,
          range_sigma_m: float | None, angle_sigma_deg: float | None, registration_sigma_m: float,
          registration_sigma_deg: float, strict: bool, scanner: str | None, head_deg_per_s: float | None,
-         scheme: str | None, engine: str, threads: int, overwrite: bool) -> None:
+         scheme: str | None, engine: str, threads: int, max_station_pulses: int, overwrite: bool) -> None:
     """Scan MODEL.ifc with a virtual TLS and write a labelled cloud to OUT.
 
     OUT's suffix picks the format: .laz, .las, .ply, or a folder (no suffix) of NumPy arrays
@@ -53,7 +56,8 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
     noise = NoiseModel(range_sigma_m=range_sigma_m, angle_sigma_deg=angle_sigma_deg,
                        registration_sigma_m=registration_sigma_m, registration_sigma_deg=registration_sigma_deg)
     recipe = ScanRecipe.resolve(preset=preset, scanner=scanner, head_deg_per_s=head_deg_per_s, noise=noise, seed=seed,
-                                engine=engine, stations_from=stations, strict=strict, threads=threads)
+                                engine=engine, stations_from=stations, strict=strict, threads=threads,
+                                max_station_pulses=max_station_pulses)
     result = scan_model(model, out, recipe, scheme=scheme, overwrite=overwrite,
                         warn=lambda line: click.echo(f"warning: {line}", err=True))
     extents = result.summary.extents()

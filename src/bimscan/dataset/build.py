@@ -49,6 +49,7 @@ class BuildReport:
     unit_load_s: float  # total time unit tasks spent loading their (cached) scene
     workers: int
     threads: int
+    notes: tuple[str, ...] = ()  # what the user should know about the scenes (e.g. regenerated ones)
 
     @property
     def ok(self) -> bool:
@@ -101,8 +102,8 @@ def build_dataset(spec: DatasetSpec, out_dir: str | Path, *, workers: int | None
         folder.scenes_dir.mkdir(exist_ok=True)
         write_json(folder.info_path, {"format": "bimscan-dataset-info", "version": 1, "name": spec.name,
                                       "software": f"bimscan {__version__}", "spec": dataclasses.asdict(spec)})
-        scene_files, scene_errors = generate_scenes(spec, folder)
-        plan = plan_build(spec, folder, scene_files, scene_errors, chunk_pulses=chunk_pulses)
+        scenes = generate_scenes(spec, folder)
+        plan = plan_build(spec, folder, scenes, chunk_pulses=chunk_pulses)
         folder.write_manifest(Manifest(units=tuple(plan.entries)))
         workers = max(1, min(workers, len(plan.unit_jobs)))  # fewer units than workers: give each more threads
         threads = max(1, (os.cpu_count() or 1) // workers)
@@ -116,7 +117,7 @@ def build_dataset(spec: DatasetSpec, out_dir: str | Path, *, workers: int | None
         out_dir=folder.root, entries=entries, reused=reused, built=len(built),
         failed=sum(e.status == "failed" for e in entries), points_built=sum(o.points for o in built),
         seconds=time.perf_counter() - start, scenes=outcome.scenes, unit_load_s=sum(o.load_s for o in outcome.units),
-        workers=workers, threads=threads,
+        workers=workers, threads=threads, notes=scenes.notes,
     )
 
 

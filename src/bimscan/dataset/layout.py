@@ -7,6 +7,7 @@ dicts of their own. Layout of a built dataset (``OUT_DIR``)::
     manifest.json                   every unit and its status (``Manifest``)
     dataset.json                    the resolved spec and the software that built it
     scenes/<scene>.ifc              generated buildings (IFC scenes stay where they are)
+    scenes/<scene>.generated.json   the options, software and checksum a generated building was made with
     scenes/<scene>.stations.json    the stations planned once per scene, reused by every configuration
     units/<scene>__<config>/        one data unit
         cloud.laz | cloud.las | cloud.ply (+ .ply.json) | cloud/ (NumPy folder)
@@ -240,6 +241,10 @@ class DatasetFolder:
 
     def generated_scene_path(self, scene: str) -> Path:
         return self.scenes_dir / f"{scene}.ifc"
+
+    def generated_record_path(self, scene: str) -> Path:
+        """What a generated scene was made from (options, software, checksum)."""
+        return self.scenes_dir / f"{scene}.generated.json"
 
     def stations_path(self, scene: str) -> Path:
         return self.scenes_dir / f"{scene}.stations.json"

@@ -18,7 +18,9 @@ from pathlib import Path
 from typing import Any
 
 from bimscan import __version__
-from bimscan.dataset.layout import DatasetFolder, ManifestEntry, STATIONS_VERSION, unit_id, verify_unit
+from bimscan.dataset.layout import (
+    STATIONS_VERSION, DatasetFolder, ManifestEntry, read_json, unit_id, verify_unit, write_json,
+)
 from bimscan.dataset.spec import DatasetSpec, SceneSpec, resolve_scheme
 from bimscan.errors import BimscanError
 from bimscan.files import dump_json, file_sha256
@@ -69,26 +71,52 @@ def fingerprint(inputs: Mapping[str, Any]) -> str:
     return hashlib.sha256(dump_json(inputs)).hexdigest()
 
 
-def generate_scenes(spec: DatasetSpec, folder: DatasetFolder) -> tuple[dict[str, Path], dict[str, str]]:
-    """The IFC file of every scene (writing generated buildings not there yet) and per-scene errors."""
+@dataclass(frozen=True)
+class SceneFiles:
+    """The IFC file of every scene that has one, why the others have none, and what the user
+    should know (generated scenes found changed by hand)."""
+
+    files: dict[str, Path]
+    errors: dict[str, str]
+    notes: tuple[str, ...] = ()
+
+
+def generate_scenes(spec: DatasetSpec, folder: DatasetFolder) -> SceneFiles:
+    """The IFC file of every scene, writing generated buildings that are missing or stale.
+
+    A generated scene is kept only when ``scenes/<scene>.generated.json`` says it was made with
+    the spec's options by this software and the file still has the checksum recorded then;
+    otherwise it is made again (a scene edited by hand is reported: scan your own model as an
+    ``ifc = ...`` scene instead).
+    """
+    from bimscan.ifc.generate import make_building
+
     files: dict[str, Path] = {}
     errors: dict[str, str] = {}
+    notes: list[str] = []
     for scene in spec.scenes:
-        if scene.ifc is not None:
-            files[scene.name] = Path(scene.ifc)
+        if scene.generate is None:  # an IFC file (the spec holds exactly one of the two)
+            files[scene.name] = Path(str(scene.ifc))
             continue
         path = folder.generated_scene_path(scene.name)
-        generate = scene.generate
-        if not path.is_file() and generate is not None:
-            try:
-                from bimscan.ifc.generate import make_building
-
-                make_building(path, seed=generate.seed, storeys=generate.storeys)
-            except BimscanError as exc:
-                errors[scene.name] = f"could not generate scene {scene.name!r}: {exc}"
-                continue
+        record_path = folder.generated_record_path(scene.name)
+        wanted = {"generate": dataclasses.asdict(scene.generate), "software": f"bimscan {__version__}"}
+        record = read_json(record_path) if record_path.is_file() else {}
+        current = {k: record.get(k) for k in wanted} == wanted
+        if path.is_file() and current and file_sha256(path) == record.get("sha256"):
+            files[scene.name] = path
+            continue
+        if path.is_file() and current:
+            notes.append(f"scene {scene.name!r}: {path} was changed since it was generated; generated again from its "
+                         "options (to scan an edited model, give it as an 'ifc = ...' scene)")
+        try:
+            make_building(path, **dataclasses.asdict(scene.generate))
+        except BimscanError as exc:
+            errors[scene.name] = f"could not generate scene {scene.name!r}: {exc}"
+            continue
+        write_json(record_path, wanted | {"sha256": file_sha256(path)})
         files[scene.name] = path
-    return files, errors
+    return SceneFiles(files=files, errors=errors, notes=tuple(notes))
 
 
 def scene_inputs(scene: SceneSpec, scene_file: Path) -> dict[str, Any]:
@@ -116,8 +144,8 @@ def stations_key(scene: Mapping[str, Any], recipe: ScanRecipe) -> str:
                         "version": STATIONS_VERSION})
 
 
-def plan_build(spec: DatasetSpec, folder: DatasetFolder, scene_files: dict[str, Path], scene_errors: dict[str, str],
-               *, chunk_pulses: int | None = None) -> BuildPlan:
+def plan_build(spec: DatasetSpec, folder: DatasetFolder, scenes: SceneFiles, *,
+               chunk_pulses: int | None = None) -> BuildPlan:
     """Manifest rows for every unit (finished ones verified) and jobs for the rest.
 
     ``chunk_pulses`` goes into every job's recipe (it does not change the output); the driver
@@ -128,6 +156,7 @@ def plan_build(spec: DatasetSpec, folder: DatasetFolder, scene_files: dict[str, 
     scene_jobs: list[SceneJob] = []
     scheme = dataclasses.asdict(resolve_scheme(spec))
     runtime: dict[str, Any] = {} if chunk_pulses is None else {"chunk_pulses": chunk_pulses}
+    scene_files, scene_errors = scenes.files, scenes.errors
     for scene in spec.scenes:
         inputs_of_scene = None if scene.name in scene_errors else scene_inputs(scene, scene_files[scene.name])
         scene_recipe: ScanRecipe | None = None

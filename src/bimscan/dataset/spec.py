@@ -10,6 +10,7 @@ A spec is one TOML file (paths inside it are relative to the file)::
     voxel_size_m = 0.02           # optional: voxel subsampling of every unit
     engine = "open3d"             # ray engine
     strict = false                # settings outside the device's limits are errors
+    max_station_pulses = 500000000  # refuse settings that would fire more per station
 
     [noise]                       # optional; default: the scanner's accuracies
     range_sigma_m = 0.005
@@ -53,7 +54,7 @@ from bimscan.errors import BimscanError, ConfigError, InputFileError
 from bimscan.scan.device import DEFAULT_SCANNER, ScanSettings
 from bimscan.scan.engine import DEFAULT_ENGINE
 from bimscan.scan.noise import NoiseModel
-from bimscan.scan.recipe import AUTO_STATIONS, ScanRecipe
+from bimscan.scan.recipe import AUTO_STATIONS, DEFAULT_MAX_STATION_PULSES, ScanRecipe
 from bimscan.toml_files import build_dataclass, load_toml
 from bimscan.types import LabelScheme
 
@@ -100,6 +101,7 @@ class DatasetSpec:
     voxel_size_m: float | None = None
     engine: str = DEFAULT_ENGINE
     strict: bool = False
+    max_station_pulses: int = DEFAULT_MAX_STATION_PULSES
     noise: NoiseModel = field(default_factory=NoiseModel)
     scenes: tuple[SceneSpec, ...] = ()
     configs: tuple[ConfigSpec, ...] = ()
@@ -123,7 +125,8 @@ class DatasetSpec:
         return ScanRecipe.resolve(preset=config.preset, settings=config.settings, scanner=self.scanner,
                                   head_deg_per_s=config.head_deg_per_s, noise=self.noise, seed=self.seed,
                                   noise_stream=unit_id(scene.name, config.name), engine=self.engine,
-                                  stations_from=scene.stations, strict=self.strict)
+                                  stations_from=scene.stations, strict=self.strict,
+                                  max_station_pulses=self.max_station_pulses)
 
 
 def load_spec(path: str | Path) -> DatasetSpec:

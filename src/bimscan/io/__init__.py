@@ -19,6 +19,7 @@ one OBJ per component, an index CSV, optionally a HELIOS++ scene) and ``read_obj
 
 from __future__ import annotations
 
+import shutil
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -55,6 +56,9 @@ POINT_COUNTERS: dict[str, Callable[[str | Path], int]] = {
     ".ply": count_ply_points,
     "": count_npdir_points,
 }
+# Bytes a point takes on disk at most, per format (LAZ: a bound on what scans compress to), for
+# the free-space check before a long scan.
+BYTES_PER_POINT: dict[str, int] = {".las": 36, ".laz": 12, ".ply": 41, "": 29}
 _SUPPORTED = ".las, .laz, .ply, or a folder path without suffix (NumPy)"
 
 
@@ -99,6 +103,17 @@ def check_cloud_output(path: str | Path, *, overwrite: bool = False) -> None:
     check_output_path(Path(path), overwrite=overwrite)
 
 
+def check_free_space(path: str | Path, *, points: int) -> None:
+    """Raise OutputError when the folder of ``path`` has less free space than ``points`` points take
+    in its format (``BYTES_PER_POINT``), so a long job fails before it starts rather than at the end."""
+    key = _writer_key(path)
+    needed = points * BYTES_PER_POINT[key]
+    free = shutil.disk_usage(Path(path).parent).free
+    if needed > free:
+        raise OutputError(f"{path}: the scan may write up to {needed / 1e9:.1f} GB but {Path(path).parent} has "
+                          f"{free / 1e9:.1f} GB free; free space or choose another output")
+
+
 def read_cloud(path: str | Path, *, label_field: str | None = None) -> PointCloud:
     """Read a whole cloud (bimscan's own or another tool's) as one ``PointCloud``.
 
@@ -132,6 +147,6 @@ def read_cloud_header(path: str | Path) -> CloudHeader | None:
 
 __all__ = [
     "CHUNK_READERS", "HEADER_READERS", "POINT_COUNTERS", "WRITERS", "CloudWriter", "ObjExport", "WrittenCloud",
-    "check_cloud_output", "count_points", "export_obj", "iter_cloud_chunks", "open_cloud_writer", "output_format", "read_cloud",
+    "check_cloud_output", "check_free_space", "count_points", "export_obj", "iter_cloud_chunks", "open_cloud_writer", "output_format", "read_cloud",
     "read_cloud_header", "read_obj",
 ]

@@ -65,11 +65,18 @@ def output_error(exc: OSError, path: Path) -> OutputError:
     return OutputError(f"could not write {path} ({reason}); check the folder and its permissions and run again")
 
 
+def folder_writable(folder: Path) -> bool:
+    """Whether this process may create files in ``folder``."""
+    return os.access(folder, os.W_OK | os.X_OK)
+
+
 def check_output_path(path: Path, *, overwrite: bool, extra: tuple[Path, ...] = ()) -> None:
     """Refuse outputs that cannot be written: missing parent folder, existing output."""
     parent = path.parent
     if not parent.is_dir():
         raise OutputError(f"output folder {parent} does not exist; create it first or choose another path")
+    if not folder_writable(parent):
+        raise OutputError(f"output folder {parent} is not writable; check its permissions or choose another path")
     for target in (path, *extra):
         if not overwrite and (target.exists() or target.is_symlink()):
             raise OutputError(f"{target} already exists; pass overwrite=True (--overwrite) or choose another path")

@@ -53,6 +53,18 @@ class ScannerModel:
             value = getattr(self, name)
             if not math.isfinite(value) or value < 0:
                 problems.append(f"{name} must be a number >= 0, got {value}")
+        for name in ("tripod_height_m", "beam_origin_height_m"):
+            value = getattr(self, name)
+            if not math.isfinite(value) or value < 0:
+                problems.append(f"{name} must be a number >= 0, got {value}")
+        if not all(math.isfinite(f) and f > 0 for f in self.pulse_freqs_hz):
+            problems.append(f"pulse_freqs_hz must all be > 0, got {list(self.pulse_freqs_hz)}")
+        if not (math.isfinite(self.scan_freq_min_hz) and math.isfinite(self.scan_freq_max_hz)
+                and 0 < self.scan_freq_min_hz <= self.scan_freq_max_hz):
+            problems.append(f"need 0 < scan_freq_min_hz <= scan_freq_max_hz, got {self.scan_freq_min_hz} and "
+                            f"{self.scan_freq_max_hz}")
+        if not (math.isfinite(self.head_deg_per_s_max) and self.head_deg_per_s_max > 0):
+            problems.append(f"head_deg_per_s_max must be > 0, got {self.head_deg_per_s_max}")
         if math.isfinite(self.angle_accuracy_deg) and self.angle_accuracy_deg > MAX_ANGLE_SIGMA_DEG:
             problems.append(f"angle_accuracy_deg must be at most {MAX_ANGLE_SIGMA_DEG:g}, got {self.angle_accuracy_deg}")
         if not 0 < self.mirror_sweep_deg <= 360:

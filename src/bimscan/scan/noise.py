@@ -17,6 +17,7 @@ if TYPE_CHECKING:
     from bimscan.scan.device import ScannerModel
 
 MAX_ANGLE_SIGMA_DEG = 5.0  # beyond this no laser scanner measures; a typo for radians or arc minutes
+MAX_RANGE_SIGMA_M = 1.0  # beyond this no laser scanner measures; a typo for millimetres
 
 
 @dataclass(frozen=True)
@@ -43,6 +44,9 @@ class NoiseModel:
             value = getattr(self, name)
             if value is not None and (not math.isfinite(value) or value < 0):
                 raise ScannerSettingsError(f"{name} = {value} is impossible; allowed: a number >= 0")
+        if self.range_sigma_m is not None and self.range_sigma_m > MAX_RANGE_SIGMA_M:
+            raise ScannerSettingsError(f"range_sigma_m = {self.range_sigma_m} is impossible for a laser scanner (metres, "
+                                       f"not millimetres); allowed: 0..{MAX_RANGE_SIGMA_M:g}")
         if self.angle_sigma_deg is not None and self.angle_sigma_deg > MAX_ANGLE_SIGMA_DEG:
             raise ScannerSettingsError(f"angle_sigma_deg = {self.angle_sigma_deg} is impossible for a laser scanner; "
                                        f"allowed: 0..{MAX_ANGLE_SIGMA_DEG:g}")

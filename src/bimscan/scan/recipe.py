@@ -28,12 +28,16 @@ from bimscan.scan.device import (
 )
 from bimscan.scan.engine import DEFAULT_ENGINE, ENGINES
 from bimscan.scan.noise import NoiseModel
-from bimscan.errors import ConfigError
+from bimscan.errors import ConfigError, ScannerSettingsError
 
 DEFAULT_CHUNK_PULSES = 1 << 20  # ~70 MB of working arrays per chunk
+# The most pulses one station may fire unless the user raises it: the paper's densest preset fires
+# 7.5M per station; 500M points are about 15 GB uncompressed, so more is most likely a typo.
+DEFAULT_MAX_STATION_PULSES = 500_000_000
 AUTO_STATIONS = "auto"
-# Fields that change how a scan runs but not its output bytes (left out of the fingerprint).
-RUNTIME_FIELDS = ("threads", "chunk_pulses")
+# Fields that change how a scan runs or what it refuses, not its output bytes (left out of the
+# fingerprint).
+RUNTIME_FIELDS = ("threads", "chunk_pulses", "max_station_pulses")
 
 
 @dataclass(frozen=True)
@@ -46,8 +50,9 @@ class ScanRecipe:
     seed, noise_stream: the noise generator's key is (seed, noise_stream, station); a dataset gives
     every unit its own stream (its id) so that no two units share a noise sequence; "" for a
     single scan. engine: a ``scan.engine.ENGINES`` name. stations_from: "auto" (planned) or a
-    station CSV file. strict: settings outside the device's limits are errors. threads (0 = all cores) and
-    chunk_pulses change speed and memory only, never the output.
+    station CSV file. strict: settings outside the device's limits are errors. threads (0 = all
+    cores) and chunk_pulses change speed and memory only, never the output. max_station_pulses: a
+    station that would fire more pulses is refused before any work (with the number it would fire).
     """
 
     scanner: ScannerModel = field(default_factory=lambda: SCANNERS[DEFAULT_SCANNER])
@@ -61,6 +66,7 @@ class ScanRecipe:
     strict: bool = False
     threads: int = 0
     chunk_pulses: int = DEFAULT_CHUNK_PULSES
+    max_station_pulses: int = DEFAULT_MAX_STATION_PULSES
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "noise", self.noise.resolved(self.scanner))
@@ -73,6 +79,16 @@ class ScanRecipe:
         if self.chunk_pulses < 1:
             raise ConfigError(f"chunk_pulses = {self.chunk_pulses} is impossible; give 1 or more")
         check_settings(self.settings, self.scanner, strict=self.strict)  # raises for impossible settings
+        lines = self.settings.scan_freq_hz * self.settings.duration_s()
+        pulses = self.settings.expected_pulses(self.scanner)
+        if not lines >= 1:
+            raise ScannerSettingsError(
+                f"a station would sweep {lines:.3g} mirror lines (scan_freq_hz = {self.settings.scan_freq_hz:g} over "
+                f"{self.settings.duration_s():.3g} s of head rotation); raise scan_freq_hz or turn the head further")
+        if not pulses <= self.max_station_pulses:
+            raise ScannerSettingsError(
+                f"a station would fire {pulses:.3g} pulses, more than the budget of {self.max_station_pulses:,}; "
+                "lower pulse_freq_hz, turn the head faster, or raise the budget (--max-station-pulses)")
 
     @staticmethod
     def resolve(*, preset: str | Path | None = None, settings: ScanSettings | None = None,

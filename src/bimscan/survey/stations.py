@@ -30,6 +30,7 @@ from bimscan.scan.virtual_scanner import VirtualScanner, sphere_directions
 from bimscan.types import BimScene, Station
 
 FLOOR_CLASSES = ("IfcSlab", "IfcCovering", "IfcRamp", "IfcRampFlight", "IfcPlate")
+HEAD_CLEARANCE_M = 0.1  # a TLS head is about 20-30 cm across: its beam origin needs this much free space around it
 
 
 @dataclass(frozen=True)
@@ -45,9 +46,13 @@ def read_stations(path: str | Path, scene: BimScene, scanner: VirtualScanner) ->
     path = Path(path)
     if not path.is_file():
         raise InputFileError(f"{path}: no such station file; check the path")
-    text = path.read_text("utf-8")
+    try:
+        text = path.read_text("utf-8")
+    except UnicodeDecodeError as exc:
+        raise StationError(f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start}); save the station "
+                           "file as UTF-8 CSV") from exc
     lines = [line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")]
-    if not lines:
+    if len(lines) < 2:
         raise StationError(f"{path}: no stations in the file; give a header (x,y,z or x,y,height) and one row per station")
     delimiter = "," if "," in lines[0] else None
     rows = list(csv.reader(io.StringIO("\n".join(lines)), delimiter=",")) if delimiter else [line.split() for line in lines]
@@ -71,6 +76,9 @@ def read_stations(path: str | Path, scene: BimScene, scanner: VirtualScanner) ->
             height = float(values["height"]) if values.get("height") not in (None, "") else None
         except ValueError as exc:
             raise StationError(f"{path}: station {number}: {exc}; coordinates must be numbers in metres") from exc
+        if not all(math.isfinite(v) for v in (x, y, heading, *(v for v in (z, height) if v is not None))):
+            raise StationError(f"{path}: station {number} has a value that is not a finite number (nan or inf); "
+                               "give coordinates in metres and the heading in degrees")
         storey_name = values.get("storey", "") or ""
         floor_z = None
         if z is None:
@@ -96,18 +104,28 @@ def read_stations(path: str | Path, scene: BimScene, scanner: VirtualScanner) ->
 
 
 def check_station(station: Station, scene: BimScene, scanner: VirtualScanner) -> None:
-    """Raise StationError when a station is inside a solid or outside the building."""
+    """Raise StationError when a station is unusable: inside a solid, outside the building, with
+    nothing under it to stand on, or with a surface closer than a scanner head's size."""
     where = f"station {station.id} at ({', '.join(f'{c:.2f}' for c in station.position)})"
     inside = scanner.solid_containing(np.asarray(station.position))
     if inside is not None:
         raise StationError(f"{where} is inside a solid ({scene.components.ifc_class[inside]} "
                            f"{scene.components.global_id[inside]}); move it into a room")
     directions = sphere_directions(2048)
-    t_hit, _ = scanner.cast(np.asarray(station.position), directions)
+    t_hit, component = scanner.cast(np.asarray(station.position), directions)
     hit = np.isfinite(t_hit)
     down, up = directions[:, 2] < -0.85, directions[:, 2] > 0.85
     if (~hit[down]).mean() > 0.5 and (~hit[up]).mean() > 0.5:
         raise StationError(f"{where} is outside the building (nothing above or below it); move it inside")
+    if (~hit[down]).mean() > 0.5:
+        raise StationError(f"{where} has nothing under it to stand on (under the building?); give its z as the beam "
+                           "height above a floor, or use a height column")
+    nearest = int(np.argmin(t_hit))
+    if t_hit[nearest] < HEAD_CLEARANCE_M:
+        c = int(component[nearest])
+        raise StationError(f"{where} is {100 * t_hit[nearest]:.0f} cm from {scene.components.ifc_class[c]} "
+                           f"{scene.components.global_id[c]}, closer than a scanner head allows "
+                           f"({100 * HEAD_CLEARANCE_M:.0f} cm); move it into free space")
 
 
 def _floor_below(scanner: VirtualScanner, x: float, y: float, z_from: float) -> float | None:
