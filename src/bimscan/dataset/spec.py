@@ -55,7 +55,7 @@ from bimscan.scan.device import (
 from bimscan.types import LabelScheme
 
 # format key -> the unit's cloud file name (a folder for NumPy)
-FORMAT_FILES: dict[str, str] = {"laz": "cloud.laz", "las": "cloud.las", "ply": "cloud.ply", "npy": "cloud"}
+FORMAT_FILES: dict[str, str] = {"laz": "cloud.laz", "las": "cloud.las", "ply": "cloud.ply", "e57": "cloud.e57", "npy": "cloud"}
 UNIT_SEPARATOR = "__"
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 

@@ -42,27 +42,20 @@ own bounds, else 0..1) to 0..65535, ``time`` is ``timeStamp`` as stored, and lab
 ``label_field`` (any numeric point field, e.g. ``bimscan:label`` or a foreign extension) or,
 in bimscan's own files, ``bimscan:label``.
 
-libE57Format (through pye57) prints a multi-line report to stderr for every error it raises;
-bimscan turns those errors into its own one-line messages, so native calls run with file
-descriptor 2 parked on a scratch file whose content is passed on unless the call failed
-(``_native_stderr``). This is process-wide and serialised by a lock: one E57 call at a time.
+libE57Format's errors (through pye57) carry a multi-line debug report after their first line;
+bimscan's messages quote the first line only.
 """
 
 from __future__ import annotations
 
 import datetime as dt
 import math
-import os
 import shutil
-import sys
-import tempfile
-import threading
 import uuid
-from collections.abc import Callable, Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 
@@ -93,39 +86,11 @@ _GPS_EPOCH = dt.datetime(1980, 1, 6, tzinfo=dt.UTC)
 _LEAP_DAYS = tuple(dt.datetime(y, m, 1, tzinfo=dt.UTC) for y, m in (
     (1981, 7), (1982, 7), (1983, 7), (1985, 7), (1988, 1), (1990, 1), (1991, 1), (1992, 7), (1993, 7),
     (1994, 7), (1996, 1), (1997, 7), (1999, 1), (2006, 1), (2009, 1), (2012, 7), (2015, 7), (2017, 1)))
-_T = TypeVar("_T")
 
 
-# -- native calls ---------------------------------------------------------------------------------
-
-_native_lock = threading.Lock()
-
-
-@contextmanager
-def _native_stderr() -> Iterator[None]:
-    """Run native libE57Format calls with their error reports kept off the terminal (see module doc)."""
-    with _native_lock, tempfile.TemporaryFile() as scratch:
-        sys.stderr.flush()
-        saved = os.dup(2)
-        os.dup2(scratch.fileno(), 2)
-        failed = False
-        try:
-            yield
-        except libe57.E57Exception:
-            failed = True
-            raise
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-            if not failed and scratch.tell():  # whatever else was written meanwhile goes on
-                scratch.seek(0)
-                sys.stderr.flush()
-                os.write(2, scratch.read())
-
-
-def _native(call: Callable[[], _T]) -> _T:
-    with _native_stderr():
-        return call()
+def _reason(exc: Exception) -> str:
+    """The first line of a libE57Format error (the rest is its debug report)."""
+    return str(exc).strip().split("\n", 1)[0]
 
 
 def _free_bytes(folder: Path) -> int:
@@ -141,7 +106,7 @@ def _write_error(exc: Exception, path: Path) -> OutputError:
     """
     if _free_bytes(path.parent) < (1 << 20):
         return OutputError(f"disk full while writing {path}; free space and run again")
-    return OutputError(f"could not write {path} (libE57Format: {exc}); check the folder, its permissions and "
+    return OutputError(f"could not write {path} (libE57Format: {_reason(exc)}); check the folder, its permissions and "
                        "free space, and run again")
 
 
@@ -295,7 +260,7 @@ class E57CloudWriter(StreamingCloudWriter):
             self._buffers["returnCount"][:] = 1
         self._root_guid = _guid(dump_json(header_to_document(self.header, columns=columns, n_points=0)).decode("utf-8"))
         try:
-            self._image = _native(lambda: libe57.ImageFile(str(temp), "w"))
+            self._image = libe57.ImageFile(str(temp), "w")
             self._write_root()
             self._native_buffers = libe57.VectorSourceDestBuffer()
             for name in self._fields:
@@ -383,7 +348,7 @@ class E57CloudWriter(StreamingCloudWriter):
         node.set("pose", pose)
         points = libe57.CompressedVectorNode(image, self._prototype(), libe57.VectorNode(image, True))
         node.set("points", points)
-        writer = _native(lambda: points.writer(self._native_buffers))
+        writer = points.writer(self._native_buffers)
         self._scan = _OpenScan(node, writer, station)
         self._n_scans += 1
 
@@ -392,7 +357,7 @@ class E57CloudWriter(StreamingCloudWriter):
         if scan is None:
             return
         self._flush()
-        _native(scan.writer.close)
+        scan.writer.close()
         self._scan = None
         image, node = self._image, scan.node
         if scan.n_points == 0:
@@ -427,8 +392,7 @@ class E57CloudWriter(StreamingCloudWriter):
 
     def _flush(self) -> None:
         if self._fill and self._scan is not None:
-            fill = self._fill
-            _native(lambda: self._scan.writer.write(fill))  # type: ignore[union-attr]
+            self._scan.writer.write(self._fill)
         self._fill = 0
 
     # -- points ---------------------------------------------------------------------------------
@@ -536,7 +500,7 @@ class E57CloudWriter(StreamingCloudWriter):
             document = header_to_document(self.header, columns=self.columns, n_points=self.n_points)
             self._image.root().set(HEADER_NODE, libe57.StringNode(self._image, dump_json(document).decode("utf-8")))
             image, self._image = self._image, None
-            _native(image.close)
+            image.close()
         except libe57.E57Exception as exc:
             raise _write_error(exc, self.path) from exc
 
@@ -545,9 +509,9 @@ class E57CloudWriter(StreamingCloudWriter):
         scan, self._scan = self._scan, None
         try:
             if scan is not None and scan.writer.isOpen():
-                _native(scan.writer.close)
+                scan.writer.close()
             if image is not None and image.isOpen():
-                _native(image.cancel)  # discards the unfinished file (abort removes it too)
+                image.cancel()  # discards the unfinished file (abort removes it too)
         except libe57.E57Exception:
             pass  # the output is being discarded; a failing close changes nothing
         self._native_buffers = None
@@ -566,14 +530,14 @@ _SIGNATURE = b"ASTM-E57"
 
 
 def _open(path: Path) -> Any:
-    with path.open("rb") as handle:  # a cheap check first: libE57Format's own errors are long-winded
+    with path.open("rb") as handle:  # a plain message for files that are not E57 at all
         signature = handle.read(len(_SIGNATURE))
     if signature != _SIGNATURE:
         raise InputFileError(f"{path}: not an E57 file (no ASTM-E57 signature); check the file")
     try:
-        return _native(lambda: libe57.ImageFile(str(path), "r"))
+        return libe57.ImageFile(str(path), "r")
     except libe57.E57Exception as exc:
-        raise InputFileError(f"{path}: not a readable E57 file ({exc}); check the file") from exc
+        raise InputFileError(f"{path}: not a readable E57 file ({_reason(exc)}); check the file") from exc
 
 
 def _has_namespace(image: Any) -> bool:
@@ -639,9 +603,9 @@ def read_e57_scans(path: str | Path) -> list[E57Scan]:
                 translation=translation, rotation=rotation))
         return result
     except libe57.E57Exception as exc:
-        raise InputFileError(f"{path}: the E57 structure is damaged ({exc}); check the file") from exc
+        raise InputFileError(f"{path}: the E57 structure is damaged ({_reason(exc)}); check the file") from exc
     finally:
-        _native(image.close)
+        image.close()
 
 
 def read_e57_header(path: str | Path) -> CloudHeader | None:
@@ -651,7 +615,7 @@ def read_e57_header(path: str | Path) -> CloudHeader | None:
     try:
         document = _stored_document(image, path)
     finally:
-        _native(image.close)
+        image.close()
     return None if document is None else header_from_document(document, where=str(path))
 
 
@@ -735,10 +699,10 @@ def _read_scan(image: Any, scan: Any, index: int, plan: _Plan, path: Path, block
     native = libe57.VectorSourceDestBuffer()
     for name in wanted:
         native.append(libe57.SourceDestBuffer(image, name, buffers[name], capacity, True, True))
-    reader = _native(lambda: points.reader(native))
+    reader = points.reader(native)
     try:
         while True:
-            n = _native(reader.read)
+            n = reader.read()
             if n == 0:
                 break
             keep = slice(0, n) if invalid not in buffers else np.flatnonzero(buffers[invalid][:n] == 0)
@@ -769,7 +733,7 @@ def _read_scan(image: Any, scan: Any, index: int, plan: _Plan, path: Path, block
                 time=buffers["timeStamp"][keep].astype(np.float64) if "timeStamp" in wanted else None,
             )
     finally:
-        _native(reader.close)
+        reader.close()
 
 
 def _rechunk(pieces: Iterator[PointCloud], chunk_points: int) -> Iterator[PointCloud]:
@@ -824,9 +788,9 @@ def iter_e57_chunks(
         if not produced:  # one empty chunk still tells which columns exist
             yield _empty(plan.columns)
     except libe57.E57Exception as exc:
-        raise InputFileError(f"{path}: the E57 point data is damaged ({exc}); check the file") from exc
+        raise InputFileError(f"{path}: the E57 point data is damaged ({_reason(exc)}); check the file") from exc
     finally:
-        _native(image.close)
+        image.close()
 
 
 __all__ = [
