@@ -225,7 +225,8 @@ class E57CloudWriter(StreamingCloudWriter):
         super().__init__(path, header=header, overwrite=overwrite, checksum=checksum)
         self._image: Any = None
         self._fields: tuple[str, ...] = ()
-        self._buffers: dict[str, np.ndarray] = {}
+        self._buffers: dict[str, np.ndarray] = {}  # one block of every point field, handed to libE57Format
+        self._scratch = np.zeros(0)  # (E57_BLOCK_POINTS,) f8 work space
         self._native_buffers: Any = None
         self._fill = 0
         self._scan: _OpenScan | None = None
@@ -256,6 +257,7 @@ class E57CloudWriter(StreamingCloudWriter):
             fields.append(COMPONENT_FIELD)
         self._fields = tuple(fields)
         self._buffers = {name: np.zeros(E57_BLOCK_POINTS, dtype=_FIELD_DTYPES[name]) for name in self._fields}
+        self._scratch = np.zeros(E57_BLOCK_POINTS)
         if "returnCount" in self._buffers:
             self._buffers["returnCount"][:] = 1
         self._root_guid = _guid(dump_json(header_to_document(self.header, columns=columns, n_points=0)).decode("utf-8"))
@@ -433,23 +435,24 @@ class E57CloudWriter(StreamingCloudWriter):
         local = rows.xyz - np.asarray(translation)
         if rotation != (1.0, 0.0, 0.0, 0.0):
             local = local @ quaternion_matrix(rotation)  # R^T applied to row vectors
-        if not np.isfinite(local).all():
-            raise OutputError(f"{self.path}: non-finite coordinates in station {scan.station}; drop them first")
         buffers = self._buffers
-        for axis, name in enumerate(("cartesianX", "cartesianY", "cartesianZ")):
-            buffers[name][into] = local[:, axis]
-        if len(local):
-            np.minimum(scan.low, local.min(axis=0), out=scan.low)
-            np.maximum(scan.high, local.max(axis=0), out=scan.high)
+        x, y, z = (buffers[name][into] for name in ("cartesianX", "cartesianY", "cartesianZ"))
+        for axis, column in enumerate((x, y, z)):
+            column[...] = local[:, axis]
+        if len(rows):  # bounds from the contiguous buffers; NaN and inf show up in them too
+            low, high = [c.min() for c in (x, y, z)], [c.max() for c in (x, y, z)]
+            if not (np.isfinite(low).all() and np.isfinite(high).all()):
+                raise OutputError(f"{self.path}: non-finite coordinates in station {scan.station}; drop them first")
+            np.minimum(scan.low, low, out=scan.low)
+            np.maximum(scan.high, high, out=scan.high)
         if "sphericalRange" in buffers:
-            horizontal = np.hypot(local[:, 0], local[:, 1])
-            spherical = np.stack([np.hypot(horizontal, local[:, 2]), np.arctan2(local[:, 1], local[:, 0]),
-                                  np.arctan2(local[:, 2], horizontal)], axis=1)
-            for axis, name in enumerate(("sphericalRange", "sphericalAzimuth", "sphericalElevation")):
-                buffers[name][into] = spherical[:, axis]
-            if len(spherical):
-                np.minimum(scan.spherical_low, spherical.min(axis=0), out=scan.spherical_low)
-                np.maximum(scan.spherical_high, spherical.max(axis=0), out=scan.spherical_high)
+            horizontal = np.hypot(x, y, out=self._scratch[: len(rows)])
+            spherical = (np.hypot(horizontal, z, out=buffers["sphericalRange"][into]),
+                         np.arctan2(y, x, out=buffers["sphericalAzimuth"][into]),
+                         np.arctan2(z, horizontal, out=buffers["sphericalElevation"][into]))
+            if len(rows):
+                np.minimum(scan.spherical_low, [c.min() for c in spherical], out=scan.spherical_low)
+                np.maximum(scan.spherical_high, [c.max() for c in spherical], out=scan.spherical_high)
         if "intensity" in buffers:
             buffers["intensity"][into] = rows.intensity
         if "timeStamp" in buffers:
@@ -516,6 +519,7 @@ class E57CloudWriter(StreamingCloudWriter):
             pass  # the output is being discarded; a failing close changes nothing
         self._native_buffers = None
         self._buffers = {}
+        self._scratch = np.zeros(0)
         super()._release()
 
 
