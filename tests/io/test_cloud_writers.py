@@ -35,13 +35,14 @@ FORMATS = sorted(WRITERS)
 
 def xyz_tolerance(key: str, xyz: np.ndarray, origin: tuple[float, float, float]) -> float:
     """How far a coordinate may move through the format: LAS 0.1 mm steps, float32 offsets,
-    E57's float64 station frames (a rotation there and back: a few ulps of the coordinates)."""
+    E57's 0.1 mm steps in a station frame turned back to world axes (per axis at most the
+    length of the half-step diagonal)."""
     if key in (".las", ".laz"):
         return 0.5e-4 + 1e-9
     if key == "":
         return float(np.abs(xyz - np.asarray(origin)).max()) * np.finfo(np.float32).eps
     if key == ".e57":
-        return float(np.abs(xyz).max()) * 8 * np.finfo(np.float64).eps
+        return 0.5e-4 * np.sqrt(3) + 1e-9
     return 0.0
 
 
