@@ -63,10 +63,10 @@ from typing import Any
 import numpy as np
 
 from bimscan import __version__
-from bimscan.errors import InputFileError, OutputError
+from bimscan.errors import ConfigError, InputFileError, OutputError
 from bimscan.io._header import as_labels, dump_json, header_from_document, header_to_document, parse_document
 from bimscan.io._writer import StreamingCloudWriter, check_input_path, source_date_epoch
-from bimscan.types import CloudHeader, PointCloud, Station
+from bimscan.types import CloudHeader, PointCloud
 
 try:  # pye57's package __init__ also imports its high-level reader (and pyquaternion): skip it
     from pye57 import libe57
@@ -160,7 +160,6 @@ class _Grid:
     """What turns a point's time into its scan-grid cell (see the module docstring)."""
 
     pattern: Any  # bimscan.scan.pattern.PulsePattern
-    duration_s: float
     start: dict[int, float]  # station id -> the station's clock start, seconds
     row_max: int
     column_max: int
@@ -169,7 +168,6 @@ class _Grid:
 def _scan_grid(header: CloudHeader) -> _Grid | None:
     """The scan grid of a bimscan survey's cloud, or None when the header does not describe one."""
     # The pulse schedule belongs to the scanner stage; E57's grid indices are derived from it.
-    from bimscan.errors import ConfigError
     from bimscan.scan.device import ScannerModel, ScanSettings
     from bimscan.scan.pattern import PulsePattern
     from bimscan.toml_files import build_dataclass
@@ -187,16 +185,12 @@ def _scan_grid(header: CloudHeader) -> _Grid | None:
         return None
     start, stop = pattern.line_pulses(0, pattern.n_lines)
     duration = settings.duration_s()
-    return _Grid(pattern=pattern, duration_s=duration,
-                 start={s.id: k * duration for k, s in enumerate(header.stations)},
+    return _Grid(pattern=pattern, start={s.id: k * duration for k, s in enumerate(header.stations)},
                  row_max=max(int((stop - start).max()) - 1, 0), column_max=pattern.n_lines - 1)
 
 
 # -- writing ----------------------------------------------------------------------------------------
 
-# Point fields: name -> NumPy dtype of the block buffer. pye57 maps buffers by their struct
-# format: uint8 'B', uint16 'H', int64 'q' (np.longlong), float64 'd'. (Its 'l' means int32,
-# which NumPy's int64 reports on Linux: never hand it np.int64.)
 COORDINATE_STEP_M = 1e-4  # cartesian and range steps: bimscan's LAS resolution
 ANGLE_STEP_RAD = 1e-7
 _INT32_MAX = int(np.iinfo(np.int32).max)
@@ -208,6 +202,10 @@ _SCALED_FIELDS: dict[str, tuple[float, int, int]] = {
     "sphericalElevation": (ANGLE_STEP_RAD, -math.ceil(math.pi / 2 / ANGLE_STEP_RAD),
                            math.ceil(math.pi / 2 / ANGLE_STEP_RAD)),
 }
+
+# Point fields: name -> NumPy dtype of the block buffer. pye57 maps buffers by their struct
+# format: uint8 'B', uint16 'H', int64 'q' (np.longlong), float64 'd'. (Its 'l' means int32,
+# which NumPy's int64 reports on Linux: never hand it np.int64.)
 _FIELD_DTYPES: dict[str, type] = {
     "cartesianX": np.float64, "cartesianY": np.float64, "cartesianZ": np.float64,
     "sphericalRange": np.float64, "sphericalAzimuth": np.float64, "sphericalElevation": np.float64,
