@@ -15,6 +15,9 @@ same in-memory chunks of 1 M points; outputs are deleted and the page cache writ
 (``os.sync``) between runs, outside the timing. The laspy rows time plain laspy writing
 the same points already packed in one ``LasData`` (``LasData.write`` only, as the figures of
 shared/PERFORMANCE.md), so they leave out the quantising and packing that bimscan's rows include.
+The E57 row writes the same points as one posed scan (cartesian and spherical doubles, intensity,
+time stamp, return index/count, label and component extension fields); the bench's synthetic
+pulse schedule is not a bimscan scan pattern, so it has no row/column grid fields.
 Memory: peak RSS of a fresh process that generates the chunks on the fly, with and without the
 LAZ writer, so the difference is what the writer holds; it must not grow with the point count.
 """
@@ -141,7 +144,8 @@ def rates(n_points: int, repeats: int, out: Path) -> None:
 
     outputs = {
         "LAS": out / "scan.las", "LAS + sha256": out / "scan.las", "LAZ": out / "scan.laz",
-        "LAZ + sha256": out / "scan.laz", "PLY": out / "scan.ply", "NumPy folder": out / "scan",
+        "LAZ + sha256": out / "scan.laz", "E57": out / "scan.e57", "E57 + sha256": out / "scan.e57",
+        "PLY": out / "scan.ply", "NumPy folder": out / "scan",
         "laspy LAS (baseline)": out / "base.las", "laspy LAZ (baseline)": out / "base.laz",
     }
     import laspy
@@ -169,6 +173,7 @@ def rates(n_points: int, repeats: int, out: Path) -> None:
         print(f"{label:<26}{best[label]:>9.2f}{rate[label]:>9.2f}{size / 1e6:>9.1f}{size / n_points:>10.2f}")
     print(f"ratio bimscan/laspy: LAS {rate['LAS'] / rate['laspy LAS (baseline)']:.2f}, "
           f"LAZ {rate['LAZ'] / rate['laspy LAZ (baseline)']:.2f}")
+    print(f"ratio E57/LAZ {rate['E57'] / rate['LAZ']:.2f}, E57/LAS {rate['E57'] / rate['LAS']:.2f}")
 
 
 def memory_child(n_points: int, out: Path, write: bool) -> None:

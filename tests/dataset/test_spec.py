@@ -86,7 +86,7 @@ def test_a_scheme_with_a_misspelt_ifc_class_is_refused_before_any_work(spec_fold
     (lambda t: t.replace("models/room.ifc", "models/missing.ifc"), InputFileError, "IFC file 'models/missing.ifc' not found"),
     (lambda t: t.replace('"exp2"', '"exp9"'), ConfigError, "preset 'exp9' is neither a file nor a known preset"),
     (lambda t: t.replace("head_deg_per_s = 20", "head_deg_per_s = -1"), ScannerSettingsError, "head_deg_per_s = -1"),
-    (lambda t: t.replace('"laz", "ply"', '"laz", "e57"'), ConfigError, "unknown output format 'e57'"),
+    (lambda t: t.replace('"laz", "ply"', '"laz", "pcd"'), ConfigError, "unknown output format 'pcd'"),
     (lambda t: t.replace("0.02", "-0.5"), ConfigError, "voxel_size_m = -0.5 is impossible"),
     (lambda t: t.replace('name = "mine"', 'name = "paper-exp2"'), ConfigError, "'paper-exp2' used more than once"),
     (lambda t: t.replace('name = "room"', 'name = "my__room"'), ConfigError, "is not usable as a folder name"),

@@ -71,7 +71,7 @@ def make_cloud(n: int, *, seed: int, columns: tuple[str, ...] = PointCloud.COLUM
         xyz=xyz,
         label=rng.integers(0, 5, n).astype(np.uint8),
         component=rng.integers(-1, 3, n).astype(np.int32),
-        station=rng.integers(0, 2, n).astype(np.uint16),
+        station=(np.arange(n) * 2 // max(n, 1)).astype(np.uint16),  # station 0 then 1, as a survey streams them
         intensity=rng.integers(0, 65536, n).astype(np.uint16),
         time=np.cumsum(rng.uniform(0.0, 1e-5, n)),
     )

@@ -29,16 +29,20 @@ from bimscan.io import (
 from bimscan.io._writer import BLOCK_POINTS, WatchedFile
 from bimscan.types import CloudHeader, PointCloud
 
-NAMES = {".las": "cloud.las", ".laz": "cloud.laz", ".ply": "cloud.ply", "": "cloud"}
+NAMES = {".las": "cloud.las", ".laz": "cloud.laz", ".ply": "cloud.ply", ".e57": "cloud.e57", "": "cloud"}
 FORMATS = sorted(WRITERS)
 
 
 def xyz_tolerance(key: str, xyz: np.ndarray, origin: tuple[float, float, float]) -> float:
-    """How far a coordinate may move through the format: LAS 0.1 mm steps, float32 offsets."""
+    """How far a coordinate may move through the format: LAS 0.1 mm steps, float32 offsets,
+    E57's 0.1 mm steps in a station frame turned back to world axes (per axis at most the
+    length of the half-step diagonal)."""
     if key in (".las", ".laz"):
         return 0.5e-4 + 1e-9
     if key == "":
         return float(np.abs(xyz - np.asarray(origin)).max()) * np.finfo(np.float32).eps
+    if key == ".e57":
+        return 0.5e-4 * np.sqrt(3) + 1e-9
     return 0.0
 
 
@@ -174,7 +178,9 @@ def test_an_existing_output_is_kept_without_overwrite_and_replaced_with_it(key, 
     assert [p for p in folder_listing(tmp_path) if p.startswith(".")] == []
 
 
-@pytest.mark.parametrize("key", FORMATS)
+# libE57Format writes through its own C++ file handle, which no Python patch reaches: the E57
+# writer's disk-full path is tested with a real file-size limit in test_e57.py.
+@pytest.mark.parametrize("key", [k for k in FORMATS if k != ".e57"])
 def test_disk_full_while_writing_is_an_output_error_and_removes_the_temporary(key, tmp_path, header, cloud_factory, monkeypatch):
     budget = {"bytes": 200_000}
     real_write = WatchedFile.write
@@ -275,17 +281,17 @@ def test_a_closed_writer_refuses_more_chunks_and_keeps_its_output(tmp_path, head
 
 
 def test_reading_an_unknown_format_or_a_missing_path_is_an_input_error(tmp_path):
-    (tmp_path / "cloud.e57").write_bytes(b"")
+    (tmp_path / "cloud.pcd").write_bytes(b"")
     (tmp_path / "README").write_text("not a cloud")
-    with pytest.raises(InputFileError, match="unknown cloud format '.e57'"):
-        read_cloud(tmp_path / "cloud.e57")
+    with pytest.raises(InputFileError, match="unknown cloud format '.pcd'"):
+        read_cloud(tmp_path / "cloud.pcd")
     with pytest.raises(InputFileError, match="unknown cloud format"):
         read_cloud(tmp_path / "README")
     with pytest.raises(InputFileError, match="no such file"):
         read_cloud(tmp_path / "missing.laz")
 
 
-@pytest.mark.parametrize("key", [".las", ".ply", ""])
+@pytest.mark.parametrize("key", [".las", ".ply", ".e57", ""])
 @settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(cuts=st.lists(st.integers(min_value=0, max_value=3_500), max_size=12))
 def test_any_chunking_gives_the_bytes_of_the_unchunked_stream(key, cuts, header, cloud_factory):
@@ -295,7 +301,8 @@ def test_any_chunking_gives_the_bytes_of_the_unchunked_stream(key, cuts, header,
     bounds = [0, *sorted(cuts), len(cloud)]
     chunks = [cloud.take(slice(a, b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
     with tempfile.TemporaryDirectory() as scratch, \
-            mock.patch("bimscan.io._writer.BLOCK_POINTS", 1_000), mock.patch("bimscan.io.las.BLOCK_POINTS", 1_000):
+            mock.patch("bimscan.io._writer.BLOCK_POINTS", 1_000), mock.patch("bimscan.io.las.BLOCK_POINTS", 1_000), \
+            mock.patch("bimscan.io.e57.E57_BLOCK_POINTS", 1_000):
         one, many = Path(scratch, "one"), Path(scratch, "many")
         one.mkdir()
         many.mkdir()

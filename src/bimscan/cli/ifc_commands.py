@@ -1,4 +1,4 @@
-"""IFC commands: ``info`` (parse and summarise) and ``export-obj`` (OBJ + component index, HELIOS++ scene)."""
+"""IFC commands: ``info`` (parse and summarise) and ``export-obj`` (OBJ + component index, HELIOS++ scene and survey)."""
 
 from __future__ import annotations
 
@@ -25,23 +25,69 @@ def info(model: Path, as_json: bool, scheme: str | None, no_cache: bool) -> None
     click.echo(json.dumps(summary, indent=2) if as_json else format_summary(summary))
 
 
+HELIOS_HELP = ("Also write HELIOS++ inputs: helios/scene.xml (one <part> per component file) and helios/survey.xml "
+               "(the stations and scan settings of 'bimscan scan' with the same options, one leg per station). Run "
+               "them with: helios++ OUT_DIR/helios/survey.xml --assets OUT_DIR (HELIOS++ resolves the relative file "
+               "paths only through --assets, not from the current folder).")
+
+
 @click.command("export-obj")
 @click.argument("model", type=click.Path(path_type=Path))
 @click.argument("out_dir", type=click.Path(path_type=Path))
-@click.option("--helios", is_flag=True, help="Also write a HELIOS++ scene XML (one <part> per component file).")
+@click.option("--helios", is_flag=True, help=HELIOS_HELP)
+@click.option("--stations", default=None,
+              help="With --helios: 'auto' (planned as 'bimscan scan' plans them; the default) or a station CSV file.")
+@click.option("--preset", default=None, help="With --helios: scan settings exp1..exp6 or a settings TOML file "
+                                             "(default: exp3, as 'bimscan scan').")
+@click.option("--scanner", default=None, help="With --helios: riegl_vz400 (default) or a scanner TOML file that keeps "
+                                              "that name (HELIOS++ has its own definition of the device).")
+@click.option("--head-speed", "head_deg_per_s", type=float, default=None,
+              help="With --helios: head rotation in deg/s, overriding the preset.")
 @click.option("--scheme", default=None, help=SCHEME_HELP)
 @click.option("--overwrite", is_flag=True, help="Replace files already in OUT_DIR.")
-def export_obj_command(model: Path, out_dir: Path, helios: bool, scheme: str | None, overwrite: bool) -> None:
+def export_obj_command(model: Path, out_dir: Path, helios: bool, stations: str | None, preset: str | None,
+                       scanner: str | None, head_deg_per_s: float | None, scheme: str | None, overwrite: bool) -> None:
     """Export MODEL.ifc as OBJ: model.obj (one group per component), components/c<id>.obj
     (one file per component, as HELIOS++ wants), classes.mtl and index.csv (component id,
-    GlobalId, IFC class, label)."""
-    from bimscan.pipeline import load_scene
+    GlobalId, IFC class, label); with --helios also a HELIOS++ scene and survey."""
     from bimscan.io import export_obj
+    from bimscan.pipeline import load_scene
 
+    survey_options = {"--stations": stations, "--preset": preset, "--scanner": scanner, "--head-speed": head_deg_per_s}
+    given = [name for name, value in survey_options.items() if value is not None]
+    if given and not helios:
+        raise click.UsageError(f"{', '.join(given)} describe the HELIOS++ survey; add --helios")
+    recipe = None
+    if helios:
+        from bimscan.io.helios import helios_scanner
+        from bimscan.scan.recipe import ScanRecipe
+
+        # settings errors before the (slow) parse
+        recipe = ScanRecipe.resolve(preset=preset, scanner=scanner, head_deg_per_s=head_deg_per_s,
+                                    stations_from=stations or "auto")
+        helios_scanner(recipe.scanner)  # a scanner HELIOS++ has a definition of
+        for warning in recipe.warnings:
+            click.echo(f"warning: {warning}", err=True)
     scene = load_scene(model, scheme=scheme)
-    result = export_obj(scene, out_dir, helios=helios, overwrite=overwrite)
+    survey_xml = None
+    n_legs = 0
+    if recipe is not None:
+        from bimscan.io.helios import helios_scene_id, helios_survey_xml
+        from bimscan.survey.survey import prepare_survey
+
+        survey = prepare_survey(scene, recipe)
+        if survey.plan is not None and survey.plan.rooms_without_station:
+            click.echo("warning: rooms without a station (too small for a tripod or no floor): "
+                       + ", ".join(survey.plan.rooms_without_station), err=True)
+        survey_xml = helios_survey_xml(survey.stations, recipe.settings, recipe.scanner,
+                                       scene_id=helios_scene_id(scene.source), name=Path(scene.source).stem)
+        n_legs = len(survey.stations)
+    result = export_obj(scene, out_dir, helios=helios, helios_survey=survey_xml, overwrite=overwrite)
     click.echo(f"{result.out_dir}: {len(result.component_files)} component files, {result.n_triangles:,} triangles; "
                f"index {result.index_csv.name}" + (f"; HELIOS++ scene {result.helios_scene}" if result.helios_scene else ""))
+    if result.helios_survey is not None:
+        click.echo(f"HELIOS++ survey {result.helios_survey} ({n_legs} legs); run it with:\n"
+                   f"  helios++ {result.helios_survey} --assets {result.out_dir}")
 
 
 COMMANDS: list[click.Command] = [info, export_obj_command]

@@ -43,7 +43,7 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
          scheme: str | None, engine: str, threads: int, max_station_pulses: int, overwrite: bool) -> None:
     """Scan MODEL.ifc with a virtual TLS and write a labelled cloud to OUT.
 
-    OUT's suffix picks the format: .laz, .las, .ply, or a folder (no suffix) of NumPy arrays
+    OUT's suffix picks the format: .laz, .las, .e57, .ply, or a folder (no suffix) of NumPy arrays
     in the Pointcept layout. Class ids go to LAS classification; component and station are
     extra dimensions; class names and the component table are stored with the file.
     """

@@ -50,10 +50,10 @@ STATUSES = ("done", "failed", "pending")
 UNIT_SEPARATOR = "__"
 
 # format key -> the unit's cloud file name (a folder for NumPy); one vocabulary with bimscan.io
-FORMAT_FILES: dict[str, str] = {"laz": "cloud.laz", "las": "cloud.las", "ply": "cloud.ply", "npy": "cloud"}
+FORMAT_FILES: dict[str, str] = {"laz": "cloud.laz", "las": "cloud.las", "ply": "cloud.ply", "e57": "cloud.e57", "npy": "cloud"}
 # Which of a unit's files a reader takes: the fastest to decode first. All hold the same points
-# (the NumPy folder as float32 around the cloud's origin, LAS/LAZ in 0.1 mm steps, PLY as doubles).
-READ_ORDER = ("npy", "ply", "las", "laz")
+# (the NumPy folder as float32 around the cloud's origin, LAS/LAZ and E57 in 0.1 mm steps, PLY as doubles).
+READ_ORDER = ("npy", "ply", "las", "laz", "e57")
 
 
 def unit_id(scene: str, config: str) -> str:

@@ -1,7 +1,7 @@
 """Cloud and mesh files: streamed, atomic, reproducible writers and readers.
 
-Clouds: LAS 1.4 / LAZ (``las``), binary PLY (``ply``) and Pointcept-style NumPy folders
-(``npdir``), chosen by the path's suffix (no suffix, or a trailing ``/``: a NumPy folder). Every
+Clouds: LAS 1.4 / LAZ (``las``), binary PLY (``ply``), E57 with one scan per station
+(``e57``) and Pointcept-style NumPy folders (``npdir``), chosen by the path's suffix (no suffix, or a trailing ``/``: a NumPy folder). Every
 writer takes ``PointCloud`` chunks as they come, keeps its memory bounded whatever the point
 count, writes under a temporary name renamed at close, stores the ``CloudHeader`` (label scheme,
 component table, stations, metadata) with the points, and gives the same bytes for the same
@@ -25,6 +25,7 @@ from pathlib import Path
 
 from bimscan.errors import InputFileError, OutputError
 from bimscan.io._writer import CloudWriter, WrittenCloud, check_input_path, check_output_path
+from bimscan.io.e57 import count_e57_points, iter_e57_chunks, open_e57_writer, read_e57_header
 from bimscan.io.las import count_las_points, iter_las_chunks, open_las_writer, open_laz_writer, read_las_header
 from bimscan.io.npdir import count_npdir_points, iter_npdir_chunks, open_npdir_writer, read_npdir_header
 from bimscan.io.obj import ObjExport, export_obj, read_obj
@@ -36,30 +37,34 @@ WRITERS: dict[str, Callable[..., CloudWriter]] = {
     ".las": open_las_writer,
     ".laz": open_laz_writer,
     ".ply": open_ply_writer,
+    ".e57": open_e57_writer,
     "": open_npdir_writer,
 }
 CHUNK_READERS: dict[str, Callable[..., Iterator[PointCloud]]] = {
     ".las": iter_las_chunks,
     ".laz": iter_las_chunks,
     ".ply": iter_ply_chunks,
+    ".e57": iter_e57_chunks,
     "": iter_npdir_chunks,
 }
 HEADER_READERS: dict[str, Callable[[str | Path], CloudHeader | None]] = {
     ".las": read_las_header,
     ".laz": read_las_header,
     ".ply": read_ply_header,
+    ".e57": read_e57_header,
     "": read_npdir_header,
 }
 POINT_COUNTERS: dict[str, Callable[[str | Path], int]] = {
     ".las": count_las_points,
     ".laz": count_las_points,
     ".ply": count_ply_points,
+    ".e57": count_e57_points,
     "": count_npdir_points,
 }
 # Bytes a point takes on disk at most, per format (LAZ: a bound on what scans compress to), for
 # the free-space check before a long scan.
-BYTES_PER_POINT: dict[str, int] = {".las": 36, ".laz": 12, ".ply": 41, "": 29}
-_SUPPORTED = ".las, .laz, .ply, or a folder path without suffix (NumPy)"
+BYTES_PER_POINT: dict[str, int] = {".las": 36, ".laz": 12, ".ply": 41, ".e57": 40, "": 29}
+_SUPPORTED = ".las, .laz, .ply, .e57, or a folder path without suffix (NumPy)"
 
 
 def output_format(path: str | Path) -> str:
@@ -118,7 +123,8 @@ def read_cloud(path: str | Path, *, label_field: str | None = None) -> PointClou
     """Read a whole cloud (bimscan's own or another tool's) as one ``PointCloud``.
 
     ``label_field`` names the field holding labels; None: bimscan files -> their labels,
-    foreign files -> ``classification`` (LAS) or a label-like property (PLY) when present.
+    foreign files -> ``classification`` (LAS) or a label-like property (PLY) when present (E57:
+    only a named ``label_field``).
     Columns a file lacks are None.
     """
     chunks = list(iter_cloud_chunks(path, chunk_points=1 << 62, label_field=label_field))

@@ -12,6 +12,7 @@ power loss before the operating system has written its cache.
 
 from __future__ import annotations
 
+import datetime as dt
 import errno
 import os
 from collections.abc import Mapping
@@ -80,6 +81,19 @@ def check_output_path(path: Path, *, overwrite: bool, extra: tuple[Path, ...] = 
     for target in (path, *extra):
         if not overwrite and (target.exists() or target.is_symlink()):
             raise OutputError(f"{target} already exists; pass overwrite=True (--overwrite) or choose another path")
+
+
+def source_date_epoch() -> int | None:
+    """``SOURCE_DATE_EPOCH`` (Unix seconds) when set: the date reproducible outputs record."""
+    epoch = os.environ.get("SOURCE_DATE_EPOCH", "").strip()
+    if not epoch:
+        return None
+    try:
+        value = int(epoch)
+        dt.datetime.fromtimestamp(value, tz=dt.UTC)
+    except (ValueError, OverflowError, OSError) as exc:
+        raise OutputError(f"SOURCE_DATE_EPOCH={epoch!r} is not a Unix time in seconds; fix or unset it") from exc
+    return value
 
 
 def check_input_path(path: str | Path) -> Path:

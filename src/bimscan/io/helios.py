@@ -1,21 +1,114 @@
-"""HELIOS++ scene XML for the per-component OBJ files, to cross-check scans with HELIOS++.
+"""HELIOS++ inputs beside the OBJ export: a scene of the component files and a survey of the scan.
 
-HELIOS++ builds a scene from ``<part>`` elements, each loading one geometry file through a
-``<filter type="objloader">`` with a ``filepath`` parameter; it ignores OBJ groups, so every
-component is its own part and its own file. The part ``id`` is the bimscan component id, which
-HELIOS++ reports per point as the hit object id, and ``classes.mtl`` carries
-``helios_classification`` so HELIOS++'s classification matches the bimscan label.
+Scene (``helios/scene.xml``): HELIOS++ builds a scene from ``<part>`` elements, each loading
+one geometry file through a ``<filter type="objloader">`` with a ``filepath`` parameter; it
+ignores OBJ groups, so every component is its own part and its own file. The part ``id`` is the
+bimscan component id, which HELIOS++ reports per point as the hit object id, and
+``classes.mtl`` carries ``helios_classification`` so HELIOS++'s classification matches the
+bimscan label. ``up`` is ``z`` because bimscan meshes are Z-up.
 
-File paths are written relative to the export folder (``components/c12.obj``): run HELIOS++
-with ``--assets <export folder>`` (or from inside it) so it finds them. ``up`` is ``z`` because
-bimscan meshes are Z-up.
+Survey (``helios/survey.xml``, ``helios_survey_xml``): the same survey as ``bimscan scan``
+with the same stations and settings: HELIOS++'s static ``tripod`` platform and its definition
+of the scanner (``HELIOS_SCANNERS``: the RIEGL VZ-400 of ``scanners_tls.xml``), one ``<leg>``
+per station. Where the pieces go, from HELIOS++'s source (``Platform::setPosition``,
+``ScanningDevice::doSimStep``, ``ScannerHead``, ``PolygonMirrorBeamDeflector``):
+
+- beam origin = leg position + the tripod's ``scannerMount`` (z 1.5 m) + the scanner's
+  ``beamOrigin`` (z 0.2 m), neither turned by the head; bimscan's ``Station.position`` is the
+  beam origin, so a leg stands at ``position - (0, 0, 1.7 m)`` with ``onGround="false"``
+  (HELIOS++ shifts legs with its scene, so world coordinates are right as they are);
+- the beam leaves along +Y at head angle 0, the mirror turns it up about +X by the elevation and
+  the head turns counter-clockwise about +Z: HELIOS++'s azimuth is head angle + 90 degrees, so
+  ``headRotateStart_deg = head_start_deg + heading_deg - 90`` (and the same for the stop);
+- ``pulseFreq_hz`` (an integer in HELIOS++), ``scanFreq_hz`` (lines per second over the 240
+  degree mirror sweep, as bimscan's), ``headRotatePerSec_deg``, ``verticalAngleMin_deg`` /
+  ``verticalAngleMax_deg`` = bimscan's elevation window, and ``scanAngle_deg`` wide enough
+  for it (HELIOS++ emits only where |mirror angle| <= scanAngle_deg).
+
+Known differences a user will see (``helios_near_limit_m``): HELIOS++ computes a full waveform
+per pulse and drops a pulse whose nearest hit is closer than its ``rangeMin_m`` plus the light
+travel during the rise of its modelled pulse to its peak (1.5 ns of the VZ-400's 5 ns pulse:
+0.45 m), so it records nothing closer than 1.95 m where bimscan records from ``min_range_m`` =
+1.5 m; in a 2.6 m room with the beam at 1.7 m that removes the ceiling above about 27 degrees of
+elevation. Set ``min_range_m = 1.95`` in a copy of ``scan/scanners/riegl_vz400.toml``
+(``--scanner FILE``; keep its name) to match. HELIOS++'s VZ-400 also emits only where
+|mirror angle| <= its ``scanAngleEffectiveMax_deg`` (50 degrees), so elevations above 50
+degrees are not scanned there.
+
+File paths in both files are relative to the export folder (``components/c12.obj``,
+``helios/scene.xml``); HELIOS++ resolves relative paths only through its asset folders, so run
+it as ``helios++ OUT_DIR/helios/survey.xml --assets OUT_DIR`` (from any folder).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 from xml.sax.saxutils import quoteattr
+
+from bimscan import __version__
+from bimscan.errors import ConfigError
+from bimscan.types import Station
+
+if TYPE_CHECKING:  # the scanner stage's data types, for annotations only
+    from bimscan.scan.device import ScannerModel, ScanSettings
+
+HELIOS_DIR = "helios"
+SCENE_FILE = "helios/scene.xml"  # relative to the export folder (HELIOS++'s --assets)
+SURVEY_FILE = "helios/survey.xml"
+TRIPOD_ASSET = "data/platforms.xml#tripod"
+TRIPOD_MOUNT_Z_M = 1.5  # <scannerMount z> of HELIOS++'s tripod platform
+HEAD_ZERO_AZIMUTH_DEG = 90.0  # HELIOS++'s beam leaves along +Y at head angle 0
+SPEED_OF_LIGHT_M_PER_NS = 0.299792458
+FULL_WAVE_BIN_NS = 0.25  # HELIOS++'s default FWFSettings binSize_ns
+
+
+@dataclass(frozen=True)
+class HeliosScanner:
+    """A scanner definition that HELIOS++ ships, with the figures the survey depends on.
+
+    asset: the survey's ``scanner`` reference; beam_origin_z_m: its ``beamOrigin`` above the
+    mount; mirror_sweep_deg: twice its ``scanAngleMax_deg``; scan_angle_effective_max_deg: the
+    widest mirror angle it emits at; range_min_m and pulse_length_ns: its ``rangeMin_m`` and
+    ``pulseLength_ns``.
+    """
+
+    asset: str
+    beam_origin_z_m: float
+    mirror_sweep_deg: float
+    scan_angle_effective_max_deg: float
+    range_min_m: float
+    pulse_length_ns: float
+
+
+# bimscan scanner name -> HELIOS++'s definition of the same device (data/scanners_tls.xml)
+HELIOS_SCANNERS: dict[str, HeliosScanner] = {
+    "riegl_vz400": HeliosScanner(asset="data/scanners_tls.xml#riegl_vz400", beam_origin_z_m=0.2,
+                                 mirror_sweep_deg=240.0, scan_angle_effective_max_deg=50.0, range_min_m=1.5,
+                                 pulse_length_ns=5.0),
+}
+
+
+def helios_near_limit_m(scanner: HeliosScanner, *, bin_ns: float = FULL_WAVE_BIN_NS) -> float:
+    """The shortest range HELIOS++ records with ``scanner``, metres.
+
+    HELIOS++ models the emitted pulse as p(t) = (t/tau)^2 exp(-t/tau), tau = pulse length / 7,
+    sampled in ``bin_ns`` bins, and skips a pulse whose nearest hit is closer than rangeMin_m +
+    c * t_peak (``ScanningDevice::initializeFullWaveform``, ``calcTimePropagation``).
+    """
+    tau = scanner.pulse_length_ns / 7.0
+    bins = int(scanner.pulse_length_ns / bin_ns)
+    peak = max(range(bins), key=lambda i: (i * bin_ns / tau) ** 2 * math.exp(-i * bin_ns / tau))
+    return scanner.range_min_m + SPEED_OF_LIGHT_M_PER_NS * peak * bin_ns
+
+
+def helios_scene_id(source: str) -> str:
+    """The HELIOS++ scene id of a model file: its stem with only letters, digits, ``_`` and ``-``."""
+    stem = Path(source).stem or "scene"
+    return "".join(ch if ch.isalnum() or ch in "_-" else "_" for ch in stem)
 
 
 def helios_scene_xml(parts: Sequence[tuple[int, str]], *, scene_id: str, name: str) -> bytes:
@@ -44,4 +137,101 @@ def write_helios_scene(path: Path, *, parts: Sequence[tuple[int, str]], scene_id
     path.write_bytes(helios_scene_xml(parts, scene_id=scene_id, name=name))
 
 
-__all__ = ["helios_scene_xml", "write_helios_scene"]
+def _number(value: float) -> str:
+    """A float as XML attribute text: the shortest repr that reads back exactly."""
+    value = float(value)
+    return "0" if value == 0 else repr(value)
+
+
+def _comment(text: str) -> str:
+    """``text`` as an XML comment (``--`` may not appear inside one)."""
+    while "--" in text:
+        text = text.replace("--", "- -")
+    return f"<!-- {text.rstrip('-')} -->"
+
+
+def helios_scanner(scanner: ScannerModel) -> HeliosScanner:
+    """HELIOS++'s definition of a bimscan scanner model, or a ConfigError naming the ones known."""
+    helios = HELIOS_SCANNERS.get(scanner.name)
+    if helios is None:
+        raise ConfigError(
+            f"HELIOS++ survey: bimscan knows HELIOS++'s definition of {', '.join(HELIOS_SCANNERS)} only, not of "
+            f"scanner {scanner.name!r}; use --scanner riegl_vz400 (or a scanner file that keeps that name)")
+    if not math.isclose(scanner.mirror_sweep_deg, helios.mirror_sweep_deg):
+        raise ConfigError(
+            f"HELIOS++ survey: scanner {scanner.name!r} sweeps {scanner.mirror_sweep_deg:g} degrees per mirror line, "
+            f"HELIOS++'s definition {helios.mirror_sweep_deg:g}; keep mirror_sweep_deg = {helios.mirror_sweep_deg:g} "
+            "for a survey that matches")
+    return helios
+
+
+def helios_survey_xml(stations: Sequence[Station], settings: ScanSettings, scanner: ScannerModel, *,
+                      scene_file: str = SCENE_FILE, scene_id: str, name: str) -> bytes:
+    """The HELIOS++ survey (UTF-8 XML bytes) of a bimscan survey: one leg per station.
+
+    ``stations``: bimscan stations (beam origins, world metres; headings in degrees);
+    ``settings``/``scanner``: the scan settings and scanner model ``bimscan scan`` uses;
+    ``scene_file``/``scene_id``: the scene XML (relative to HELIOS++'s asset folder) and its id.
+    See the module docstring for how each value is placed. ConfigError for a scanner HELIOS++
+    has no definition of, or settings it cannot take (a fractional pulse rate).
+    """
+    helios = helios_scanner(scanner)
+    if not stations:
+        raise ConfigError("HELIOS++ survey: no station; give at least one (--stations)")
+    if settings.pulse_freq_hz != round(settings.pulse_freq_hz):
+        raise ConfigError(f"HELIOS++ survey: pulse_freq_hz = {settings.pulse_freq_hz:g}, but HELIOS++ reads an "
+                          "integer pulse rate; use a whole number of pulses per second")
+    low, high = settings.window(scanner)
+    beam_above_leg = TRIPOD_MOUNT_Z_M + helios.beam_origin_z_m
+    near = helios_near_limit_m(helios)
+    common = {
+        "active": "true",
+        "pulseFreq_hz": str(int(round(settings.pulse_freq_hz))),
+        "scanFreq_hz": _number(settings.scan_freq_hz),
+        "scanAngle_deg": _number(max(abs(low), abs(high))),
+        "verticalAngleMin_deg": _number(low),
+        "verticalAngleMax_deg": _number(high),
+        "headRotatePerSec_deg": _number(settings.head_deg_per_s),
+    }
+    survey = {"name": name, "scene": f"{scene_file}#{scene_id}", "platform": TRIPOD_ASSET, "scanner": helios.asset}
+    lines = [
+        '<?xml version="1.0" encoding="UTF-8"?>',
+        "<document>",
+        "    " + _comment(f"bimscan {__version__}: the survey of bimscan scan with scanner {scanner.name}, "
+                          f"{len(stations)} stations. Run HELIOS++ on this file with the export folder as its "
+                          "asset folder (its assets option): it finds the scene and the component files only there."),
+        "    " + _comment(f"Beam origin = leg + tripod mount {TRIPOD_MOUNT_Z_M:g} m + scanner beam origin "
+                          f"{helios.beam_origin_z_m:g} m: each leg stands {beam_above_leg:g} m below the bimscan "
+                          f"station. HELIOS++ head angle 0 = azimuth {HEAD_ZERO_AZIMUTH_DEG:g} deg."),
+        "    " + _comment(f"HELIOS++ records nothing closer than {near:.2f} m with this scanner (bimscan: "
+                          f"min_range_m = {scanner.min_range_m:g} m) and emits no elevation above "
+                          f"{helios.scan_angle_effective_max_deg:g} deg (bimscan: {high:g} deg)."),
+        "    <survey " + " ".join(f"{k}={quoteattr(v)}" for k, v in survey.items()) + ">",
+    ]
+    for station in stations:
+        x, y, z = (float(v) for v in station.position)
+        where = ", ".join(part for part in (f"room {station.room}" if station.room else "",
+                                            f"storey {station.storey}" if station.storey else "") if part)
+        leg = {"x": _number(x), "y": _number(y), "z": _number(z - beam_above_leg), "onGround": "false"}
+        head = {
+            **common,
+            "headRotateStart_deg": _number(settings.head_start_deg + station.heading_deg - HEAD_ZERO_AZIMUTH_DEG),
+            "headRotateStop_deg": _number(settings.head_stop_deg + station.heading_deg - HEAD_ZERO_AZIMUTH_DEG),
+        }
+        lines += [
+            "        " + _comment(f"bimscan station {station.id}" + (f" ({where})" if where else "")
+                                  + f": beam origin {_number(x)} {_number(y)} {_number(z)} m, "
+                                  f"heading {_number(station.heading_deg)} deg"),
+            "        <leg>",
+            "            <platformSettings " + " ".join(f"{k}={quoteattr(v)}" for k, v in leg.items()) + " />",
+            "            <scannerSettings " + " ".join(f"{k}={quoteattr(v)}" for k, v in head.items()) + " />",
+            "        </leg>",
+        ]
+    lines += ["    </survey>", "</document>"]
+    return ("\n".join(lines) + "\n").encode("utf-8")
+
+
+__all__ = [
+    "HELIOS_SCANNERS", "HeliosScanner", "SCENE_FILE", "SURVEY_FILE", "helios_near_limit_m", "helios_scanner",
+    "helios_scene_id", "helios_scene_xml", "helios_survey_xml", "write_helios_scene",
+]

@@ -50,7 +50,7 @@ from bimscan.io._header import (
     header_to_document,
     parse_document,
 )
-from bimscan.io._writer import BLOCK_POINTS, StreamingCloudWriter, WatchedFile, check_input_path
+from bimscan.io._writer import BLOCK_POINTS, StreamingCloudWriter, WatchedFile, check_input_path, source_date_epoch
 from bimscan.types import CloudHeader, LabelScheme, PointCloud
 
 LAS_SCALE_M = 1e-4  # 0.1 mm coordinate step
@@ -66,13 +66,8 @@ if BLOCK_POINTS % LAZ_CHUNK_POINTS:  # pragma: no cover - a guard for whoever ed
 
 
 def _creation_date() -> dt.date:
-    epoch = os.environ.get("SOURCE_DATE_EPOCH", "").strip()
-    if epoch:
-        try:
-            return dt.datetime.fromtimestamp(int(epoch), tz=dt.UTC).date()
-        except (ValueError, OverflowError, OSError) as exc:
-            raise OutputError(f"SOURCE_DATE_EPOCH={epoch!r} is not a Unix time in seconds; fix or unset it") from exc
-    return dt.date(1970, 1, 1)
+    epoch = source_date_epoch()
+    return dt.date(1970, 1, 1) if epoch is None else dt.datetime.fromtimestamp(epoch, tz=dt.UTC).date()
 
 
 def lookup_name(name: str) -> str:

@@ -11,7 +11,8 @@
   group/file says ``usemtl class_<label>``.
 - ``index.csv``: component, global_id, ifc_class, predefined_type, name, storey, label,
   label_name, n_triangles, obj_file (one row per row of the component table).
-- with ``helios=True``: ``helios/scene.xml`` (see ``bimscan.io.helios``).
+- with ``helios=True``: ``helios/scene.xml``, and ``helios/survey.xml`` when the caller passes
+  the survey's XML (``bimscan.io.helios.helios_survey_xml``; see ``bimscan.io.helios``).
 
 Coordinates are written in metres with 6 decimals (1 micrometre). Text is formatted with one
 ``%`` operation per component block, which writes a 2.4M-triangle model in seconds. Everything
@@ -33,6 +34,7 @@ import numpy as np
 from bimscan.errors import InputFileError, OutputError
 from bimscan.files import temp_path
 from bimscan.io._writer import commit_output, output_error
+from bimscan.io.helios import HELIOS_DIR, SCENE_FILE, SURVEY_FILE, helios_scene_id, write_helios_scene
 from bimscan.types import BimScene
 
 COORD_FORMAT = "%.6f"
@@ -58,6 +60,7 @@ class ObjExport:
     component_files: dict[int, Path]
     helios_scene: Path | None
     n_triangles: int
+    helios_survey: Path | None = None
 
 
 def group_name(component: int, global_id: str) -> str:
@@ -86,18 +89,22 @@ def _block(fmt: str, values: np.ndarray) -> str:
     return (fmt * len(values)) % tuple(values.ravel().tolist())
 
 
-def export_obj(scene: BimScene, out_dir: str | Path, *, helios: bool = False, overwrite: bool = False) -> ObjExport:
+def export_obj(scene: BimScene, out_dir: str | Path, *, helios: bool = False, helios_survey: bytes | None = None,
+               overwrite: bool = False) -> ObjExport:
     """Write the scene as OBJ files with a component index into ``out_dir`` (created if missing).
 
-    Raises OutputError when ``out_dir``'s parent is missing, when an output already exists and
-    ``overwrite`` is False, or when the disk fills up.
+    ``helios``: also the HELIOS++ scene; ``helios_survey``: the HELIOS++ survey document to
+    store beside it (needs ``helios``). Raises OutputError when ``out_dir``'s parent is missing,
+    when an output already exists and ``overwrite`` is False, or when the disk fills up.
     """
+    if helios_survey is not None and not helios:
+        raise ValueError("a HELIOS++ survey needs the HELIOS++ scene: pass helios=True")
     out_dir = Path(out_dir)
     if not out_dir.parent.is_dir():
         raise OutputError(f"folder {out_dir.parent} does not exist; create it first or choose another output folder")
     if out_dir.exists() and not out_dir.is_dir():
         raise OutputError(f"{out_dir} is a file, not a folder; choose another output folder")
-    names = ["model.obj", MATERIALS_NAME, "components", "index.csv"] + (["helios"] if helios else [])
+    names = ["model.obj", MATERIALS_NAME, "components", "index.csv"] + ([HELIOS_DIR] if helios else [])
     if not overwrite:
         existing = [n for n in names if (out_dir / n).exists()]
         if existing:
@@ -112,6 +119,8 @@ def export_obj(scene: BimScene, out_dir: str | Path, *, helios: bool = False, ov
         out_dir.mkdir(exist_ok=True)
         stage.mkdir()
         files = _write_all(scene, stage, helios=helios)
+        if helios_survey is not None:
+            (stage / SURVEY_FILE).write_bytes(helios_survey)
         for name in names:
             commit_output(stage / name, out_dir / name, overwrite=True)
         done = True
@@ -127,8 +136,9 @@ def export_obj(scene: BimScene, out_dir: str | Path, *, helios: bool = False, ov
         materials=out_dir / MATERIALS_NAME,
         index_csv=out_dir / "index.csv",
         component_files={c: out_dir / "components" / f"c{c}.obj" for c in files},
-        helios_scene=(out_dir / "helios" / "scene.xml") if helios else None,
+        helios_scene=(out_dir / SCENE_FILE) if helios else None,
         n_triangles=mesh.n_triangles,
+        helios_survey=(out_dir / SURVEY_FILE) if helios_survey is not None else None,
     )
 
 
@@ -189,13 +199,10 @@ def _write_all(scene: BimScene, stage: Path, *, helios: bool) -> list[int]:
     (stage / "index.csv").write_text(buffer.getvalue(), encoding="utf-8")
 
     if helios:
-        from bimscan.io.helios import write_helios_scene
-
-        (stage / "helios").mkdir()
+        (stage / HELIOS_DIR).mkdir()
         write_helios_scene(
-            stage / "helios" / "scene.xml",
-            parts=[(c, f"components/c{c}.obj") for c in written],
-            scene_id=_scene_id(source), name=source,
+            stage / SCENE_FILE, parts=[(c, f"components/c{c}.obj") for c in written],
+            scene_id=helios_scene_id(source), name=source,
         )
     return written
 
@@ -222,11 +229,6 @@ def _split_vertices(
     keys = (face_component[:, None] * n_vertices + faces).ravel()
     unique_keys, inverse = np.unique(keys, return_inverse=True)
     return vertices[unique_keys % n_vertices], inverse.reshape(-1, 3).astype(np.int64), unique_keys // n_vertices
-
-
-def _scene_id(source: str) -> str:
-    stem = Path(source).stem or "scene"
-    return "".join(ch if ch.isalnum() or ch in "_-" else "_" for ch in stem)
 
 
 # -- reading ------------------------------------------------------------------------------------

@@ -38,7 +38,7 @@ from bimscan.learn.mapping import (
 )
 from bimscan.types import CloudHeader, PointCloud
 
-CLOUD_SUFFIXES = (".las", ".laz", ".ply")
+CLOUD_SUFFIXES = (".las", ".laz", ".ply", ".e57")
 ASPRS_UNCLASSIFIED = (0, 1)  # LAS classification "created, never classified" and "unclassified"
 CHUNK_POINTS = 1_000_000
 
