@@ -22,7 +22,7 @@ A spec is one TOML file (paths inside it are relative to the file)::
 
     [[scenes]]
     name = "demo1"
-    generate = { seed = 1, storeys = 2 }   # a generated demo building
+    generate = { seed = 1, storeys = 2, style = "office" }   # a generated building (style optional)
 
     [[configs]]
     name = "exp1"
@@ -66,6 +66,7 @@ class GeneratedScene:
 
     seed: int
     storeys: int = 2
+    style: str = "office"  # office, residential or site (bimscan.ifc.generate.styles.STYLES)
 
 
 @dataclass(frozen=True)
@@ -216,7 +217,8 @@ def check_spec(spec: DatasetSpec, *, where: str) -> None:
             from bimscan.ifc.generate import check_building_options
 
             try:
-                check_building_options(seed=scene.generate.seed, storeys=scene.generate.storeys)
+                check_building_options(seed=scene.generate.seed, storeys=scene.generate.storeys,
+                                       style=scene.generate.style)
             except BimscanError as exc:
                 raise type(exc)(f"{where} [[scenes]] {scene.name!r} generate: {exc}") from exc
 
