@@ -44,6 +44,7 @@ from bimscan.ifc.generate.styles import (
     ENTRANCE_HEIGHT_M,
     ENTRANCE_WIDTH_M,
     FINISH_CEILING_M,
+    FINISH_ODDS,
     LANDING_DEPTH_M,
     MAX_SPAN_M,
     MAX_STOREYS,
@@ -51,10 +52,12 @@ from bimscan.ifc.generate.styles import (
     OPEN_PLAN_DOOR_EVERY_M,
     OPENING_STEP_M,
     ROOM_M,
+    SERVICE_VOID_M,
     STAIR_GAP_M,
     STAIR_GOING_M,
     STAIR_RISER_M,
     STAIR_WIDTH_M,
+    STORE_EXPOSED_ODDS,
     STYLE_KEYS,
     STYLES,
     SUSPENDED_CEILING_M,
@@ -461,10 +464,11 @@ def plan_building(*, seed: int, storeys: int, style: str = "office") -> Building
     slab = _cm(_draw(rng, table.slab_m))
     beam_depth = _cm(_draw(rng, table.beam_depth_m)) if has_grid else 0.0
     if system == "downstand":
-        plenum = _cm(_draw(rng, table.plenum_m)) if has_grid and rng.random() < 0.5 else 0.0
+        tiles = has_grid and rng.random() < 1.0 - FINISH_ODDS
+        plenum = _cm(_draw(rng, table.plenum_m)) if tiles else 0.0
         thickness = SUSPENDED_CEILING_M if plenum > 0 else FINISH_CEILING_M
     elif system == "suspended":
-        plenum = _cm(beam_depth + rng.uniform(0.1, 0.3))  # the beams and services fit above the tiles
+        plenum = _cm(beam_depth + _draw(rng, SERVICE_VOID_M))  # the beams and services fit above the tiles
         thickness = SUSPENDED_CEILING_M
     else:
         plenum, thickness = 0.0, 0.0
@@ -982,7 +986,7 @@ def _plan_storey(plan: BuildingPlan, table: BuildingStyle, *, index: int, rng: n
         room("stairwell", Rect(e, cb + tc / 2, x_first - plan.core_wall_m / 2, well_y1), False)
         if stair.store_wall_y_m is not None:
             store = Rect(e, stair.store_wall_y_m + tp / 2, x_first - plan.core_wall_m / 2, plan.bay_north_m[0])
-            strip_rooms.append((room("store", store, covered and rng.random() >= 0.5), "north"))
+            strip_rooms.append((room("store", store, covered and rng.random() >= STORE_EXPOSED_ODDS), "north"))
             walls_inner.append(("stair north", (e, stair.store_wall_y_m),
                                 (x_first - plan.core_wall_m / 2, stair.store_wall_y_m), tp))
         walls_inner.append(("stair core", (x_first, cb + tc / 2), (x_first, plan.bay_north_m[0]), plan.core_wall_m))

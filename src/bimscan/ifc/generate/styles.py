@@ -49,6 +49,9 @@ WINDOW_PANEL_M = 1.8  # widest panel of a window; wider windows get mullions (up
 OPENING_STEP_M = 0.05  # window widths are multiples of this (so windows repeat, as catalogue sizes do)
 WALL_ABOVE_OPENING_M = 0.25  # least wall (lintel) over the top of any window
 OPEN_PLAN_DOOR_EVERY_M = 8.0  # an open-plan area gets a corridor door per this much frontage
+FINISH_ODDS = 0.5  # downstand ceilings: a finish directly under the slab (else tiles in a void, plenum_m)
+SERVICE_VOID_M = (0.1, 0.3)  # suspended ceilings: void between the beams' underside and the tiles
+STORE_EXPOSED_ODDS = 0.5  # a store room has no ceiling covering (when the building has them)
 
 StyleName = Literal["office", "residential", "site"]
 # downstand: ceiling coverings fill the bays between downstand beams that stay in view (with no
