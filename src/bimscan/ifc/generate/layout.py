@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -542,8 +542,9 @@ def plan_building(*, seed: int, storeys: int, style: str = "office") -> Building
     if has_grid:
         columns, at, free = _plan_columns(lines, bay_south, bay_north, ca=ca, cb=cb, column=column, setting=setting,
                                          setback=setback, stair=stair is not None)
-        beams = _plan_beams(lines, bay_south, bay_north, at, free, ca=ca, cb=cb, tc=tc, beam_width=beam_width, secondary=secondary, corridor_beams=corridor_beams,
-                            x_beams=table.x_beams, stair=stair is not None)
+        beams = _plan_beams(lines, bay_south, bay_north, at, free, ca=ca, cb=cb, tc=tc, beam_width=beam_width,
+                            secondary=secondary, corridor_beams=corridor_beams, x_beams=table.x_beams,
+                            stair=stair is not None)
 
     plan = BuildingPlan(
         seed=seed,
@@ -948,12 +949,71 @@ def subtract_rects(rect: Rect, holes: Sequence[Rect]) -> list[Rect]:
     return [Rect(x0, y0, x1, y1) for y0, y1, spans in strips for x0, x1 in spans if x1 - x0 > 1e-6 and y1 - y0 > 1e-6]
 
 
+@dataclass
+class _StoreyDraft:
+    """A storey being planned: what the steps of ``_plan_storey`` add, in order."""
+
+    plan: BuildingPlan
+    table: BuildingStyle
+    index: int
+    rng: np.random.Generator
+    rooms: list[RoomPlan] = field(default_factory=list)
+    strip_rooms: list[tuple[RoomPlan, Side]] = field(default_factory=list)  # rooms that get a corridor door
+    open_areas: set[str] = field(default_factory=set)
+    inner_walls: list[tuple[str, tuple[float, float], tuple[float, float], float]] = field(default_factory=list)
+    openings: dict[str, list[OpeningPlan]] = field(default_factory=dict)  # per wall name, in the wall's frame
+    _rooms_made: int = 0
+    _openings_made: int = 0
+
+    def room(self, kind: RoomKind, rect: Rect, ceiling: bool) -> RoomPlan:
+        self._rooms_made += 1
+        height = self.plan.ceiling_height_m if ceiling else self.plan.soffit_m
+        made = RoomPlan(f"{self.index}.{self._rooms_made:02d}", kind,
+                        Rect(_r(rect.x0), _r(rect.y0), _r(rect.x1), _r(rect.y1)), ceiling, _r(height))
+        self.rooms.append(made)
+        return made
+
+    def opening(self, wall: str, kind: OpeningKind, at: float, width: float, sill: float, height: float) -> None:
+        name = f"{kind} {self.index}.{self._openings_made:02d}"  # unique on the storey
+        self._openings_made += 1
+        self.openings.setdefault(wall, []).append(OpeningPlan(kind, _r(at), _r(width), _r(sill), _r(height), name))
+
+    def structure_zones(self, band: Rect, along_x: bool) -> list[tuple[float, float]]:
+        """Intervals along a wall (world X or Y) where a column or beam meets it, with a margin."""
+        out = []
+        for s in [*self.plan.columns, *(b.rect for b in self.plan.beams)]:
+            if s.overlaps(band, margin_m=0.02):
+                out.append((s.x0 - WINDOW_MARGIN_M, s.x1 + WINDOW_MARGIN_M) if along_x
+                           else (s.y0 - WINDOW_MARGIN_M, s.y1 + WINDOW_MARGIN_M))
+        return out
+
+
 def _plan_storey(plan: BuildingPlan, table: BuildingStyle, *, index: int, rng: np.random.Generator) -> StoreyPlan:
     """Rooms, walls with openings, ceilings and furniture of storey ``index``."""
+    draft = _StoreyDraft(plan, table, index, rng)
+    corridor = _add_rooms(draft)
+    _add_doors(draft)
+    exterior = _exterior_walls(plan.outline_m, plan.exterior_wall_m, plan.soffit_m)
+    _add_windows(draft, exterior, corridor)
+    walls = _finish_walls(draft, exterior)
+    ceilings = _plan_ceilings(plan, draft.rooms, index=index)
+    furniture = _plan_furniture(plan, draft.rooms, walls, index=index, rng=rng) if table.furniture else []
+    return StoreyPlan(
+        index=index,
+        elevation_m=_r(index * plan.storey_height_m),
+        rooms=tuple(draft.rooms),
+        walls=tuple(walls),
+        ceilings=tuple(ceilings),
+        furniture=tuple(furniture),
+    )
+
+
+def _add_rooms(draft: _StoreyDraft) -> RoomPlan:
+    """The corridor, stairwell and store, and every section's rooms or open-plan area, with the
+    walls between them; returns the corridor."""
+    plan, table, rng = draft.plan, draft.table, draft.rng
     e, tc, tp = plan.exterior_wall_m, plan.corridor_wall_m, plan.partition_m
-    w = plan.width_m
     ca, cb = plan.corridor_y_m
-    soffit = plan.soffit_m
     stair = plan.stair
     hc, hb = plan.column_m / 2, plan.beam_width_m / 2
     # Lines a partition must sit on or keep clear of: grid lines (columns) and beam lines.
@@ -963,104 +1023,85 @@ def _plan_storey(plan: BuildingPlan, table: BuildingStyle, *, index: int, rng: n
         clearances[_r(x)] = max(clearances.get(_r(x), 0.0), c + tp / 2 + 0.05)
     snap = sorted(clearances.items())
 
-    rooms: list[RoomPlan] = []
-    number = iter(range(1, 1000))
-
-    def room_number() -> str:
-        return f"{index}.{next(number):02d}"
-
-    def room(kind: RoomKind, rect: Rect, ceiling: bool) -> RoomPlan:
-        height = plan.ceiling_height_m if ceiling else soffit
-        made = RoomPlan(room_number(), kind, Rect(_r(rect.x0), _r(rect.y0), _r(rect.x1), _r(rect.y1)), ceiling,
-                        _r(height))
-        rooms.append(made)
-        return made
-
     covered = plan.ceiling_system != "exposed"
-    corridor = room("corridor", Rect(e, ca + tc / 2, w - e, cb - tc / 2), covered)
-    walls_inner: list[tuple[str, tuple[float, float], tuple[float, float], float]] = []
-    strip_rooms: list[tuple[RoomPlan, Side]] = []
+    corridor = draft.room("corridor", Rect(e, ca + tc / 2, plan.width_m - e, cb - tc / 2), covered)
     if stair is not None:
-        x_first = stair.wall_x_m
+        x_core = stair.wall_x_m - plan.core_wall_m / 2
         well_y1 = plan.bay_north_m[0] if stair.store_wall_y_m is None else stair.store_wall_y_m - tp / 2
-        room("stairwell", Rect(e, cb + tc / 2, x_first - plan.core_wall_m / 2, well_y1), False)
+        draft.room("stairwell", Rect(e, cb + tc / 2, x_core, well_y1), False)
         if stair.store_wall_y_m is not None:
-            store = Rect(e, stair.store_wall_y_m + tp / 2, x_first - plan.core_wall_m / 2, plan.bay_north_m[0])
-            strip_rooms.append((room("store", store, covered and rng.random() >= STORE_EXPOSED_ODDS), "north"))
-            walls_inner.append(("stair north", (e, stair.store_wall_y_m),
-                                (x_first - plan.core_wall_m / 2, stair.store_wall_y_m), tp))
-        walls_inner.append(("stair core", (x_first, cb + tc / 2), (x_first, plan.bay_north_m[0]), plan.core_wall_m))
+            store = Rect(e, stair.store_wall_y_m + tp / 2, x_core, plan.bay_north_m[0])
+            draft.strip_rooms.append((draft.room("store", store, covered and rng.random() >= STORE_EXPOSED_ODDS),
+                                      "north"))
+            draft.inner_walls.append(("stair north", (e, stair.store_wall_y_m), (x_core, stair.store_wall_y_m), tp))
+        draft.inner_walls.append(("stair core", (stair.wall_x_m, cb + tc / 2), (stair.wall_x_m, plan.bay_north_m[0]),
+                                  plan.core_wall_m))
 
-    open_areas: set[str] = set()
     for section in _sections(plan):
         rect = section.rect
         if section.west_wall is not None:
             x, t, ya, yb = section.west_wall
-            walls_inner.append((f"section {section.side} {section.bays[0]}", (x, min(ya, yb)), (x, max(ya, yb)), t))
+            draft.inner_walls.append((f"section {section.side} {section.bays[0]}", (x, min(ya, yb)),
+                                      (x, max(ya, yb)), t))
         cuts: list[float] | None = None
         if rect.depth <= ROOM_M[1] + 1e-9 and not section.crossed and rng.random() >= table.open_plan_odds:
             inside = [(x, c) for x, c in snap if rect.x0 < x < rect.x1]
             cuts = _split_strip(rng, rect.x0, rect.x1, wall=tp, target=table.room_m, lines=inside)
         if cuts is None:
-            area = room("open-plan", rect, covered and rng.random() >= table.exposed_room_odds)
-            open_areas.add(area.number)
-            strip_rooms.append((area, section.side))
+            area = draft.room("open-plan", rect, covered and rng.random() >= table.exposed_room_odds)
+            draft.open_areas.add(area.number)
+            draft.strip_rooms.append((area, section.side))
             continue
         edges = [rect.x0 - tp / 2, *cuts, rect.x1 + tp / 2]
         for i, x in enumerate(cuts):
-            walls_inner.append((f"partition {section.side} {section.bays[0]}.{i}", (x, rect.y0), (x, rect.y1), tp))
+            draft.inner_walls.append((f"partition {section.side} {section.bays[0]}.{i}", (x, rect.y0),
+                                      (x, rect.y1), tp))
         for a, b in zip(edges, edges[1:]):
-            made = room(table.room_kind, Rect(a + tp / 2, rect.y0, b - tp / 2, rect.y1),
-                        covered and rng.random() >= table.exposed_room_odds)
-            strip_rooms.append((made, section.side))
+            made = draft.room(table.room_kind, Rect(a + tp / 2, rect.y0, b - tp / 2, rect.y1),
+                              covered and rng.random() >= table.exposed_room_odds)
+            draft.strip_rooms.append((made, section.side))
+    return corridor
 
-    # Openings, collected per wall name, in that wall's frame.
-    exterior = _exterior_walls(plan.outline_m, e, soffit)
-    openings: dict[str, list[OpeningPlan]] = {}
-    counter = iter(range(10000))
 
-    def add_opening(wall: str, kind: OpeningKind, at: float, width: float, sill: float, height: float) -> None:
-        name = f"{kind} {index}.{next(counter):02d}"  # unique on the storey
-        openings.setdefault(wall, []).append(OpeningPlan(kind, _r(at), _r(width), _r(sill), _r(height), name))
-
-    structure = [*plan.columns, *(b.rect for b in plan.beams)]
-
-    def zones(band: Rect, along_x: bool) -> list[tuple[float, float]]:
-        """Intervals along a wall (world X or Y) where a column or beam meets it."""
-        out = []
-        for s in structure:
-            if s.overlaps(band, margin_m=0.02):
-                out.append((s.x0 - WINDOW_MARGIN_M, s.x1 + WINDOW_MARGIN_M) if along_x
-                           else (s.y0 - WINDOW_MARGIN_M, s.y1 + WINDOW_MARGIN_M))
-        return out
-
+def _add_doors(draft: _StoreyDraft) -> None:
+    """A corridor door for every strip room (one per OPEN_PLAN_DOOR_EVERY_M of an open-plan
+    area's frontage), clear of columns and beam ends; stairwell and store doors."""
+    plan, rng = draft.plan, draft.rng
+    e, tc = plan.exterior_wall_m, plan.corridor_wall_m
+    ca, cb = plan.corridor_y_m
     corridor_walls = {"south": ("corridor south", ca), "north": ("corridor north", cb)}
-    for made, side in strip_rooms:
+    for made, side in draft.strip_rooms:
         if made.kind == "store":
             continue
         wall_name, y = corridor_walls[side]
-        band = Rect(e, y - tc / 2, w - e, y + tc / 2)
-        count = max(1, round(made.rect.width / OPEN_PLAN_DOOR_EVERY_M)) if made.number in open_areas else 1
+        band = Rect(e, y - tc / 2, plan.width_m - e, y + tc / 2)
+        count = max(1, round(made.rect.width / OPEN_PLAN_DOOR_EVERY_M)) if made.number in draft.open_areas else 1
         for part in range(count):
             lo = made.rect.x0 + made.rect.width * part / count
             hi = made.rect.x0 + made.rect.width * (part + 1) / count
-            x = _door_spot(rng, lo + 0.1, hi - 0.1, zones(band, True), [c for c in plan.columns if c.overlaps(band)])
-            add_opening(wall_name, "door", x - e, DOOR_WIDTH_M, 0.0, DOOR_HEIGHT_M)
-    if stair is not None:
+            x = _door_spot(rng, lo + 0.1, hi - 0.1, draft.structure_zones(band, True),
+                           [c for c in plan.columns if c.overlaps(band)])
+            draft.opening(wall_name, "door", x - e, DOOR_WIDTH_M, 0.0, DOOR_HEIGHT_M)
+    if plan.stair is not None:
         # Stairwell and store doors open onto the entry zone in front of the first riser.
         x_door = plan.grid_x_m[0] + plan.column_m / 2 + 0.15
-        add_opening("corridor north", "door", x_door - e, DOOR_WIDTH_M, 0.0, DOOR_HEIGHT_M)
-        if stair.store_wall_y_m is not None:
-            add_opening("stair north", "door", 0.15, DOOR_WIDTH_M, 0.0, DOOR_HEIGHT_M)
+        draft.opening("corridor north", "door", x_door - e, DOOR_WIDTH_M, 0.0, DOOR_HEIGHT_M)
+        if plan.stair.store_wall_y_m is not None:
+            draft.opening("stair north", "door", 0.15, DOOR_WIDTH_M, 0.0, DOOR_HEIGHT_M)
 
-    # Windows in every facade a room (not the stairwell) lies against.
+
+def _add_windows(draft: _StoreyDraft, exterior: list[WallPlan], corridor: RoomPlan) -> None:
+    """Windows in every facade stretch a room (not the stairwell) lies against, clear of columns
+    and beam ends; the entrance door at the corridor's east end on the ground floor."""
+    plan, table, rng = draft.plan, draft.table, draft.rng
+    ca, cb = plan.corridor_y_m
     sill = _cm(_draw(rng, table.window_sill_m))
     head = math.floor(min(table.window_head_m, plan.ceiling_height_m - WALL_ABOVE_OPENING_M) * 100 + 1e-6) / 100
     band_windows = plan.window_style == "band"
     for wall in exterior:
         fp = wall.footprint
         along_x = wall.along_x
-        for made in rooms:
+        for made in draft.rooms:
             if made.kind == "stairwell":
                 continue
             r = made.rect
@@ -1073,23 +1114,29 @@ def _plan_storey(plan: BuildingPlan, table: BuildingStyle, *, index: int, rng: n
             if not touching or hi - lo < 0.5:
                 continue
             start = wall.start[0] if along_x else wall.start[1]
-            if made is corridor and not along_x and wall.start[0] > w / 2 and index == 0:
+            if made is corridor and not along_x and wall.start[0] > plan.width_m / 2 and draft.index == 0:
                 mid = (ca + cb) / 2
-                add_opening(wall.name, "door", mid - ENTRANCE_WIDTH_M / 2 - start, ENTRANCE_WIDTH_M, 0.0,
-                            ENTRANCE_HEIGHT_M)
+                draft.opening(wall.name, "door", mid - ENTRANCE_WIDTH_M / 2 - start, ENTRANCE_WIDTH_M, 0.0,
+                              ENTRANCE_HEIGHT_M)
                 continue
-            blocked = zones(fp, along_x)
+            blocked = draft.structure_zones(fp, along_x)
             for a, b in _free_intervals(lo + WINDOW_MARGIN_M, hi - WINDOW_MARGIN_M, blocked):
                 for at, width in _window_spans(rng, a, b, band=band_windows, widths=table.window_m):
-                    add_opening(wall.name, "window", at - start, width, sill, head - sill)
+                    draft.opening(wall.name, "window", at - start, width, sill, head - sill)
 
+
+def _finish_walls(draft: _StoreyDraft, exterior: list[WallPlan]) -> list[WallPlan]:
+    """Every wall of the storey with its openings; interior walls stop under beams they run along."""
+    plan, openings = draft.plan, draft.openings
+    e, tc = plan.exterior_wall_m, plan.corridor_wall_m
+    w = plan.width_m
     walls = [replace(wall, openings=tuple(sorted(openings.get(wall.name, []), key=lambda o: o.offset_m)))
              for wall in exterior]
     # Corridor walls under beams along X are built bay by bay (the pieces meet inside the
     # columns), so each piece stops under its own beam or, where there is none, at the slab.
     breaks = [e, *plan.grid_x_m[1:-1], w - e] if any(b.along == "x" for b in plan.beams) else [e, w - e]
     inner = []
-    for name, y in (("corridor south", ca), ("corridor north", cb)):
+    for name, y in (("corridor south", plan.corridor_y_m[0]), ("corridor north", plan.corridor_y_m[1])):
         pieces = list(zip(breaks, breaks[1:]))
         if len(pieces) == 1:
             inner.append((name, (e, y), (w - e, y), tc))
@@ -1100,24 +1147,13 @@ def _plan_storey(plan: BuildingPlan, table: BuildingStyle, *, index: int, rng: n
             x = e + o.offset_m
             k = next(i for i, (a, b) in enumerate(pieces) if a - EPS <= x and x + o.width_m <= b + EPS)
             openings.setdefault(f"{name} {k}", []).append(replace(o, offset_m=_r(x - pieces[k][0])))
-    inner += walls_inner
+    inner += draft.inner_walls
     for name, start, end, t in inner:
         start, end = (_r(start[0]), _r(start[1])), (_r(end[0]), _r(end[1]))
-        made_wall = WallPlan(name, start, end, t, soffit, False,
-                             tuple(sorted(openings.get(name, []), key=lambda o: o.offset_m)))
-        walls.append(replace(made_wall, height_m=_wall_height(plan, made_wall)))
-    walls = [w_ for w_ in walls if w_.length_m > 1e-6]
-
-    ceilings = _plan_ceilings(plan, rooms, index=index)
-    furniture = _plan_furniture(plan, rooms, walls, index=index, rng=rng) if table.furniture else []
-    return StoreyPlan(
-        index=index,
-        elevation_m=_r(index * plan.storey_height_m),
-        rooms=tuple(rooms),
-        walls=tuple(walls),
-        ceilings=tuple(ceilings),
-        furniture=tuple(furniture),
-    )
+        made = WallPlan(name, start, end, t, plan.soffit_m, False,
+                        tuple(sorted(openings.get(name, []), key=lambda o: o.offset_m)))
+        walls.append(replace(made, height_m=_wall_height(plan, made)))
+    return [wall for wall in walls if wall.length_m > 1e-6]
 
 
 def _door_spot(
