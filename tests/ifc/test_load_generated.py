@@ -20,7 +20,7 @@ def first_seed(style: str, storeys: int, wanted) -> int:
 
 @pytest.mark.parametrize(
     "style, seed, storeys",
-    [("office", 0, 2), ("office", 5, 1), ("residential", 1, 2), ("site", 7, 1)],
+    [("office", 0, 2), ("office", 5, 1), ("residential", 1, 2), ("residential", 3, 1), ("site", 2, 1), ("site", 7, 1)],
 )
 def test_generated_buildings_load_with_the_planned_elements_labels_bounds_and_rooms(style, seed, storeys, tmp_path):
     building = make_building(tmp_path / "b.ifc", seed=seed, storeys=storeys, style=style)
