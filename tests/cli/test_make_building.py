@@ -42,6 +42,27 @@ def test_make_building_help_names_its_options(capsys: pytest.CaptureFixture[str]
     assert main(["make-building", "--help"]) == 0
     text = capsys.readouterr().out
     assert "--seed" in text and "--storeys" in text and "1..10" in text
+    assert "--style" in text and "office|residential|site" in text
+
+
+@pytest.mark.parametrize("style", ["office", "residential", "site"])
+def test_make_building_writes_the_chosen_style_and_says_so(
+    style: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / f"{style}.ifc"
+    assert main(["make-building", str(out), "--seed", "3", "--storeys", "1", "--style", style]) == 0
+    assert f": {style} seed 3," in capsys.readouterr().out
+    model = ifcopenshell.open(str(out))
+    assert model.by_type("IfcProject")[0].Name == f"bimscan {style} building"
+    assert bool(model.by_type("IfcColumn")) == (style != "residential")
+
+
+def test_an_unknown_style_gives_a_one_line_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "demo.ifc"
+    assert main(["make-building", str(out), "--style", "castle"]) != 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "castle" in err and "office" in err
+    assert not out.exists()
 
 
 @pytest.mark.parametrize("storeys", ["0", "50"])

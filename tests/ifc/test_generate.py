@@ -1,4 +1,4 @@
-"""make_building: seeded demo buildings as IFC4, checked through IfcOpenShell's own geometry."""
+"""make_building: seeded buildings of every style as IFC4, checked through IfcOpenShell's own geometry."""
 
 from __future__ import annotations
 
@@ -16,6 +16,8 @@ import pytest
 
 from bimscan.errors import ConfigError, OutputError
 from bimscan.ifc.generate import GeneratedBuilding, build_building_model, make_building
+from bimscan.ifc.generate.layout import plan_building
+from bimscan.ifc.generate.styles import STYLES
 
 TOLERANCE_M = 0.03  # door casings stand 5 mm proud of the walls; anything more is a bug
 
@@ -54,9 +56,16 @@ def scannable(model: ifcopenshell.file) -> list:
     ]
 
 
+def first_seed(style: str, storeys: int, wanted) -> int:
+    """The first seed whose plan satisfies ``wanted`` (plans are cheap; files are not)."""
+    return next(seed for seed in range(200) if wanted(plan_building(seed=seed, storeys=storeys, style=style)))
+
+
 @pytest.fixture(scope="module")
 def two_storeys() -> Triangulated:
-    model, building = build_building_model(seed=0, storeys=2)
+    """A two-storey office with downstand beams in view and a non-rectangular outline."""
+    seed = first_seed("office", 2, lambda p: p.ceiling_system == "downstand" and p.shape != "rectangle")
+    model, building = build_building_model(seed=seed, storeys=2)
     expected = tuple(scannable(model))
     return Triangulated(model, building, expected, triangulate(model, list(expected)))
 
@@ -81,6 +90,14 @@ def test_same_seed_gives_byte_identical_files(tmp_path: Path) -> None:
     assert (tmp_path / "a.ifc").read_bytes() == (tmp_path / "b.ifc").read_bytes()
     assert first.path == tmp_path / "a.ifc" and second.path == tmp_path / "b.ifc"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.ifc", "b.ifc"]  # no temporary files left
+
+
+@pytest.mark.parametrize("style", sorted(STYLES))
+def test_every_style_gives_the_same_bytes_for_the_same_seed_and_differs_from_the_others(style: str) -> None:
+    texts = {s: build_building_model(seed=6, storeys=1, style=s)[0].to_string() for s in (style, "office")}
+    assert build_building_model(seed=6, storeys=1, style=style)[0].to_string() == texts[style]
+    if style != "office":
+        assert texts[style] != texts["office"]
 
 
 def test_file_header_holds_no_clock_time(tmp_path: Path) -> None:
@@ -127,17 +144,19 @@ def test_triangle_bounds_match_footprint_and_height(two_storeys: Triangulated) -
     np.testing.assert_allclose(hi[:2], (xmax, ymax), atol=TOLERANCE_M)
     assert hi[2] == pytest.approx(two_storeys.building.height_m, abs=TOLERANCE_M)
     assert -0.3 <= lo[2] < 0.0  # only the ground slab lies below the ground floor level
-    assert 12.0 <= xmax - xmin <= 30.0 and 8.0 <= ymax - ymin <= 20.0
+    assert 10.0 <= xmax - xmin <= 40.0 and 8.0 <= ymax - ymin <= 30.0
 
 
-def test_storeys_are_3_to_3_6_m_apart_and_hold_one_space_per_room(two_storeys: Triangulated) -> None:
+def test_storeys_are_as_far_apart_as_the_plan_says_and_hold_one_space_per_room(two_storeys: Triangulated) -> None:
     model, building = two_storeys.model, two_storeys.building
     storeys = sorted(model.by_type("IfcBuildingStorey"), key=lambda s: s.Elevation)
     assert tuple(s.Elevation for s in storeys) == building.storey_elevations_m
     spaces = [[p for p in ifcopenshell.util.element.get_parts(s) if p.is_a("IfcSpace")] for s in storeys]
     assert tuple(len(s) for s in spaces) == building.rooms_per_storey
-    assert all(4 <= n <= 12 for n in building.rooms_per_storey)
-    assert 3.0 <= np.diff(building.storey_elevations_m)[0] <= 3.6
+    assert all(6 <= n <= 30 for n in building.rooms_per_storey)
+    low, high = STYLES["office"].storey_height_m
+    assert np.diff(building.storey_elevations_m)[0] == pytest.approx(building.plan.storey_height_m)
+    assert low <= building.plan.storey_height_m <= high
     assert all(space.Representation is not None for group in spaces for space in group)
 
 
@@ -153,17 +172,23 @@ def test_every_class_of_the_five_class_scheme_is_present(two_storeys: Triangulat
     assert len(model.by_type("IfcStair")) == 1
 
 
-def test_exterior_walls_are_thicker_than_interior_walls(two_storeys: Triangulated) -> None:
+def test_walls_are_as_thick_and_high_as_planned_and_exterior_walls_are_the_thickest(two_storeys: Triangulated) -> None:
+    plan = two_storeys.building.plan
+    planned = {f"Wall {w.name}": w for w in plan.storeys[0].walls}
     thickness = {}
     for wall in two_storeys.model.by_type("IfcWall"):
+        if wall.ContainedInStructure[0].RelatingStructure.Name != "Ground floor":
+            continue
         vertices, _ = two_storeys.shapes[wall.id()]
-        extent = np.ptp(vertices[:, :2], axis=0)
-        thickness[wall.Name] = float(extent.min())
-    exterior = [t for name, t in thickness.items() if name.split()[1] in ("south", "north", "west", "east")]
-    interior = [t for name, t in thickness.items() if name.split()[1] not in ("south", "north", "west", "east")]
-    assert exterior and interior
-    assert all(t == pytest.approx(0.3, abs=1e-6) for t in exterior)
-    assert all(0.1 - 1e-6 <= t <= 0.15 + 1e-6 for t in interior)
+        thickness[wall.Name] = float(np.ptp(vertices[:, :2], axis=0).min())
+        assert np.ptp(vertices[:, 2]) == pytest.approx(planned[wall.Name].height_m, abs=1e-6), wall.Name
+    assert set(thickness) == set(planned)
+    for name, t in thickness.items():
+        assert t == pytest.approx(planned[name].thickness_m, abs=1e-6), name
+    exterior = {t for name, t in thickness.items() if planned[name].exterior}
+    interior = {t for name, t in thickness.items() if not planned[name].exterior}
+    assert len({round(t, 3) for t in thickness.values()}) >= 3  # facade, corridor, partitions
+    assert min(exterior) >= max(interior) - 0.15  # only a stair core wall may come near a facade
 
 
 def test_window_and_door_openings_are_cut_through_their_walls(two_storeys: Triangulated) -> None:
@@ -175,8 +200,10 @@ def test_window_and_door_openings_are_cut_through_their_walls(two_storeys: Trian
         vertices, faces = two_storeys.shapes[wall.id()]
         m = world_matrix(filling)
         across = m[:3, 1]  # the filling's local y crosses the wall
+        wall_top = vertices[:, 2].max() - m[2, 3]  # above the filling's base
+        lintel = (filling.OverallHeight + wall_top) / 2  # half way between opening head and wall top
         centre = m[:3, 3] + m[:3, 0] * filling.OverallWidth / 2 + np.array([0, 0, filling.OverallHeight / 2])
-        above = m[:3, 3] + m[:3, 0] * filling.OverallWidth / 2 + np.array([0, 0, filling.OverallHeight + 0.15])
+        above = m[:3, 3] + m[:3, 0] * filling.OverallWidth / 2 + np.array([0, 0, lintel])
         start = np.stack([centre, above]) - across * 1.0
         t_hit = ray_hits(vertices, faces, start, across)
         assert np.isinf(t_hit[0]), f"a ray through {filling.Name} hits its wall {wall.Name} at {t_hit[0]:.3f} m"
@@ -239,21 +266,46 @@ def test_steps_have_treads_and_risers(two_storeys: Triangulated) -> None:
     assert 0.15 <= float(np.median(np.diff(levels))) <= 0.19
 
 
-def test_beams_hang_below_the_ceilings(two_storeys: Triangulated) -> None:
-    model = two_storeys.model
-    beam_bottoms = [two_storeys.shapes[b.id()][0][:, 2].min() for b in model.by_type("IfcBeam")]
-    ceiling_bottoms = [two_storeys.shapes[c.id()][0][:, 2].min() for c in model.by_type("IfcCovering")]
-    ceiling_tops = [two_storeys.shapes[c.id()][0][:, 2].max() for c in model.by_type("IfcCovering")]
-    lowest_ceiling_on_ground_floor = min(z for z in ceiling_bottoms if z < two_storeys.building.storey_elevations_m[1])
-    assert min(beam_bottoms) < lowest_ceiling_on_ground_floor - 0.3
-    assert max(ceiling_tops) <= two_storeys.building.height_m - 0.19
+def test_beams_hang_below_the_ceilings_which_fill_the_bays_between_them(two_storeys: Triangulated) -> None:
+    model, plan = two_storeys.model, two_storeys.building.plan
+    ground = plan.storeys[0]
+    beam_z = [two_storeys.shapes[b.id()][0][:, 2] for b in model.by_type("IfcBeam")]
+    ceiling_z = [two_storeys.shapes[c.id()][0][:, 2] for c in model.by_type("IfcCovering")]
+    lower = [z for z in beam_z if z.max() < plan.storey_height_m]
+    assert len(lower) == len(plan.beams) and len(ceiling_z) == sum(len(s.ceilings) for s in plan.storeys)
+    assert all(z.min() == pytest.approx(plan.beam_bottom_m, abs=1e-6) for z in lower)
+    assert all(z.max() == pytest.approx(plan.soffit_m, abs=1e-6) for z in lower)
+    covering = [z for z in ceiling_z if z.max() < plan.storey_height_m]
+    assert all(z.min() == pytest.approx(plan.ceiling_height_m, abs=1e-6) for z in covering)
+    assert plan.beam_bottom_m < plan.ceiling_height_m - 0.25  # in view, as in the S3DIS offices
+    assert len(covering) == len(ground.ceilings)
 
 
-def test_one_storey_building_has_no_stair() -> None:
-    model, building = build_building_model(seed=4, storeys=1)
-    assert building.storeys == 1 and len(building.rooms_per_storey) == 1
+@pytest.mark.parametrize("style", sorted(STYLES))
+def test_one_storey_building_has_no_stair(style: str) -> None:
+    model, building = build_building_model(seed=4, storeys=1, style=style)
+    assert building.storeys == 1 and len(building.rooms_per_storey) == 1 and building.style == style
     assert "IfcStairFlight" not in building.placed and not model.by_type("IfcStair")
     assert {s.PredefinedType for s in model.by_type("IfcSlab")} == {"BASESLAB", "ROOF"}
+
+
+def test_doors_and_windows_of_one_size_share_a_type_whose_body_they_map() -> None:
+    model, building = build_building_model(seed=2, storeys=1)
+    for ifc_class in ("IfcDoor", "IfcWindow"):
+        occurrences = model.by_type(ifc_class)
+        types = {o.IsTypedBy[0].RelatingType.id() for o in occurrences}
+        assert 0 < len(types) < len(occurrences)
+        for o in occurrences:
+            item = o.Representation.Representations[0].Items[0]
+            assert item.is_a("IfcMappedItem")
+            assert item.MappingSource in o.IsTypedBy[0].RelatingType.RepresentationMaps
+
+
+def test_an_unknown_style_raises_config_error_naming_the_styles(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="office, residential, site") as info:
+        make_building(tmp_path / "b.ifc", seed=0, storeys=1, style="castle")
+    assert "castle" in str(info.value) and "\n" not in str(info.value)
+    assert not any(tmp_path.iterdir())
 
 
 @pytest.mark.parametrize("storeys", [0, 11, 50, -1])

@@ -1,4 +1,5 @@
-"""Loading IFC (load_ifc, labelled by load_scene) on generated demo buildings: what the generator placed is what the loader finds."""
+"""Loading IFC (load_ifc, labelled by load_scene) on generated buildings of every style: what the
+plan places is what the loader finds, with the class and label the plan says."""
 
 from __future__ import annotations
 
@@ -8,28 +9,117 @@ import numpy as np
 import pytest
 
 from bimscan.ifc.generate import make_building
+from bimscan.ifc.generate.layout import BuildingPlan, plan_building, planned_elements, storey_name
 from bimscan.pipeline import load_scene
-
-EXPECTED_LABEL = {"IfcWall": "Wall&Column", "IfcColumn": "Wall&Column", "IfcBeam": "Beam",
-                  "IfcCovering": "Covering", "IfcSlab": "Slab"}
+from bimscan.types import BimScene
 
 
-@pytest.mark.parametrize("seed, storeys", [(0, 1), (3, 2), (11, 3)])
-def test_generated_buildings_load_with_the_placed_counts_labels_and_bounds(seed, storeys, tmp_path):
-    building = make_building(tmp_path / "b.ifc", seed=seed, storeys=storeys)
+def first_seed(style: str, storeys: int, wanted) -> int:
+    return next(seed for seed in range(200) if wanted(plan_building(seed=seed, storeys=storeys, style=style)))
+
+
+@pytest.mark.parametrize(
+    "style, seed, storeys",
+    [("office", 0, 2), ("office", 5, 1), ("residential", 1, 2), ("residential", 3, 1), ("site", 2, 1), ("site", 7, 1)],
+)
+def test_generated_buildings_load_with_the_planned_elements_labels_bounds_and_rooms(style, seed, storeys, tmp_path):
+    building = make_building(tmp_path / "b.ifc", seed=seed, storeys=storeys, style=style)
     scene = load_scene(building.path)
     assert scene.failed == ()
-    assert dict(Counter(scene.components.ifc_class.tolist())) == dict(building.placed)
     names = scene.scheme.names
-    for ifc_class, label in zip(scene.components.ifc_class.tolist(), scene.components.label.tolist()):
-        expected = EXPECTED_LABEL.get(ifc_class, "Others")
-        if ifc_class == "IfcSlab":
-            assert names[label] == "Slab"
-        else:
-            assert names[label] == expected, ifc_class
-    assert set(names[i] for i in scene.components.label.tolist()) == set(names.values())  # all five classes
+    table = scene.components
+    found = Counter(
+        (str(s), str(n), str(c), str(p), names[int(label)])
+        for s, n, c, p, label in zip(table.storey, table.name, table.ifc_class, table.predefined_type, table.label)
+    )
+    planned = Counter(
+        (storey_name(e.storey), e.name, e.ifc_class, e.predefined_type, e.label) for e in planned_elements(building.plan)
+    )
+    assert found == planned
+    assert dict(Counter(table.ifc_class.tolist())) == dict(building.placed)
     lo, hi = scene.mesh.bounds()
     xmin, ymin, xmax, ymax = building.footprint_m
-    np.testing.assert_allclose([lo[0], lo[1], hi[0], hi[1]], [xmin, ymin, xmax, ymax], atol=0.05)
+    np.testing.assert_allclose([lo[0], lo[1], hi[0], hi[1]], [xmin, ymin, xmax, ymax], atol=0.03)
     assert hi[2] == pytest.approx(building.height_m, abs=0.01)
-    assert [len([s for s in scene.spaces if s.storey == st.name]) for st in scene.storeys] == list(building.rooms_per_storey)
+    assert lo[2] == pytest.approx(-building.plan.slab_m, abs=0.01)
+    per_storey = [[s for s in scene.spaces if s.storey == st.name] for st in scene.storeys]
+    assert [len(rooms) for rooms in per_storey] == list(building.rooms_per_storey)
+    for storey, rooms in zip(building.plan.storeys, per_storey):
+        boxes = sorted(tuple(np.round(np.r_[s.vertices.min(0)[:2], s.vertices.max(0)[:2]], 3)) for s in rooms)
+        planned_boxes = sorted((r.rect.x0, r.rect.y0, r.rect.x1, r.rect.y1) for r in storey.rooms)
+        np.testing.assert_allclose(boxes, planned_boxes, atol=1e-3)
+
+
+def up_from(scene: BimScene, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance and IFC class of the first surface straight above each point (Open3D BVH)."""
+    import open3d as o3d
+
+    raycaster = o3d.t.geometry.RaycastingScene()
+    raycaster.add_triangles(
+        o3d.core.Tensor(scene.mesh.vertices.astype(np.float32)), o3d.core.Tensor(scene.mesh.faces.astype(np.uint32))
+    )
+    rays = np.hstack([points, np.tile([0.0, 0.0, 1.0], (len(points), 1))]).astype(np.float32)
+    hit = raycaster.cast_rays(o3d.core.Tensor(rays))
+    t, face = hit["t_hit"].numpy(), hit["primitive_ids"].numpy()
+    assert np.isfinite(t).all()
+    return t, scene.components.ifc_class[scene.mesh.face_component[face]]
+
+
+def over_no_wall(plan: BuildingPlan) -> list:
+    walls = [w.footprint for w in plan.storeys[0].walls]
+    return [b for b in plan.beams if not any(w.x0 <= b.rect.centre[0] <= w.x1 and w.y0 <= b.rect.centre[1] <= w.y1
+                                             for w in walls)]
+
+
+def looking_up(plan: BuildingPlan, scene: BimScene, start_m: float = 2.12) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """What a point ``start_m`` above the ground floor (above doors and furniture) sees straight up,
+    under the middle of every beam and of every room's largest ceiling piece (or its centre)."""
+    ground = plan.storeys[0]
+    # Beams over a wall's top are skipped: the point would stand inside the wall.
+    beams = np.array([[*b.rect.centre, start_m] for b in over_no_wall(plan)]).reshape(-1, 3)
+    rooms = []
+    for room in ground.rooms:
+        if room.kind == "stairwell":
+            continue
+        ceiling = next((c for c in ground.ceilings if c.room == room.number), None)
+        spot = max(ceiling.rects, key=lambda r: r.area).centre if ceiling else room.rect.centre
+        if not any(c.x0 <= spot[0] <= c.x1 and c.y0 <= spot[1] <= c.y1 for c in plan.columns):
+            rooms.append([*spot, start_m])
+    return {"beams": up_from(scene, beams) if len(beams) else (np.zeros(0), np.zeros(0)),
+            "rooms": up_from(scene, np.array(rooms))}
+
+
+def test_in_an_office_with_downstand_beams_the_beams_are_seen_below_the_ceiling_coverings(tmp_path) -> None:
+    seed = first_seed("office", 1, lambda p: p.ceiling_system == "downstand")
+    building = make_building(tmp_path / "b.ifc", seed=seed, storeys=1)
+    plan, scene = building.plan, load_scene(tmp_path / "b.ifc")
+    seen = looking_up(plan, scene)
+    t, classes = seen["beams"]
+    assert set(classes) == {"IfcBeam"}
+    np.testing.assert_allclose(t, plan.beam_bottom_m - 2.12, atol=1e-3)
+    assert len(t) >= len(plan.beams) / 2
+    t, classes = seen["rooms"]
+    covered = [r for r in plan.storeys[0].rooms if r.has_ceiling and r.kind != "stairwell"]
+    assert Counter(classes)["IfcCovering"] == len(covered)
+    assert np.allclose(t[classes == "IfcCovering"], plan.ceiling_height_m - 2.12, atol=1e-3)
+    assert plan.beam_bottom_m < plan.ceiling_height_m - 0.25
+
+
+def test_a_suspended_ceiling_hides_the_beams_and_an_exposed_soffit_is_the_slab(tmp_path) -> None:
+    hidden = first_seed("office", 1, lambda p: p.ceiling_system == "suspended")
+    building = make_building(tmp_path / "hidden.ifc", seed=hidden, storeys=1)
+    plan = building.plan
+    t, classes = looking_up(plan, load_scene(building.path))["beams"]
+    covered = [r.rect for r in plan.storeys[0].rooms if r.has_ceiling]
+    beams = over_no_wall(plan)
+    under_ceiling = np.array([any(r.x0 < b.rect.centre[0] < r.x1 and r.y0 < b.rect.centre[1] < r.y1 for r in covered)
+                              for b in beams])
+    assert under_ceiling.sum() >= len(beams) / 2
+    assert set(classes[under_ceiling]) == {"IfcCovering"}  # the tiles hide every beam above them
+    assert t[under_ceiling] == pytest.approx(plan.ceiling_height_m - 2.12, abs=1e-3)
+    assert set(classes[~under_ceiling]) <= {"IfcBeam"}
+    bare = first_seed("office", 1, lambda p: p.ceiling_system == "exposed")
+    building = make_building(tmp_path / "bare.ifc", seed=bare, storeys=1)
+    t, classes = looking_up(building.plan, load_scene(building.path))["rooms"]
+    assert set(classes) <= {"IfcSlab", "IfcBeam"} and "IfcSlab" in set(classes)
+    assert t[classes == "IfcSlab"] == pytest.approx(building.plan.soffit_m - 2.12, abs=1e-3)

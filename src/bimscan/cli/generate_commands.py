@@ -6,8 +6,8 @@ from pathlib import Path
 
 import click
 
-# The layout module is plain NumPy: importing it keeps --help free of IfcOpenShell.
-from bimscan.ifc.generate.layout import MAX_STOREYS, MIN_STOREYS
+# The style table is plain data: importing it keeps --help free of IfcOpenShell.
+from bimscan.ifc.generate.styles import DEFAULT_STYLE, MAX_STOREYS, MIN_STOREYS, STYLES
 
 
 @click.command("make-building")
@@ -22,22 +22,33 @@ from bimscan.ifc.generate.layout import MAX_STOREYS, MIN_STOREYS
     show_default=True,
     help=f"Number of storeys, {MIN_STOREYS}..{MAX_STOREYS}; more than one adds a stair between them.",
 )
-def make_building_command(out: Path, seed: int, storeys: int) -> None:
-    """Write a procedural demo building to OUT (an .ifc file, IFC4).
+@click.option(
+    "--style",
+    type=click.Choice(list(STYLES)),
+    default=DEFAULT_STYLE,
+    show_default=True,
+    help="office: cellular offices with downstand beams and ceilings (like S3DIS); residential: smaller "
+    "rooms, lower storeys, no column grid; site: a bare structural frame, open areas, no finishes.",
+)
+def make_building_command(out: Path, seed: int, storeys: int, style: str) -> None:
+    """Write a procedural building to OUT (an .ifc file, IFC4).
 
-    A seeded office block: exterior and interior walls with doors and windows, columns and
-    downstand beams, floor/roof slabs, ceilings, a stair, furniture, one IfcSpace per room.
+    A seeded corridor block of the chosen style, rectangular or L, U, T shaped or notched:
+    exterior and interior walls with doors and windows (punched or in bands), columns and
+    beams, floor/roof slabs, ceilings, a stair, furniture, one IfcSpace per room.
     OUT is replaced if it exists; it is written atomically.
     """
     from bimscan.ifc.generate import make_building
 
-    building = make_building(out, seed=seed, storeys=storeys)
+    building = make_building(out, seed=seed, storeys=storeys, style=style)
+    plan = building.plan
     x0, y0, x1, y1 = building.footprint_m
     rooms = "+".join(str(n) for n in building.rooms_per_storey)
     counts = ", ".join(f"{cls} {n}" for cls, n in building.placed.items())
     click.echo(
-        f"wrote {out}: seed {seed}, {building.storeys} storeys, {sum(building.rooms_per_storey)} rooms ({rooms}), "
-        f"{x1 - x0:.1f} x {y1 - y0:.1f} x {building.height_m:.2f} m; {counts}"
+        f"wrote {out}: {style} seed {seed}, {building.storeys} storeys, {sum(building.rooms_per_storey)} rooms "
+        f"({rooms}), {plan.shape} {x1 - x0:.1f} x {y1 - y0:.1f} x {building.height_m:.2f} m, storey "
+        f"{plan.storey_height_m:.2f} m, ceiling {plan.ceiling_height_m:.2f} m ({plan.ceiling_system}); {counts}"
     )
 
 

@@ -23,7 +23,7 @@ A spec is one TOML file (paths inside it are relative to the file)::
 
     [[scenes]]
     name = "demo1"
-    generate = { seed = 1, storeys = 2 }   # a generated demo building
+    generate = { seed = 1, storeys = 2, style = "office" }   # a generated building (style optional)
 
     [[configs]]
     name = "exp1"
@@ -51,6 +51,7 @@ from typing import Any
 
 from bimscan.dataset.layout import FORMAT_FILES, UNIT_SEPARATOR, unit_id
 from bimscan.errors import BimscanError, ConfigError, InputFileError
+from bimscan.ifc.generate.styles import DEFAULT_STYLE
 from bimscan.scan.device import DEFAULT_SCANNER, ScanSettings
 from bimscan.scan.engine import DEFAULT_ENGINE
 from bimscan.scan.noise import NoiseModel
@@ -67,6 +68,7 @@ class GeneratedScene:
 
     seed: int
     storeys: int = 2
+    style: str = DEFAULT_STYLE  # office, residential or site (bimscan.ifc.generate.styles.STYLES)
 
 
 @dataclass(frozen=True)
@@ -219,7 +221,8 @@ def check_spec(spec: DatasetSpec, *, where: str) -> None:
             from bimscan.ifc.generate import check_building_options
 
             try:
-                check_building_options(seed=scene.generate.seed, storeys=scene.generate.storeys)
+                check_building_options(seed=scene.generate.seed, storeys=scene.generate.storeys,
+                                       style=scene.generate.style)
             except BimscanError as exc:
                 raise type(exc)(f"{where} [[scenes]] {scene.name!r} generate: {exc}") from exc
 

@@ -1,17 +1,20 @@
-"""Procedural demo buildings as valid IFC4 files: ``make_building``.
+"""Procedural buildings as valid IFC4 files: ``make_building``.
 
 The embedded default of bimscan: the quickstart, the demo dataset and most tests scan these
-buildings. Each is a seeded double-loaded corridor block (see ``layout.py`` for the
-plan rules) authored with ``ifcopenshell.api``: project, site, building, storeys in metres;
-exterior and interior walls with door and window openings cut by IfcOpeningElements and filled
-with parametric doors and windows; a column grid with downstand beams under every slab; floor,
-base and roof slabs; a half-turn stair (flights, landing, railings) through a slab opening;
-ceiling coverings under the slabs; furniture; and one IfcSpace per room for station planning.
-Shapes the api has no function for (stair flights, furniture, railings) are built with
-IfcOpenShell's ShapeBuilder, as the api itself does.
+buildings. Each is a seeded corridor block of one style (``office``, ``residential``, ``site``;
+see ``layout.py`` for the plan rules and ``styles.py`` for every number they draw from)
+authored with ``ifcopenshell.api``: project, site, building, storeys in metres; exterior walls
+along a rectilinear outline and interior walls, with door and window openings cut by
+IfcOpeningElements and filled with parametric doors and windows (one IfcDoorType or
+IfcWindowType per size, occurrences mapping its body); a column grid with beams under every
+slab; floor, base and roof slabs; a half-turn stair (flights, landing, railings) through a slab
+opening; ceiling coverings cut around columns and downstand beams; furniture; and one IfcSpace
+per room for station planning. Shapes the api has no function for (stair flights, furniture,
+railings, coverings of several pieces) are built with IfcOpenShell's ShapeBuilder, as the api
+itself does.
 
-Every GlobalId derives from (seed, storeys, counter) and the header timestamp is fixed, so the
-same options give the same bytes.
+Every GlobalId derives from (style, seed, storeys, counter) and the header timestamp is fixed,
+so the same options give the same bytes.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from __future__ import annotations
 import contextlib
 
 import hashlib
+import math
 import uuid
 from collections import Counter
 from collections.abc import Iterator, Mapping, Sequence
@@ -34,7 +38,7 @@ import ifcopenshell.api.geometry
 import ifcopenshell.api.profile
 import ifcopenshell.api.project
 import ifcopenshell.api.root
-import ifcopenshell.api.spatial
+import ifcopenshell.api.type
 import ifcopenshell.api.unit
 import ifcopenshell.guid
 import numpy as np
@@ -43,19 +47,32 @@ from ifcopenshell.util.shape_builder import ShapeBuilder
 from bimscan.files import atomic_output
 from bimscan.errors import ConfigError, OutputError
 from bimscan.ifc.generate.layout import (
-    CEILING_M,
-    LANDING_DEPTH_M,
-    MAX_STOREYS,
-    MIN_STOREYS,
+    FURNITURE_TYPES,
+    ROOF_SLAB_NAME,
+    STAIR_GUARD_NAME,
+    BeamPlan,
     BuildingPlan,
+    CeilingPlan,
     FurniturePlan,
     OpeningPlan,
-    Rect,
     RoomPlan,
     StairPlan,
     StoreyPlan,
     WallPlan,
+    beam_name,
+    column_name,
+    floor_slab_name,
     plan_building,
+    stair_part_names,
+    storey_name,
+)
+from bimscan.ifc.generate.styles import (
+    DEFAULT_STYLE,
+    LANDING_DEPTH_M,
+    MAX_STOREYS,
+    MIN_STOREYS,
+    STYLES,
+    WINDOW_PANEL_M,
 )
 
 # Fixed header fields: the file's bytes must not depend on when or where it was made.
@@ -74,20 +91,24 @@ class GeneratedBuilding:
     storey_elevations_m: floor slab top of each storey, world Z in metres.
     footprint_m: (xmin, ymin, xmax, ymax) of the exterior walls' outer faces, metres.
     height_m: top of the roof slab, world Z in metres (ground floor slab top at 0).
+    plan: the plan the file was authored from (``layout.planned_elements(plan)`` lists what it holds).
     """
 
     path: Path | None
     seed: int
     storeys: int
+    style: str
     placed: Mapping[str, int]
     rooms_per_storey: tuple[int, ...]
     storey_elevations_m: tuple[float, ...]
     footprint_m: tuple[float, float, float, float]
     height_m: float
+    plan: BuildingPlan
 
 
-def check_building_options(*, seed: int, storeys: int) -> None:
-    """Raise ConfigError unless ``seed`` is an integer in [0, 2**63) and ``storeys`` in 1..10."""
+def check_building_options(*, seed: int, storeys: int, style: str = DEFAULT_STYLE) -> None:
+    """Raise ConfigError unless ``seed`` is an integer in [0, 2**63), ``storeys`` in 1..10 and
+    ``style`` one of ``STYLES``."""
     if not _is_int(seed) or not 0 <= seed <= MAX_SEED:
         raise ConfigError(f"seed must be an integer from 0 to {MAX_SEED}, got {seed!r}; pass a non-negative integer")
     if not _is_int(storeys) or not MIN_STOREYS <= storeys <= MAX_STOREYS:
@@ -95,51 +116,59 @@ def check_building_options(*, seed: int, storeys: int) -> None:
             f"storeys must be an integer in {MIN_STOREYS}..{MAX_STOREYS}, got {storeys!r}; "
             f"pick a number of storeys in that range"
         )
+    if not isinstance(style, str) or style not in STYLES:
+        raise ConfigError(f"style must be one of {', '.join(STYLES)}, got {style!r}; pick one of those")
 
 
 def _is_int(value: object) -> bool:
     return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
 
 
-def make_building(path: str | Path | None = None, *, seed: int = 0, storeys: int = 2) -> GeneratedBuilding:
-    """Generate a seeded demo building; write it as IFC4 to ``path`` when given.
+def make_building(
+    path: str | Path | None = None, *, seed: int = 0, storeys: int = 2, style: str = DEFAULT_STYLE
+) -> GeneratedBuilding:
+    """Generate a seeded building of ``style``; write it as IFC4 to ``path`` when given.
 
     The file is written atomically (a temporary file in the same folder, then renamed), so a
-    failure never leaves a half-written file. Same (seed, storeys) -> same bytes.
+    failure never leaves a half-written file. Same (style, seed, storeys) -> same bytes.
 
-    Raises ConfigError for a bad seed or storey count, OutputError when ``path``'s folder is
-    missing, ``path`` does not end in ``.ifc``, or the file cannot be written.
+    Raises ConfigError for a bad seed, storey count or style, OutputError when ``path``'s folder
+    is missing, ``path`` does not end in ``.ifc``, or the file cannot be written.
     """
-    check_building_options(seed=seed, storeys=storeys)
+    check_building_options(seed=seed, storeys=storeys, style=style)
     target = Path(path) if path is not None else None
     if target is not None:
         _check_output_path(target)
-    model, building = build_building_model(seed=seed, storeys=storeys)
+    model, building = build_building_model(seed=seed, storeys=storeys, style=style)
     if target is None:
         return building
     _write_atomically(target, model.to_string())
     return replace(building, path=target)
 
 
-def build_building_model(*, seed: int = 0, storeys: int = 2) -> tuple[ifcopenshell.file, GeneratedBuilding]:
+def build_building_model(
+    *, seed: int = 0, storeys: int = 2, style: str = DEFAULT_STYLE
+) -> tuple[ifcopenshell.file, GeneratedBuilding]:
     """The seeded building as an in-memory ``ifcopenshell.file`` plus its summary (path None)."""
-    check_building_options(seed=seed, storeys=storeys)
+    check_building_options(seed=seed, storeys=storeys, style=style)
     seed, storeys = int(seed), int(storeys)
-    plan = plan_building(seed=seed, storeys=storeys)
+    plan = plan_building(seed=seed, storeys=storeys, style=style)
     with _no_owner_history():
-        author = _Author(plan, name=f"bimscan-building-seed{seed}-storeys{storeys}")
+        author = _Author(plan, name=f"bimscan-{style}-seed{seed}-storeys{storeys}")
         author.add_building()
     author.sort_unordered_sets()
-    author.assign_global_ids(seed=seed, storeys=storeys)
+    author.assign_global_ids(key=f"{style}:{seed}:{storeys}")
     summary = GeneratedBuilding(
         path=None,
         seed=seed,
         storeys=storeys,
+        style=style,
         placed=author.count_placed(),
         rooms_per_storey=tuple(len(s.rooms) for s in plan.storeys),
         storey_elevations_m=tuple(s.elevation_m for s in plan.storeys),
         footprint_m=(0.0, 0.0, plan.width_m, plan.depth_m),
-        height_m=round(plan.height_m, 6),
+        height_m=plan.height_m,
+        plan=plan,
     )
     return author.model, summary
 
@@ -198,12 +227,22 @@ def _translate(matrix: np.ndarray, local: Sequence[float]) -> np.ndarray:
 Box = tuple[float, float, float, float, float, float]  # x, y, z, size_x, size_y, size_z (metres)
 
 
+def _closed(points: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
+    return [*points, points[0]]
+
+
 def _rect_polyline(width: float, depth: float) -> list[tuple[float, float]]:
-    return [(0.0, 0.0), (width, 0.0), (width, depth), (0.0, depth), (0.0, 0.0)]
+    return _closed([(0.0, 0.0), (width, 0.0), (width, depth), (0.0, depth)])
 
 
 class _Author:
-    """Writes one BuildingPlan into a fresh IFC4 model, element by element, via ifcopenshell.api."""
+    """Writes one BuildingPlan into a fresh IFC4 model, element by element, via ifcopenshell.api.
+
+    Two things are written directly rather than through the api, for speed (a 2-storey office
+    holds several hundred products): object placements (an IfcLocalPlacement relative to the
+    container's, as the api writes them) and the containment relationships (one per storey,
+    written once all its products exist).
+    """
 
     def __init__(self, plan: BuildingPlan, *, name: str) -> None:
         self.plan = plan
@@ -216,7 +255,7 @@ class _Author:
         header.authorization = "none"
         self.model = model
         self.builder = ShapeBuilder(model)
-        self.project = api.root.create_entity(model, ifc_class="IfcProject", name="bimscan demo building")
+        self.project = api.root.create_entity(model, ifc_class="IfcProject", name=f"bimscan {plan.style} building")
         units = [
             api.unit.add_si_unit(model, unit_type="LENGTHUNIT"),
             api.unit.add_si_unit(model, unit_type="AREAUNIT"),
@@ -228,8 +267,12 @@ class _Author:
         self.body = api.context.add_context(
             model, context_type="Model", context_identifier="Body", target_view="MODEL_VIEW", parent=model3d
         )
-        self._column_profile: ifcopenshell.entity_instance | None = None
-        self._beam_profile: ifcopenshell.entity_instance | None = None
+        self._profiles: dict[tuple[str, float, float], ifcopenshell.entity_instance] = {}
+        self._types: dict[tuple, ifcopenshell.entity_instance] = {}
+        self._typed: dict[int, list[ifcopenshell.entity_instance]] = {}
+        self._contained: dict[int, list[ifcopenshell.entity_instance]] = {}
+        self._world: dict[int, np.ndarray] = {}  # placement matrix of every placed product, by entity id
+        self._directions: dict[tuple[float, float, float], ifcopenshell.entity_instance] = {}
 
     # -- generic helpers ------------------------------------------------------------------
 
@@ -243,44 +286,91 @@ class _Author:
         representation: ifcopenshell.entity_instance | None = None,
         container: ifcopenshell.entity_instance | None = None,
         whole: ifcopenshell.entity_instance | None = None,
+        relative_to: ifcopenshell.entity_instance | None = None,
     ) -> ifcopenshell.entity_instance:
-        """Create a product, give it a body, relate it (container or aggregate), then place it.
-
-        Placement comes last because the api places a product relative to its container.
-        """
+        """Create a product with a body, placed at ``matrix`` (world) relative to its container,
+        its whole, or ``relative_to``; contained in ``container`` or aggregated into ``whole``."""
         element = api.root.create_entity(self.model, ifc_class=ifc_class, predefined_type=predefined_type, name=name)
         if representation is not None:
-            api.geometry.assign_representation(self.model, product=element, representation=representation)
+            element.Representation = self.model.createIfcProductDefinitionShape(None, None, [representation])
         if container is not None:
-            api.spatial.assign_container(self.model, products=[element], relating_structure=container)
+            self._contained.setdefault(container.id(), []).append(element)
         if whole is not None:
             api.aggregate.assign_object(self.model, products=[element], relating_object=whole)
-        api.geometry.edit_object_placement(self.model, product=element, matrix=matrix)
+        self._place(element, matrix, relative_to or container or whole)
         return element
 
+    def _place(
+        self, product: ifcopenshell.entity_instance, matrix: np.ndarray, parent: ifcopenshell.entity_instance | None
+    ) -> None:
+        """Give ``product`` an IfcLocalPlacement at ``matrix`` (world), relative to ``parent``'s."""
+        parent_matrix = self._world.get(parent.id()) if parent is not None else None
+        local = matrix if parent_matrix is None else np.linalg.solve(parent_matrix, matrix)
+        local = np.where(np.abs(local) < 1e-12, 0.0, np.round(local, 9))  # no -0.0, no float noise
+        model = self.model
+        axes = model.createIfcAxis2Placement3D(
+            model.createIfcCartesianPoint([float(v) for v in local[:3, 3]]),
+            model.createIfcDirection([float(v) for v in local[:3, 2]]),
+            model.createIfcDirection([float(v) for v in local[:3, 0]]),
+        )
+        relative = parent.ObjectPlacement if parent_matrix is not None else None
+        product.ObjectPlacement = model.createIfcLocalPlacement(relative, axes)
+        self._world[product.id()] = matrix
+
+    def _contain_all(self) -> None:
+        """Write the spatial containment of every storey's products, one relationship each.
+
+        Written directly: the api's assign_container recomputes every product's placement,
+        which the products, placed relative to their storey already, do not need.
+        """
+        for container_id, products in self._contained.items():
+            self.model.createIfcRelContainedInSpatialStructure(
+                ifcopenshell.guid.new(), None, None, None, products, self.model.by_id(container_id)
+            )
+
     def _boxes(self, boxes: Sequence[Box]) -> ifcopenshell.entity_instance:
-        """One body of axis-aligned boxes (x, y, z, size_x, size_y, size_z) in local metres."""
+        """One body of axis-aligned boxes (x, y, z, size_x, size_y, size_z) in local metres:
+        rectangle profiles extruded upwards (written directly; ShapeBuilder's polylines cost
+        several times as much to create)."""
+        model = self.model
+        up = self._direction((0.0, 0.0, 1.0))
         items = []
         for x, y, z, sx, sy, sz in boxes:
-            rect = self.builder.rectangle(size=(sx, sy), position=(x, y))
-            items.append(self.builder.extrude(rect, sz, position=(0.0, 0.0, z)))
-        return self.builder.get_representation(self.body, items)
+            centre = model.createIfcAxis2Placement2D(model.createIfcCartesianPoint([x + sx / 2, y + sy / 2]))
+            profile = model.createIfcRectangleProfileDef("AREA", None, centre, sx, sy)
+            position = model.createIfcAxis2Placement3D(model.createIfcCartesianPoint([0.0, 0.0, z]))
+            items.append(model.createIfcExtrudedAreaSolid(profile, position, up, sz))
+        return model.createIfcShapeRepresentation(self.body, "Body", "SweptSolid", items)
 
-    def _slab_body(self, width: float, depth: float, thickness: float) -> ifcopenshell.entity_instance:
-        return api.geometry.add_slab_representation(
-            self.model, context=self.body, depth=thickness, polyline=_rect_polyline(width, depth)
-        )
+    def _direction(self, xyz: tuple[float, float, float]) -> ifcopenshell.entity_instance:
+        if xyz not in self._directions:
+            self._directions[xyz] = self.model.createIfcDirection(list(xyz))
+        return self._directions[xyz]
+
+    def _slab_body(self, polyline: Sequence[tuple[float, float]], thickness: float) -> ifcopenshell.entity_instance:
+        return api.geometry.add_slab_representation(self.model, context=self.body, depth=thickness, polyline=polyline)
+
+    def _profile(self, kind: str, x_dim: float, y_dim: float) -> ifcopenshell.entity_instance:
+        """A rectangle profile, shared by every column or beam of that size."""
+        key = (kind, x_dim, y_dim)
+        if key not in self._profiles:
+            profile = api.profile.add_parameterized_profile(self.model, ifc_class="IfcRectangleProfileDef")
+            profile.ProfileName = f"{x_dim:.2f} x {y_dim:.2f} {kind}"
+            profile.XDim, profile.YDim = x_dim, y_dim
+            self._profiles[key] = profile
+        return self._profiles[key]
 
     # -- the building ---------------------------------------------------------------------
 
     def add_building(self) -> None:
         plan = self.plan
         site = self._element("IfcSite", name="Site", matrix=np.eye(4), whole=self.project)
-        building = self._element("IfcBuilding", name="Demo building", matrix=np.eye(4), whole=site)
+        building = self._element("IfcBuilding", name=f"{plan.style.capitalize()} building", matrix=np.eye(4),
+                                 whole=site)
         storeys = []
         for storey_plan in plan.storeys:
             z = storey_plan.elevation_m
-            name = _storey_name(storey_plan.index)
+            name = storey_name(storey_plan.index)
             storey = self._element("IfcBuildingStorey", name=name, matrix=_frame((0, 0, z)), whole=building)
             storey.Elevation = z
             storeys.append(storey)
@@ -289,39 +379,40 @@ class _Author:
         top = plan.storeys[-1]
         self._element(
             "IfcSlab",
-            name="Roof slab",
+            name=ROOF_SLAB_NAME,
             predefined_type="ROOF",
-            representation=self._slab_body(plan.width_m, plan.depth_m, plan.slab_m),
+            representation=self._slab_body(_closed(plan.outline_m), plan.slab_m),
             matrix=_frame((0.0, 0.0, plan.height_m - plan.slab_m)),
             container=storeys[-1],
         )
         if plan.stair is not None:
             self.add_guard(storeys[-1], plan.stair, top.elevation_m)
+        self._contain_all()
+        self._assign_types()
 
     def add_storey(self, storey: ifcopenshell.entity_instance, sp: StoreyPlan) -> None:
         plan = self.plan
         z = sp.elevation_m
-        ceiling_z = z + plan.clear_height_m  # underside of the slab above
         slab = self._element(
             "IfcSlab",
-            name=f"Floor slab {sp.index}",
+            name=floor_slab_name(sp.index),
             predefined_type="BASESLAB" if sp.index == 0 else "FLOOR",
-            representation=self._slab_body(plan.width_m, plan.depth_m, plan.slab_m),
+            representation=self._slab_body(_closed(plan.outline_m), plan.slab_m),
             matrix=_frame((0.0, 0.0, z - plan.slab_m)),
             container=storey,
         )
         if sp.index > 0 and plan.stair is not None:
-            self.add_slab_opening(slab, plan.stair.opening, z)
+            self.add_slab_opening(slab, plan.stair, z)
         for wall in sp.walls:
             self.add_wall(storey, wall, z)
-        for i, rect in enumerate(plan.column_rects()):
-            self.add_column(storey, rect, z, name=f"Column {sp.index}.{i:02d}")
-        for i, rect in enumerate(plan.beam_rects()):
-            self.add_beam(storey, rect, ceiling_z, name=f"Beam {sp.index}.{i:02d}")
+        for i, rect in enumerate(plan.columns):
+            self.add_column(storey, rect.centre, z, name=column_name(sp.index, i))
+        for i, beam in enumerate(plan.beams):
+            self.add_beam(storey, beam, z + plan.soffit_m, name=beam_name(sp.index, i))
         for room in sp.rooms:
             self.add_space(storey, room, z)
-            if room.has_ceiling:
-                self.add_ceiling(storey, room, ceiling_z)
+        for ceiling in sp.ceilings:
+            self.add_ceiling(storey, ceiling, z)
         for piece in sp.furniture:
             self.add_furniture(storey, piece, z)
         if plan.stair is not None and sp.index < len(plan.storeys) - 1:
@@ -339,7 +430,7 @@ class _Author:
             self.model,
             context=self.body,
             length=wall.length_m,
-            height=self.plan.clear_height_m,
+            height=wall.height_m,
             thickness=wall.thickness_m,
         )
         element = self._element(
@@ -361,7 +452,7 @@ class _Author:
         wall_matrix: np.ndarray,
         thickness: float,
     ) -> None:
-        """Cut ``opening`` out of ``wall`` and fill it with a parametric door or window."""
+        """Cut ``opening`` out of ``wall`` and fill it with a door or window of the matching type."""
 
         # The void overshoots the wall on both faces (and below the floor line for doors), so the
         # boolean never leaves a skin of coplanar faces.
@@ -377,11 +468,28 @@ class _Author:
         void = api.root.create_entity(
             self.model, ifc_class="IfcOpeningElement", predefined_type="OPENING", name=f"Opening for {opening.name}"
         )
-        api.geometry.assign_representation(self.model, product=void, representation=void_body)
+        void.Representation = self.model.createIfcProductDefinitionShape(None, None, [void_body])
         api.feature.add_feature(self.model, feature=void, element=wall)
-        api.geometry.edit_object_placement(
-            self.model, product=void, matrix=_translate(wall_matrix, (opening.offset_m, 0.0, opening.sill_m - below))
+        self._place(void, _translate(wall_matrix, (opening.offset_m, 0.0, opening.sill_m - below)), wall)
+        ifc_class = "IfcDoor" if opening.kind == "door" else "IfcWindow"
+        filling = api.root.create_entity(
+            self.model, ifc_class=ifc_class, predefined_type=opening.kind.upper(), name=opening.name.capitalize()
         )
+        filling.OverallWidth = opening.width_m
+        filling.OverallHeight = opening.height_m
+        self._contained.setdefault(storey.id(), []).append(filling)
+        api.feature.add_filling(self.model, opening=void, element=filling)
+        self._place(filling, _translate(wall_matrix, (opening.offset_m, 0.0, opening.sill_m)), storey)
+        kind_type = self._filling_type(opening, thickness)
+        self._typed.setdefault(kind_type.id(), []).append(filling)
+
+    def _filling_type(self, opening: OpeningPlan, thickness: float) -> ifcopenshell.entity_instance:
+        """The IfcDoorType or IfcWindowType of ``opening``'s size in a wall of ``thickness``; its
+        body is the api's parametric door or window, mapped into every occurrence."""
+        key = (opening.kind, opening.width_m, opening.height_m, thickness)
+        if key in self._types:
+            return self._types[key]
+        size = f"{opening.width_m:.2f} x {opening.height_m:.2f} m in {thickness:.2f} m"
         if opening.kind == "door":
             body = api.geometry.add_door_representation(
                 self.model,
@@ -392,81 +500,88 @@ class _Author:
                 # The lining wraps the whole wall; its casings stand 5 mm proud of both faces.
                 lining_properties={"LiningDepth": thickness, "LiningToPanelOffsetY": 0.04},
             )
-            ifc_class, predefined = "IfcDoor", "DOOR"
+            kind_type = api.root.create_entity(self.model, ifc_class="IfcDoorType", predefined_type="DOOR",
+                                               name=f"Door {size}")
+            kind_type.OperationType = "SINGLE_SWING_LEFT"
         else:
             # A frame 0.1 m deep in the middle of the wall leaves reveals on both faces; wide
-            # windows get a central mullion and two panels.
-            depth, panels = 0.1, 2 if opening.width_m > 1.5 else 1
+            # windows get mullions between equal panels (bands: up to three).
+            depth = 0.1
+            panels = min(3, math.ceil(opening.width_m / WINDOW_PANEL_M - 1e-9))
+            partition = ("SINGLE_PANEL", "DOUBLE_PANEL_VERTICAL", "TRIPLE_PANEL_VERTICAL")[panels - 1]
             body = api.geometry.add_window_representation(
                 self.model,
                 context=self.body,
                 overall_width=opening.width_m,
                 overall_height=opening.height_m,
-                partition_type="DOUBLE_PANEL_VERTICAL" if panels == 2 else "SINGLE_PANEL",
+                partition_type=partition,
                 lining_properties={
                     "LiningDepth": depth,
                     "LiningOffset": (thickness - depth) / 2,
-                    "FirstMullionOffset": opening.width_m / 2,
+                    "FirstMullionOffset": opening.width_m / panels,
+                    "SecondMullionOffset": 2 * opening.width_m / panels,
                 },
                 panel_properties=[{} for _ in range(panels)],
             )
-            ifc_class, predefined = "IfcWindow", "WINDOW"
-        filling = api.root.create_entity(
-            self.model, ifc_class=ifc_class, predefined_type=predefined, name=opening.name.capitalize()
-        )
-        filling.OverallWidth = opening.width_m
-        filling.OverallHeight = opening.height_m
-        api.geometry.assign_representation(self.model, product=filling, representation=body)
-        api.spatial.assign_container(self.model, products=[filling], relating_structure=storey)
-        api.feature.add_filling(self.model, opening=void, element=filling)
-        api.geometry.edit_object_placement(
-            self.model, product=filling, matrix=_translate(wall_matrix, (opening.offset_m, 0.0, opening.sill_m))
-        )
+            kind_type = api.root.create_entity(self.model, ifc_class="IfcWindowType", predefined_type="WINDOW",
+                                               name=f"Window {size}")
+            kind_type.PartitioningType = partition
+        api.geometry.assign_representation(self.model, product=kind_type, representation=body)
+        self._types[key] = kind_type
+        return kind_type
 
-    def add_slab_opening(self, slab: ifcopenshell.entity_instance, rect: Rect, z: float) -> None:
+    def _assign_types(self) -> None:
+        """Type every door and window; the api maps the type's body into each occurrence.
+
+        One occurrence at a time: given several, the api maps them in set order, which would
+        number the mapped bodies differently from run to run.
+        """
+        for type_id, occurrences in self._typed.items():
+            relating = self.model.by_id(type_id)
+            for occurrence in occurrences:
+                api.type.assign_type(self.model, related_objects=[occurrence], relating_type=relating)
+
+    def add_slab_opening(self, slab: ifcopenshell.entity_instance, stair: StairPlan, z: float) -> None:
+        rect = stair.opening
         void = api.root.create_entity(
             self.model, ifc_class="IfcOpeningElement", predefined_type="OPENING", name="Stair opening"
         )
-        body = self._slab_body(rect.width, rect.depth, self.plan.slab_m + 0.2)
-        api.geometry.assign_representation(self.model, product=void, representation=body)
+        body = self._slab_body(_rect_polyline(rect.width, rect.depth), self.plan.slab_m + 0.2)
+        void.Representation = self.model.createIfcProductDefinitionShape(None, None, [body])
         api.feature.add_feature(self.model, feature=void, element=slab)
-        matrix = _frame((rect.x0, rect.y0, z - self.plan.slab_m - 0.1))
-        api.geometry.edit_object_placement(self.model, product=void, matrix=matrix)
+        self._place(void, _frame((rect.x0, rect.y0, z - self.plan.slab_m - 0.1)), slab)
 
-    def add_column(self, storey: ifcopenshell.entity_instance, rect: Rect, z: float, *, name: str) -> None:
-        if self._column_profile is None:
-            profile = api.profile.add_parameterized_profile(self.model, ifc_class="IfcRectangleProfileDef")
-            profile.ProfileName = f"{self.plan.column_m:.2f} x {self.plan.column_m:.2f} column"
-            profile.XDim = profile.YDim = self.plan.column_m
-            self._column_profile = profile
-        body = api.geometry.add_profile_representation(
-            self.model, context=self.body, profile=self._column_profile, depth=self.plan.clear_height_m
-        )
-        cx, cy = rect.centre
-        matrix = _frame((cx, cy, z))
-        self._element(
-            "IfcColumn", name=name, predefined_type="COLUMN", representation=body, matrix=matrix, container=storey
-        )
-
-    def add_beam(self, storey: ifcopenshell.entity_instance, rect: Rect, ceiling_z: float, *, name: str) -> None:
-        """A downstand beam along Y hanging from the slab underside at ``ceiling_z``."""
-
+    def add_column(self, storey: ifcopenshell.entity_instance, centre: tuple[float, float], z: float, *,
+                   name: str) -> None:
         plan = self.plan
-        if self._beam_profile is None:
-            profile = api.profile.add_parameterized_profile(self.model, ifc_class="IfcRectangleProfileDef")
-            profile.ProfileName = f"{plan.beam_width_m:.2f} x {plan.beam_depth_m:.2f} beam"
-            profile.XDim, profile.YDim = plan.beam_width_m, plan.beam_depth_m
-            self._beam_profile = profile
+        profile = self._profile("column", plan.column_m, plan.column_m)
         body = api.geometry.add_profile_representation(
-            self.model, context=self.body, profile=self._beam_profile, depth=rect.depth
+            self.model, context=self.body, profile=profile, depth=plan.soffit_m
         )
-        # Local Z (the extrusion) runs along the beam (+Y), local X across it (+X); the profile
-        # is centred on the axis, which sits half a beam depth below the slab.
+        self._element(
+            "IfcColumn", name=name, predefined_type="COLUMN", representation=body,
+            matrix=_frame((centre[0], centre[1], z)), container=storey,
+        )
+
+    def add_beam(self, storey: ifcopenshell.entity_instance, beam: BeamPlan, soffit_z: float, *, name: str) -> None:
+        """A beam hanging from the slab underside at ``soffit_z`` down to the plan's beam bottom."""
+        plan = self.plan
+        depth = plan.beam_depth_m
+        profile = self._profile("beam", plan.beam_width_m, depth)
+        body = api.geometry.add_profile_representation(
+            self.model, context=self.body, profile=profile, depth=beam.length_m
+        )
+        # Local Z (the extrusion) runs along the beam, local X across it, local Y down; the
+        # profile is centred on the axis, which sits half a beam depth below the slab.
+        r = beam.rect
         matrix = np.eye(4)
-        matrix[:3, 0] = (1.0, 0.0, 0.0)
+        if beam.along == "y":
+            matrix[:3, 0], matrix[:3, 2] = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)
+            matrix[:3, 3] = (r.centre[0], r.y0, soffit_z - depth / 2)
+        else:
+            matrix[:3, 0], matrix[:3, 2] = (0.0, -1.0, 0.0), (1.0, 0.0, 0.0)
+            matrix[:3, 3] = (r.x0, r.centre[1], soffit_z - depth / 2)
         matrix[:3, 1] = (0.0, 0.0, -1.0)
-        matrix[:3, 2] = (0.0, 1.0, 0.0)
-        matrix[:3, 3] = (rect.centre[0], rect.y0, ceiling_z - plan.beam_depth_m / 2)
         self._element(
             "IfcBeam", name=name, predefined_type="BEAM", representation=body, matrix=matrix, container=storey
         )
@@ -476,20 +591,21 @@ class _Author:
             "IfcSpace",
             name=room.number,
             predefined_type="INTERNAL",
-            representation=self._slab_body(room.rect.width, room.rect.depth, self.plan.clear_height_m),
+            representation=self._slab_body(_rect_polyline(room.rect.width, room.rect.depth), room.height_m),
             matrix=_frame((room.rect.x0, room.rect.y0, z)),
             whole=storey,
         )
         space.LongName = room.kind.capitalize()
 
-    def add_ceiling(self, storey: ifcopenshell.entity_instance, room: RoomPlan, ceiling_z: float) -> None:
-        """A thin finish layer directly under the slab: beams below it stay in view."""
+    def add_ceiling(self, storey: ifcopenshell.entity_instance, ceiling: CeilingPlan, z: float) -> None:
+        """A ceiling covering of one or more boards (the room less columns and visible beams)."""
+        boxes = [(r.x0, r.y0, 0.0, r.width, r.depth, ceiling.thickness_m) for r in ceiling.rects]
         self._element(
             "IfcCovering",
-            name=f"Ceiling {room.number}",
+            name=ceiling.name,
             predefined_type="CEILING",
-            representation=self._slab_body(room.rect.width, room.rect.depth, CEILING_M),
-            matrix=_frame((room.rect.x0, room.rect.y0, ceiling_z - CEILING_M)),
+            representation=self._boxes(boxes),
+            matrix=_frame((0.0, 0.0, z + ceiling.bottom_m)),
             container=storey,
         )
 
@@ -505,11 +621,10 @@ class _Author:
         corners = np.array([[0, 0], [width, 0], [0, deep], [width, deep]], dtype=float)
         world = corners[:, :1] * x_axis[:2] + corners[:, 1:] * back[:2]
         origin = np.array([r.x0, r.y0]) - world.min(axis=0)
-        predefined = {"table": "TABLE", "cabinet": "FILECABINET", "shelf": "SHELF"}[piece.kind]
         self._element(
             "IfcFurniture",
             name=piece.name.capitalize(),
-            predefined_type=predefined,
+            predefined_type=FURNITURE_TYPES[piece.kind],
             representation=self._boxes(boxes),
             matrix=_frame((origin[0], origin[1], z), tuple(x_axis)),
             container=storey,
@@ -519,6 +634,7 @@ class _Author:
         """The half-turn stair from this storey to the next: two flights, a landing, a railing."""
         plan = self.plan
         half = plan.storey_height_m / 2
+        names = stair_part_names(index)
         whole = self._element(
             "IfcStair",
             name=f"Stair {index}",
@@ -532,7 +648,7 @@ class _Author:
         flight1 = self._flight_body(r, h, g, w1)
         self._element(
             "IfcStairFlight",
-            name=f"Stair {index} flight 1",
+            name=names["flight1"],
             predefined_type="STRAIGHT",
             representation=flight1,
             matrix=_frame((stair.x_start_m, stair.flight1_y[0], z)),
@@ -542,7 +658,7 @@ class _Author:
         flight2 = self._flight_body(r, h, g, w2)
         self._element(
             "IfcStairFlight",
-            name=f"Stair {index} flight 2",
+            name=names["flight2"],
             predefined_type="STRAIGHT",
             representation=flight2,
             matrix=_frame((stair.x_landing_m, stair.flight2_y[1], z + half), (-1.0, 0.0, 0.0)),
@@ -551,15 +667,16 @@ class _Author:
         landing = stair.opening
         self._element(
             "IfcSlab",
-            name=f"Stair {index} landing",
+            name=names["landing"],
             predefined_type="LANDING",
-            representation=self._slab_body(stair.x_end_m - stair.x_landing_m, landing.depth, LANDING_DEPTH_M),
+            representation=self._slab_body(_rect_polyline(stair.x_end_m - stair.x_landing_m, landing.depth),
+                                           LANDING_DEPTH_M),
             matrix=_frame((stair.x_landing_m, landing.y0, z + half - LANDING_DEPTH_M)),
             whole=whole,
         )
         self._element(
             "IfcRailing",
-            name=f"Stair {index} handrail",
+            name=names["handrail"],
             predefined_type="HANDRAIL",
             representation=self._handrail_body(stair),
             matrix=_frame((0.0, 0.0, z)),
@@ -625,7 +742,7 @@ class _Author:
         boxes = posts + rails
         self._element(
             "IfcRailing",
-            name="Stair void guard",
+            name=STAIR_GUARD_NAME,
             predefined_type="GUARDRAIL",
             representation=self._boxes(boxes),
             matrix=_frame((0.0, 0.0, z)),
@@ -648,14 +765,14 @@ class _Author:
                 if all(isinstance(v, ifcopenshell.entity_instance) for v in value):
                     entity[index] = sorted(value, key=lambda v: v.id())
 
-    def assign_global_ids(self, *, seed: int, storeys: int) -> None:
-        """Replace the api's random GlobalIds by ones derived from (seed, storeys, counter).
+    def assign_global_ids(self, *, key: str) -> None:
+        """Replace the api's random GlobalIds by ones derived from ``key`` and a counter.
 
         Entities are numbered in creation order, which the plan fixes, so the ids are stable.
         """
 
         for counter, entity in enumerate(sorted(self.model.by_type("IfcRoot"), key=lambda e: e.id())):
-            digest = hashlib.sha256(f"bimscan-building:{seed}:{storeys}:{counter}".encode()).hexdigest()
+            digest = hashlib.sha256(f"bimscan-building:{key}:{counter}".encode()).hexdigest()
             entity.GlobalId = ifcopenshell.guid.compress(uuid.UUID(hex=digest[:32], version=4).hex)
 
     def count_placed(self) -> dict[str, int]:
@@ -696,7 +813,3 @@ def _furniture_boxes(kind: str, width: float, deep: float, height: float) -> lis
         z = 0.05 + i * (height - 0.05 - board) / n_boards
         boxes.append((board, 0.0, z, width - 2 * board, deep - 0.01, board))
     return boxes
-
-
-def _storey_name(index: int) -> str:
-    return "Ground floor" if index == 0 else f"Floor {index}"
