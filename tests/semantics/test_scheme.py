@@ -113,7 +113,7 @@ BAD_SCHEMES = [
     ('default = "a"\n[[classes]]\nid = 0\nname = "a"\ncolor = "red"\n', "#rrggbb"),
     ('default = "a"\n[[classes]]\nid = 0\nname = "a"\n[[rules]]\nifc_class = "IfcWall"\nlabel = "zzz"\n', "not one of the classes"),
     ('default = "a"\ncolour = 1\n[[classes]]\nid = 0\nname = "a"\n', "unknown key"),
-    ('default = "a"\n[[classes]]\nid = 0\nname = "a"\n[[rules]]\nifc_class = "Wall"\nlabel = "a"\n', "IFC class name"),
+    ('default = "a"\n[[classes]]\nid = 0\nname = "a"\n[[rules]]\nifc_class = "Ifc Wall"\nlabel = "a"\n', "class name like"),
     ('default = [[[\n', "not valid TOML"),
 ]
 
@@ -131,7 +131,7 @@ def test_invalid_schemes_give_clear_errors(text, message, tmp_path):
 def test_a_misspelt_ifc_class_in_a_rule_is_reported():
     scheme = parse_scheme({"default": "a", "classes": [{"id": 0, "name": "a"}],
                            "rules": [{"ifc_class": "IfcWal", "label": "a"}]}, where="test")
-    with pytest.raises(SchemeError, match="unknown IFC class 'IfcWal'"):
+    with pytest.raises(SchemeError, match="unknown class 'IfcWal'"):
         check_rule_classes(scheme, known_classes())
 
 

@@ -3,10 +3,15 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from bimscan.cli.ifc_commands import SCHEME_HELP
+from bimscan.cli.site_options import describe_site, site_options
+
+if TYPE_CHECKING:
+    from bimscan.site.model import SiteModel
 
 
 @click.command("scan")
@@ -34,15 +39,18 @@ from bimscan.cli.ifc_commands import SCHEME_HELP
 @click.option("--engine", default="open3d", show_default=True, help="Ray engine: open3d or embreex.")
 @click.option("--threads", default=0, show_default=True, type=int, help="Cores to use (0 = all).")
 @click.option("--overwrite", is_flag=True, help="Replace OUT if it exists.")
+@site_options
 def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, no_noise: bool,
          range_sigma_m: float | None, angle_sigma_deg: float | None, registration_sigma_m: float,
          registration_sigma_deg: float, strict: bool, scanner: str | None, head_deg_per_s: float | None,
-         scheme: str | None, engine: str, threads: int, overwrite: bool) -> None:
+         scheme: str | None, engine: str, threads: int, overwrite: bool, site: SiteModel) -> None:
     """Scan MODEL.ifc with a virtual TLS and write a labelled cloud to OUT.
 
     OUT's suffix picks the format: .laz, .las, .ply, or a folder (no suffix) of NumPy arrays
     in the Pointcept layout. Class ids go to LAS classification; component and station are
     extra dimensions; class names and the component table are stored with the file.
+    With --clutter/--stage the building is scanned as a site (objects added as components,
+    elements not yet built left out); stations are planned on that scene.
     """
     from bimscan.pipeline import scan_model
     from bimscan.scan.noise import NoiseModel
@@ -53,7 +61,7 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
     noise = NoiseModel(range_sigma_m=range_sigma_m, angle_sigma_deg=angle_sigma_deg,
                        registration_sigma_m=registration_sigma_m, registration_sigma_deg=registration_sigma_deg)
     recipe = ScanRecipe.resolve(preset=preset, scanner=scanner, head_deg_per_s=head_deg_per_s, noise=noise, seed=seed,
-                                engine=engine, stations_from=stations, strict=strict, threads=threads)
+                                engine=engine, stations_from=stations, strict=strict, threads=threads, site=site)
     result = scan_model(model, out, recipe, scheme=scheme, overwrite=overwrite,
                         warn=lambda line: click.echo(f"warning: {line}", err=True))
     extents = result.summary.extents()
@@ -62,6 +70,9 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
                f"{result.seconds:.1f} s ({result.points / max(result.seconds, 1e-9) / 1e6:.2f} Mpts/s)")
     click.echo("  extent (m): " + " x ".join(f"{v:.2f}" for v in extents["size"]))
     click.echo("  classes: " + ", ".join(f"{k} {v:,}" for k, v in result.summary.histogram(names).items()))
+    line = describe_site(result.survey.scene.site)
+    if line:
+        click.echo(line)
 
 
 COMMANDS: list[click.Command] = [scan]

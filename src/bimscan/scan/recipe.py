@@ -29,6 +29,7 @@ from bimscan.scan.device import (
 from bimscan.scan.engine import DEFAULT_ENGINE, ENGINES
 from bimscan.scan.noise import NoiseModel
 from bimscan.errors import ConfigError
+from bimscan.site.model import SiteModel
 
 DEFAULT_CHUNK_PULSES = 1 << 20  # ~70 MB of working arrays per chunk
 AUTO_STATIONS = "auto"
@@ -46,8 +47,9 @@ class ScanRecipe:
     seed, noise_stream: the noise generator's key is (seed, noise_stream, station); a dataset gives
     every unit its own stream (its id) so that no two units share a noise sequence; "" for a
     single scan. engine: a ``scan.engine.ENGINES`` name. stations_from: "auto" (planned) or a
-    station CSV file. strict: settings outside the device's limits are errors. threads (0 = all cores) and
-    chunk_pulses change speed and memory only, never the output.
+    station CSV file. strict: settings outside the device's limits are errors. site: what the site
+    looks like when scanned (construction stage, clutter; ``bimscan.site``), dressed with ``seed``.
+    threads (0 = all cores) and chunk_pulses change speed and memory only, never the output.
     """
 
     scanner: ScannerModel = field(default_factory=lambda: SCANNERS[DEFAULT_SCANNER])
@@ -59,6 +61,7 @@ class ScanRecipe:
     engine: str = DEFAULT_ENGINE
     stations_from: str = AUTO_STATIONS
     strict: bool = False
+    site: SiteModel = field(default_factory=SiteModel)
     threads: int = 0
     chunk_pulses: int = DEFAULT_CHUNK_PULSES
 
@@ -117,6 +120,7 @@ class ScanRecipe:
             "engine": self.engine,
             "stations_from": self.stations_from if self.stations_from == AUTO_STATIONS else Path(self.stations_from).name,
             "strict": self.strict,
+            "site": self.site.to_json(),
         }
 
     def fingerprint(self) -> str:
