@@ -10,6 +10,7 @@ from bimscan.errors import SchemeError
 from bimscan.pipeline import load_scene
 from bimscan.ifc.schema import class_ancestry, known_classes
 from bimscan.semantics import check_rule_classes, load_scheme, map_labels, parse_scheme
+from bimscan.site import site_class_names
 from bimscan.types import ComponentTable
 
 
@@ -34,7 +35,7 @@ def test_default_scheme_has_the_papers_five_classes_in_order():
     assert [(c.id, c.name) for c in scheme.classes] == [
         (0, "Wall&Column"), (1, "Beam"), (2, "Covering"), (3, "Slab"), (4, "Others")]
     assert scheme.default_label == "Others"
-    check_rule_classes(scheme, known_classes())
+    check_rule_classes(scheme, known_classes() | site_class_names())
 
 
 @pytest.mark.parametrize("schema, ifc_class, expected", [
@@ -131,7 +132,7 @@ def test_invalid_schemes_give_clear_errors(text, message, tmp_path):
 def test_a_misspelt_ifc_class_in_a_rule_is_reported():
     scheme = parse_scheme({"default": "a", "classes": [{"id": 0, "name": "a"}],
                            "rules": [{"ifc_class": "IfcWal", "label": "a"}]}, where="test")
-    with pytest.raises(SchemeError, match="unknown class 'IfcWal'"):
+    with pytest.raises(SchemeError, match="unknown IFC class 'IfcWal'"):
         check_rule_classes(scheme, known_classes())
 
 

@@ -8,6 +8,7 @@ dicts of their own. Layout of a built dataset (``OUT_DIR``)::
     dataset.json                    the resolved spec and the software that built it
     scenes/<scene>.ifc              generated buildings (IFC scenes stay where they are)
     scenes/<scene>.stations.json    the stations planned once per scene, reused by every configuration
+    scenes/<scene>.<site>.stations.json   the same for a scene dressed as a site (stage, clutter)
     units/<scene>__<config>/        one data unit
         cloud.laz | cloud.las | cloud.ply (+ .ply.json) | cloud/ (NumPy folder)
         unit.json                   reproducible metadata (``UnitRecord``)
@@ -42,7 +43,7 @@ TIMINGS_NAME = "timings.json"
 MANIFEST_FORMAT = "bimscan-dataset"
 MANIFEST_VERSION = 1
 UNIT_FORMAT = "bimscan-unit"
-UNIT_VERSION = 2
+UNIT_VERSION = 3
 STATIONS_FORMAT = "bimscan-stations"
 STATIONS_VERSION = 1
 STATUSES = ("done", "failed", "pending")
@@ -154,7 +155,9 @@ class UnitRecord:
     inputs: what the fingerprint hashes (recipe, scene, scheme, formats, ...). stations: where
     the scanner stood. extents: {"min", "max", "size"} metres. class_histogram: class name ->
     points. station_counts: station id (text) -> points. files: format key -> name in the unit
-    folder; checksums: file name -> SHA-256 of every file written.
+    folder; checksums: file name -> SHA-256 of every file written. site: what dressing the scene
+    as a site did (``types.SiteState.to_json``: components not built, objects placed per class);
+    empty for the model as it is.
     """
 
     id: str
@@ -175,6 +178,7 @@ class UnitRecord:
     files: Mapping[str, str]
     checksums: Mapping[str, str]
     bytes: int
+    site: Mapping[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         document = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
@@ -193,7 +197,7 @@ class UnitRecord:
             values["device_warnings"] = tuple(str(w) for w in values["device_warnings"])
             for name in ("points", "points_scanned", "dropped_invalid", "dropped_by_voxel", "bytes"):
                 values[name] = int(values[name])
-            for name in ("files", "checksums", "class_histogram", "station_counts", "extents", "inputs"):
+            for name in ("files", "checksums", "class_histogram", "station_counts", "extents", "inputs", "site"):
                 if not isinstance(values[name], dict):
                     raise TypeError(f"{name} must be an object")
             return UnitRecord(**values)
@@ -241,8 +245,10 @@ class DatasetFolder:
     def generated_scene_path(self, scene: str) -> Path:
         return self.scenes_dir / f"{scene}.ifc"
 
-    def stations_path(self, scene: str) -> Path:
-        return self.scenes_dir / f"{scene}.stations.json"
+    def stations_path(self, scene: str, site_tag: str = "") -> Path:
+        """Where the stations of a scene (dressed as the site ``site_tag`` names; "" for the model as
+        it is) are stored."""
+        return self.scenes_dir / (f"{scene}.{site_tag}.stations.json" if site_tag else f"{scene}.stations.json")
 
     def unit_files(self, unit: str, files: Mapping[str, str]) -> dict[str, str]:
         """A unit's files (format -> name in its folder) as manifest paths (relative to the dataset)."""
@@ -270,9 +276,9 @@ class DatasetFolder:
         path = self.unit_record_path(unit)
         return UnitRecord.from_json(read_json(path), where=str(path))
 
-    def read_stations(self, scene: str) -> tuple[Station, ...]:
+    def read_stations(self, scene: str, site_tag: str = "") -> tuple[Station, ...]:
         """The stations a scene task stored."""
-        path = self.stations_path(scene)
+        path = self.stations_path(scene, site_tag)
         document = read_json(path)
         try:
             return tuple(Station.from_dict(s) for s in document["stations"])

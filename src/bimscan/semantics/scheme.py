@@ -131,8 +131,8 @@ def check_rule_classes(scheme: LabelScheme, known_classes: Collection[str]) -> N
     for rule in scheme.rules:
         for cls in filter(None, (rule.ifc_class, rule.parent_class)):
             if cls.lower() not in known:
-                raise SchemeError(f"label scheme {scheme.name!r}: unknown class {cls!r} in a rule; check the spelling "
-                                  "(IFC classes like 'IfcWall', site classes like 'Clutter.Chair')")
+                raise SchemeError(f"label scheme {scheme.name!r}: unknown IFC class {cls!r} in a rule (nor one of "
+                                  "bimscan's site classes such as 'Clutter.Chair'); check the spelling (e.g. 'IfcWall')")
 
 
 @dataclass(frozen=True)

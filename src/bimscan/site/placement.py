@@ -5,7 +5,8 @@ when (1) every floor cell under its footprint is free, not kept out, level withi
 headroom above the object; (2) its footprint, grown by ``GAP_M``, overlaps no object placed
 before (exact rectangle test); (3) rays through its box find nothing: horizontal rays along its
 width and depth every ``SWEEP_M`` at several heights, and vertical rays every ``SWEEP_M`` from
-its top to the floor (a ray that starts inside a wall or a column meets it at once). Objects go
+its top to the floor, through the box grown by ``CLEARANCE_M`` (a ray that starts inside a
+wall or a column meets it at once). Objects go
 against a wall (their back ``GAP_M`` from the face a horizontal ray finds) or stand free,
 aligned with the room or turned any way; in corridors and halls (by the room's name) only against
 a wall, so the way through stays clear. All draws come from the room's own generator, so a
@@ -25,6 +26,7 @@ from bimscan.site.shapes import yaw_matrix
 
 GAP_M = 0.03  # between objects, and between an object's back and the wall it stands against
 SWEEP_M = 0.05  # spacing of the collision rays through a candidate's box
+CLEARANCE_M = 0.01  # the rays sweep the box grown by this: nothing of the model comes closer
 LEVEL_M = 0.02  # the floor under an object is level within this
 ATTEMPTS = 24  # candidate poses tried per object
 DRAWS = 3  # objects drawn (sizes) per placement before giving up
@@ -181,13 +183,16 @@ class RoomPlacer:
         cell = cells[self.rng.integers(len(cells))]
         out = np.array(((1, 0), (0, 1), (-1, 0), (0, -1))[direction], dtype=float)
         j, i = self._cell_of(cell)
-        height = min(0.3, obj.size_m[2] / 2)
-        origin = np.append(self.room.to_world(cell[None])[0], self.room.floor_z[j, i] + height)
-        t, _ = self.prober.cast(origin[None], np.append(self.room.to_world(out[None])[0], 0.0)[None])
-        if not np.isfinite(t[0]) or t[0] > 2 * self.room.cell_m:
+        # the nearest face at the object's low, middle and top height (a table's top overhangs its legs)
+        heights = np.array([0.05, obj.size_m[2] / 2, max(obj.size_m[2] - 0.02, 0.05)])
+        origins = np.column_stack([np.repeat(self.room.to_world(cell[None]), 3, axis=0),
+                                   self.room.floor_z[j, i] + heights])
+        t, _ = self.prober.cast(origins, np.tile(np.append(self.room.to_world(out[None])[0], 0.0), (3, 1)))
+        distance = float(t.min())
+        if not np.isfinite(distance) or distance > 2 * self.room.cell_m:
             return None  # the free floor ends at an object or an edge, not a wall
         lateral = np.array([-out[1], out[0]]) * self.rng.uniform(-0.5, 0.5) * self.room.cell_m
-        centre = cell + out * (t[0] - GAP_M - obj.size_m[1] / 2) + lateral
+        centre = cell + out * (distance - GAP_M - obj.size_m[1] / 2) + lateral
         yaw = math.atan2(out[1], out[0]) - math.pi / 2  # the object's back (+y) faces the wall
         return _Pose(centre, yaw)
 
@@ -239,12 +244,12 @@ class RoomPlacer:
         return None if self._box_hits(obj, pose, base, spanning=spanning) else base
 
     def _box_hits(self, obj: ClutterObject, pose: _Pose, base: float, *, spanning: bool) -> bool:
-        w, d, h = obj.size_m
-        eps = 0.005
-        top = h - (0.001 if spanning else 0.01)
-        heights = np.unique(np.concatenate([[0.02], np.arange(0.3, top, 0.4), [max(top - 0.01, 0.02)]]))
-        xs = np.linspace(-w / 2 + eps, w / 2 - eps, max(2, int(math.ceil(w / SWEEP_M)) + 1))
-        ys = np.linspace(-d / 2 + eps, d / 2 - eps, max(2, int(math.ceil(d / SWEEP_M)) + 1))
+        m = CLEARANCE_M
+        w, d, h = obj.size_m[0] + 2 * m, obj.size_m[1] + 2 * m, obj.size_m[2]
+        top = h + (0.001 if spanning else m)  # a prop stops short of the soffit it is wedged under
+        heights = np.unique(np.concatenate([[0.02], np.arange(0.3, top, 0.4), [top]]))
+        xs = np.linspace(-w / 2, w / 2, max(2, int(math.ceil(w / SWEEP_M)) + 1))
+        ys = np.linspace(-d / 2, d / 2, max(2, int(math.ceil(d / SWEEP_M)) + 1))
         origins, directions, lengths = [], [], []
         for z in heights:
             origins.append(np.column_stack([np.full(len(ys), xs[0]), ys, np.full(len(ys), z)]))
