@@ -15,6 +15,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from bimscan.process.checks import check_semantics, filter_invalid
 from bimscan.process.summary import CloudSummary
 from bimscan.progress import progress_bar
@@ -96,6 +98,34 @@ def build_site_timed(scene: BimScene, recipe: ScanRecipe) -> tuple[BimScene, Dre
                             s.position[2] - recipe.scanner.instrument_height_m) for s in given)
     return dress_scene_timed(scene, site, seed=recipe.seed, schedule=schedule, keep_clear=keep_clear,
                              engine=recipe.engine, threads=recipe.threads)
+
+
+def furnish_model(model: str | Path, out: str | Path, recipe: ScanRecipe, *,
+                  scheme: str | Path | LabelScheme | None = None) -> BimScene:
+    """Write a copy of the IFC ``model`` dressed as the recipe's site (``bimscan furnish``): the
+    placed objects as IfcFurniture / IfcBuildingElementProxy, the elements the stage leaves out
+    removed. Returns the dressed scene."""
+    from bimscan.ifc.furnish import FurnishObject, write_furnished
+    from bimscan.site import SITE_CLASSES
+
+    scene = load_scene(model, scheme=scheme, threads=recipe.threads or None)
+    dressed = build_site(scene, recipe)
+    table, mesh = dressed.components, dressed.mesh
+    order = np.argsort(mesh.face_component, kind="stable")
+    starts = np.searchsorted(mesh.face_component[order], np.arange(len(table) + 1))
+    objects = []
+    for c in range(len(table)):
+        cls = str(table.ifc_class[c])
+        if cls not in SITE_CLASSES:
+            continue
+        faces = mesh.faces[order[starts[c]:starts[c + 1]]]
+        used, inverse = np.unique(faces, return_inverse=True)
+        objects.append(FurnishObject(global_id=str(table.global_id[c]), ifc_classes=SITE_CLASSES[cls].ifc_classes,
+                                     object_type=cls, name=str(table.name[c]), storey=str(table.storey[c]),
+                                     vertices=mesh.vertices[used], faces=inverse.reshape(-1, 3).astype(np.int32)))
+    removed = set(scene.components.global_id.tolist()) - set(table.global_id.tolist())
+    write_furnished(model, out, objects, removed)
+    return dressed
 
 
 def stream_checked(survey: Survey, *, summary: CloudSummary,

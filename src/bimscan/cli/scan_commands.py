@@ -75,4 +75,27 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
         click.echo(line)
 
 
-COMMANDS: list[click.Command] = [scan]
+@click.command("furnish")
+@click.argument("model", type=click.Path(path_type=Path))
+@click.argument("out", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--seed", default=0, show_default=True, type=int, help="Placement seed; same seed, same objects.")
+@click.option("--scheme", default=None, help=SCHEME_HELP)
+@site_options
+def furnish(model: Path, out: Path, seed: int, scheme: str | None, site: SiteModel) -> None:
+    """Write OUT.ifc: a copy of MODEL.ifc with the site's clutter as IfcFurniture and
+    IfcBuildingElementProxy elements (ObjectType = bimscan's class, e.g. Clutter.Chair) and the
+    elements the stage leaves out removed: the scene 'bimscan scan' with the same flags and
+    seed scans, for other tools to see."""
+    from bimscan.pipeline import furnish_model
+    from bimscan.scan.recipe import ScanRecipe
+
+    if site.is_bare:
+        raise click.UsageError("nothing to furnish: give --clutter DENSITY and/or --stage")
+    dressed = furnish_model(model, out, ScanRecipe(seed=seed, site=site), scheme=scheme)
+    click.echo(f"wrote {out}")
+    line = describe_site(dressed.site)
+    if line:
+        click.echo(line)
+
+
+COMMANDS: list[click.Command] = [scan, furnish]

@@ -1,9 +1,9 @@
 """Free floor: where objects can stand, found by ray probes through the scan engine.
 
-Every room (an IfcSpace; without them, every connected free floor area of a storey) gets a grid
-of ``CELL_M`` cells in the room's own axes (the direction of its longest floor edge). A cell is
-*free* when a ray cast down from ``PROBE_M`` above the floor meets a floor element (slab,
-covering, ramp, plate) near the room's floor level: nothing stands on it up to that height and
+Every room (an IfcSpace at least 1 m tall; without them, every connected free floor area of a
+storey) gets a grid of ``CELL_M`` cells in the room's own axes (the direction of its longest
+floor edge). A cell is *free* when a ray cast down from ``PROBE_M`` above the floor meets a floor
+element (slab, covering, ramp, plate, footing) near the room's floor level: nothing stands on it up to that height and
 the probe did not start inside a solid (a probe inside a wall or a cabinet meets that element
 first). A ray up from the same point gives the *headroom* (clear height above the floor) and the
 element overhead. Cells near doors (1 m on either side of the leaf), around stairs and at kept
@@ -25,7 +25,8 @@ from bimscan.types import BimScene, SceneMesh, Space
 CELL_M = 0.1
 PROBE_M = 1.0
 FLOOR_TOLERANCE_M = 0.35  # a floor surface this far from the room's floor level still counts (finishes, falls)
-FLOOR_CLASSES = ("IfcSlab", "IfcCovering", "IfcRamp", "IfcRampFlight", "IfcPlate")
+# what a floor can be made of (a ground-bearing slab is sometimes modelled as a footing)
+FLOOR_CLASSES = ("IfcSlab", "IfcCovering", "IfcRamp", "IfcRampFlight", "IfcPlate", "IfcFooting")
 DOOR_CLEARANCE_M = 1.0  # on either side of a door leaf: the swing and the way through
 STAIR_CLEARANCE_M = 0.8
 TRIPOD_RESERVE_M = 0.8  # radius kept clear around the spot reserved for a station in every room
@@ -217,11 +218,10 @@ def find_room_floors(scene: BimScene, prober: Prober, *, zones: Sequence[tuple[n
     if not floor_components.any():
         floor_components[:] = True  # no slabs at all: any surface is a floor
     rooms: list[RoomFloor] = []
-    if scene.spaces:
-        for space in scene.spaces:
+    spaces = [s for s in scene.spaces if np.ptp(s.vertices[:, 2]) >= 1.0]  # rooms, not slivers
+    if spaces:
+        for space in spaces:
             z0, z1 = float(space.vertices[:, 2].min()), float(space.vertices[:, 2].max())
-            if z1 - z0 < 1.0:
-                continue
             angle = _room_angle(space)
             origin, (ny, nx), cell = _grid(angle, space.vertices[:, :2], cell_m)
             room = _empty_room(space.name, space.storey, space.global_id, z0, angle, origin, cell, ny, nx)
