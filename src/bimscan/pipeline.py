@@ -97,7 +97,7 @@ def build_site_timed(scene: BimScene, recipe: ScanRecipe) -> tuple[BimScene, Dre
         keep_clear = tuple((s.position[0], s.position[1], s.floor_z if s.floor_z is not None else
                             s.position[2] - recipe.scanner.instrument_height_m) for s in given)
     return dress_scene_timed(scene, site, seed=recipe.seed, schedule=schedule, keep_clear=keep_clear,
-                             engine=recipe.engine, threads=recipe.threads)
+                             threads=recipe.threads)
 
 
 def furnish_model(model: str | Path, out: str | Path, recipe: ScanRecipe, *,

@@ -62,9 +62,14 @@ def test_objects_stand_on_the_floor_inside_a_room(office_scene, dressed_office):
     from bimscan.survey.survey import place_scanner
 
     scanner = place_scanner(office_scene, ScanRecipe())
+    hung = 0
     for c, (v, _) in component_meshes(dressed_office, added(dressed_office, office_scene)).items():
         bottom = v[v[:, 2] < v[:, 2].min() + 1e-6]
         t, hit = scanner.cast(bottom[0] + [0.0, 0.0, 0.5], np.array([[0.0, 0.0, -1.0]], np.float32))
+        if dressed_office.components.ifc_class[c] == "Clutter.Whiteboard" and t[0] > 1.0:
+            assert 0.8 < t[0] - 0.5 < 1.05  # a board hung on the wall, its bottom edge 0.85-1.0 m up
+            hung += 1
+            continue
         assert t[0] == pytest.approx(0.5, abs=1e-3), dressed_office.components.name[c]  # the floor is right below
         assert office_scene.components.ifc_class[hit[0]] in ("IfcSlab", "IfcCovering")
         footprint = np.column_stack([v[:, :2], np.full(len(v), v[:, 2].min() + 0.1)])
@@ -119,15 +124,26 @@ def test_kinds_select_what_is_placed_and_density_how_much(office_scene):
     assert sum(dense.site.placed.values()) > 2 * sum(sparse.site.placed.values())
 
 
-def test_a_model_without_rooms_is_dressed_on_its_free_floor(box_room_ifc):
+@pytest.mark.parametrize("seed", range(6))
+def test_a_model_without_rooms_is_dressed_on_its_free_floor(box_room_ifc, seed):
     from bimscan.pipeline import load_scene
 
-    scene = load_scene(box_room_ifc, use_cache=False)
+    scene = load_scene(box_room_ifc)
     assert not scene.spaces
-    dressed = dress_scene(scene, SiteModel(clutter=ClutterSettings(density=0.3, kinds=("site",))), seed=2)
+    site = SiteModel(clutter=ClutterSettings(density=0.4, kinds=("site", "people")))
+    dressed = dress_scene(scene, site, seed=seed)
     new = added(dressed, scene)
     assert len(new) >= 5
     v = dressed.mesh.vertices[np.unique(dressed.mesh.faces[np.isin(dressed.mesh.face_component, new)])]
-    # inside the 8 x 6 m room, on its floor (z = 0), under its 3.5 m ceiling
+    # inside the 8 x 6 m room (not in its 0.25 m walls), on its floor (z = 0), under its 3.5 m ceiling
     assert (v[:, 0] > 0).all() and (v[:, 0] < 8).all() and (v[:, 1] > 0).all() and (v[:, 1] < 6).all()
     assert v[:, 2].min() == pytest.approx(0.0, abs=1e-6) and v[:, 2].max() < 3.5
+
+
+def test_points_inside_walls_are_told_from_points_in_the_room(box_room_ifc):
+    from bimscan.pipeline import load_scene
+    from bimscan.site.floor import Prober
+
+    prober = Prober(load_scene(box_room_ifc).mesh)
+    points = np.array([[4.0, 6.1, 1.0], [-0.1, 3.0, 1.0], [4.0, -0.2, 0.0], [4.0, 3.0, 1.0], [0.3, 5.7, 1.0]])
+    assert prober.inside_solid(points).tolist() == [True, True, True, False, False]

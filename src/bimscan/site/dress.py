@@ -54,21 +54,19 @@ def default_kinds(site: SiteModel) -> tuple[str, ...]:
 
 
 def dress_scene(scene: BimScene, site: SiteModel, *, seed: int, schedule: Mapping[str, BuildDates] | None = None,
-                keep_clear: Sequence[tuple[float, float, float]] = (), engine: str = "open3d",
-                threads: int = 0) -> BimScene:
+                keep_clear: Sequence[tuple[float, float, float]] = (), threads: int = 0) -> BimScene:
     """The scene at ``site``'s construction stage with its clutter placed (see the module docs).
 
     schedule: GlobalId -> BuildDates from the model's work schedule (needed for ``stage.at``).
     keep_clear: spots (x, y, floor z) to keep free of clutter (stations given in a file). A bare
     site model (finished, no clutter) returns ``scene`` itself.
     """
-    return dress_scene_timed(scene, site, seed=seed, schedule=schedule, keep_clear=keep_clear, engine=engine,
-                             threads=threads)[0]
+    return dress_scene_timed(scene, site, seed=seed, schedule=schedule, keep_clear=keep_clear, threads=threads)[0]
 
 
 def dress_scene_timed(scene: BimScene, site: SiteModel, *, seed: int,
                       schedule: Mapping[str, BuildDates] | None = None,
-                      keep_clear: Sequence[tuple[float, float, float]] = (), engine: str = "open3d",
+                      keep_clear: Sequence[tuple[float, float, float]] = (),
                       threads: int = 0) -> tuple[BimScene, DressTimings]:
     """``dress_scene`` and how long its parts took."""
     if site.is_bare:
@@ -91,7 +89,7 @@ def dress_scene_timed(scene: BimScene, site: SiteModel, *, seed: int,
     kinds = select_kinds(default_kinds(site)) if site.clutter.density > 0 else ()
     if wants_props or kinds:
         t0 = time.perf_counter()
-        prober = Prober(staged.mesh, engine=engine, threads=threads)
+        prober = Prober(staged.mesh, threads=threads)
         rooms = find_room_floors(staged, prober, zones=keep_out_zones(scene), keep_clear=keep_clear)
         floor_s = time.perf_counter() - t0
         t0 = time.perf_counter()

@@ -5,7 +5,8 @@ storey) gets a grid of ``CELL_M`` cells in the room's own axes (the direction of
 floor edge). A cell is *free* when a ray cast down from ``PROBE_M`` above the floor meets a floor
 element (slab, covering, ramp, plate, footing) near the room's floor level: nothing stands on it up to that height and
 the probe did not start inside a solid (a probe inside a wall or a cabinet meets that element
-first). A ray up from the same point gives the *headroom* (clear height above the floor) and the
+first, or, where a wall's bottom face lies on the slab's top face, its horizontal rays meet the
+wall's faces from behind). A ray up from the same point gives the *headroom* (clear height above the floor) and the
 element overhead. Cells near doors (1 m on either side of the leaf), around stairs and at kept
 tripod spots are *kept out*: nothing is put there.
 """
@@ -19,10 +20,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bimscan.scan.engine import RayEngine, make_engine
+from bimscan.scan.engine import Open3DEngine, make_engine
 from bimscan.types import BimScene, SceneMesh, Space
 
 CELL_M = 0.1
+GRID_SHIFT_M = 0.0123  # off any round coordinate of a model
 PROBE_M = 1.0
 FLOOR_TOLERANCE_M = 0.35  # a floor surface this far from the room's floor level still counts (finishes, falls)
 # what a floor can be made of (a ground-bearing slab is sometimes modelled as a footing)
@@ -39,12 +41,15 @@ CIRCULATION = re.compile(r"corridor|hall|lobby|foyer|stair|landing|circulation|p
 
 
 class Prober:
-    """Ray probes of one mesh through a scan engine: first hits and the component hit."""
+    """Ray probes of one mesh through the scan engine interface (Open3D's Embree scene, whatever
+    engine scans: a dressed scene must not depend on the scan engine): first hits, the component
+    hit, and whether points lie inside a solid."""
 
-    def __init__(self, mesh: SceneMesh, *, engine: str = "open3d", threads: int = 0) -> None:
+    def __init__(self, mesh: SceneMesh, *, threads: int = 0) -> None:
         self.mesh = mesh
-        self.engine: RayEngine = make_engine(mesh, name=engine, threads=threads)
+        self.engine: Open3DEngine = make_engine(mesh, name="open3d", threads=threads)  # type: ignore[assignment]
         self.face_component = mesh.face_component
+        self.n_components = int(mesh.face_component.max()) + 1 if len(mesh.face_component) else 0
 
     def cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """origins (N, 3) world metres, unit directions (N, 3) -> distance (N,) float64 (inf: no hit),
@@ -59,6 +64,25 @@ class Prober:
         hit = np.isfinite(t) & (triangle < len(self.face_component))
         component = np.where(hit, self.face_component[np.where(hit, triangle, 0)], -1).astype(np.int64)
         return np.where(hit, t, np.inf).astype(np.float64), component
+
+    def inside_solid(self, points: np.ndarray) -> np.ndarray:
+        """(N,) bool: points (N, 3) world metres inside a closed solid: at least three of four
+        horizontal rays from the point meet a face from behind (faces wound outward, as IfcOpenShell
+        writes closed shells; a vote, so one odd face does not decide)."""
+        if len(points) == 0:
+            return np.zeros(0, dtype=bool)
+        normals = self.mesh.face_normals()
+        behind = np.zeros(len(points), dtype=int)
+        for direction in ((1.0, 0.0, 0.0), (-1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, -1.0, 0.0)):
+            rays = np.empty((len(points), 6), dtype=np.float32)
+            rays[:, :3] = points - self.engine.centre
+            rays[:, 3:] = direction
+            t, triangle = self.engine.cast(rays)
+            hit = np.isfinite(t) & (triangle < len(normals))
+            facing = np.zeros(len(points))
+            facing[hit] = normals[triangle[hit]] @ np.asarray(direction)
+            behind += facing > 0
+        return behind >= 3
 
 
 @dataclass
@@ -190,6 +214,7 @@ def _probe(prober: Prober, xy: np.ndarray, level_z: float, height_m: float,
     t_down, below = prober.cast(origins, np.broadcast_to(np.array([0.0, 0.0, -1.0]), origins.shape))
     floor_z = start - t_down
     free = (below >= 0) & floor_components[np.maximum(below, 0)] & (np.abs(floor_z - level_z) < FLOOR_TOLERANCE_M)
+    free[free] = ~prober.inside_solid(origins[free])
     t_up, above = prober.cast(origins, np.broadcast_to(np.array([0.0, 0.0, 1.0]), origins.shape))
     headroom = np.where(free, start - floor_z + np.minimum(t_up, 50.0), 0.0)
     return free, np.where(free, floor_z, level_z), headroom, np.where(free, above, -1)
@@ -199,7 +224,8 @@ def _grid(angle: float, xy_world: np.ndarray, cell: float) -> tuple[np.ndarray, 
     """Room-frame origin and (ny, nx) of a grid covering the points, and the cell size used."""
     c, s = math.cos(angle), math.sin(angle)
     room = xy_world @ np.array([[c, -s], [s, c]])
-    lo, hi = room.min(axis=0), room.max(axis=0)
+    # the grid is shifted off round coordinates, so that probes do not run along modelled faces
+    lo, hi = room.min(axis=0) - GRID_SHIFT_M, room.max(axis=0)
     size = np.maximum(hi - lo, cell)
     cell = max(cell, math.sqrt(float(size[0] * size[1]) / MAX_CELLS))
     nx, ny = (int(math.ceil(v / cell)) for v in size)

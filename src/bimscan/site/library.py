@@ -4,8 +4,9 @@
 (``office``, ``site``, ``people``), how often it is drawn, whether it stands against a wall, the
 size ranges its objects keep to and where they come from. ``ClutterKind.make(rng, headroom_m,
 against_wall)`` draws one object: a closed triangle mesh in its own frame (width along x, depth
-along y with the back at +y, z up from the floor at 0, the footprint's box centred on the origin)
-or None when it cannot stand under ``headroom_m``. Every dimension is drawn from a range, so
+along y with the back at +y, z up from the floor at 0, the footprint's box centred on the origin;
+objects stand on the floor, but for boards hung on a wall) or None when it cannot stand under
+``headroom_m``. Every dimension is drawn from a range, so
 objects vary in size and proportions with the seed.
 
 Sources of the ranges (typical products within what the standards say; the standards' own texts
@@ -17,7 +18,8 @@ were read in public summaries):
   least 0.12 m; seat depth 0.38-0.47 m); five-star bases 0.6-0.7 m across.
 - shelves and cabinets: office storage in folder heights (1 OH = 0.375 m, 2-6 OH), widths
   0.8-1.2 m, depths 0.3-0.47 m (shelves) and 0.45-0.7 m (pedestals, filing cabinets).
-- whiteboards: mobile boards 1.2-1.8 x 0.9-1.2 m on stands, bottom edge at 0.75-0.9 m.
+- whiteboards: mobile boards 1.2-1.8 x 0.9-1.2 m on stands, bottom edge at 0.75-0.9 m; wall boards
+  1.2-2.4 x 0.9-1.2 m hung with the bottom edge at 0.85-1.0 m.
 - pallets: EN 13698-1 (EUR pallet 1.20 x 0.80 x 0.144 m); plasterboard stacks: EN 520 boards
   1.2 m wide, 2.0-3.0 m long, on bearers.
 - scaffold boards on trestles: BS 2482 (boards 0.225 x 0.038 m); trestles 0.6-1.2 m high.
@@ -55,8 +57,9 @@ FOLDER_HEIGHT_M = 0.375  # one "OH": the height of a row of lever-arch files wit
 class ClutterObject:
     """One drawn object: a closed mesh in its own frame (see the module docs).
 
-    vertices: (V, 3) float64 metres; faces: (F, 3) int32; size_m: (width x, depth y, height z) of
-    its bounding box; class_name: a ``site.classes.SITE_CLASSES`` name.
+    vertices: (V, 3) float64 metres; faces: (F, 3) int32; size_m: width (x) and depth (y) of its
+    bounding box and the height of its top above the floor (z); class_name: a
+    ``site.classes.SITE_CLASSES`` name.
     """
 
     vertices: np.ndarray
@@ -88,14 +91,15 @@ class ClutterKind:
     make: MakeObject
 
 
-def _finish(builder: MeshBuilder, class_name: str) -> ClutterObject:
-    """Centre the footprint's box on the origin and stand the object on z = 0."""
+def _finish(builder: MeshBuilder, class_name: str, *, on_floor: bool = True) -> ClutterObject:
+    """Centre the footprint's box on the origin and stand the object on z = 0 (``on_floor``; else
+    it keeps its height, as a board hung on a wall)."""
     vertices, faces = builder.build()
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
-    vertices = vertices - np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
-    size = hi - lo
+    vertices = vertices - np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2] if on_floor else 0.0])
+    top = (hi[2] - lo[2]) if on_floor else hi[2]
     return ClutterObject(vertices=vertices, faces=faces, class_name=class_name,
-                         size_m=(float(size[0]), float(size[1]), float(size[2])))
+                         size_m=(float(hi[0] - lo[0]), float(hi[1] - lo[1]), float(top)))
 
 
 # ----------------------------------------------------------------------------- office furniture
@@ -116,12 +120,17 @@ def make_desk(rng: np.random.Generator, headroom_m: float, against_wall: bool) -
             x = sx * (width / 2 - 0.03)
             b.box((x - 0.015, -depth / 2 + 0.03, 0.0), (x + 0.015, depth / 2 - 0.03, leg_top))
         b.box((-width / 2 + 0.05, depth / 2 - 0.06, leg_top - 0.35), (width / 2 - 0.05, depth / 2 - 0.04, leg_top))
-    if rng.random() < 0.6 and height + 0.45 < headroom_m:  # a monitor on its stand
+    if rng.random() < 0.6 and height + 0.45 < headroom_m:  # a monitor on its stand, a keyboard
         screen_w, screen_h = rng.uniform(0.5, 0.62), rng.uniform(0.3, 0.38)
         x, y = rng.uniform(-width / 4, width / 4), depth / 2 - 0.2
         b.box((x - 0.1, y - 0.08, height), (x + 0.1, y + 0.08, height + 0.01))
         b.box((x - 0.02, y - 0.015, height + 0.01), (x + 0.02, y + 0.015, height + 0.12))
         b.box((x - screen_w / 2, y - 0.04, height + 0.08), (x + screen_w / 2, y - 0.015, height + 0.08 + screen_h))
+        b.box((x - 0.22, -depth / 2 + 0.12, height), (x + 0.22, -depth / 2 + 0.27, height + 0.03))
+    for _ in range(int(rng.integers(0, 3))):  # files and paper stacks (A4: 0.21 x 0.30 m)
+        x, y = rng.uniform(-width / 2 + 0.2, width / 2 - 0.2), rng.uniform(-depth / 2 + 0.2, depth / 2 - 0.2)
+        if abs(x) > width / 4 + 0.3:
+            b.box((x - 0.15, y - 0.105, height), (x + 0.15, y + 0.105, height + rng.uniform(0.01, 0.08)))
     return _finish(b, "Clutter.Desk")
 
 
@@ -205,6 +214,14 @@ def make_cabinet(rng: np.random.Generator, headroom_m: float, against_wall: bool
 
 
 def make_whiteboard(rng: np.random.Generator, headroom_m: float, against_wall: bool) -> ClutterObject | None:
+    if against_wall and rng.random() < 0.7:  # hung on the wall, its back at +y
+        width, board_h, bottom = rng.uniform(1.2, 2.4), rng.uniform(0.9, 1.2), rng.uniform(0.85, 1.0)
+        if bottom + board_h > headroom_m - 0.05:
+            return None
+        b = MeshBuilder()
+        b.box((-width / 2, -0.02, bottom), (width / 2, 0.0, bottom + board_h))
+        b.box((-width / 2 + 0.1, -0.08, bottom - 0.03), (width / 2 - 0.1, -0.02, bottom))  # pen tray
+        return _finish(b, "Clutter.Whiteboard", on_floor=False)
     width, board_h, bottom = rng.uniform(1.2, 1.8), rng.uniform(0.9, 1.2), rng.uniform(0.75, 0.9)
     top = bottom + board_h + 0.1
     if top > headroom_m - 0.05:
@@ -478,8 +495,8 @@ CLUTTER_KINDS: dict[str, ClutterKind] = {k.name: k for k in (
                 make_shelf),
     ClutterKind("cabinet", "office", ("Clutter.Cabinet",), 2.0, 0.8, False, ((0.4, 1.2), (0.42, 0.7), (0.6, 1.93)),
                 make_cabinet),
-    ClutterKind("whiteboard", "office", ("Clutter.Whiteboard",), 0.5, 0.6, False,
-                ((1.31, 1.91), (0.5, 0.6), (1.75, 2.2)), make_whiteboard),
+    ClutterKind("whiteboard", "office", ("Clutter.Whiteboard",), 0.8, 0.8, False,
+                ((1.2, 2.4), (0.08, 0.6), (1.75, 2.2)), make_whiteboard),
     ClutterKind("material_stack", "site", ("Clutter.MaterialStack",), 2.0, 0.5, False,
                 ((1.2, 3.0), (0.8, 1.2), (0.2, 1.15)), make_material_stack),
     ClutterKind("pallet", "site", ("Clutter.Pallet",), 1.0, 0.5, False, ((1.2, 1.22), (0.8, 0.82), (0.144, 0.864)),
