@@ -44,7 +44,8 @@ def real_shares(root: Path) -> dict[str, np.ndarray]:
         for file in sorted((room / "Annotations").glob("*.txt")):
             target = mapping["classes"].get(class_of_annotation(file), mapping["default"])
             with file.open("rb") as handle:
-                counts[CLASSES.index(target)] += sum(chunk.count(b"\n") for chunk in iter(lambda: handle.read(1 << 20), b""))
+                lines = sum(chunk.count(b"\n") for chunk in iter(lambda: handle.read(1 << 20), b""))
+            counts[CLASSES.index(target)] += lines
         out[room.name] = counts / counts.sum()
     return out
 

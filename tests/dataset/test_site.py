@@ -51,9 +51,10 @@ def test_configurations_carry_their_stage_and_clutter_or_the_specs(tmp_path):
 
 
 def test_a_stages_sweep_makes_one_unit_per_scene_configuration_and_stage(tmp_path):
-    spec = load_spec(write_spec(tmp_path, top='stages = ["structure", { name = "enclosed", walls_missing_fraction = 0.2 }, '
-                                              '"finished"]'))
-    assert spec.unit_ids() == [f"office__{c}.{s}" for c in ("empty", "busy") for s in ("structure", "enclosed", "finished")]
+    sweep = 'stages = ["structure", { name = "enclosed", walls_missing_fraction = 0.2 }, "finished"]'
+    spec = load_spec(write_spec(tmp_path, top=sweep))
+    stages = ("structure", "enclosed", "finished")
+    assert spec.unit_ids() == [f"office__{c}.{s}" for c in ("empty", "busy") for s in stages]
     enclosed = spec.site(spec.config("busy.enclosed"))
     assert enclosed.stage.walls_missing_fraction == 0.2 and enclosed.clutter.density == 0.2
 

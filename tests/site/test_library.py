@@ -98,7 +98,7 @@ def test_people_are_standing_or_walking_and_walkers_stride():
 
 
 def test_kinds_and_groups_are_checked_and_expanded():
-    assert {k.name for k in select_kinds(("office",))} == {"desk", "chair", "shelf", "cabinet", "whiteboard"}
+    assert {k.name for k in select_kinds(("office",))} == {"desk", "chair", "sofa", "shelf", "cabinet", "whiteboard"}
     assert {k.name for k in select_kinds(("people", "ladder"))} == {"person", "ladder"}
     with pytest.raises(ConfigError, match="unknown clutter kind 'chiar'"):
         check_kinds(("chiar",))

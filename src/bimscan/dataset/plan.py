@@ -3,7 +3,8 @@
 A unit is reused when its folder exists, was built from the same inputs and its files still
 match their checksums. Its inputs (``unit_inputs``) are everything its bytes depend on: the scan
 recipe (``ScanRecipe.to_json``: scanner, settings, noise, seed and noise stream, engine, how the
-stations are chosen, the site model: stage and clutter), the scene file (by content) and station file (by content), the label
+stations are chosen, the site model: stage and clutter), the scene file (by content) and station
+file (by content), the label
 scheme, the output formats, the voxel size and the software version; their fingerprint decides
 reuse. Jobs are small picklable records the executors send to worker processes.
 
@@ -177,7 +178,8 @@ def plan_build(spec: DatasetSpec, folder: DatasetFolder, scene_files: dict[str, 
             scene_recipes.setdefault(tag, recipe)
         if inputs_of_scene is not None:
             for tag, scene_recipe in scene_recipes.items():
+                stations_file = str(folder.stations_path(scene.name, tag))
                 scene_jobs.append(SceneJob(scene=scene.name, ifc=str(scene_files[scene.name]), scheme=spec.scheme,
-                                           recipe=scene_recipe, stations_file=str(folder.stations_path(scene.name, tag)),
+                                           recipe=scene_recipe, stations_file=stations_file,
                                            stations_key=stations_key(inputs_of_scene, scene_recipe), site_tag=tag))
     return BuildPlan(entries=entries, unit_jobs=unit_jobs, scene_jobs=scene_jobs)

@@ -3,9 +3,9 @@
 A *scene task* parses a scene once (filling the on-disk geometry cache), dresses it as the site
 its units scan (construction stage, clutter; ``pipeline.build_site``) and plans its stations on
 that scene once (``scenes/<scene>[.<site>].stations.json``): every configuration of the scene
-and site state scans from the same viewpoints, as in the paper. A unit task dresses the scene
-again (seeded: the same objects in the same places) and scans it. A *unit task* scans the survey with its recipe and streams the
-merged cloud through the post-processing (invalid points dropped and counted, semantic checks,
+and site state scans from the same viewpoints, as in the paper. A *unit task* dresses the scene
+again (seeded: the same objects in the same places), scans the survey with its recipe and
+streams the merged cloud through the post-processing (invalid points dropped and counted, semantic checks,
 optional voxel subsampling) into every requested format at once, checks what was written, and
 writes ``unit.json`` (reproducible) and ``timings.json`` (not). The unit is built in a hidden
 staging folder and renamed into place when whole. Tasks are module-level functions so they

@@ -12,7 +12,8 @@ from bimscan.site.library import CLUTTER_KINDS, GROUPS
 from bimscan.site.model import STAGES, ClutterSettings, SiteModel, StageSettings, site_from_mapping, site_settings
 
 __all__ = [
-    "CLUTTER_KINDS", "GROUPS", "SITE_CLASSES", "STAGES", "ClutterSettings", "DressTimings", "SiteModel", "StageSettings",
+    "CLUTTER_KINDS", "GROUPS", "SITE_CLASSES", "STAGES", "ClutterSettings", "DressTimings", "SiteModel",
+    "StageSettings",
     "default_kinds", "derived_global_id", "dress_scene", "dress_scene_timed", "site_class_names", "site_from_mapping",
     "site_settings",
 ]

@@ -40,6 +40,7 @@ SITE_CLASSES: dict[str, SiteClass] = {
     c.name: c for c in (
         SiteClass("Clutter.Desk", "Clutter", _FURNITURE),
         SiteClass("Clutter.Chair", "Clutter", _FURNITURE),
+        SiteClass("Clutter.Sofa", "Clutter", _FURNITURE),
         SiteClass("Clutter.Shelf", "Clutter", _FURNITURE),
         SiteClass("Clutter.Cabinet", "Clutter", _FURNITURE),
         SiteClass("Clutter.Whiteboard", "Clutter", _FURNITURE),

@@ -33,6 +33,7 @@ from bimscan.site.placement import PlacedObject, RoomPlacer
 from bimscan.site.stage import built_components, open_ceilings
 from bimscan.types import BimScene, BuildDates, ComponentTable, SceneMesh, SiteState
 
+FULL_AFTER_MISSES = 8
 _GUID_CHARS = "0123456789ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz_$"
 
 
@@ -115,15 +116,15 @@ def dress_scene_timed(scene: BimScene, site: SiteModel, *, seed: int,
 
 def _place_clutter(placer: RoomPlacer, kinds: tuple[ClutterKind, ...], expected: float,
                    rng: np.random.Generator) -> None:
-    """About ``expected`` objects (its fraction rounded at random), kinds drawn by weight."""
+    """About ``expected`` objects (its fraction rounded at random), kinds drawn by weight, until the
+    room is full (``FULL_AFTER_MISSES`` objects in a row found no place)."""
     target = int(expected) + int(rng.random() < expected - int(expected))
     weights = np.array([k.weight for k in kinds])
     weights = weights / weights.sum()
-    misses = 0
-    while len(placer.placed) < target and misses < max(6, target):
+    misses = 0  # in a row: a room that refuses that many objects running is full
+    while len(placer.placed) < target and misses < FULL_AFTER_MISSES:
         kind = kinds[int(rng.choice(len(kinds), p=weights))]
-        if placer.place_kind(kind) is None:
-            misses += 1
+        misses = misses + 1 if placer.place_kind(kind) is None else 0
 
 
 def _subset(scene: BimScene, keep: np.ndarray) -> BimScene:

@@ -262,7 +262,8 @@ def find_room_floors(scene: BimScene, prober: Prober, *, zones: Sequence[tuple[n
             origin, (ny, nx), cell = _grid(0.0, corners, cell_m)
             level = _empty_room(storey, storey, storey, elevation, 0.0, origin, cell, ny, nx)
             centres = level.to_world(level.cell_centres().reshape(-1, 2))
-            _fill(level, prober, centres, np.ones(len(centres), dtype=bool), next_elevation - elevation, floor_components)
+            everywhere = np.ones(len(centres), dtype=bool)
+            _fill(level, prober, centres, everywhere, next_elevation - elevation, floor_components)
             rooms += _split_areas(level)
     for room in rooms:
         _mark_keep_out(room, zones, keep_clear)

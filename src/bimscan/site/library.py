@@ -16,6 +16,8 @@ were read in public summaries):
   user, statures 1.49-1.91 m); fixed-height desks about 0.72-0.76 m, tops 1.2-1.8 x 0.7-0.9 m.
 - chairs: EN 1335-1:2020 (office work chairs; seat height at least 0.40 m, adjustable over at
   least 0.12 m; seat depth 0.38-0.47 m); five-star bases 0.6-0.7 m across.
+- sofas: Neufert, *Architects' Data* (seating): seats 0.40-0.45 m high, 1.5-2.2 m wide (two or
+  three seats), 0.8-0.95 m deep, backs 0.75-0.9 m high.
 - shelves and cabinets: office storage in folder heights (1 OH = 0.375 m, 2-6 OH), widths
   0.8-1.2 m, depths 0.3-0.47 m (shelves) and 0.45-0.7 m (pedestals, filing cabinets).
 - whiteboards: mobile boards 1.2-1.8 x 0.9-1.2 m on stands, bottom edge at 0.75-0.9 m; wall boards
@@ -154,6 +156,25 @@ def make_chair(rng: np.random.Generator, headroom_m: float, against_wall: bool) 
             b.box((x - 0.015, -0.02, seat_h - 0.06), (x + 0.015, 0.02, seat_h + 0.19))
             b.box((x - 0.03, -0.15, seat_h + 0.19), (x + 0.03, 0.10, seat_h + 0.22))
     return _finish(b, "Clutter.Chair")
+
+
+def make_sofa(rng: np.random.Generator, headroom_m: float, against_wall: bool) -> ClutterObject | None:
+    width, depth, back = rng.uniform(1.5, 2.2), rng.uniform(0.8, 0.95), rng.uniform(0.75, 0.9)
+    seat, arm = rng.uniform(0.40, 0.45), rng.uniform(0.1, 0.2)
+    b = MeshBuilder()
+    b.box((-width / 2, -depth / 2, 0.05), (width / 2, depth / 2, seat - 0.12))  # base
+    cushions = 2 if width < 1.8 else 3
+    step = (width - 2 * arm) / cushions
+    for k in range(cushions):  # seat cushions with a small gap between them
+        x = -width / 2 + arm + k * step
+        b.box((x + 0.005, -depth / 2, seat - 0.12), (x + step - 0.005, depth / 2 - 0.2, seat))
+    b.box((-width / 2 + arm, depth / 2 - 0.2, seat - 0.12), (width / 2 - arm, depth / 2, back))  # back
+    for sx in (-1, 1):
+        x = sx * (width / 2 - arm / 2)
+        b.box((x - arm / 2, -depth / 2, 0.05), (x + arm / 2, depth / 2, seat + 0.2))  # arms
+        for sy in (-1, 1):
+            b.box((x - 0.03, sy * (depth / 2 - 0.06) - 0.03, 0.0), (x + 0.03, sy * (depth / 2 - 0.06) + 0.03, 0.05))
+    return _finish(b, "Clutter.Sofa")
 
 
 def _files(b: MeshBuilder, rng: np.random.Generator, x0: float, x1: float, y0: float, y1: float, z: float,
@@ -488,9 +509,12 @@ def make_person(rng: np.random.Generator, headroom_m: float, against_wall: bool)
 
 
 CLUTTER_KINDS: dict[str, ClutterKind] = {k.name: k for k in (
-    ClutterKind("desk", "office", ("Clutter.Desk",), 3.0, 0.7, False, ((1.2, 1.8), (0.7, 0.9), (0.72, 1.22)), make_desk),
+    ClutterKind("desk", "office", ("Clutter.Desk",), 3.0, 0.7, False, ((1.2, 1.8), (0.7, 0.9), (0.72, 1.22)),
+                make_desk),
     ClutterKind("chair", "office", ("Clutter.Chair",), 2.0, 0.1, True, ((0.6, 0.72), (0.58, 0.7), (0.8, 1.12)),
                 make_chair),
+    ClutterKind("sofa", "office", ("Clutter.Sofa",), 0.6, 0.8, False, ((1.5, 2.2), (0.8, 0.95), (0.75, 0.9)),
+                make_sofa),
     ClutterKind("shelf", "office", ("Clutter.Shelf",), 1.5, 1.0, False, ((0.8, 1.2), (0.3, 0.42), (0.82, 2.32)),
                 make_shelf),
     ClutterKind("cabinet", "office", ("Clutter.Cabinet",), 2.0, 0.8, False, ((0.4, 1.2), (0.42, 0.7), (0.6, 1.93)),

@@ -72,7 +72,8 @@ class StageSettings:
         for what in ("include", "exclude"):
             for name in getattr(self, what):
                 if not isinstance(name, str) or not name.startswith("Ifc"):
-                    raise ConfigError(f"stage {what} entry {name!r} is not an IFC class name; give names like 'IfcWall'")
+                    raise ConfigError(f"stage {what} entry {name!r} is not an IFC class name; "
+                                      "give names like 'IfcWall'")
         if self.at is not None:
             try:
                 datetime.date.fromisoformat(self.at)

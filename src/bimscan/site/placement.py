@@ -27,8 +27,9 @@ from bimscan.site.shapes import yaw_matrix
 GAP_M = 0.03  # between objects, and between an object's back and the wall it stands against
 SWEEP_M = 0.05  # spacing of the collision rays through a candidate's box
 CLEARANCE_M = 0.01  # the rays sweep the box grown by this: nothing of the model comes closer
+WALL_HEIGHTS_M = np.array([0.05, 0.4, 0.75, 1.1, 1.5, 1.9, 2.3])  # where the distance to a wall is measured
 LEVEL_M = 0.02  # the floor under an object is level within this
-ATTEMPTS = 24  # candidate poses tried per object
+ATTEMPTS = 16  # candidate poses tried per object
 DRAWS = 3  # objects drawn (sizes) per placement before giving up
 COMPANION_CHAIR = 0.8  # chance that a desk gets a chair in front of it
 PROP_SPACING_M = 1.5  # back-propping grid under slabs (typically 1.2-1.8 m)
@@ -66,6 +67,7 @@ class RoomPlacer:
         self.prober = prober
         self.rng = rng
         self.rects: list[np.ndarray] = []  # (4, 2) room-frame corners of every placed footprint
+        self._boxes = np.zeros((0, 4))  # their axis-aligned boxes (x0, y0, x1, y1), to test few exactly
         self.placed: list[PlacedObject] = []
         centres = room.cell_centres()
         self._centres = centres
@@ -86,6 +88,16 @@ class RoomPlacer:
             else:
                 neighbour[0, :] = False
             self._wall_cells.append(centres[available & ~neighbour])
+        # the distance from every wall cell to the face beside it, at heights up to 2.4 m (one cast)
+        self._wall_distance = []
+        for direction, cells in enumerate(self._wall_cells):
+            out = np.array(((1, 0), (0, 1), (-1, 0), (0, -1))[direction], dtype=float)
+            index = np.array([self._cell_of(c) for c in cells], dtype=int).reshape(-1, 2)
+            floor = room.floor_z[index[:, 0], index[:, 1]] if len(cells) else np.zeros(0)
+            origins = np.column_stack([np.repeat(room.to_world(cells), len(WALL_HEIGHTS_M), axis=0),
+                                       np.repeat(floor, len(WALL_HEIGHTS_M)) + np.tile(WALL_HEIGHTS_M, len(cells))])
+            t, _ = prober.cast(origins, np.tile(np.append(room.to_world(out[None])[0], 0.0), (len(origins), 1)))
+            self._wall_distance.append(t.reshape(len(cells), len(WALL_HEIGHTS_M)))
         usable = room.headroom_m[available]
         self.typical_headroom_m = float(np.percentile(usable, 25)) if len(usable) else 0.0
 
@@ -96,7 +108,8 @@ class RoomPlacer:
         if len(self._cells) == 0:
             return None
         for _ in range(DRAWS):
-            against_wall = self.rng.random() < kind.wall_probability or (self.room.circulation and kind.wall_probability > 0)
+            against_wall = self.rng.random() < kind.wall_probability or (
+                self.room.circulation and kind.wall_probability > 0)
             if kind.name == "prop":
                 placed = self._place_prop(kind)
                 if placed is not None:
@@ -180,15 +193,12 @@ class RoomPlacer:
         cells = self._wall_cells[direction]
         if len(cells) == 0:
             return None
-        cell = cells[self.rng.integers(len(cells))]
+        k = int(self.rng.integers(len(cells)))
+        cell = cells[k]
         out = np.array(((1, 0), (0, 1), (-1, 0), (0, -1))[direction], dtype=float)
-        j, i = self._cell_of(cell)
-        # the nearest face at the object's low, middle and top height (a table's top overhangs its legs)
-        heights = np.array([0.05, obj.size_m[2] / 2, max(obj.size_m[2] - 0.02, 0.05)])
-        origins = np.column_stack([np.repeat(self.room.to_world(cell[None]), 3, axis=0),
-                                   self.room.floor_z[j, i] + heights])
-        t, _ = self.prober.cast(origins, np.tile(np.append(self.room.to_world(out[None])[0], 0.0), (3, 1)))
-        distance = float(t.min())
+        # the nearest face over the object's height (a table's top overhangs its legs)
+        reach = WALL_HEIGHTS_M <= max(obj.size_m[2], WALL_HEIGHTS_M[0])
+        distance = float(self._wall_distance[direction][k][reach].min())
         if not np.isfinite(distance) or distance > 2 * self.room.cell_m:
             return None  # the free floor ends at an object or an edge, not a wall
         lateral = np.array([-out[1], out[0]]) * self.rng.uniform(-0.5, 0.5) * self.room.cell_m
@@ -237,8 +247,7 @@ class RoomPlacer:
         if headroom.min() < h + (0.002 if spanning else 0.02):
             return None
         # (2) the other objects
-        grown = self._footprint(obj, pose, GAP_M)
-        if any(_overlap(grown, other) for other in self.rects):
+        if self._overlaps_placed(self._footprint(obj, pose, GAP_M)):
             return None
         # (3) rays through the box
         return None if self._box_hits(obj, pose, base, spanning=spanning) else base
@@ -270,6 +279,13 @@ class RoomPlacer:
         t, _ = self.prober.cast(world_o, local_d @ rotation.T)
         return bool((t < length).any())
 
+    def _overlaps_placed(self, rect: np.ndarray) -> bool:
+        lo, hi = rect.min(axis=0), rect.max(axis=0)
+        boxes = self._boxes
+        near = np.flatnonzero((boxes[:, 0] < hi[0]) & (boxes[:, 2] > lo[0])
+                              & (boxes[:, 1] < hi[1]) & (boxes[:, 3] > lo[1]))
+        return any(_overlap(rect, self.rects[k]) for k in near)
+
     def _rotation(self, pose: _Pose) -> np.ndarray:
         return yaw_matrix(self.room.angle_rad + pose.yaw)
 
@@ -282,6 +298,7 @@ class RoomPlacer:
         placed = PlacedObject(kind=kind.name, class_name=obj.class_name, room=room.name, storey=room.storey,
                               vertices=vertices, faces=obj.faces, footprint=room.to_world(rect), base_z=base)
         self.rects.append(rect)
+        self._boxes = np.vstack([self._boxes, np.concatenate([rect.min(axis=0), rect.max(axis=0)])[None]])
         self.placed.append(placed)
         return placed
 
@@ -294,7 +311,7 @@ def _rotate2(points: np.ndarray, angle: float) -> np.ndarray:
 def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
     """True when two convex polygons (k, 2) share interior area (separating axis test)."""
     for poly in (a, b):
-        edges = np.roll(poly, -1, axis=0) - poly
+        edges = poly[[1, 2, 3, 0]] - poly if len(poly) == 4 else np.roll(poly, -1, axis=0) - poly
         normals = np.column_stack([-edges[:, 1], edges[:, 0]])
         pa, pb = a @ normals.T, b @ normals.T
         if ((pa.max(axis=0) <= pb.min(axis=0)) | (pb.max(axis=0) <= pa.min(axis=0))).any():

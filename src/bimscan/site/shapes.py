@@ -48,7 +48,8 @@ class MeshBuilder:
             raise ValueError(f"box with empty extent {size}")
         self.frame_box(lo_, np.array([size[0], 0, 0]), np.array([0, size[1], 0]), np.array([0, 0, size[2]]))
 
-    def member(self, p0: tuple[float, float, float], p1: tuple[float, float, float], width: float, depth: float) -> None:
+    def member(self, p0: tuple[float, float, float], p1: tuple[float, float, float], width: float,
+               depth: float) -> None:
         """A straight member of ``width`` x ``depth`` section from ``p0`` to ``p1`` (width horizontal
         when the member is not vertical)."""
         u, e1, e2, length = _axes(p0, p1)
@@ -80,7 +81,8 @@ class MeshBuilder:
         return np.concatenate(self._vertices).astype(np.float64), np.concatenate(self._faces).astype(np.int32)
 
 
-def _axes(p0: tuple[float, float, float], p1: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+def _axes(p0: tuple[float, float, float],
+          p1: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Unit axis from p0 to p1, two unit vectors across it with (e1, e2, u) right-handed, and the length."""
     d = np.asarray(p1, float) - np.asarray(p0, float)
     length = float(np.linalg.norm(d))
