@@ -58,7 +58,7 @@ def test_a_date_keeps_what_the_schedule_has_built(tmp_path, tiny_model):
 
 @pytest.mark.parametrize("flags, message", [
     (["--clutter", "-1"], "clutter density = -1.0 is impossible"),
-    (["--clutter", "0.2", "--clutter-kinds", "sofa"], "unknown clutter kind 'sofa'"),
+    (["--clutter", "0.2", "--clutter-kinds", "piano"], "unknown clutter kind 'piano'"),
     (["--at", "2024-01-01"], "links no element to a dated task"),
     (["--walls-missing", "2"], "walls_missing_fraction = 2.0 is impossible"),
 ])
