@@ -21,7 +21,7 @@ def site_options(command: Callable[..., Any]) -> Callable[..., Any]:
     options = [
         click.option("--clutter", "clutter", type=float, default=0.0, show_default=True,
                      help="Clutter and temporary works: objects per square metre of free floor (0 = none; "
-                          "an office looks like the real S3DIS rooms at about 0.25)."),
+                          "an office holds as much furniture as the real S3DIS rooms at about 0.75)."),
         click.option("--clutter-kinds", default=None,
                      help=f"Comma-separated kinds ({', '.join(CLUTTER_KINDS)}) or groups ({', '.join(GROUPS)}). "
                           "Default: by stage (finished: office,people; earlier: site,people)."),
