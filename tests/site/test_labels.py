@@ -103,3 +103,13 @@ def test_site_components_appear_in_the_obj_export(tmp_path, office_scene, dresse
     assert len(site_rows) == len(added(dressed_office, office_scene))
     assert {r["label_name"] for r in site_rows} == {"Others"} and all(int(r["n_triangles"]) > 0 for r in site_rows)
     assert all((tmp_path / "obj" / r["obj_file"]).is_file() for r in site_rows)
+
+
+def test_export_obj_takes_the_site_flags(box_room_ifc, tmp_path):
+    import csv
+
+    from bimscan.cli.main import main
+
+    assert main(["export-obj", str(box_room_ifc), str(tmp_path / "obj"), "--clutter", "0.3", "--seed", "2"]) == 0
+    rows = list(csv.DictReader((tmp_path / "obj" / "index.csv").open()))
+    assert sum(r["ifc_class"].startswith(("Clutter.", "Person.", "Temporary.")) for r in rows) >= 5

@@ -147,3 +147,29 @@ def test_points_inside_walls_are_told_from_points_in_the_room(box_room_ifc):
     prober = Prober(load_scene(box_room_ifc).mesh)
     points = np.array([[4.0, 6.1, 1.0], [-0.1, 3.0, 1.0], [4.0, -0.2, 0.0], [4.0, 3.0, 1.0], [0.3, 5.7, 1.0]])
     assert prober.inside_solid(points).tolist() == [True, True, True, False, False]
+
+
+def test_stations_given_in_a_file_keep_their_spots_clear(box_room_ifc, tmp_path):
+    from bimscan.pipeline import build_site, load_scene
+    from bimscan.scan.recipe import ScanRecipe
+    from bimscan.survey.survey import prepare_survey
+
+    stations = tmp_path / "stations.csv"
+    stations.write_text("x,y,height\n4,3,1.7\n2,2,1.7\n")
+    site = SiteModel(clutter=ClutterSettings(density=0.8, kinds=("site", "office")))
+    recipe = ScanRecipe(stations_from=str(stations), site=site, seed=1)
+    scene = build_site(load_scene(box_room_ifc), recipe)
+    new = np.arange(len(scene.components) - sum(scene.site.placed.values()), len(scene.components))
+    v = scene.mesh.vertices[np.unique(scene.mesh.faces[np.isin(scene.mesh.face_component, new)])]
+    assert len(new) >= 10
+    for x, y in ((4, 3), (2, 2)):
+        assert np.hypot(v[:, 0] - x, v[:, 1] - y).min() > 0.5  # the tripod's spot and its legs' reach
+    assert len(prepare_survey(scene, recipe).stations) == 2  # both stations pass their checks
+
+
+def test_a_survey_refuses_a_scene_not_dressed_for_its_recipe(office_scene):
+    from bimscan.scan.recipe import ScanRecipe
+    from bimscan.survey.survey import prepare_survey
+
+    with pytest.raises(ValueError, match="not dressed with this recipe's site model"):
+        prepare_survey(office_scene, ScanRecipe(site=SiteModel(clutter=ClutterSettings(density=0.1))))
