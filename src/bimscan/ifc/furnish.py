@@ -11,15 +11,15 @@ length unit. Partly opened ceilings stay whole in the copy (only their panels ar
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from bimscan.errors import IfcError, InputFileError, OutputError
+from bimscan.errors import OutputError
 from bimscan.files import atomic_output
+from bimscan.ifc.schedule import open_model
 
 
 @dataclass(frozen=True)
@@ -40,7 +40,6 @@ class FurnishObject:
 def write_furnished(source: str | Path, out: str | Path, objects: Sequence[FurnishObject],
                     removed: Iterable[str] = ()) -> int:
     """Write the furnished copy of ``source`` to ``out`` (atomically); returns the elements added."""
-    import ifcopenshell
     import ifcopenshell.api
     import ifcopenshell.api.geometry  # noqa: F401  (registers the geometry api)
     import ifcopenshell.util.representation
@@ -51,13 +50,7 @@ def write_furnished(source: str | Path, out: str | Path, objects: Sequence[Furni
         raise OutputError(f"output file must end in .ifc, got {str(out)!r}; name it like furnished.ifc")
     if not out.parent.is_dir():
         raise OutputError(f"output folder {str(out.parent)!r} does not exist; create it first")
-    if not source.is_file():
-        raise InputFileError(f"{source}: no such file; check the path")
-    logging.getLogger("ifcopenshell").setLevel(logging.CRITICAL)
-    try:
-        model = ifcopenshell.open(str(source))
-    except Exception as exc:  # IfcOpenShell raises its own error types with parser messages
-        raise IfcError(f"{source}: the IFC file could not be parsed ({exc}); check the export") from exc
+    model = open_model(source)
     run = ifcopenshell.api.run
     scale = ifcopenshell.util.unit.calculate_unit_scale(model)  # project units -> metres
     gone = set(removed)

@@ -29,16 +29,7 @@ def read_schedule(path: str | Path) -> dict[str, BuildDates]:
 
     Raises InputFileError for a missing file, IfcError when it cannot be parsed.
     """
-    import ifcopenshell
-
-    path = Path(path)
-    if not path.is_file():
-        raise InputFileError(f"{path}: no such file; check the path")
-    logging.getLogger("ifcopenshell").setLevel(logging.CRITICAL)
-    try:
-        model = ifcopenshell.open(str(path))
-    except Exception as exc:  # IfcOpenShell raises its own error types with parser messages
-        raise IfcError(f"{path}: the IFC file could not be parsed ({exc}); check the export") from exc
+    model = open_model(path)
     built: dict[int, datetime.date] = {}
     removed: dict[int, datetime.date] = {}
     for task in model.by_type("IfcTask"):
@@ -67,6 +58,23 @@ def read_schedule(path: str | Path) -> dict[str, BuildDates]:
             out[str(gid)] = BuildDates(built=None if b is None else b.isoformat(),
                                        removed=None if r is None else r.isoformat())
     return dict(sorted(out.items()))
+
+
+def open_model(path: str | Path):  # -> ifcopenshell.file
+    """The IFC file at ``path`` opened with IfcOpenShell (for reading its non-geometric data).
+
+    Raises InputFileError for a missing file, IfcError when it cannot be parsed.
+    """
+    import ifcopenshell
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(f"{path}: no such file; check the path")
+    logging.getLogger("ifcopenshell").setLevel(logging.CRITICAL)
+    try:
+        return ifcopenshell.open(str(path))
+    except Exception as exc:  # IfcOpenShell raises its own error types with parser messages
+        raise IfcError(f"{path}: the IFC file could not be parsed ({exc}); check the export") from exc
 
 
 def _products_of(task) -> list:  # -> list[entity_instance]
