@@ -165,11 +165,14 @@ def _append(scene: BimScene, placed: list[PlacedObject], *, seed: int) -> BimSce
     table, mesh = scene.components, scene.mesh
     first = len(table)
     names: Counter[tuple[str, str]] = Counter()
+    in_room: Counter[str] = Counter()
     rows: list[tuple[str, str, str, str, str]] = []
-    for k, obj in enumerate(placed):
+    for obj in placed:
         names[(obj.room, obj.kind)] += 1
-        rows.append((derived_global_id("bimscan-site", scene.file_sha256, seed, obj.room, k), obj.class_name,
-                     obj.kind, f"{obj.kind} {names[(obj.room, obj.kind)]} in {obj.room}".strip(), obj.storey))
+        in_room[obj.room] += 1  # GlobalIds by room and rank in it: other rooms' objects do not move them
+        rows.append((derived_global_id("bimscan-site", scene.file_sha256, seed, obj.room, in_room[obj.room]),
+                     obj.class_name, obj.kind, f"{obj.kind} {names[(obj.room, obj.kind)]} in {obj.room}".strip(),
+                     obj.storey))
     gid, cls, kind, name, storey = (np.array(c, dtype=str) for c in zip(*rows))
     ifc_ancestry = {c: table.class_ancestry.get(c, (c,)) for s in SITE_CLASSES.values() for c in s.ifc_classes}
     if any(len(v) == 1 for v in ifc_ancestry.values()):
