@@ -169,8 +169,9 @@ def _append(scene: BimScene, placed: list[PlacedObject], *, seed: int) -> BimSce
     rows: list[tuple[str, str, str, str, str]] = []
     for obj in placed:
         names[(obj.room, obj.kind)] += 1
-        in_room[obj.room] += 1  # GlobalIds by room and rank in it: other rooms' objects do not move them
-        rows.append((derived_global_id("bimscan-site", scene.file_sha256, seed, obj.room, in_room[obj.room]),
+        in_room[obj.room_key] += 1  # GlobalIds by room and rank in it: other rooms' objects do not move them
+        gid = derived_global_id("bimscan-site", scene.file_sha256, seed, obj.room_key, in_room[obj.room_key])
+        rows.append((gid,
                      obj.class_name, obj.kind, f"{obj.kind} {names[(obj.room, obj.kind)]} in {obj.room}".strip(),
                      obj.storey))
     gid, cls, kind, name, storey = (np.array(c, dtype=str) for c in zip(*rows))

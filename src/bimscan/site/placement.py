@@ -46,6 +46,7 @@ class PlacedObject:
     kind: str
     class_name: str
     room: str
+    room_key: str  # the room's identity (IfcSpace GlobalId, or storey and area number)
     storey: str
     vertices: np.ndarray
     faces: np.ndarray
@@ -295,8 +296,9 @@ class RoomPlacer:
         vertices = obj.vertices @ self._rotation(pose).T
         vertices[:, :2] += room.to_world(pose.centre[None])[0]
         vertices[:, 2] += base
-        placed = PlacedObject(kind=kind.name, class_name=obj.class_name, room=room.name, storey=room.storey,
-                              vertices=vertices, faces=obj.faces, footprint=room.to_world(rect), base_z=base)
+        placed = PlacedObject(kind=kind.name, class_name=obj.class_name, room=room.name, room_key=room.key,
+                              storey=room.storey, vertices=vertices, faces=obj.faces, footprint=room.to_world(rect),
+                              base_z=base)
         self.rects.append(rect)
         self._boxes = np.vstack([self._boxes, np.concatenate([rect.min(axis=0), rect.max(axis=0)])[None]])
         self.placed.append(placed)
