@@ -113,3 +113,15 @@ def test_export_obj_takes_the_site_flags(box_room_ifc, tmp_path):
     assert main(["export-obj", str(box_room_ifc), str(tmp_path / "obj"), "--clutter", "0.3", "--seed", "2"]) == 0
     rows = list(csv.DictReader((tmp_path / "obj" / "index.csv").open()))
     assert sum(r["ifc_class"].startswith(("Clutter.", "Person.", "Temporary.")) for r in rows) >= 5
+
+
+def test_added_components_get_valid_ifc_global_ids():
+    import ifcopenshell.guid
+
+    from bimscan.site import derived_global_id
+
+    ids = {derived_global_id("x", k) for k in range(200)}
+    assert len(ids) == 200
+    for gid in list(ids)[:20]:
+        assert len(gid) == 22 and ifcopenshell.guid.compress(ifcopenshell.guid.expand(gid)) == gid
+    assert derived_global_id("x", 1) == derived_global_id("x", 1)

@@ -170,10 +170,9 @@ def _append(scene: BimScene, placed: list[PlacedObject], *, seed: int) -> BimSce
     for obj in placed:
         names[(obj.room, obj.kind)] += 1
         in_room[obj.room_key] += 1  # GlobalIds by room and rank in it: other rooms' objects do not move them
-        gid = derived_global_id("bimscan-site", scene.file_sha256, seed, obj.room_key, in_room[obj.room_key])
-        rows.append((gid,
-                     obj.class_name, obj.kind, f"{obj.kind} {names[(obj.room, obj.kind)]} in {obj.room}".strip(),
-                     obj.storey))
+        global_id = derived_global_id("bimscan-site", scene.file_sha256, seed, obj.room_key, in_room[obj.room_key])
+        name = f"{obj.kind} {names[(obj.room, obj.kind)]} in {obj.room}".strip()
+        rows.append((global_id, obj.class_name, obj.kind, name, obj.storey))
     gid, cls, kind, name, storey = (np.array(c, dtype=str) for c in zip(*rows))
     ifc_ancestry = {c: table.class_ancestry.get(c, (c,)) for s in SITE_CLASSES.values() for c in s.ifc_classes}
     if any(len(v) == 1 for v in ifc_ancestry.values()):
