@@ -88,6 +88,9 @@ def test_each_site_state_of_a_scene_gets_its_own_stations_and_a_density_change_t
     second = plan(tmp_path / "out", write_spec(tmp_path))
     assert len(second.scene_jobs) == 2 and len({j.stations_file for j in second.scene_jobs}) == 2
     assert second.unit_jobs["office__empty"].site_tag == ""
+    busy_scene_job = next(j for j in second.scene_jobs if j.site_tag == second.unit_jobs["office__busy"].site_tag)
+    assert second.unit_jobs["office__busy"].site_key == busy_scene_job.stations_key  # the unit reads its dressing
+    assert busy_scene_job.site_file.endswith(".site.npz")
     assert second.unit_jobs["office__busy"].fingerprint == first.unit_jobs["office__busy"].fingerprint
     assert second.unit_jobs["office__empty"].fingerprint != first.unit_jobs["office__empty"].fingerprint
     third = plan(tmp_path / "out", write_spec(tmp_path, busy='clutter = { density = 0.3 }'))
@@ -110,6 +113,8 @@ def test_a_site_dataset_records_what_was_placed_and_rebuilds_only_what_a_change_
     assert busy.class_histogram["Others"] > empty.class_histogram["Others"]
     stations_files = sorted(p.name for p in folder.scenes_dir.glob("*.stations.json"))
     assert len(stations_files) == 2 and "office.stations.json" in stations_files
+    (site_file,) = folder.scenes_dir.glob("office.*.site.npz")  # dressed once, read by the unit
+    assert site_file.name.replace(".site.npz", ".stations.json") in stations_files
     assert sorted(e.status for e in folder.read_manifest().units) == ["done", "done"]
     before = (folder.unit_dir("office__empty") / "unit.json").read_bytes()
 
@@ -118,3 +123,24 @@ def test_a_site_dataset_records_what_was_placed_and_rebuilds_only_what_a_change_
     assert again.ok and again.built == 1 and again.reused == 1
     assert (folder.unit_dir("office__empty") / "unit.json").read_bytes() == before
     assert folder.read_unit("office__busy").inputs["recipe"]["site"]["clutter"]["density"] == 0.1
+
+
+def test_a_stored_dressed_scene_reads_back_as_the_scene_dressed_again(tmp_path, box_room_ifc):
+    from bimscan.dataset.layout import read_site_scene, write_site_scene
+    from bimscan.pipeline import build_site, load_scene
+    from bimscan.scan.recipe import ScanRecipe
+    from bimscan.site import ClutterSettings, SiteModel
+
+    scene = load_scene(box_room_ifc)
+    recipe = ScanRecipe(seed=4, site=SiteModel(clutter=ClutterSettings(density=0.3)))
+    dressed = build_site(scene, recipe)
+    write_site_scene(tmp_path / "a.site.npz", dressed, "key-1")
+    write_site_scene(tmp_path / "b.site.npz", build_site(scene, recipe), "key-1")
+    assert (tmp_path / "a.site.npz").read_bytes() == (tmp_path / "b.site.npz").read_bytes()  # same scene, same bytes
+    back = read_site_scene(tmp_path / "a.site.npz", scene, "key-1")
+    assert back.mesh.vertices.tobytes() == dressed.mesh.vertices.tobytes()
+    assert back.components.rows() == dressed.components.rows() and back.site == dressed.site
+    assert dict(back.components.class_ancestry) == dict(dressed.components.class_ancestry)
+    assert read_site_scene(tmp_path / "a.site.npz", scene, "key-2") is None  # dressed from something else
+    (tmp_path / "a.site.npz").write_bytes(b"garbage")
+    assert read_site_scene(tmp_path / "a.site.npz", scene, "key-1") is None

@@ -41,6 +41,7 @@ class SceneJob:
     stations_file: str  # where the chosen stations go
     stations_key: str  # fingerprint of what the stations depend on
     site_tag: str = ""  # the site state ("" for the model as it is)
+    site_file: str = ""  # where the dressed scene goes ("" for the model as it is)
 
 
 @dataclass(frozen=True)
@@ -58,7 +59,8 @@ class UnitJob:
     out_dir: str
     inputs: Mapping[str, Any]
     fingerprint: str
-    site_tag: str = ""  # which of the scene's station files it scans from
+    site_tag: str = ""  # which of the scene's station files (and dressed scenes) it scans from
+    site_key: str = ""  # what its dressed scene must have been dressed from (the scene job's stations key)
 
 
 @dataclass(frozen=True)
@@ -174,12 +176,14 @@ def plan_build(spec: DatasetSpec, folder: DatasetFolder, scene_files: dict[str, 
             unit_jobs[uid] = UnitJob(unit=uid, scene=scene.name, config=config.name, ifc=str(scene_files[scene.name]),
                                      scheme=spec.scheme, recipe=recipe, formats=spec.formats,
                                      voxel_size_m=spec.voxel_size_m, out_dir=str(folder.root), inputs=inputs,
-                                     fingerprint=key, site_tag=tag)
+                                     fingerprint=key, site_tag=tag, site_key=stations_key(inputs_of_scene, recipe))
             scene_recipes.setdefault(tag, recipe)
         if inputs_of_scene is not None:
             for tag, scene_recipe in scene_recipes.items():
                 stations_file = str(folder.stations_path(scene.name, tag))
+                site_file = str(folder.site_scene_path(scene.name, tag)) if tag else ""
                 scene_jobs.append(SceneJob(scene=scene.name, ifc=str(scene_files[scene.name]), scheme=spec.scheme,
                                            recipe=scene_recipe, stations_file=stations_file,
-                                           stations_key=stations_key(inputs_of_scene, scene_recipe), site_tag=tag))
+                                           stations_key=stations_key(inputs_of_scene, scene_recipe), site_tag=tag,
+                                           site_file=site_file))
     return BuildPlan(entries=entries, unit_jobs=unit_jobs, scene_jobs=scene_jobs)

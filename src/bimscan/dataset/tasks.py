@@ -3,9 +3,10 @@
 A *scene task* parses a scene once (filling the on-disk geometry cache), dresses it as the site
 its units scan (construction stage, clutter; ``pipeline.build_site``) and plans its stations on
 that scene once (``scenes/<scene>[.<site>].stations.json``): every configuration of the scene
-and site state scans from the same viewpoints, as in the paper. A *unit task* dresses the scene
-again (seeded: the same objects in the same places), scans the survey with its recipe and
-streams the merged cloud through the post-processing (invalid points dropped and counted, semantic checks,
+and site state scans from the same viewpoints, as in the paper; the dressed scene is kept beside
+them (``scenes/<scene>.<site>.site.npz``). A *unit task* reads that dressed scene (or, when it
+is missing, dresses the scene again: seeded, the same objects in the same places), scans the
+survey with its recipe and streams the merged cloud through the post-processing (invalid points dropped and counted, semantic checks,
 optional voxel subsampling) into every requested format at once, checks what was written, and
 writes ``unit.json`` (reproducible) and ``timings.json`` (not). The unit is built in a hidden
 staging folder and renamed into place when whole. Tasks are module-level functions so they
@@ -26,8 +27,8 @@ from typing import TYPE_CHECKING
 
 from bimscan.dataset.executors import driver_alive, report_pulses
 from bimscan.dataset.layout import (
-    FORMAT_FILES, STATIONS_FORMAT, STATIONS_VERSION, TIMINGS_NAME, DatasetFolder, UnitRecord, read_json, write_json,
-    write_unit_record,
+    FORMAT_FILES, STATIONS_FORMAT, STATIONS_VERSION, TIMINGS_NAME, DatasetFolder, UnitRecord, read_json,
+    read_site_scene, write_json, write_site_scene, write_unit_record,
 )
 from bimscan.dataset.plan import SceneJob, UnitJob
 from bimscan.errors import BimscanError, DatasetError
@@ -89,16 +90,20 @@ def run_scene_job(job: SceneJob) -> SceneOutcome:
         scene = load_scene(job.ifc, scheme=job.scheme, threads=job.recipe.threads)
         parse_s = time.perf_counter() - start
         path = Path(job.stations_file)
+        site_path = Path(job.site_file) if job.site_file else None
         if path.is_file():
             try:
                 stored = read_json(path)
-                if stored.get("key") == job.stations_key:
+                dressed_ok = site_path is None or read_site_scene(site_path, scene, job.stations_key) is not None
+                if stored.get("key") == job.stations_key and dressed_ok:
                     return SceneOutcome(scene=job.scene, n_stations=len(stored["stations"]),
                                         parse_s=parse_s, notes=tuple(stored.get("notes", ())), site_tag=job.site_tag)
             except (DatasetError, KeyError, TypeError):
                 pass  # damaged: plan again
         site_start = time.perf_counter()
         scene, timings = build_site_timed(scene, job.recipe)
+        if site_path is not None:
+            write_site_scene(site_path, scene, job.stations_key)
         site_s = time.perf_counter() - site_start
         stations, plan = choose_stations(scene, place_scanner(scene, job.recipe), job.recipe.stations_from)
         notes: list[str] = []
@@ -130,7 +135,9 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
     try:
         scene = load_scene(job.ifc, scheme=job.scheme, threads=job.recipe.threads)
         load_s = time.perf_counter() - start
-        scene = build_site(scene, job.recipe)
+        if job.site_tag:  # the scene task's dressed scene, else dressed again (the same bytes)
+            stored = read_site_scene(folder.site_scene_path(job.scene, job.site_tag), scene, job.site_key)
+            scene = stored if stored is not None else build_site(scene, job.recipe)
         site_s = time.perf_counter() - start - load_s
         stations = folder.read_stations(job.scene, job.site_tag)
         survey = prepare_survey(scene, job.recipe, stations=stations)
