@@ -1,8 +1,10 @@
-"""The pipeline composed: IFC -> labelled scene -> planned survey -> streamed, checked cloud file.
+"""The pipeline composed: IFC -> labelled scene -> site as scanned -> planned survey -> streamed,
+checked cloud file.
 
 This thin layer joins the stages for the CLI and for the dataset builder; each stage stays
-usable alone (``load_ifc``, ``label_model``, ``VirtualScanner``, ``prepare_survey``,
-``run_survey``, ``open_cloud_writer``). ``scan_model`` is the whole of ``bimscan scan``.
+usable alone (``load_ifc``, ``label_model``, ``dress_scene``, ``VirtualScanner``,
+``prepare_survey``, ``run_survey``, ``open_cloud_writer``). ``scan_model`` is the whole of
+``bimscan scan``.
 """
 
 from __future__ import annotations
@@ -13,11 +15,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from bimscan.errors import StationError
 from bimscan.process.checks import check_semantics, filter_invalid
 from bimscan.process.summary import CloudSummary
 from bimscan.progress import progress_bar
-from bimscan.scan.recipe import ScanRecipe
+from bimscan.scan.recipe import AUTO_STATIONS, ScanRecipe
+from bimscan.site import DressTimings, dress_scene_timed
 from bimscan.survey.survey import Survey, cloud_header, prepare_survey, run_survey
 from bimscan.types import BimScene, LabelScheme, PointCloud
 
@@ -35,12 +40,14 @@ class ScanResult:
 
 def load_label_scheme(source: str | Path | LabelScheme | None = None) -> LabelScheme:
     """A label scheme (None: spc5; a built-in name, a TOML file, or one already loaded) whose rules
-    name only IFC classes that some supported schema knows (a misspelt class is a SchemeError)."""
+    name only IFC classes that some supported schema knows, or bimscan's own site classes
+    (``Clutter.Chair``, ``Temporary``, ...); a misspelt class is a SchemeError."""
     from bimscan.ifc.schema import known_classes
     from bimscan.semantics import check_rule_classes, load_scheme
+    from bimscan.site import site_class_names
 
     scheme = source if isinstance(source, LabelScheme) else load_scheme(source)
-    check_rule_classes(scheme, known_classes())
+    check_rule_classes(scheme, known_classes() | site_class_names())
     return scheme
 
 
@@ -55,6 +62,71 @@ def load_scene(path: str | Path, *, scheme: str | Path | LabelScheme | None = No
 
     label_scheme = load_label_scheme(scheme)
     return label_model(load_ifc(path, use_cache=use_cache, threads=threads), label_scheme)
+
+
+def build_site(scene: BimScene, recipe: ScanRecipe) -> BimScene:
+    """The scene as the recipe's site model has it when scanned (stage, clutter; ``bimscan.site``).
+
+    With ``stage.at`` the model's work schedule is read (ConfigError when it links no element to
+    a dated task). With stations from a file, their spots are kept clear of clutter. A bare site
+    model returns ``scene``.
+    """
+    return build_site_timed(scene, recipe)[0]
+
+
+def build_site_timed(scene: BimScene, recipe: ScanRecipe) -> tuple[BimScene, DressTimings]:
+    """``build_site`` and its ``site.DressTimings``."""
+    from bimscan.errors import ConfigError
+
+    site = recipe.site
+    if site.is_bare:
+        return scene, DressTimings()
+    schedule = None
+    if site.stage.at is not None:
+        from bimscan.ifc.schedule import read_schedule
+
+        schedule = read_schedule(scene.source)
+        if not schedule:
+            raise ConfigError(f"{scene.source}: --at {site.stage.at}: the model links no element to a dated task "
+                              "(IfcTask with task times, through IfcRelAssignsToProcess or IfcRelAssignsToProduct); "
+                              "leave --at out or add a work schedule to the model")
+    keep_clear: tuple[tuple[float, float, float], ...] = ()
+    if recipe.stations_from != AUTO_STATIONS:
+        from bimscan.survey.survey import choose_stations, place_scanner
+
+        given, _ = choose_stations(scene, place_scanner(scene, recipe), recipe.stations_from)
+        keep_clear = tuple((s.position[0], s.position[1], s.floor_z if s.floor_z is not None else
+                            s.position[2] - recipe.scanner.instrument_height_m) for s in given)
+    return dress_scene_timed(scene, site, seed=recipe.seed, schedule=schedule, keep_clear=keep_clear,
+                             threads=recipe.threads)
+
+
+def furnish_model(model: str | Path, out: str | Path, recipe: ScanRecipe, *,
+                  scheme: str | Path | LabelScheme | None = None) -> BimScene:
+    """Write a copy of the IFC ``model`` dressed as the recipe's site (``bimscan furnish``): the
+    placed objects as IfcFurniture / IfcBuildingElementProxy, the elements the stage leaves out
+    removed. Returns the dressed scene."""
+    from bimscan.ifc.furnish import FurnishObject, write_furnished
+    from bimscan.site import SITE_CLASSES
+
+    scene = load_scene(model, scheme=scheme, threads=recipe.threads or None)
+    dressed = build_site(scene, recipe)
+    table, mesh = dressed.components, dressed.mesh
+    order = np.argsort(mesh.face_component, kind="stable")
+    starts = np.searchsorted(mesh.face_component[order], np.arange(len(table) + 1))
+    objects = []
+    for c in range(len(table)):
+        cls = str(table.ifc_class[c])
+        if cls not in SITE_CLASSES:
+            continue
+        faces = mesh.faces[order[starts[c]:starts[c + 1]]]
+        used, inverse = np.unique(faces, return_inverse=True)
+        objects.append(FurnishObject(global_id=str(table.global_id[c]), ifc_classes=SITE_CLASSES[cls].ifc_classes,
+                                     object_type=cls, name=str(table.name[c]), storey=str(table.storey[c]),
+                                     vertices=mesh.vertices[used], faces=inverse.reshape(-1, 3).astype(np.int32)))
+    removed = set(scene.components.global_id.tolist()) - set(table.global_id.tolist())
+    write_furnished(model, out, objects, removed)
+    return dressed
 
 
 def stream_checked(survey: Survey, *, summary: CloudSummary,
@@ -120,7 +192,7 @@ def scan_model(model: str | Path, out: str | Path, recipe: ScanRecipe, *,
     for warning in recipe.warnings:
         if warn is not None:
             warn(warning)
-    scene = load_scene(model, scheme=scheme, threads=recipe.threads or None)
+    scene = build_site(load_scene(model, scheme=scheme, threads=recipe.threads or None), recipe)
     survey = prepare_survey(scene, recipe)
     if warn is not None and survey.plan is not None and survey.plan.rooms_without_station:
         warn("rooms without a station (too small for a tripod or no floor): "

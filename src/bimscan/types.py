@@ -198,6 +198,57 @@ class Space:
         _check("vertices", self.vertices, "float64", (None, 3))
         _check("faces", self.faces, "int32", (None, 3))
 
+    def contains(self, points: np.ndarray, *, below_m: float = 0.6) -> np.ndarray:
+        """(N,) bool: points (N, 3) metres whose xy falls inside the room's footprint (its triangles
+        seen from above) and whose z lies between ``below_m`` under its floor and its top."""
+        v, f = self.vertices, self.faces
+        z0, z1 = float(v[:, 2].min()), float(v[:, 2].max())
+        inside = np.zeros(len(points), dtype=bool)
+        a, b, c = v[f[:, 0], :2], v[f[:, 1], :2], v[f[:, 2], :2]
+        area = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+        keep = np.abs(area) > 1e-9  # vertical faces project to lines
+        a, b, c, area = a[keep], b[keep], c[keep], area[keep]
+        p = points[:, :2]
+        for start in range(0, len(p), 4096):  # (4096 x faces) barycentric tests at a time: bounded memory
+            q = p[start:start + 4096, None, :]
+            w0 = ((b[:, 0] - q[..., 0]) * (c[:, 1] - q[..., 1]) - (c[:, 0] - q[..., 0]) * (b[:, 1] - q[..., 1])) / area
+            w1 = ((c[:, 0] - q[..., 0]) * (a[:, 1] - q[..., 1]) - (a[:, 0] - q[..., 0]) * (c[:, 1] - q[..., 1])) / area
+            inside[start:start + 4096] = ((w0 >= 0) & (w1 >= 0) & (w0 + w1 <= 1)).any(axis=1)
+        return inside & (points[:, 2] > z0 - below_m) & (points[:, 2] < z1)
+
+
+@dataclass(frozen=True)
+class BuildDates:
+    """When a building element stands on site, from the model's work schedule (ISO dates, or None).
+
+    built: the finish of the task that constructs or installs it (None: no such task, it is there
+    from the start); removed: the finish of a task that demolishes or dismantles it (None: never).
+    """
+
+    built: str | None = None
+    removed: str | None = None
+
+
+@dataclass(frozen=True)
+class SiteState:
+    """How a scene was changed to look as the site does when scanned (``bimscan.site``).
+
+    settings: the site model and seed it was dressed with (``site.site_settings``); removed: IFC
+    class -> components the construction stage took out; placed: class name (``Clutter.Chair``,
+    ...) -> objects added; rooms: rooms (or free floor areas) dressed; free_floor_m2: their free
+    floor before anything was placed.
+    """
+
+    settings: Mapping[str, object]
+    removed: Mapping[str, int] = field(default_factory=dict)
+    placed: Mapping[str, int] = field(default_factory=dict)
+    rooms: int = 0
+    free_floor_m2: float = 0.0
+
+    def to_json(self) -> dict[str, object]:
+        return {"removed": dict(self.removed), "placed": dict(self.placed), "rooms": self.rooms,
+                "free_floor_m2": round(self.free_floor_m2, 3)}
+
 
 @dataclass(frozen=True)
 class FailedElement:
@@ -229,6 +280,7 @@ class BimScene(ParsedModel):
 
     scheme: LabelScheme
     unmapped_classes: Mapping[str, int]  # IFC class -> components that fell to the default class
+    site: SiteState | None = None  # set when bimscan.site dressed the scene (stage, clutter)
 
     def __post_init__(self) -> None:
         if len(self.mesh.face_component) and self.mesh.face_component.max() >= len(self.components):

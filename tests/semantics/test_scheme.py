@@ -10,6 +10,7 @@ from bimscan.errors import SchemeError
 from bimscan.pipeline import load_scene
 from bimscan.ifc.schema import class_ancestry, known_classes
 from bimscan.semantics import check_rule_classes, load_scheme, map_labels, parse_scheme
+from bimscan.site import site_class_names
 from bimscan.types import ComponentTable
 
 
@@ -34,7 +35,7 @@ def test_default_scheme_has_the_papers_five_classes_in_order():
     assert [(c.id, c.name) for c in scheme.classes] == [
         (0, "Wall&Column"), (1, "Beam"), (2, "Covering"), (3, "Slab"), (4, "Others")]
     assert scheme.default_label == "Others"
-    check_rule_classes(scheme, known_classes())
+    check_rule_classes(scheme, known_classes() | site_class_names())
 
 
 @pytest.mark.parametrize("schema, ifc_class, expected", [
@@ -113,7 +114,7 @@ BAD_SCHEMES = [
     ('default = "a"\n[[classes]]\nid = 0\nname = "a"\ncolor = "red"\n', "#rrggbb"),
     ('default = "a"\n[[classes]]\nid = 0\nname = "a"\n[[rules]]\nifc_class = "IfcWall"\nlabel = "zzz"\n', "not one of the classes"),
     ('default = "a"\ncolour = 1\n[[classes]]\nid = 0\nname = "a"\n', "unknown key"),
-    ('default = "a"\n[[classes]]\nid = 0\nname = "a"\n[[rules]]\nifc_class = "Wall"\nlabel = "a"\n', "IFC class name"),
+    ('default = "a"\n[[classes]]\nid = 0\nname = "a"\n[[rules]]\nifc_class = "Ifc Wall"\nlabel = "a"\n', "class name like"),
     ('default = [[[\n', "not valid TOML"),
 ]
 

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import click
+
+from bimscan.cli.site_options import site_options
 
 SCHEME_HELP = "Label scheme: a built-in name (spc5) or a TOML file. Default: spc5, the paper's five classes."
 
@@ -45,33 +48,37 @@ HELIOS_HELP = ("Also write HELIOS++ inputs: helios/scene.xml (one <part> per com
               help="With --helios: head rotation in deg/s, overriding the preset.")
 @click.option("--scheme", default=None, help=SCHEME_HELP)
 @click.option("--overwrite", is_flag=True, help="Replace files already in OUT_DIR.")
+@click.option("--seed", default=0, show_default=True, type=int, help="Placement seed of the site flags' clutter.")
+@site_options
 def export_obj_command(model: Path, out_dir: Path, helios: bool, stations: str | None, preset: str | None,
-                       scanner: str | None, head_deg_per_s: float | None, scheme: str | None, overwrite: bool) -> None:
+                       scanner: str | None, head_deg_per_s: float | None, scheme: str | None, overwrite: bool,
+                       seed: int, site: Any) -> None:
     """Export MODEL.ifc as OBJ: model.obj (one group per component), components/c<id>.obj
     (one file per component, as HELIOS++ wants), classes.mtl and index.csv (component id,
-    GlobalId, IFC class, label); with --helios also a HELIOS++ scene and survey."""
+    GlobalId, IFC class, label); with --helios also a HELIOS++ scene and survey. With the site
+    flags, the scene as 'bimscan scan' with the same flags and seed scans it (clutter as
+    components, elements not yet built left out)."""
     from bimscan.io import export_obj
-    from bimscan.pipeline import load_scene
+    from bimscan.pipeline import build_site, load_scene
+    from bimscan.scan.recipe import ScanRecipe
 
     survey_options = {"--stations": stations, "--preset": preset, "--scanner": scanner, "--head-speed": head_deg_per_s}
     given = [name for name, value in survey_options.items() if value is not None]
     if given and not helios:
         raise click.UsageError(f"{', '.join(given)} describe the HELIOS++ survey; add --helios")
-    recipe = None
+    # settings errors before the (slow) parse
+    recipe = ScanRecipe.resolve(preset=preset, scanner=scanner, head_deg_per_s=head_deg_per_s,
+                                stations_from=stations or "auto", seed=seed, site=site)
     if helios:
         from bimscan.io.helios import helios_scanner
-        from bimscan.scan.recipe import ScanRecipe
 
-        # settings errors before the (slow) parse
-        recipe = ScanRecipe.resolve(preset=preset, scanner=scanner, head_deg_per_s=head_deg_per_s,
-                                    stations_from=stations or "auto")
         helios_scanner(recipe.scanner)  # a scanner HELIOS++ has a definition of
         for warning in recipe.warnings:
             click.echo(f"warning: {warning}", err=True)
-    scene = load_scene(model, scheme=scheme)
+    scene = build_site(load_scene(model, scheme=scheme), recipe)
     survey_xml = None
     n_legs = 0
-    if recipe is not None:
+    if helios:
         from bimscan.io.helios import helios_scene_id, helios_survey_xml
         from bimscan.survey.survey import prepare_survey
 

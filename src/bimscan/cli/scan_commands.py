@@ -3,11 +3,16 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from bimscan.cli.ifc_commands import SCHEME_HELP
 from bimscan.scan.recipe import DEFAULT_MAX_STATION_PULSES
+from bimscan.cli.site_options import describe_site, site_options
+
+if TYPE_CHECKING:
+    from bimscan.site.model import SiteModel
 
 
 @click.command("scan")
@@ -37,15 +42,19 @@ from bimscan.scan.recipe import DEFAULT_MAX_STATION_PULSES
 @click.option("--max-station-pulses", default=DEFAULT_MAX_STATION_PULSES, show_default=True, type=int,
               help="Refuse settings under which one station would fire more pulses (a guard against typos).")
 @click.option("--overwrite", is_flag=True, help="Replace OUT if it exists.")
+@site_options
 def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, no_noise: bool,
          range_sigma_m: float | None, angle_sigma_deg: float | None, registration_sigma_m: float,
          registration_sigma_deg: float, strict: bool, scanner: str | None, head_deg_per_s: float | None,
-         scheme: str | None, engine: str, threads: int, max_station_pulses: int, overwrite: bool) -> None:
+         scheme: str | None, engine: str, threads: int, max_station_pulses: int, overwrite: bool,
+         site: SiteModel) -> None:
     """Scan MODEL.ifc with a virtual TLS and write a labelled cloud to OUT.
 
     OUT's suffix picks the format: .laz, .las, .e57, .ply, or a folder (no suffix) of NumPy arrays
     in the Pointcept layout. Class ids go to LAS classification; component and station are
     extra dimensions; class names and the component table are stored with the file.
+    With --clutter/--stage the building is scanned as a site (objects added as components,
+    elements not yet built left out); stations are planned on that scene.
     """
     from bimscan.pipeline import scan_model
     from bimscan.scan.noise import NoiseModel
@@ -57,7 +66,7 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
                        registration_sigma_m=registration_sigma_m, registration_sigma_deg=registration_sigma_deg)
     recipe = ScanRecipe.resolve(preset=preset, scanner=scanner, head_deg_per_s=head_deg_per_s, noise=noise, seed=seed,
                                 engine=engine, stations_from=stations, strict=strict, threads=threads,
-                                max_station_pulses=max_station_pulses)
+                                max_station_pulses=max_station_pulses, site=site)
     result = scan_model(model, out, recipe, scheme=scheme, overwrite=overwrite,
                         warn=lambda line: click.echo(f"warning: {line}", err=True))
     extents = result.summary.extents()
@@ -69,6 +78,32 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
         click.echo("  stations per storey: " + ", ".join(f"{k} {v}" for k, v in plan.stations_per_storey.items()))
     click.echo("  extent (m): " + " x ".join(f"{v:.2f}" for v in extents["size"]))
     click.echo("  classes: " + ", ".join(f"{k} {v:,}" for k, v in result.summary.histogram(names).items()))
+    line = describe_site(result.survey.scene.site)
+    if line:
+        click.echo(line)
 
 
-COMMANDS: list[click.Command] = [scan]
+@click.command("furnish")
+@click.argument("model", type=click.Path(path_type=Path))
+@click.argument("out", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--seed", default=0, show_default=True, type=int, help="Placement seed; same seed, same objects.")
+@click.option("--scheme", default=None, help=SCHEME_HELP)
+@site_options
+def furnish(model: Path, out: Path, seed: int, scheme: str | None, site: SiteModel) -> None:
+    """Write OUT.ifc: a copy of MODEL.ifc with the site's clutter as IfcFurniture and
+    IfcBuildingElementProxy elements (ObjectType = bimscan's class, e.g. Clutter.Chair) and the
+    elements the stage leaves out removed: the scene 'bimscan scan' with the same flags and
+    seed scans, for other tools to see."""
+    from bimscan.pipeline import furnish_model
+    from bimscan.scan.recipe import ScanRecipe
+
+    if site.is_bare:
+        raise click.UsageError("nothing to furnish: give --clutter DENSITY and/or --stage")
+    dressed = furnish_model(model, out, ScanRecipe(seed=seed, site=site), scheme=scheme)
+    click.echo(f"wrote {out}")
+    line = describe_site(dressed.site)
+    if line:
+        click.echo(line)
+
+
+COMMANDS: list[click.Command] = [scan, furnish]

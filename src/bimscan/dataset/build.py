@@ -153,16 +153,16 @@ def _run(folder: DatasetFolder, rows: dict[str, ManifestEntry], unit_jobs: dict[
     def with_threads(job: Any) -> Any:
         return dataclasses.replace(job, recipe=job.recipe.with_fields(threads=threads))
 
-    by_scene: dict[str, list[UnitJob]] = {}
+    by_scene: dict[tuple[str, str], list[UnitJob]] = {}  # (scene, site tag) -> its units
     for job in unit_jobs.values():
-        by_scene.setdefault(job.scene, []).append(with_threads(job))
+        by_scene.setdefault((job.scene, job.site_tag), []).append(with_threads(job))
     environment = {"BIMSCAN_PROGRESS": "0"}  # bars belong to the driver, not to the workers
     if os.environ.get("BIMSCAN_CACHE_DIR"):
         environment["BIMSCAN_CACHE_DIR"] = os.environ["BIMSCAN_CACHE_DIR"]
     pool = make_executor(executor, workers=workers, environment=environment, address=ray_address)
-    handles: dict[Any, tuple[str, str]] = {}  # handle -> ("scene" | "unit", name)
+    handles: dict[Any, tuple[str, Any]] = {}  # handle -> ("scene", (scene, site tag)) | ("unit", unit id)
 
-    def submit(kind: str, name: str, fn: TaskFunction, job: SceneJob | UnitJob) -> None:
+    def submit(kind: str, name: Any, fn: TaskFunction, job: SceneJob | UnitJob) -> None:
         nonlocal pool
         try:
             handle = pool.submit(fn, job, cpus=threads)
@@ -184,7 +184,7 @@ def _run(folder: DatasetFolder, rows: dict[str, ManifestEntry], unit_jobs: dict[
         write_manifest()
 
     for scene_job in scene_jobs:
-        submit("scene", scene_job.scene, run_scene_job, with_threads(scene_job))
+        submit("scene", (scene_job.scene, scene_job.site_tag), run_scene_job, with_threads(scene_job))
 
     with progress_bar(total=len(unit_jobs), desc="units", unit="unit", enabled=progress) as unit_bar, \
             progress_bar(total=0, desc="scanning", unit="pulse", enabled=progress) as pulse_bar:
@@ -194,12 +194,13 @@ def _run(folder: DatasetFolder, rows: dict[str, ManifestEntry], unit_jobs: dict[
                 for handle, value, error in pool.wait(list(handles), timeout=0.5):
                     kind, name = handles.pop(handle)
                     if kind == "scene":
-                        scene_outcome = value if error is None else SceneOutcome(scene=name, error=task_error(error))
+                        scene_outcome = value if error is None else SceneOutcome(scene=name[0], error=task_error(error),
+                                                                                 site_tag=name[1])
                         result.scenes.append(scene_outcome)
                         if scene_outcome.error is not None:
                             for job in by_scene[name]:
                                 finish_unit(UnitOutcome(unit=job.unit, status="failed",
-                                                        error=f"scene {name!r}: {scene_outcome.error}"))
+                                                        error=f"scene {name[0]!r}: {scene_outcome.error}"))
                                 unit_bar.update(1)
                             continue
                         for job in by_scene[name]:

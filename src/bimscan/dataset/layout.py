@@ -9,6 +9,9 @@ dicts of their own. Layout of a built dataset (``OUT_DIR``)::
     scenes/<scene>.ifc              generated buildings (IFC scenes stay where they are)
     scenes/<scene>.generated.json   the options, software and checksum a generated building was made with
     scenes/<scene>.stations.json    the stations planned once per scene, reused by every configuration
+    scenes/<scene>.<site>.stations.json   the same for a scene dressed as a site (stage, clutter)
+    scenes/<scene>.<site>.site.npz  that dressed scene (mesh, component table, what was placed),
+                                    dressed once by the scene task and read by every unit
     units/<scene>__<config>/        one data unit
         cloud.laz | cloud.las | cloud.ply (+ .ply.json) | cloud/ (NumPy folder)
         unit.json                   reproducible metadata (``UnitRecord``)
@@ -25,14 +28,17 @@ from __future__ import annotations
 import dataclasses
 import json
 import shutil
+import zipfile
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from bimscan.errors import DatasetError, InputFileError
-from bimscan.files import dump_json, file_sha256, temp_path, write_atomic
-from bimscan.types import Station
+from bimscan.files import atomic_output, dump_json, file_sha256, temp_path, write_atomic
+from bimscan.types import BimScene, ComponentTable, SceneMesh, SiteState, Station
 
 MANIFEST_NAME = "manifest.json"
 DATASET_NAME = "dataset.json"
@@ -43,9 +49,12 @@ TIMINGS_NAME = "timings.json"
 MANIFEST_FORMAT = "bimscan-dataset"
 MANIFEST_VERSION = 1
 UNIT_FORMAT = "bimscan-unit"
-UNIT_VERSION = 2
+UNIT_VERSION = 3
 STATIONS_FORMAT = "bimscan-stations"
 STATIONS_VERSION = 1
+SITE_FORMAT = "bimscan-site-scene"
+SITE_VERSION = 1
+_SITE_COLUMNS = ("global_id", "ifc_class", "predefined_type", "name", "storey", "parent_class", "label")
 STATUSES = ("done", "failed", "pending")
 UNIT_SEPARATOR = "__"
 
@@ -155,7 +164,9 @@ class UnitRecord:
     inputs: what the fingerprint hashes (recipe, scene, scheme, formats, ...). stations: where
     the scanner stood. extents: {"min", "max", "size"} metres. class_histogram: class name ->
     points. station_counts: station id (text) -> points. files: format key -> name in the unit
-    folder; checksums: file name -> SHA-256 of every file written.
+    folder; checksums: file name -> SHA-256 of every file written. site: what dressing the scene
+    as a site did (``types.SiteState.to_json``: components not built, objects placed per class);
+    empty for the model as it is.
     """
 
     id: str
@@ -176,6 +187,7 @@ class UnitRecord:
     files: Mapping[str, str]
     checksums: Mapping[str, str]
     bytes: int
+    site: Mapping[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         document = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
@@ -194,7 +206,7 @@ class UnitRecord:
             values["device_warnings"] = tuple(str(w) for w in values["device_warnings"])
             for name in ("points", "points_scanned", "dropped_invalid", "dropped_by_voxel", "bytes"):
                 values[name] = int(values[name])
-            for name in ("files", "checksums", "class_histogram", "station_counts", "extents", "inputs"):
+            for name in ("files", "checksums", "class_histogram", "station_counts", "extents", "inputs", "site"):
                 if not isinstance(values[name], dict):
                     raise TypeError(f"{name} must be an object")
             return UnitRecord(**values)
@@ -246,8 +258,14 @@ class DatasetFolder:
         """What a generated scene was made from (options, software, checksum)."""
         return self.scenes_dir / f"{scene}.generated.json"
 
-    def stations_path(self, scene: str) -> Path:
-        return self.scenes_dir / f"{scene}.stations.json"
+    def stations_path(self, scene: str, site_tag: str = "") -> Path:
+        """Where the stations of a scene (dressed as the site ``site_tag`` names; "" for the model as
+        it is) are stored."""
+        return self.scenes_dir / (f"{scene}.{site_tag}.stations.json" if site_tag else f"{scene}.stations.json")
+
+    def site_scene_path(self, scene: str, site_tag: str) -> Path:
+        """Where the scene task keeps a scene dressed as the site ``site_tag`` names."""
+        return self.scenes_dir / f"{scene}.{site_tag}.site.npz"
 
     def unit_files(self, unit: str, files: Mapping[str, str]) -> dict[str, str]:
         """A unit's files (format -> name in its folder) as manifest paths (relative to the dataset)."""
@@ -275,9 +293,9 @@ class DatasetFolder:
         path = self.unit_record_path(unit)
         return UnitRecord.from_json(read_json(path), where=str(path))
 
-    def read_stations(self, scene: str) -> tuple[Station, ...]:
+    def read_stations(self, scene: str, site_tag: str = "") -> tuple[Station, ...]:
         """The stations a scene task stored."""
-        path = self.stations_path(scene)
+        path = self.stations_path(scene, site_tag)
         document = read_json(path)
         try:
             return tuple(Station.from_dict(s) for s in document["stations"])
@@ -304,6 +322,47 @@ class DatasetFolder:
                         entry.unlink(missing_ok=True)
                     removed += 1
         return removed
+
+
+def write_site_scene(path: Path, scene: BimScene, key: str) -> None:
+    """Store a dressed scene's mesh, component table and site state (a NumPy ``.npz`` with fixed
+    member dates, so equal scenes give equal bytes), written atomically; ``key`` says what it was
+    dressed from (the stations key of its scene task)."""
+    if scene.site is None:
+        raise ValueError("only a scene dressed as a site is stored")
+    meta = {"format": SITE_FORMAT, "version": SITE_VERSION, "key": key,
+            "class_ancestry": dict(scene.components.class_ancestry),
+            "unmapped_classes": dict(scene.unmapped_classes),
+            "site": {"settings": dict(scene.site.settings), **scene.site.to_json(),
+                     "free_floor_m2": scene.site.free_floor_m2}}
+    arrays = {"vertices": scene.mesh.vertices, "faces": scene.mesh.faces, "face_component": scene.mesh.face_component,
+              **{f"component_{c}": getattr(scene.components, c) for c in _SITE_COLUMNS},
+              "meta": np.frombuffer(dump_json(meta), dtype=np.uint8)}
+    with atomic_output(path) as temp, zipfile.ZipFile(temp, "w", zipfile.ZIP_STORED) as archive:
+        for name, array in arrays.items():
+            member = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            with archive.open(member, "w", force_zip64=True) as handle:
+                np.lib.format.write_array(handle, np.ascontiguousarray(array), allow_pickle=False)
+
+
+def read_site_scene(path: Path, base: BimScene, key: str) -> BimScene | None:
+    """The dressed scene stored at ``path`` on top of ``base`` (the scene as parsed and labelled),
+    or None when it is missing, damaged or was dressed from something else (another ``key``)."""
+    try:
+        with np.load(path, allow_pickle=False) as arrays:
+            meta = json.loads(arrays["meta"].tobytes())
+            if meta.get("format") != SITE_FORMAT or meta.get("version") != SITE_VERSION or meta.get("key") != key:
+                return None
+            mesh = SceneMesh(vertices=arrays["vertices"], faces=arrays["faces"], face_component=arrays["face_component"])
+            table = ComponentTable(**{c: arrays[f"component_{c}"] for c in _SITE_COLUMNS},
+                                   class_ancestry={k: tuple(v) for k, v in meta["class_ancestry"].items()})
+        site = meta["site"]
+        state = SiteState(settings=site["settings"], removed=site["removed"], placed=site["placed"],
+                          rooms=int(site["rooms"]), free_floor_m2=float(site["free_floor_m2"]))
+        return dataclasses.replace(base, mesh=mesh, components=table, unmapped_classes=meta["unmapped_classes"],
+                                   site=state)
+    except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile):
+        return None  # dressed again by the unit
 
 
 def verify_unit(folder: Path, *, expected_fingerprint: str) -> str | None:

@@ -3,9 +3,14 @@
 A unit is reused when its folder exists, was built from the same inputs and its files still
 match their checksums. Its inputs (``unit_inputs``) are everything its bytes depend on: the scan
 recipe (``ScanRecipe.to_json``: scanner, settings, noise, seed and noise stream, engine, how the
-stations are chosen), the scene file (by content) and station file (by content), the label
+stations are chosen, the site model: stage and clutter), the scene file (by content) and station
+file (by content), the label
 scheme, the output formats, the voxel size and the software version; their fingerprint decides
 reuse. Jobs are small picklable records the executors send to worker processes.
+
+Stations depend on the scene as scanned: a scene dressed as a site (clutter, a construction
+stage) gets its own stations, planned on the dressed scene, so there is one scene job per
+distinct site state of a scene (``site_tag``), shared by the configurations that scan it.
 """
 
 from __future__ import annotations
@@ -34,9 +39,11 @@ class SceneJob:
     scene: str
     ifc: str
     scheme: str
-    recipe: ScanRecipe  # the scanner, engine, threads and station source of the scene's units
+    recipe: ScanRecipe  # the scanner, engine, threads, station source and site of the scene's units
     stations_file: str  # where the chosen stations go
     stations_key: str  # fingerprint of what the stations depend on
+    site_tag: str = ""  # the site state ("" for the model as it is)
+    site_file: str = ""  # where the dressed scene goes ("" for the model as it is)
 
 
 @dataclass(frozen=True)
@@ -54,6 +61,8 @@ class UnitJob:
     out_dir: str
     inputs: Mapping[str, Any]
     fingerprint: str
+    site_tag: str = ""  # which of the scene's station files (and dressed scenes) it scans from
+    site_key: str = ""  # what its dressed scene must have been dressed from (the scene job's stations key)
 
 
 @dataclass(frozen=True)
@@ -136,12 +145,27 @@ def unit_inputs(spec: DatasetSpec, scheme: Mapping[str, Any], scene: Mapping[str
             "formats": list(spec.formats), "voxel_size_m": spec.voxel_size_m, "software": f"bimscan {__version__}"}
 
 
+def site_tag(recipe: ScanRecipe) -> str:
+    """A short name of the recipe's site state ("" for the model as it is): the stage and a hash of
+    the site model and seed, e.g. ``structure-3fa2c19b0e``."""
+    if recipe.site.is_bare:
+        return ""
+    from bimscan.site import site_settings
+
+    return f"{recipe.site.stage.name}-{fingerprint(site_settings(recipe.site, recipe.seed))[:10]}"
+
+
 def stations_key(scene: Mapping[str, Any], recipe: ScanRecipe) -> str:
     """Fingerprint of what a scene's chosen stations depend on: the scene and station files, the
-    scanner and the planner's version (not the configuration: every one scans the same stations)."""
-    return fingerprint({"ifc": scene["scene"]["sha256"], "stations": scene["stations"],
-                        "scanner": dataclasses.asdict(recipe.scanner), "software": __version__,
-                        "version": STATIONS_VERSION})
+    scanner, the site as scanned (stage, clutter, seed) and the planner's version (not the scan
+    settings: every configuration of one site state scans the same stations)."""
+    from bimscan.site import site_settings
+
+    key = {"ifc": scene["scene"]["sha256"], "stations": scene["stations"],
+           "scanner": dataclasses.asdict(recipe.scanner), "software": __version__, "version": STATIONS_VERSION}
+    if not recipe.site.is_bare:
+        key["site"] = site_settings(recipe.site, recipe.seed)
+    return fingerprint(key)
 
 
 def plan_build(spec: DatasetSpec, folder: DatasetFolder, scenes: SceneFiles, *,
@@ -159,7 +183,7 @@ def plan_build(spec: DatasetSpec, folder: DatasetFolder, scenes: SceneFiles, *,
     scene_files, scene_errors = scenes.files, scenes.errors
     for scene in spec.scenes:
         inputs_of_scene = None if scene.name in scene_errors else scene_inputs(scene, scene_files[scene.name])
-        scene_recipe: ScanRecipe | None = None
+        scene_recipes: dict[str, ScanRecipe] = {}  # site tag -> the recipe of its first unit to build
         for config in spec.configs:
             uid = unit_id(scene.name, config.name)
             if inputs_of_scene is None:
@@ -177,13 +201,18 @@ def plan_build(spec: DatasetSpec, folder: DatasetFolder, scenes: SceneFiles, *,
                 continue
             # stale or damaged: rebuilt; the old folder is swapped out only once the new one is complete
             entries.append(ManifestEntry(id=uid, scene=scene.name, config=config.name, status="pending"))
+            tag = site_tag(recipe)
             unit_jobs[uid] = UnitJob(unit=uid, scene=scene.name, config=config.name, ifc=str(scene_files[scene.name]),
                                      scheme=spec.scheme, recipe=recipe, formats=spec.formats,
                                      voxel_size_m=spec.voxel_size_m, out_dir=str(folder.root), inputs=inputs,
-                                     fingerprint=key)
-            scene_recipe = scene_recipe or recipe
-        if scene_recipe is not None and inputs_of_scene is not None:
-            scene_jobs.append(SceneJob(scene=scene.name, ifc=str(scene_files[scene.name]), scheme=spec.scheme,
-                                       recipe=scene_recipe, stations_file=str(folder.stations_path(scene.name)),
-                                       stations_key=stations_key(inputs_of_scene, scene_recipe)))
+                                     fingerprint=key, site_tag=tag, site_key=stations_key(inputs_of_scene, recipe))
+            scene_recipes.setdefault(tag, recipe)
+        if inputs_of_scene is not None:
+            for tag, scene_recipe in scene_recipes.items():
+                stations_file = str(folder.stations_path(scene.name, tag))
+                site_file = str(folder.site_scene_path(scene.name, tag)) if tag else ""
+                scene_jobs.append(SceneJob(scene=scene.name, ifc=str(scene_files[scene.name]), scheme=spec.scheme,
+                                           recipe=scene_recipe, stations_file=stations_file,
+                                           stations_key=stations_key(inputs_of_scene, scene_recipe), site_tag=tag,
+                                           site_file=site_file))
     return BuildPlan(entries=entries, unit_jobs=unit_jobs, scene_jobs=scene_jobs)

@@ -33,12 +33,18 @@ A spec is one TOML file (paths inside it are relative to the file)::
     [[configs]]
     name = "custom"
     settings = { pulse_freq_hz = 300000, scan_freq_hz = 100, head_deg_per_s = 20 }
+    stage = "enclosed"            # optional: the construction stage (bimscan.site), a name or a table
+    clutter = { density = 0.2, kinds = ["site", "people"] }   # optional: clutter on the floors
+
+A top-level ``stage`` and ``clutter`` are the defaults of every configuration. A top-level
+``stages = ["structure", "enclosed", "finished"]`` (names or tables) sweeps the stages: every
+configuration becomes one per stage, named ``<config>.<stage>`` (unit ``<scene>__<config>.<stage>``).
 
 ``load_spec`` checks everything a build needs before any work starts: unknown keys, bad
 values, names, missing IFC or station files, unknown presets, schemes (and the IFC classes their
-rules name), scanners and engines, impossible settings. Each (scene, configuration) pair is one
-data unit ``<scene>__<config>``, scanned with the ``ScanRecipe`` that ``DatasetSpec.recipe``
-resolves for it.
+rules name), scanners and engines, impossible settings, unknown stages and clutter kinds. Each
+(scene, configuration) pair is one data unit ``<scene>__<config>``, scanned with the
+``ScanRecipe`` that ``DatasetSpec.recipe`` resolves for it.
 """
 
 from __future__ import annotations
@@ -56,6 +62,7 @@ from bimscan.scan.device import DEFAULT_SCANNER, ScanSettings
 from bimscan.scan.engine import DEFAULT_ENGINE
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.recipe import AUTO_STATIONS, DEFAULT_MAX_STATION_PULSES, ScanRecipe
+from bimscan.site.model import ClutterSettings, SiteModel, StageSettings, stage_table
 from bimscan.toml_files import build_dataclass, load_toml
 from bimscan.types import LabelScheme
 
@@ -83,12 +90,15 @@ class SceneSpec:
 
 @dataclass(frozen=True)
 class ConfigSpec:
-    """One scanner configuration: a preset or an explicit settings table, optional head speed."""
+    """One scanner configuration: a preset or an explicit settings table, optional head speed, and
+    optionally the site as scanned (construction stage, clutter; default: the spec's)."""
 
     name: str
     preset: str | None = None
     settings: ScanSettings | None = None
     head_deg_per_s: float | None = None
+    stage: StageSettings | None = None
+    clutter: ClutterSettings | None = None
 
 
 @dataclass(frozen=True)
@@ -105,6 +115,9 @@ class DatasetSpec:
     strict: bool = False
     max_station_pulses: int = DEFAULT_MAX_STATION_PULSES
     noise: NoiseModel = field(default_factory=NoiseModel)
+    stage: StageSettings | None = None  # default stage of the configurations
+    clutter: ClutterSettings | None = None  # default clutter of the configurations
+    stages: tuple[StageSettings, ...] = ()  # a sweep: every configuration once per stage
     scenes: tuple[SceneSpec, ...] = ()
     configs: tuple[ConfigSpec, ...] = ()
 
@@ -118,6 +131,11 @@ class DatasetSpec:
     def config(self, name: str) -> ConfigSpec:
         return next(c for c in self.configs if c.name == name)
 
+    def site(self, config: ConfigSpec) -> SiteModel:
+        """The site model of a configuration: its own stage and clutter, else the spec's."""
+        return SiteModel(stage=config.stage or self.stage or StageSettings(),
+                         clutter=config.clutter or self.clutter or ClutterSettings())
+
     def recipe(self, scene: SceneSpec, config: ConfigSpec) -> ScanRecipe:
         """The scan recipe of the unit (scene, config): its own noise stream (the unit id), so no
         two units share a noise sequence. Raises ConfigError/ScannerSettingsError when impossible."""
@@ -127,7 +145,7 @@ class DatasetSpec:
         return ScanRecipe.resolve(preset=config.preset, settings=config.settings, scanner=self.scanner,
                                   head_deg_per_s=config.head_deg_per_s, noise=self.noise, seed=self.seed,
                                   noise_stream=unit_id(scene.name, config.name), engine=self.engine,
-                                  stations_from=scene.stations, strict=self.strict,
+                                  stations_from=scene.stations, strict=self.strict, site=self.site(config),
                                   max_station_pulses=self.max_station_pulses)
 
 
@@ -147,6 +165,10 @@ def parse_spec(data: dict[str, Any], *, base: Path, where: str) -> DatasetSpec:
     data = dict(data)
     scenes_raw = data.pop("scenes", None)
     configs_raw = data.pop("configs", None)
+    if "stage" in data:
+        data["stage"] = stage_table(data["stage"])
+    if isinstance(data.get("stages"), list):
+        data["stages"] = [stage_table(s) for s in data["stages"]]
     try:
         spec = build_dataclass(DatasetSpec, data, where=where)
     except BimscanError as exc:  # nested tables (noise) validate themselves without knowing the file
@@ -156,11 +178,41 @@ def parse_spec(data: dict[str, Any], *, base: Path, where: str) -> DatasetSpec:
     if not isinstance(configs_raw, list) or not configs_raw:
         raise ConfigError(f"{where}: no configurations; add at least one [[configs]] table with a name and a preset")
     scenes = tuple(_scene(raw, base=base, where=f"{where} [[scenes]] #{i + 1}") for i, raw in enumerate(scenes_raw))
-    configs = tuple(build_dataclass(ConfigSpec, raw, where=f"{where} [[configs]] #{i + 1}")
-                    for i, raw in enumerate(configs_raw))
+    configs = _expand_stages(spec, tuple(_config(raw, where=f"{where} [[configs]] #{i + 1}")
+                                         for i, raw in enumerate(configs_raw)), where=where)
     spec = _absolute(dataclasses.replace(spec, scenes=scenes, configs=configs), base=base)
     check_spec(spec, where=where)
     return spec
+
+
+def _config(raw: Any, *, where: str) -> ConfigSpec:
+    if isinstance(raw, dict) and "stage" in raw:
+        raw = {**raw, "stage": stage_table(raw["stage"])}
+    try:
+        return build_dataclass(ConfigSpec, raw, where=where)
+    except BimscanError as exc:  # stage and clutter validate themselves without knowing the file
+        raise exc if str(exc).startswith(where) else type(exc)(f"{where}: {exc}") from exc
+
+
+def _expand_stages(spec: DatasetSpec, configs: tuple[ConfigSpec, ...], *, where: str) -> tuple[ConfigSpec, ...]:
+    """Every configuration once per stage of a ``stages`` sweep, named ``<config>.<stage>``."""
+    if not spec.stages:
+        return configs
+    if spec.stage is not None:
+        raise ConfigError(f"{where}: give 'stage' (one stage for all) or 'stages' (a sweep), not both")
+    names = [s.name for s in spec.stages]
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise ConfigError(f"{where}: 'stages' names {', '.join(map(repr, repeated))} more than once; sweep each stage "
+                          "once (put other partial states in configurations of their own)")
+    expanded = []
+    for config in configs:
+        if config.stage is not None:
+            raise ConfigError(f"{where} [[configs]] {config.name!r}: sets its own 'stage' while the spec sweeps "
+                              "'stages'; drop one of them")
+        expanded += [dataclasses.replace(config, name=f"{config.name}.{stage.name}", stage=stage)
+                     for stage in spec.stages]
+    return tuple(expanded)
 
 
 def _scene(raw: Any, *, base: Path, where: str) -> SceneSpec:

@@ -1,9 +1,12 @@
 """The work of a build, run in worker processes: scene tasks and unit tasks.
 
-A *scene task* parses a scene once (filling the on-disk geometry cache) and plans its stations
-once (``scenes/<scene>.stations.json``): every configuration of the scene scans from the same
-viewpoints, as in the paper. A *unit task* scans the survey with its recipe and streams the
-merged cloud through the post-processing (invalid points dropped and counted, semantic checks,
+A *scene task* parses a scene once (filling the on-disk geometry cache), dresses it as the site
+its units scan (construction stage, clutter; ``pipeline.build_site``) and plans its stations on
+that scene once (``scenes/<scene>[.<site>].stations.json``): every configuration of the scene
+and site state scans from the same viewpoints, as in the paper; the dressed scene is kept beside
+them (``scenes/<scene>.<site>.site.npz``). A *unit task* reads that dressed scene (or, when it
+is missing, dresses the scene again: seeded, the same objects in the same places), scans the
+survey with its recipe and streams the merged cloud through the post-processing (invalid points dropped and counted, semantic checks,
 optional voxel subsampling) into every requested format at once, checks what was written, and
 writes ``unit.json`` (reproducible) and ``timings.json`` (not). The unit is built in a hidden
 staging folder and renamed into place when whole. Tasks are module-level functions so they
@@ -24,8 +27,8 @@ from typing import TYPE_CHECKING
 
 from bimscan.dataset.executors import driver_alive, report_pulses
 from bimscan.dataset.layout import (
-    FORMAT_FILES, STATIONS_FORMAT, STATIONS_VERSION, TIMINGS_NAME, DatasetFolder, UnitRecord, read_json, write_json,
-    write_unit_record,
+    FORMAT_FILES, STATIONS_FORMAT, STATIONS_VERSION, TIMINGS_NAME, DatasetFolder, UnitRecord, read_json,
+    read_site_scene, write_json, write_site_scene, write_unit_record,
 )
 from bimscan.dataset.plan import SceneJob, UnitJob
 from bimscan.errors import BimscanError, DatasetError
@@ -43,6 +46,10 @@ class SceneOutcome:
     n_stations: int = 0
     parse_s: float = 0.0
     notes: tuple[str, ...] = ()
+    site_tag: str = ""
+    site_s: float = 0.0  # dressing the scene (stage, free floor, placement)
+    placement_s: float = 0.0  # of which placing the objects
+    site_rooms: int = 0
 
 
 @dataclass(frozen=True)
@@ -54,6 +61,7 @@ class UnitOutcome:
     files: dict[str, str] = field(default_factory=dict)  # format -> name in the unit folder
     load_s: float = 0.0
     seconds: float = 0.0
+    site_s: float = 0.0
 
 
 def task_error(error: BaseException) -> str:
@@ -73,8 +81,8 @@ def _one_line(error: BaseException) -> str:
 
 
 def run_scene_job(job: SceneJob) -> SceneOutcome:
-    """Parse the scene (filling the geometry cache) and plan or read its stations once."""
-    from bimscan.pipeline import load_scene
+    """Parse the scene (filling the geometry cache), dress it, and plan or read its stations once."""
+    from bimscan.pipeline import build_site_timed, load_scene
     from bimscan.survey.survey import choose_stations, place_scanner
 
     try:
@@ -82,30 +90,39 @@ def run_scene_job(job: SceneJob) -> SceneOutcome:
         scene = load_scene(job.ifc, scheme=job.scheme, threads=job.recipe.threads)
         parse_s = time.perf_counter() - start
         path = Path(job.stations_file)
+        site_path = Path(job.site_file) if job.site_file else None
         if path.is_file():
             try:
                 stored = read_json(path)
-                if stored.get("key") == job.stations_key:
+                dressed_ok = site_path is None or read_site_scene(site_path, scene, job.stations_key) is not None
+                if stored.get("key") == job.stations_key and dressed_ok:
                     return SceneOutcome(scene=job.scene, n_stations=len(stored["stations"]),
-                                        parse_s=parse_s, notes=tuple(stored.get("notes", ())))
+                                        parse_s=parse_s, notes=tuple(stored.get("notes", ())), site_tag=job.site_tag)
             except (DatasetError, KeyError, TypeError):
                 pass  # damaged: plan again
+        site_start = time.perf_counter()
+        scene, timings = build_site_timed(scene, job.recipe)
+        if site_path is not None:
+            write_site_scene(site_path, scene, job.stations_key)
+        site_s = time.perf_counter() - site_start
         stations, plan = choose_stations(scene, place_scanner(scene, job.recipe), job.recipe.stations_from)
         notes: list[str] = []
         if plan is not None and plan.rooms_without_station:
             notes.append("rooms without a station: " + ", ".join(plan.rooms_without_station))
         write_json(path, {"format": STATIONS_FORMAT, "version": STATIONS_VERSION, "key": job.stations_key,
-                          "scene": job.scene, "stations": [dataclasses.asdict(s) for s in stations],
-                          "notes": notes})
-        return SceneOutcome(scene=job.scene, n_stations=len(stations), parse_s=parse_s, notes=tuple(notes))
+                          "scene": job.scene, "site": job.site_tag,
+                          "stations": [dataclasses.asdict(s) for s in stations], "notes": notes})
+        return SceneOutcome(scene=job.scene, n_stations=len(stations), parse_s=parse_s, notes=tuple(notes),
+                            site_tag=job.site_tag, site_s=site_s, placement_s=timings.placement_s,
+                            site_rooms=timings.rooms)
     except (BimscanError, OSError) as exc:
-        return SceneOutcome(scene=job.scene, error=_one_line(exc))
+        return SceneOutcome(scene=job.scene, error=_one_line(exc), site_tag=job.site_tag)
 
 
 def run_unit_job(job: UnitJob) -> UnitOutcome:
     """Scan one unit into a staging folder, check what was written, and move it into place."""
     from bimscan.io import open_cloud_writer
-    from bimscan.pipeline import load_scene, stream_checked
+    from bimscan.pipeline import build_site, load_scene, stream_checked
     from bimscan.process.checks import SemanticError
     from bimscan.process.subsample import VoxelSubsampler
     from bimscan.process.summary import CloudSummary
@@ -118,7 +135,11 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
     try:
         scene = load_scene(job.ifc, scheme=job.scheme, threads=job.recipe.threads)
         load_s = time.perf_counter() - start
-        stations = folder.read_stations(job.scene)
+        if job.site_tag:  # the scene task's dressed scene, else dressed again (the same bytes)
+            stored = read_site_scene(folder.site_scene_path(job.scene, job.site_tag), scene, job.site_key)
+            scene = stored if stored is not None else build_site(scene, job.recipe)
+        site_s = time.perf_counter() - start - load_s
+        stations = folder.read_stations(job.scene, job.site_tag)
         survey = prepare_survey(scene, job.recipe, stations=stations)
         header = cloud_header(survey, extra_metadata={
             "unit": {"id": job.unit, "scene": job.scene, "config": job.config, "voxel_size_m": job.voxel_size_m,
@@ -153,17 +174,18 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
             dropped_by_voxel=scanned.points - kept.points, extents=kept.extents(),
             class_histogram=kept.histogram(scene.scheme.names),
             station_counts={str(k): v for k, v in sorted(kept.station_counts.items())}, files=files,
-            checksums=checksums, bytes=n_bytes,
+            checksums=checksums, bytes=n_bytes, site={} if scene.site is None else scene.site.to_json(),
         )
         write_unit_record(staged, record)
-        write_json(staged / TIMINGS_NAME, {"load_s": round(load_s, 3), "scan_write_s": round(scan_s, 3),
+        write_json(staged / TIMINGS_NAME, {"load_s": round(load_s, 3), "site_s": round(site_s, 3),
+                                           "scan_write_s": round(scan_s, 3),
                                            "total_s": round(time.perf_counter() - start, 3),
                                            "threads": job.recipe.threads,
                                            "points_per_s": round(kept.points / max(scan_s, 1e-9))})
         replace_path(staged, folder.unit_dir(job.unit))
         staged = None
         return UnitOutcome(unit=job.unit, status="done", points=kept.points, files=files, load_s=load_s,
-                           seconds=time.perf_counter() - start)
+                           seconds=time.perf_counter() - start, site_s=site_s)
     except (BimscanError, SemanticError, OSError, ValueError) as exc:
         return UnitOutcome(unit=job.unit, status="failed", error=_one_line(exc), seconds=time.perf_counter() - start)
     finally:

@@ -29,6 +29,7 @@ from bimscan.scan.device import (
 from bimscan.scan.engine import DEFAULT_ENGINE, ENGINES
 from bimscan.scan.noise import NoiseModel
 from bimscan.errors import ConfigError, ScannerSettingsError
+from bimscan.site.model import SiteModel
 
 DEFAULT_CHUNK_PULSES = 1 << 20  # ~70 MB of working arrays per chunk
 # The most pulses one station may fire unless the user raises it: the paper's densest preset fires
@@ -38,6 +39,14 @@ AUTO_STATIONS = "auto"
 # Fields that change how a scan runs or what it refuses, not its output bytes (left out of the
 # fingerprint).
 RUNTIME_FIELDS = ("threads", "chunk_pulses", "max_station_pulses")
+
+
+def _json_value(value: Any) -> Any:
+    """A recipe field as JSON-able data: nested settings through their ``to_json`` when they have
+    one, else as dicts."""
+    if hasattr(value, "to_json"):
+        return value.to_json()
+    return dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
 
 
 @dataclass(frozen=True)
@@ -50,9 +59,11 @@ class ScanRecipe:
     seed, noise_stream: the noise generator's key is (seed, noise_stream, station); a dataset gives
     every unit its own stream (its id) so that no two units share a noise sequence; "" for a
     single scan. engine: a ``scan.engine.ENGINES`` name. stations_from: "auto" (planned) or a
-    station CSV file. strict: settings outside the device's limits are errors. threads (0 = all
-    cores) and chunk_pulses change speed and memory only, never the output. max_station_pulses: a
-    station that would fire more pulses is refused before any work (with the number it would fire).
+    station CSV file. strict: settings outside the device's limits are errors. site: what the site
+    looks like when scanned (construction stage, clutter; ``bimscan.site``), dressed with ``seed``.
+    threads (0 = all cores) and chunk_pulses change speed and memory only, never the output.
+    max_station_pulses: a station that would fire more pulses is refused before any work (with the
+    number it would fire).
     """
 
     scanner: ScannerModel = field(default_factory=lambda: SCANNERS[DEFAULT_SCANNER])
@@ -64,6 +75,7 @@ class ScanRecipe:
     engine: str = DEFAULT_ENGINE
     stations_from: str = AUTO_STATIONS
     strict: bool = False
+    site: SiteModel = field(default_factory=SiteModel)
     threads: int = 0
     chunk_pulses: int = DEFAULT_CHUNK_PULSES
     max_station_pulses: int = DEFAULT_MAX_STATION_PULSES
@@ -128,7 +140,7 @@ class ScanRecipe:
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             if f.name not in RUNTIME_FIELDS:
-                document[f.name] = dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
+                document[f.name] = _json_value(value)
         if self.stations_from != AUTO_STATIONS:
             document["stations_from"] = Path(self.stations_from).name
         return document

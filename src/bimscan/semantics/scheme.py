@@ -9,7 +9,8 @@ A scheme is a TOML file (see ``schemes/spc5.toml``, the default: the SPC paper's
     name = "Wall"
     color = "#4e79a7"
     [[rules]]
-    ifc_class = "IfcWall"          # matches IfcWall and all its subclasses
+    ifc_class = "IfcWall"          # matches IfcWall and all its subclasses (or a class of bimscan's
+                                   # own site vocabulary: "Clutter.Chair", "Temporary", ...)
     label = "Wall"
     predefined_types = ["SHEAR"]   # optional: any of these PredefinedType values
     parent_class = "IfcCurtainWall"  # optional: only parts of such an aggregate
@@ -35,6 +36,7 @@ from bimscan.types import UNLABELLED, BimScene, ComponentTable, LabelClass, Labe
 
 DEFAULT_SCHEME = "spc5"
 _COLOR = re.compile(r"^#[0-9a-fA-F]{6}$")
+_CLASS_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*(\.[A-Za-z][A-Za-z0-9_]*)*$")  # IfcWall, Clutter.Chair
 
 
 def builtin_schemes() -> list[str]:
@@ -107,8 +109,9 @@ def parse_scheme(data: Mapping[str, Any], *, where: str) -> LabelScheme:
         if extra:
             raise SchemeError(f"{at}: unknown key(s) {', '.join(map(repr, extra))}; allowed: ifc_class, label, parent_class, predefined_types")
         ifc_class, label = entry.get("ifc_class"), entry.get("label")
-        if not isinstance(ifc_class, str) or not ifc_class.startswith("Ifc"):
-            raise SchemeError(f"{at}: 'ifc_class' must be an IFC class name like \"IfcWall\", got {ifc_class!r}")
+        if not isinstance(ifc_class, str) or not _CLASS_NAME.match(ifc_class):
+            raise SchemeError(f"{at}: 'ifc_class' must be a class name like \"IfcWall\" or \"Clutter.Chair\", "
+                              f"got {ifc_class!r}")
         if label not in names:
             raise SchemeError(f"{at}: 'label' {label!r} is not one of the classes ({', '.join(sorted(names))})")
         types_ = entry.get("predefined_types", [])
@@ -122,12 +125,14 @@ def parse_scheme(data: Mapping[str, Any], *, where: str) -> LabelScheme:
 
 
 def check_rule_classes(scheme: LabelScheme, known_classes: Collection[str]) -> None:
-    """Raise SchemeError for rule classes that no IFC schema knows (usually a typo)."""
+    """Raise SchemeError for rule classes not in ``known_classes`` (the IFC schemas' classes and
+    bimscan's own site classes; an unknown one is usually a typo)."""
     known = {k.lower(): k for k in known_classes}
     for rule in scheme.rules:
         for cls in filter(None, (rule.ifc_class, rule.parent_class)):
             if cls.lower() not in known:
-                raise SchemeError(f"label scheme {scheme.name!r}: unknown IFC class {cls!r} in a rule; check the spelling (e.g. 'IfcWall')")
+                raise SchemeError(f"label scheme {scheme.name!r}: unknown IFC class {cls!r} in a rule (nor one of "
+                                  "bimscan's site classes such as 'Clutter.Chair'); check the spelling (e.g. 'IfcWall')")
 
 
 @dataclass(frozen=True)

@@ -307,20 +307,7 @@ def _room_has_floor(room, elevation: float, next_elevation: float) -> bool:
 
 def _in_room(room, points: np.ndarray) -> np.ndarray:
     """Points (x, y, z) whose xy falls inside the room's footprint and z inside its height."""
-    v, f = room.vertices, room.faces
-    z0, z1 = float(v[:, 2].min()), float(v[:, 2].max())
-    inside = np.zeros(len(points), dtype=bool)
-    a, b, c = v[f[:, 0], :2], v[f[:, 1], :2], v[f[:, 2], :2]
-    area = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
-    keep = np.abs(area) > 1e-9  # vertical faces project to lines
-    a, b, c, area = a[keep], b[keep], c[keep], area[keep]
-    p = points[:, :2]
-    for start in range(0, len(p), 4096):
-        q = p[start:start + 4096, None, :]
-        w0 = ((b[:, 0] - q[..., 0]) * (c[:, 1] - q[..., 1]) - (c[:, 0] - q[..., 0]) * (b[:, 1] - q[..., 1])) / area
-        w1 = ((c[:, 0] - q[..., 0]) * (a[:, 1] - q[..., 1]) - (a[:, 0] - q[..., 0]) * (c[:, 1] - q[..., 1])) / area
-        inside[start:start + 4096] = ((w0 >= 0) & (w1 >= 0) & (w0 + w1 <= 1)).any(axis=1)
-    return inside & (points[:, 2] > z0 - 0.6) & (points[:, 2] < z1)
+    return room.contains(points)
 
 
 def _room_name(rooms, x: float, y: float, floor_z: float) -> str:

@@ -62,6 +62,18 @@ def place_scanner(scene: BimScene, recipe: ScanRecipe) -> VirtualScanner:
                           threads=recipe.threads)
 
 
+def check_site(scene: BimScene, recipe: ScanRecipe) -> None:
+    """Raise ValueError when the scene was not dressed with the recipe's site model and seed
+    (``pipeline.build_site`` first), so a cloud's metadata cannot claim clutter it does not hold."""
+    from bimscan.site import site_settings
+
+    wanted = None if recipe.site.is_bare else site_settings(recipe.site, recipe.seed)
+    have = None if scene.site is None else scene.site.settings
+    if wanted != have:
+        raise ValueError("the scene was not dressed with this recipe's site model and seed; dress it with "
+                         "bimscan.pipeline.build_site(scene, recipe) before preparing the survey")
+
+
 def prepare_survey(scene: BimScene, recipe: ScanRecipe, *, scanner: VirtualScanner | None = None,
                    stations: tuple[Station, ...] | None = None) -> Survey:
     """Place the scanner in the scene and fix the stations (``recipe.stations_from``).
@@ -70,6 +82,7 @@ def prepare_survey(scene: BimScene, recipe: ScanRecipe, *, scanner: VirtualScann
     ``stations`` given: use them as they are (planned once per scene and reused for every
     configuration, as the dataset builder does); ``recipe.stations_from`` is then not consulted.
     """
+    check_site(scene, recipe)
     if scanner is None or scanner.scanner != recipe.scanner:
         scanner = place_scanner(scene, recipe)
     if stations is not None:
@@ -108,6 +121,7 @@ def survey_metadata(survey: Survey) -> dict[str, Any]:
         "source": {"file": Path(scene.source).name, "sha256": scene.file_sha256, "schema": scene.schema},
         "stations": [dataclasses.asdict(s) for s in survey.stations],
         "device_warnings": list(survey.recipe.warnings),
+        "site_state": None if scene.site is None else scene.site.to_json(),
     }
 
 

@@ -1,0 +1,153 @@
+"""The site model: what the building looks like when it is scanned (one typed value).
+
+``SiteModel`` is the ``site`` field of ``ScanRecipe``: the construction stage (which IFC classes
+are built, optional partial states, a date in the model's work schedule) and the clutter and
+temporary works standing on the floors. Its default (``finished``, no clutter) leaves a scene as
+the model has it. It travels with the recipe from the CLI or the dataset spec to
+``dress_scene`` and into every cloud's metadata (``to_json``).
+
+In TOML (a dataset spec's ``[[configs]]`` or top level) the two fields read::
+
+    stage = "structure"                                   # or a table:
+    stage = { name = "structure", walls_missing_fraction = 0.3, props_fraction = 0.5 }
+    clutter = { density = 0.15, kinds = ["office", "people"] }
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from bimscan.errors import ConfigError
+
+# Stage name -> the IFC classes built by then (an element is kept when its class, or the class of
+# the aggregate it is part of, descends from one of them); None: everything.
+STRUCTURE_CLASSES = (
+    "IfcSlab", "IfcWall", "IfcColumn", "IfcBeam", "IfcStair", "IfcStairFlight", "IfcRamp", "IfcRampFlight",
+    "IfcRoof", "IfcMember", "IfcFooting", "IfcPile",
+)
+ENCLOSURE_CLASSES = ("IfcWindow", "IfcDoor", "IfcCurtainWall", "IfcPlate", "IfcRailing", "IfcShadingDevice")
+STAGES: dict[str, tuple[str, ...] | None] = {
+    "structure": STRUCTURE_CLASSES,
+    "enclosed": STRUCTURE_CLASSES + ENCLOSURE_CLASSES,
+    "finished": None,
+}
+DEFAULT_STAGE = "finished"
+MAX_DENSITY_PER_M2 = 2.0  # beyond this a floor is a warehouse, not a room being scanned
+
+
+@dataclass(frozen=True)
+class StageSettings:
+    """The construction stage of the scene.
+
+    name: ``structure`` (slabs, walls, columns, beams, stairs), ``enclosed`` (+ windows, doors,
+    curtain walls, railings), ``finished`` (everything). include: IFC classes built (replaces the
+    stage's list when given); exclude: IFC classes taken out. walls_missing_fraction: walls not
+    yet built (each wall by its GlobalId and the seed, so a larger fraction removes a superset).
+    ceilings_open_fraction: bays of the ceilings (between grid lines) without panels.
+    props_fraction: rooms whose slab is propped (steel props on a grid under the soffit).
+    at: an ISO date; elements whose construction task finishes later, or whose demolition task
+    finished earlier, are not there (needs a work schedule in the model).
+    """
+
+    name: str = DEFAULT_STAGE
+    include: tuple[str, ...] = ()
+    exclude: tuple[str, ...] = ()
+    walls_missing_fraction: float = 0.0
+    ceilings_open_fraction: float = 0.0
+    props_fraction: float = 0.0
+    at: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.name not in STAGES:
+            raise ConfigError(f"unknown construction stage {self.name!r}; choose one of {', '.join(STAGES)}")
+        for what in ("walls_missing_fraction", "ceilings_open_fraction", "props_fraction"):
+            value = getattr(self, what)
+            if isinstance(value, bool) or not isinstance(value, int | float) or not 0.0 <= value <= 1.0:
+                raise ConfigError(f"{what} = {value!r} is impossible; give a fraction from 0 to 1")
+        for what in ("include", "exclude"):
+            for name in getattr(self, what):
+                if not isinstance(name, str) or not name.startswith("Ifc"):
+                    raise ConfigError(f"stage {what} entry {name!r} is not an IFC class name; "
+                                      "give names like 'IfcWall'")
+        if self.at is not None:
+            try:
+                datetime.date.fromisoformat(self.at)
+            except (TypeError, ValueError) as exc:
+                raise ConfigError(f"at = {self.at!r} is not a date; give one as YYYY-MM-DD") from exc
+
+    @property
+    def is_bare(self) -> bool:
+        """True when the stage changes nothing (the model as it is)."""
+        return self == StageSettings()
+
+    def kept_classes(self) -> tuple[str, ...] | None:
+        """The IFC classes this stage builds (None: all), before ``exclude``."""
+        return self.include if self.include else STAGES[self.name]
+
+
+@dataclass(frozen=True)
+class ClutterSettings:
+    """Clutter and temporary works on the floors.
+
+    density: objects per square metre of free floor (0 = none). kinds: kind names of the clutter
+    library (``chair``, ``scaffold_tower``, ...) or groups (``office``, ``site``, ``people``);
+    empty: chosen by the stage (``finished``: office furniture and people; earlier stages:
+    site items, temporary works and people).
+    """
+
+    density: float = 0.0
+    kinds: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        value = self.density
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) \
+                or not 0.0 <= value <= MAX_DENSITY_PER_M2:
+            raise ConfigError(f"clutter density = {value!r} is impossible; give objects per square metre of free "
+                              f"floor from 0 (none) to {MAX_DENSITY_PER_M2:g}")
+        from bimscan.site.library import check_kinds
+
+        check_kinds(self.kinds)
+
+
+@dataclass(frozen=True)
+class SiteModel:
+    """What the site looks like when scanned: the construction stage and the clutter on the floors."""
+
+    stage: StageSettings = field(default_factory=StageSettings)
+    clutter: ClutterSettings = field(default_factory=ClutterSettings)
+
+    @property
+    def is_bare(self) -> bool:
+        """True when dressing changes nothing: the finished model, no clutter."""
+        return self.stage.is_bare and self.clutter.density == 0.0
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-able (what clouds and units record; part of the recipe's fingerprint)."""
+        stage = dataclasses.asdict(self.stage)
+        stage["include"], stage["exclude"] = list(self.stage.include), list(self.stage.exclude)
+        return {"stage": stage, "clutter": {"density": self.clutter.density, "kinds": list(self.clutter.kinds)}}
+
+
+def site_settings(site: SiteModel, seed: int) -> dict[str, Any]:
+    """What a dressed scene depends on besides the model: the site model and the seed."""
+    return {"site": site.to_json(), "seed": seed}
+
+
+def stage_table(value: Any) -> Any:
+    """A TOML ``stage`` value as a table: a bare name (``"structure"``) is ``{name = ...}``."""
+    return {"name": value} if isinstance(value, str) else value
+
+
+def site_from_mapping(data: Mapping[str, Any], *, where: str) -> SiteModel:
+    """A SiteModel from TOML-like data (``stage`` as a name or a table, ``clutter`` a table)."""
+    from bimscan.toml_files import build_dataclass
+
+    data = dict(data)
+    if "stage" in data:
+        data["stage"] = stage_table(data["stage"])
+    return build_dataclass(SiteModel, data, where=where)

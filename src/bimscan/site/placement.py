@@ -1,0 +1,321 @@
+"""Placing objects on a room's free floor: collision-free with the model and with each other.
+
+A candidate pose (centre, heading) of an object of footprint ``w x d`` and height ``h`` is kept
+when (1) every floor cell under its footprint is free, not kept out, level within 2 cm and has
+headroom above the object; (2) its footprint, grown by ``GAP_M``, overlaps no object placed
+before (exact rectangle test); (3) rays through its box find nothing: horizontal rays along its
+width and depth every ``SWEEP_M`` at several heights, and vertical rays every ``SWEEP_M`` from
+its top to the floor, through the box grown by ``CLEARANCE_M`` (a ray that starts inside a
+wall or a column meets it at once). Objects go
+against a wall (their back ``GAP_M`` from the face a horizontal ray finds) or stand free,
+aligned with the room or turned any way; in corridors and halls (by the room's name) only against
+a wall, so the way through stays clear. All draws come from the room's own generator, so a
+room's objects do not depend on the other rooms.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from bimscan.site.floor import Prober, RoomFloor
+from bimscan.site.library import ClutterKind, ClutterObject
+from bimscan.site.shapes import yaw_matrix
+
+GAP_M = 0.03  # between objects, and between an object's back and the wall it stands against
+SWEEP_M = 0.05  # spacing of the collision rays through a candidate's box
+CLEARANCE_M = 0.01  # the rays sweep the box grown by this: nothing of the model comes closer
+WALL_HEIGHTS_M = np.array([0.05, 0.4, 0.75, 1.1, 1.5, 1.9, 2.3])  # where the distance to a wall is measured
+LEVEL_M = 0.02  # the floor under an object is level within this
+ATTEMPTS = 16  # candidate poses tried per object
+DRAWS = 3  # objects drawn (sizes) per placement before giving up
+COMPANION_CHAIR = 0.8  # chance that a desk gets a chair in front of it
+PROP_SPACING_M = 1.5  # back-propping grid under slabs (typically 1.2-1.8 m)
+
+
+@dataclass(frozen=True)
+class PlacedObject:
+    """An object standing in a room: its mesh in world metres and its footprint.
+
+    vertices: (V, 3) float64 world; faces: (F, 3) int32; footprint: (4, 2) world xy corners;
+    base_z: the floor height it stands on.
+    """
+
+    kind: str
+    class_name: str
+    room: str
+    room_key: str  # the room's identity (IfcSpace GlobalId, or storey and area number)
+    storey: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    footprint: np.ndarray
+    base_z: float
+
+
+@dataclass
+class _Pose:
+    centre: np.ndarray  # room-frame xy of the footprint's centre
+    yaw: float  # radians, relative to the room's axes
+
+
+class RoomPlacer:
+    """Places objects in one room, one at a time (see the module docs)."""
+
+    def __init__(self, room: RoomFloor, prober: Prober, rng: np.random.Generator) -> None:
+        self.room = room
+        self.prober = prober
+        self.rng = rng
+        self.rects: list[np.ndarray] = []  # (4, 2) room-frame corners of every placed footprint
+        self._boxes = np.zeros((0, 4))  # their axis-aligned boxes (x0, y0, x1, y1), to test few exactly
+        self.placed: list[PlacedObject] = []
+        centres = room.cell_centres()
+        self._centres = centres
+        available = room.available
+        self._cells = centres[available]
+        # cells along walls, per direction of the wall (+x, +y, -x, -y in the room's axes)
+        self._wall_cells = []
+        for dx, dy in ((1, 0), (0, 1), (-1, 0), (0, -1)):
+            neighbour = np.zeros_like(room.free)
+            shifted = np.roll(room.free, shift=(-dy, -dx), axis=(0, 1))
+            neighbour[:] = shifted
+            if dx == 1:
+                neighbour[:, -1] = False
+            elif dx == -1:
+                neighbour[:, 0] = False
+            elif dy == 1:
+                neighbour[-1, :] = False
+            else:
+                neighbour[0, :] = False
+            self._wall_cells.append(centres[available & ~neighbour])
+        # the distance from every wall cell to the face beside it, at heights up to 2.4 m (one cast)
+        self._wall_distance = []
+        for direction, cells in enumerate(self._wall_cells):
+            out = np.array(((1, 0), (0, 1), (-1, 0), (0, -1))[direction], dtype=float)
+            index = np.array([self._cell_of(c) for c in cells], dtype=int).reshape(-1, 2)
+            floor = room.floor_z[index[:, 0], index[:, 1]] if len(cells) else np.zeros(0)
+            origins = np.column_stack([np.repeat(room.to_world(cells), len(WALL_HEIGHTS_M), axis=0),
+                                       np.repeat(floor, len(WALL_HEIGHTS_M)) + np.tile(WALL_HEIGHTS_M, len(cells))])
+            t, _ = prober.cast(origins, np.tile(np.append(room.to_world(out[None])[0], 0.0), (len(origins), 1)))
+            self._wall_distance.append(t.reshape(len(cells), len(WALL_HEIGHTS_M)))
+        usable = room.headroom_m[available]
+        self.typical_headroom_m = float(np.percentile(usable, 25)) if len(usable) else 0.0
+
+    # ------------------------------------------------------------------ drawing and trying objects
+
+    def place_kind(self, kind: ClutterKind) -> PlacedObject | None:
+        """Draw objects of ``kind`` and try poses until one fits; None when none does."""
+        if len(self._cells) == 0:
+            return None
+        for _ in range(DRAWS):
+            against_wall = self.rng.random() < kind.wall_probability or (
+                self.room.circulation and kind.wall_probability > 0)
+            if kind.name == "prop":
+                placed = self._place_prop(kind)
+                if placed is not None:
+                    return placed
+                continue
+            obj = kind.make(self.rng, self.typical_headroom_m, against_wall)
+            if obj is None:
+                continue
+            for _ in range(ATTEMPTS):
+                pose = self._wall_pose(obj) if against_wall else self._free_pose(obj, kind)
+                base = None if pose is None else self._fits(obj, pose)
+                if pose is not None and base is not None:
+                    placed = self._commit(kind, obj, pose, base)
+                    if kind.name == "desk" and self.rng.random() < COMPANION_CHAIR:
+                        self._companion_chair(pose, obj)
+                    return placed
+        return None
+
+    def place_prop_grid(self, kind: ClutterKind, slab_components: np.ndarray) -> int:
+        """Props on a ``PROP_SPACING_M`` grid under slab soffits (back-propping); returns how many."""
+        room = self.room
+        centres = self._centres
+        lo = centres[room.inside].min(axis=0) if room.inside.any() else np.zeros(2)
+        hi = centres[room.inside].max(axis=0) if room.inside.any() else np.zeros(2)
+        count = 0
+        for x in np.arange(lo[0] + PROP_SPACING_M / 2, hi[0], PROP_SPACING_M):
+            for y in np.arange(lo[1] + PROP_SPACING_M / 2, hi[1], PROP_SPACING_M):
+                j, i = self._cell_of(np.array([x, y]))
+                if j < 0 or not room.available[j, i]:
+                    continue
+                above = room.overhead[j, i]
+                if above < 0 or not slab_components[above]:
+                    continue
+                obj = kind.make(self.rng, float(room.headroom_m[j, i]), False)
+                pose = _Pose(np.array([x, y]), 0.0)
+                base = None if obj is None else self._fits(obj, pose, spanning=True)
+                if obj is not None and base is not None:
+                    self._commit(kind, obj, pose, base)
+                    count += 1
+        return count
+
+    def _place_prop(self, kind: ClutterKind) -> PlacedObject | None:
+        for _ in range(ATTEMPTS):
+            centre = self._cells[self.rng.integers(len(self._cells))]
+            j, i = self._cell_of(centre)
+            obj = kind.make(self.rng, float(self.room.headroom_m[j, i]), False)
+            pose = _Pose(centre.copy(), 0.0)
+            base = None if obj is None else self._fits(obj, pose, spanning=True)
+            if obj is not None and base is not None:
+                return self._commit(kind, obj, pose, base)
+        return None
+
+    def _companion_chair(self, desk_pose: _Pose, desk: ClutterObject) -> None:
+        from bimscan.site.library import CLUTTER_KINDS
+
+        kind = CLUTTER_KINDS["chair"]
+        chair = kind.make(self.rng, self.typical_headroom_m, False)
+        if chair is None:
+            return
+        offset = np.array([self.rng.uniform(-0.2, 0.2) * desk.size_m[0],
+                           -(desk.size_m[1] / 2 + chair.size_m[1] / 2 + GAP_M + self.rng.uniform(0.0, 0.15))])
+        pose = _Pose(desk_pose.centre + _rotate2(offset, desk_pose.yaw),
+                     desk_pose.yaw + math.pi + self.rng.uniform(-0.4, 0.4))
+        base = self._fits(chair, pose)
+        if base is not None:
+            self._commit(kind, chair, pose, base)
+
+    # ------------------------------------------------------------------------------------ poses
+
+    def _free_pose(self, obj: ClutterObject, kind: ClutterKind) -> _Pose:
+        centre = self._cells[self.rng.integers(len(self._cells))] + self.rng.uniform(-0.5, 0.5, 2) * self.room.cell_m
+        if kind.free_yaw:
+            yaw = self.rng.uniform(0.0, 2 * math.pi)
+        else:
+            yaw = self.rng.integers(4) * math.pi / 2 + (self.rng.uniform(-0.15, 0.15) if kind.group == "site" else 0.0)
+        return _Pose(centre, float(yaw))
+
+    def _wall_pose(self, obj: ClutterObject) -> _Pose | None:
+        """Back against a wall: a cell along a wall, the wall's face found by a horizontal ray."""
+        direction = int(self.rng.integers(4))
+        cells = self._wall_cells[direction]
+        if len(cells) == 0:
+            return None
+        k = int(self.rng.integers(len(cells)))
+        cell = cells[k]
+        out = np.array(((1, 0), (0, 1), (-1, 0), (0, -1))[direction], dtype=float)
+        # the nearest face over the object's height (a table's top overhangs its legs)
+        reach = WALL_HEIGHTS_M <= max(obj.size_m[2], WALL_HEIGHTS_M[0])
+        distance = float(self._wall_distance[direction][k][reach].min())
+        if not np.isfinite(distance) or distance > 2 * self.room.cell_m:
+            return None  # the free floor ends at an object or an edge, not a wall
+        lateral = np.array([-out[1], out[0]]) * self.rng.uniform(-0.5, 0.5) * self.room.cell_m
+        centre = cell + out * (distance - GAP_M - obj.size_m[1] / 2) + lateral
+        yaw = math.atan2(out[1], out[0]) - math.pi / 2  # the object's back (+y) faces the wall
+        return _Pose(centre, yaw)
+
+    # ---------------------------------------------------------------------------------- checks
+
+    def _cell_of(self, xy_room: np.ndarray) -> tuple[int, int]:
+        ny, nx = self.room.shape
+        i, j = (int(math.floor(v)) for v in (xy_room - self.room.origin) / self.room.cell_m)
+        return (j, i) if 0 <= i < nx and 0 <= j < ny else (-1, -1)
+
+    def _footprint(self, obj: ClutterObject, pose: _Pose, grow: float = 0.0) -> np.ndarray:
+        w, d = obj.size_m[0] / 2 + grow, obj.size_m[1] / 2 + grow
+        corners = np.array([[-w, -d], [w, -d], [w, d], [-w, d]])
+        return pose.centre + _rotate2(corners, pose.yaw)
+
+    def _fits(self, obj: ClutterObject, pose: _Pose, *, spanning: bool = False) -> float | None:
+        """The floor height the object would stand on, or None when the pose collides."""
+        room = self.room
+        w, d, h = obj.size_m
+        # (1) the floor cells under the footprint
+        rect = self._footprint(obj, pose)
+        lo, hi = rect.min(axis=0), rect.max(axis=0)
+        ny, nx = room.shape
+        i0, j0 = (int(math.floor(v)) for v in (lo - room.origin) / room.cell_m)
+        i1, j1 = (int(math.floor(v)) for v in (hi - room.origin) / room.cell_m)
+        if i0 < 0 or j0 < 0 or i1 >= nx or j1 >= ny:
+            return None
+        window = self._centres[j0:j1 + 1, i0:i1 + 1]
+        local = _rotate2(window.reshape(-1, 2) - pose.centre, -pose.yaw)
+        under = ((np.abs(local[:, 0]) <= w / 2) & (np.abs(local[:, 1]) <= d / 2)).reshape(window.shape[:2])
+        if not under.any():  # smaller than a cell: the cell holding its centre
+            j, i = self._cell_of(pose.centre)
+            under = np.zeros(window.shape[:2], dtype=bool)
+            under[j - j0, i - i0] = True
+        if not room.available[j0:j1 + 1, i0:i1 + 1][under].all():
+            return None
+        floor = room.floor_z[j0:j1 + 1, i0:i1 + 1][under]
+        if floor.max() - floor.min() > LEVEL_M:
+            return None
+        base = float(floor.max())
+        headroom = room.headroom_m[j0:j1 + 1, i0:i1 + 1][under] - (base - floor)
+        if headroom.min() < h + (0.002 if spanning else 0.02):
+            return None
+        # (2) the other objects
+        if self._overlaps_placed(self._footprint(obj, pose, GAP_M)):
+            return None
+        # (3) rays through the box
+        return None if self._box_hits(obj, pose, base, spanning=spanning) else base
+
+    def _box_hits(self, obj: ClutterObject, pose: _Pose, base: float, *, spanning: bool) -> bool:
+        m = CLEARANCE_M
+        w, d, h = obj.size_m[0] + 2 * m, obj.size_m[1] + 2 * m, obj.size_m[2]
+        top = h + (0.001 if spanning else m)  # a prop stops short of the soffit it is wedged under
+        heights = np.unique(np.concatenate([[0.02], np.arange(0.3, top, 0.4), [top]]))
+        xs = np.linspace(-w / 2, w / 2, max(2, int(math.ceil(w / SWEEP_M)) + 1))
+        ys = np.linspace(-d / 2, d / 2, max(2, int(math.ceil(d / SWEEP_M)) + 1))
+        origins, directions, lengths = [], [], []
+        for z in heights:
+            origins.append(np.column_stack([np.full(len(ys), xs[0]), ys, np.full(len(ys), z)]))
+            directions.append(np.tile([1.0, 0.0, 0.0], (len(ys), 1)))
+            lengths.append(np.full(len(ys), xs[-1] - xs[0]))
+            origins.append(np.column_stack([xs, np.full(len(xs), ys[0]), np.full(len(xs), z)]))
+            directions.append(np.tile([0.0, 1.0, 0.0], (len(xs), 1)))
+            lengths.append(np.full(len(xs), ys[-1] - ys[0]))
+        gx, gy = (a.ravel() for a in np.meshgrid(xs, ys, indexing="xy"))
+        origins.append(np.column_stack([gx, gy, np.full(len(gx), top)]))
+        directions.append(np.tile([0.0, 0.0, -1.0], (len(gx), 1)))
+        lengths.append(np.full(len(gx), top - 0.02))
+        local_o, local_d, length = np.concatenate(origins), np.concatenate(directions), np.concatenate(lengths)
+        rotation = self._rotation(pose)
+        world_o = local_o @ rotation.T
+        world_o[:, :2] += self.room.to_world(pose.centre[None])[0]
+        world_o[:, 2] += base
+        t, _ = self.prober.cast(world_o, local_d @ rotation.T)
+        return bool((t < length).any())
+
+    def _overlaps_placed(self, rect: np.ndarray) -> bool:
+        lo, hi = rect.min(axis=0), rect.max(axis=0)
+        boxes = self._boxes
+        near = np.flatnonzero((boxes[:, 0] < hi[0]) & (boxes[:, 2] > lo[0])
+                              & (boxes[:, 1] < hi[1]) & (boxes[:, 3] > lo[1]))
+        return any(_overlap(rect, self.rects[k]) for k in near)
+
+    def _rotation(self, pose: _Pose) -> np.ndarray:
+        return yaw_matrix(self.room.angle_rad + pose.yaw)
+
+    def _commit(self, kind: ClutterKind, obj: ClutterObject, pose: _Pose, base: float) -> PlacedObject:
+        room = self.room
+        rect = self._footprint(obj, pose)
+        vertices = obj.vertices @ self._rotation(pose).T
+        vertices[:, :2] += room.to_world(pose.centre[None])[0]
+        vertices[:, 2] += base
+        placed = PlacedObject(kind=kind.name, class_name=obj.class_name, room=room.name, room_key=room.key,
+                              storey=room.storey, vertices=vertices, faces=obj.faces, footprint=room.to_world(rect),
+                              base_z=base)
+        self.rects.append(rect)
+        self._boxes = np.vstack([self._boxes, np.concatenate([rect.min(axis=0), rect.max(axis=0)])[None]])
+        self.placed.append(placed)
+        return placed
+
+
+def _rotate2(points: np.ndarray, angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return points @ np.array([[c, s], [-s, c]])
+
+
+def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
+    """True when two convex polygons (k, 2) share interior area (separating axis test)."""
+    for poly in (a, b):
+        edges = poly[[1, 2, 3, 0]] - poly if len(poly) == 4 else np.roll(poly, -1, axis=0) - poly
+        normals = np.column_stack([-edges[:, 1], edges[:, 0]])
+        pa, pb = a @ normals.T, b @ normals.T
+        if ((pa.max(axis=0) <= pb.min(axis=0)) | (pb.max(axis=0) <= pa.min(axis=0))).any():
+            return False
+    return True

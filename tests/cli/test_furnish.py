@@ -1,0 +1,63 @@
+"""``bimscan furnish``: the site written into an IFC copy that other tools (and bimscan) read back."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bimscan.cli.main import main
+from bimscan.pipeline import build_site, load_scene
+from bimscan.scan.recipe import ScanRecipe
+from bimscan.site import ClutterSettings, SiteModel, StageSettings
+
+
+@pytest.mark.parametrize("schema", ["IFC4", "IFC2X3"])
+def test_the_furnished_copy_holds_the_same_objects_as_the_dressed_scene(tmp_path, tiny_model, schema, capsys):
+    from tests.conftest import build_box_room
+
+    source = build_box_room(tmp_path / "room.ifc", schema=schema)
+    out = tmp_path / "furnished.ifc"
+    assert main(["furnish", str(source), str(out), "--clutter", "0.3", "--clutter-kinds", "office,people",
+                 "--seed", "4"]) == 0
+    assert "placed" in capsys.readouterr().out
+    site = SiteModel(clutter=ClutterSettings(density=0.3, kinds=("office", "people")))
+    dressed = build_site(load_scene(source, use_cache=False), ScanRecipe(seed=4, site=site))
+    copy = load_scene(out, use_cache=False)
+    added = np.char.find(dressed.components.ifc_class.astype(str), ".") > 0
+    expected = {"IfcFurniture" if schema == "IFC4" else "IfcFurnishingElement": 0, "IfcBuildingElementProxy": 0}
+    for cls in dressed.components.ifc_class[added]:
+        expected["IfcBuildingElementProxy" if cls.startswith("Person") else next(iter(expected))] += 1
+    for cls, count in expected.items():
+        assert int((copy.components.ifc_class == cls).sum()) == count
+    # every object keeps its GlobalId, and its triangles land where the scanned scene has them
+    for c in np.flatnonzero(added):
+        gid = dressed.components.global_id[c]
+        (k,) = np.flatnonzero(copy.components.global_id == gid)
+        a, b = _corners(dressed, c), _corners(copy, k)
+        assert a.shape == b.shape and np.allclose(a, b, atol=1e-5)
+        assert (copy.mesh.face_component == k).sum() == (dressed.mesh.face_component == c).sum()
+        assert copy.components.label[k] == next(c.id for c in copy.scheme.classes if c.name == "Others")
+
+
+def _corners(scene, component: int) -> np.ndarray:
+    """The distinct corners of a component's triangles, sorted (to 0.01 mm)."""
+    faces = scene.mesh.faces[scene.mesh.face_component == component]
+    return np.unique(np.round(scene.mesh.vertices[faces].reshape(-1, 3), 5), axis=0)
+
+
+def test_a_stage_removes_elements_from_the_copy(tmp_path, capsys):
+    from bimscan.ifc.generate import make_building
+
+    source = make_building(tmp_path / "office.ifc", seed=3, storeys=1).path
+    out = tmp_path / "structure.ifc"
+    assert main(["furnish", str(source), str(out), "--stage", "structure"]) == 0
+    classes = set(load_scene(out, use_cache=False).components.ifc_class.tolist())
+    assert classes and not classes & {"IfcDoor", "IfcWindow", "IfcCovering", "IfcFurniture"}
+    dressed = build_site(load_scene(source), ScanRecipe(site=SiteModel(stage=StageSettings(name="structure"))))
+    assert classes == set(dressed.components.ifc_class.tolist())
+
+
+def test_furnish_without_a_site_is_a_usage_error(box_room_ifc, tmp_path, capsys):
+    assert main(["furnish", str(box_room_ifc), str(tmp_path / "same.ifc")]) != 0
+    assert "nothing to furnish" in capsys.readouterr().err
+    assert not (tmp_path / "same.ifc").exists()

@@ -1,0 +1,148 @@
+"""Construction stages: what is built at each stage, partial states, work-schedule dates."""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import numpy as np
+import pytest
+
+from bimscan.errors import ConfigError
+from bimscan.site import SiteModel, StageSettings, dress_scene
+from bimscan.site.stage import built_components
+from bimscan.types import BuildDates
+
+
+def classes_of(scene) -> Counter:
+    return Counter(scene.components.ifc_class.tolist())
+
+
+def test_structure_keeps_only_slabs_walls_columns_beams_and_stairs(office_scene):
+    structure = dress_scene(office_scene, SiteModel(stage=StageSettings(name="structure")), seed=0)
+    have, before = classes_of(structure), classes_of(office_scene)
+    assert set(have) <= {"IfcSlab", "IfcWall", "IfcColumn", "IfcBeam", "IfcStair", "IfcStairFlight", "IfcMember"}
+    for cls in ("IfcSlab", "IfcWall", "IfcColumn", "IfcBeam"):
+        assert have[cls] == before[cls] > 0
+    for cls in ("IfcCovering", "IfcDoor", "IfcWindow", "IfcFurniture"):
+        assert before[cls] > 0 and have[cls] == 0
+    assert structure.site.removed == {c: before[c] for c in ("IfcCovering", "IfcDoor", "IfcFurniture", "IfcWindow")}
+    # the mesh holds exactly the kept components' triangles, densely renumbered
+    assert structure.mesh.face_component.max() == len(structure.components) - 1
+    kept = np.isin(office_scene.components.ifc_class, list(have))
+    assert structure.mesh.n_triangles == int(kept[office_scene.mesh.face_component].sum())
+
+
+def test_enclosed_adds_windows_and_doors_but_no_coverings_or_furniture(office_scene):
+    enclosed = classes_of(dress_scene(office_scene, SiteModel(stage=StageSettings(name="enclosed")), seed=0))
+    before = classes_of(office_scene)
+    assert enclosed["IfcDoor"] == before["IfcDoor"] and enclosed["IfcWindow"] == before["IfcWindow"]
+    assert enclosed["IfcCovering"] == enclosed["IfcFurniture"] == 0
+
+
+def test_finished_without_clutter_is_the_model_itself(office_scene):
+    assert dress_scene(office_scene, SiteModel(), seed=0) is office_scene
+
+
+def test_include_and_exclude_lists_choose_classes(office_scene):
+    walls_only = dress_scene(office_scene, SiteModel(stage=StageSettings(include=("IfcWall", "IfcSlab"))), seed=0)
+    assert set(classes_of(walls_only)) == {"IfcWall", "IfcSlab"}
+    no_beams = dress_scene(office_scene, SiteModel(stage=StageSettings(exclude=("IfcBeam",))), seed=0)
+    assert classes_of(no_beams)["IfcBeam"] == 0 and classes_of(no_beams)["IfcCovering"] > 0
+
+
+def test_parts_of_a_stair_follow_the_stair(tmp_path, tiny_model):
+    from bimscan.pipeline import load_scene
+
+    model = tiny_model()
+    model.add_box("IfcSlab", origin=(0, 0, -0.3), size=(4, 4, 0.3))
+    stair = model.api.run("root.create_entity", model.file, ifc_class="IfcStair", name="stair")
+    model.api.run("spatial.assign_container", model.file, relating_structure=model.storey, products=[stair])
+    flight = model.add_box("IfcStairFlight", origin=(1, 1, 0), size=(1, 3, 1.5), contain=False)
+    rail = model.add_box("IfcRailing", origin=(2.1, 1, 0), size=(0.05, 3, 1.0), contain=False)
+    model.api.run("aggregate.assign_object", model.file, relating_object=stair, products=[flight, rail])
+    scene = load_scene(model.write(tmp_path / "stair.ifc"), use_cache=False)
+    kept = built_components(scene, StageSettings(name="structure"), seed=0)
+    assert dict(zip(scene.components.ifc_class.tolist(), kept.tolist())) == {
+        "IfcSlab": True, "IfcStairFlight": True, "IfcRailing": True}
+
+
+def test_missing_walls_are_a_seeded_growing_fraction_taking_their_doors_with_them(office_scene):
+    walls = int((office_scene.components.ifc_class == "IfcWall").sum())
+    gone = {}
+    for fraction in (0.3, 0.7):
+        stage = StageSettings(name="enclosed", walls_missing_fraction=fraction)
+        kept = built_components(office_scene, stage, seed=3)
+        gone[fraction] = set(office_scene.components.global_id[~kept].tolist())
+        missing_walls = int((~kept & (office_scene.components.ifc_class == "IfcWall")).sum())
+        assert 0 < missing_walls < walls
+    assert gone[0.3] < gone[0.7]  # a larger fraction removes a superset
+    assert built_components(office_scene, StageSettings(walls_missing_fraction=1.0), seed=3)[
+        office_scene.components.ifc_class == "IfcDoor"].sum() == 0  # no wall, no door
+    again = built_components(office_scene, StageSettings(name="enclosed", walls_missing_fraction=0.3), seed=3)
+    assert set(office_scene.components.global_id[~again].tolist()) == gone[0.3]
+
+
+def _ceiling_area(scene) -> float:
+    ceilings = np.flatnonzero(scene.components.predefined_type == "CEILING")
+    faces = scene.mesh.faces[np.isin(scene.mesh.face_component, ceilings)]
+    v = scene.mesh.vertices[faces]
+    return float(np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1).sum() / 2)
+
+
+def test_open_ceilings_leave_bays_without_panels(office_scene):
+    full = _ceiling_area(office_scene)
+    half = dress_scene(office_scene, SiteModel(stage=StageSettings(ceilings_open_fraction=0.5)), seed=1)
+    none = dress_scene(office_scene, SiteModel(stage=StageSettings(ceilings_open_fraction=1.0)), seed=1)
+    assert 0.2 * full < _ceiling_area(half) < 0.8 * full
+    assert _ceiling_area(none) == pytest.approx(0.0, abs=1e-9)
+    assert len(half.components) == len(office_scene.components)  # the ceilings stay components, with holes
+
+
+def test_props_stand_under_the_slab_on_a_grid_in_structure(office_scene):
+    from bimscan.scan.recipe import ScanRecipe
+    from bimscan.survey.survey import place_scanner
+
+    propped = dress_scene(office_scene, SiteModel(stage=StageSettings(name="structure", props_fraction=1.0)), seed=2)
+    props = np.flatnonzero(propped.components.ifc_class == "Temporary.Prop")
+    assert len(props) > 20 and propped.site.placed == {"Temporary.Prop": len(props)}
+    structure = dress_scene(office_scene, SiteModel(stage=StageSettings(name="structure")), seed=2)
+    scanner = place_scanner(structure, ScanRecipe())
+    for c in props:
+        v = propped.mesh.vertices[np.unique(propped.mesh.faces[propped.mesh.face_component == c])]
+        t, hit = scanner.cast(v.mean(axis=0), np.array([[0.0, 0.0, 1.0]], np.float32))
+        assert structure.components.ifc_class[hit[0]] == "IfcSlab"
+        assert v[:, 2].max() == pytest.approx(v.mean(axis=0)[2] + t[0] - 0.005, abs=0.002)  # 5 mm below the soffit
+
+
+def test_a_date_keeps_what_the_work_schedule_has_built(office_scene):
+    walls = np.flatnonzero(office_scene.components.ifc_class == "IfcWall")
+    gids = office_scene.components.global_id
+    schedule = {gids[walls[0]]: BuildDates(built="2024-03-10"), gids[walls[1]]: BuildDates(built="2024-05-01"),
+                gids[walls[2]]: BuildDates(built="2024-01-01", removed="2024-04-01")}
+
+    def standing(at: str) -> set[str]:
+        kept = built_components(office_scene, StageSettings(at=at), seed=0, schedule=schedule)
+        return {gids[w] for w in walls[:3] if kept[w]}
+
+    assert standing("2024-02-01") == {gids[walls[2]]}
+    assert standing("2024-03-10") == {gids[walls[0]], gids[walls[2]]}
+    assert standing("2024-04-15") == {gids[walls[0]]}
+    assert standing("2024-06-01") == {gids[walls[0]], gids[walls[1]]}
+    assert built_components(office_scene, StageSettings(at="2024-06-01"), seed=0, schedule=schedule).sum() == \
+        len(office_scene.components) - 1  # only the demolished wall is gone
+
+
+def test_a_stage_where_nothing_stands_is_refused(office_scene):
+    with pytest.raises(ConfigError, match="nothing of the model stands"):
+        dress_scene(office_scene, SiteModel(stage=StageSettings(include=("IfcRamp",))), seed=0)
+
+
+@pytest.mark.parametrize("stage, message", [
+    ({"name": "roughcast"}, "unknown construction stage"),
+    ({"walls_missing_fraction": 1.5}, "fraction from 0 to 1"),
+    ({"at": "next week"}, "YYYY-MM-DD"),
+    ({"include": ("Wall",)}, "not an IFC class"),
+])
+def test_impossible_stage_settings_are_refused(stage, message):
+    with pytest.raises(ConfigError, match=message):
+        StageSettings(**stage)
