@@ -123,6 +123,48 @@ def station_normals(key: np.uint64) -> np.ndarray:
     return out
 
 
+@nb.njit(cache=True)
+def draw_normals(keys: np.ndarray, k: int) -> np.ndarray:
+    """(n, k) standard normal deviates, row i drawn from generator key keys[i] (n,) uint64."""
+    out = np.empty((len(keys), k))
+    for i in range(len(keys)):
+        for j in range(k):
+            h = _mix64(np.uint64(keys[i]) ^ (np.uint64(j + 1) * _STREAM))
+            out[i, j] = _normal_from_bits(h >> np.uint64(32))
+    return out
+
+
+@nb.njit(cache=True, inline="always")
+def draw_bits(key: np.uint64, pulse: np.int64, purpose: np.int64) -> np.uint64:
+    """64 random bits of one (pulse, purpose) of a station's generator: counter-based, so any chunking
+    or thread count draws the same. Purposes are small integers naming what the draw is for."""
+    return _mix64(np.uint64(key) ^ (np.uint64(pulse) * _GOLDEN) ^ ((np.uint64(purpose) + np.uint64(1)) * _M2))
+
+
+@nb.njit(cache=True, inline="always")
+def draw_uniform(key: np.uint64, pulse: np.int64, purpose: np.int64) -> float:
+    """A uniform deviate in [0, 1) (53 bits) of one (pulse, purpose)."""
+    return float(draw_bits(key, pulse, purpose) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+@nb.njit(cache=True, inline="always")
+def draw_normal(key: np.uint64, pulse: np.int64, purpose: np.int64) -> float:
+    """A standard normal deviate of one (pulse, purpose)."""
+    return _normal_from_bits(draw_bits(key, pulse, purpose) >> np.uint64(32))
+
+
+@nb.njit(cache=True, inline="always")
+def pulse_normals(key: np.uint64, pulse: np.int64) -> tuple[float, float, float]:
+    """The paper path's three deviates of a pulse (range, azimuth, elevation)."""
+    return _pulse_normals(key, pulse)
+
+
+@nb.njit(cache=True, inline="always")
+def small_sincos(a: float) -> tuple[float, float]:
+    """sin and cos of a (small) angle, as the paper path computes them."""
+    return _small_sincos(a)
+
+
 @nb.njit(cache=True, inline="always")
 def _small_sincos(a: float) -> tuple[float, float]:
     """sin and cos of an angle; Taylor series for the tiny angles of angular noise (|a| < 0.05 rad)."""

@@ -23,11 +23,12 @@ from typing import Any
 
 from bimscan.files import dump_json
 from bimscan.scan.device import (
-    DEFAULT_PRESET, DEFAULT_SCANNER, PRESETS, SCANNERS, ScannerModel, ScanSettings, check_settings, load_scanner,
-    load_settings, with_overrides,
+    DEFAULT_PRESET, DEFAULT_SCANNER, PRESETS, SCANNERS, SENSOR_DEVICE_FIELDS, ScannerModel, ScanSettings,
+    check_settings, load_scanner, load_settings, with_overrides,
 )
 from bimscan.scan.engine import DEFAULT_ENGINE, ENGINES
 from bimscan.scan.noise import NoiseModel
+from bimscan.scan.sensor import SensorModel
 from bimscan.errors import ConfigError
 
 DEFAULT_CHUNK_PULSES = 1 << 20  # ~70 MB of working arrays per chunk
@@ -46,8 +47,9 @@ class ScanRecipe:
     seed, noise_stream: the noise generator's key is (seed, noise_stream, station); a dataset gives
     every unit its own stream (its id) so that no two units share a noise sequence; "" for a
     single scan. engine: a ``scan.engine.ENGINES`` name. stations_from: "auto" (planned) or a
-    station CSV file. strict: settings outside the device's limits are errors. threads (0 = all cores) and
-    chunk_pulses change speed and memory only, never the output.
+    station CSV file. strict: settings outside the device's limits are errors. sensor: which
+    effects beyond the paper's thin ray are simulated (``SensorModel``; the default is the paper's
+    scanner). threads (0 = all cores) and chunk_pulses change speed and memory only, never the output.
     """
 
     scanner: ScannerModel = field(default_factory=lambda: SCANNERS[DEFAULT_SCANNER])
@@ -59,11 +61,18 @@ class ScanRecipe:
     engine: str = DEFAULT_ENGINE
     stations_from: str = AUTO_STATIONS
     strict: bool = False
+    sensor: SensorModel = field(default_factory=SensorModel)
     threads: int = 0
     chunk_pulses: int = DEFAULT_CHUNK_PULSES
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "noise", self.noise.resolved(self.scanner))
+        if not isinstance(self.sensor, SensorModel):
+            raise ConfigError(f"sensor must be a SensorModel, got {type(self.sensor).__name__}")
+        if self.sensor.needs_surfaces:
+            from bimscan.scan.surfaces import load_material_table
+
+            load_material_table(self.sensor.material_table)  # a bad table fails now, before any work
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed < 2**64:
             raise ConfigError(f"seed = {self.seed!r} is impossible; give an integer in 0..2^64-1")
         if self.engine not in ENGINES:
@@ -105,10 +114,15 @@ class ScanRecipe:
         """The recipe as JSON-able data (what clouds and units record; the fingerprint's input).
 
         A station file is recorded by its name (a dataset adds its checksum), so moving a
-        dataset's folder changes neither fingerprints nor bytes.
+        dataset's folder changes neither fingerprints nor bytes. The sensor settings (and the
+        device facts only they use) are recorded when an effect beyond the paper is on: a paper
+        scan records exactly what it did before those effects existed.
         """
-        return {
-            "scanner": dataclasses.asdict(self.scanner),
+        scanner = dataclasses.asdict(self.scanner)
+        if self.sensor.is_paper:
+            scanner = {k: v for k, v in scanner.items() if k not in SENSOR_DEVICE_FIELDS}
+        document = {
+            "scanner": scanner,
             "preset": self.preset,
             "settings": dataclasses.asdict(self.settings),
             "noise": dataclasses.asdict(self.noise),
@@ -118,6 +132,9 @@ class ScanRecipe:
             "stations_from": self.stations_from if self.stations_from == AUTO_STATIONS else Path(self.stations_from).name,
             "strict": self.strict,
         }
+        if not self.sensor.is_paper:
+            document["sensor"] = self.sensor.to_json()
+        return document
 
     def fingerprint(self) -> str:
         """SHA-256 of the canonical JSON of ``to_json()``: equal output-deciding settings, equal value."""
