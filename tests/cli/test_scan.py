@@ -116,3 +116,23 @@ def test_an_existing_output_is_kept_unless_overwrite(box_room_ifc, tmp_path, cap
     assert out.read_bytes() == b"precious"
     assert main(["scan", str(box_room_ifc), str(out), *FAST, "--overwrite"]) == 0
     assert out.read_bytes() != b"precious"
+
+
+def test_full_realism_from_the_command_line_writes_returns_colour_and_the_as_built_transforms(box_room_ifc, tmp_path):
+    import laspy
+
+    out = tmp_path / "full.laz"
+    assert main(["scan", str(box_room_ifc), str(out), *FAST, "--seed", "1", "--realism", "full",
+                 "--returns", "first", "--no-glass"]) == 0
+    header = read_cloud_header(out)
+    sensor = header.metadata["sensor"]
+    assert sensor["realism"] == "full" and sensor["returns"] == "first" and sensor["glass"] is False
+    assert sensor["footprint"] is True and len(header.metadata["as_built"]["components"]["global_id"]) == 6
+    las = laspy.read(out)
+    assert las.header.point_format.id == 7 and np.asarray(las.red).max() > 0
+    cloud = read_cloud(out)
+    assert cloud.rgb is not None and (cloud.return_number == 1).all()
+    assert np.array_equal(cloud.label, header.components.label[cloud.component])
+    plain = tmp_path / "plain.laz"
+    assert main(["scan", str(box_room_ifc), str(plain), *FAST, "--seed", "1", "--realism", "paper"]) == 0
+    assert "sensor" not in read_cloud_header(plain).metadata and read_cloud(plain).rgb is None

@@ -15,6 +15,10 @@ A spec is one TOML file (paths inside it are relative to the file)::
     range_sigma_m = 0.005
     angle_sigma_deg = 0.03
 
+    realism = "paper"             # optional: "paper" (default) or "full" sensor effects
+    [sensor]                      # optional: sensor settings (bimscan.scan.sensor.SensorModel keys)
+    returns = "all"
+
     [[scenes]]
     name = "duplex"
     ifc = "models/duplex.ifc"
@@ -32,6 +36,8 @@ A spec is one TOML file (paths inside it are relative to the file)::
     [[configs]]
     name = "custom"
     settings = { pulse_freq_hz = 300000, scan_freq_hz = 100, head_deg_per_s = 20 }
+    realism = "full"              # optional: this configuration's realism and sensor settings,
+    sensor = { glass = false }    # key by key over the spec's
 
 ``load_spec`` checks everything a build needs before any work starts: unknown keys, bad
 values, names, missing IFC or station files, unknown presets, schemes (and the IFC classes their
@@ -54,6 +60,7 @@ from bimscan.scan.device import DEFAULT_SCANNER, ScanSettings
 from bimscan.scan.engine import DEFAULT_ENGINE
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.recipe import AUTO_STATIONS, ScanRecipe
+from bimscan.scan.sensor import merge_sensor_tables
 from bimscan.toml_files import build_dataclass, load_toml
 from bimscan.types import LabelScheme
 
@@ -80,12 +87,15 @@ class SceneSpec:
 
 @dataclass(frozen=True)
 class ConfigSpec:
-    """One scanner configuration: a preset or an explicit settings table, optional head speed."""
+    """One scanner configuration: a preset or an explicit settings table, optional head speed,
+    optional sensor realism and settings (over the spec's)."""
 
     name: str
     preset: str | None = None
     settings: ScanSettings | None = None
     head_deg_per_s: float | None = None
+    realism: str | None = None
+    sensor: dict[str, Any] | None = None
 
 
 @dataclass(frozen=True)
@@ -101,6 +111,8 @@ class DatasetSpec:
     engine: str = DEFAULT_ENGINE
     strict: bool = False
     noise: NoiseModel = field(default_factory=NoiseModel)
+    realism: str | None = None
+    sensor: dict[str, Any] | None = None
     scenes: tuple[SceneSpec, ...] = ()
     configs: tuple[ConfigSpec, ...] = ()
 
@@ -123,7 +135,9 @@ class DatasetSpec:
         return ScanRecipe.resolve(preset=config.preset, settings=config.settings, scanner=self.scanner,
                                   head_deg_per_s=config.head_deg_per_s, noise=self.noise, seed=self.seed,
                                   noise_stream=unit_id(scene.name, config.name), engine=self.engine,
-                                  stations_from=scene.stations, strict=self.strict)
+                                  stations_from=scene.stations, strict=self.strict,
+                                  realism=config.realism or self.realism,
+                                  sensor=merge_sensor_tables(self.sensor, config.sensor))
 
 
 def load_spec(path: str | Path) -> DatasetSpec:
@@ -229,9 +243,17 @@ def _local_path(value: str, base: Path) -> str:
 
 def _absolute(spec: DatasetSpec, *, base: Path) -> DatasetSpec:
     """The spec with its scheme, scanner and preset files made absolute (workers run anywhere)."""
-    configs = tuple(dataclasses.replace(c, preset=_local_path(c.preset, base)) if c.preset else c for c in spec.configs)
+    configs = tuple(dataclasses.replace(c, preset=_local_path(c.preset, base) if c.preset else None,
+                                        sensor=_local_sensor(c.sensor, base)) for c in spec.configs)
     return dataclasses.replace(spec, scheme=_local_path(spec.scheme, base), scanner=_local_path(spec.scanner, base),
-                               configs=configs)
+                               sensor=_local_sensor(spec.sensor, base), configs=configs)
+
+
+def _local_sensor(table: dict[str, Any] | None, base: Path) -> dict[str, Any] | None:
+    """A sensor table with its material table file made absolute."""
+    if not table or not isinstance(table.get("material_table"), str):
+        return table
+    return table | {"material_table": str((base / table["material_table"]).resolve())}
 
 
 def resolve_scheme(spec: DatasetSpec) -> LabelScheme:

@@ -16,12 +16,13 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 from typing import Any
 
-from bimscan.files import dump_json
+from bimscan.files import dump_json, file_sha256
 from bimscan.scan.device import (
     DEFAULT_PRESET, DEFAULT_SCANNER, PRESETS, SCANNERS, SENSOR_DEVICE_FIELDS, ScannerModel, ScanSettings,
     check_settings, load_scanner, load_settings, with_overrides,
@@ -29,7 +30,8 @@ from bimscan.scan.device import (
 from bimscan.scan.engine import DEFAULT_ENGINE, ENGINES
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.sensor import SensorModel
-from bimscan.errors import ConfigError
+from bimscan.errors import BimscanError, ConfigError
+from bimscan.toml_files import build_dataclass, load_toml
 
 DEFAULT_CHUNK_PULSES = 1 << 20  # ~70 MB of working arrays per chunk
 AUTO_STATIONS = "auto"
@@ -86,15 +88,19 @@ class ScanRecipe:
     @staticmethod
     def resolve(*, preset: str | Path | None = None, settings: ScanSettings | None = None,
                 scanner: str | Path | ScannerModel | None = None, head_deg_per_s: float | None = None,
+                realism: str | None = None, sensor: SensorModel | Mapping[str, Any] | str | Path | None = None,
                 **fields: Any) -> ScanRecipe:
         """A recipe from what a user wrote: a preset name or settings TOML (or a settings table),
-        a scanner name or TOML, a head speed override; ``fields`` are the other ScanRecipe fields.
+        a scanner name or TOML, a head speed override, the sensor realism (``realism`` "paper" or
+        "full", and ``sensor``: a SensorModel, a table of its keys or a TOML file of them; an
+        explicit ``realism`` wins over the table's); ``fields`` are the other ScanRecipe fields.
 
         Without ``preset`` and ``settings``: the default preset. Raises ConfigError for unknown
-        names and missing files, ScannerSettingsError for impossible settings.
+        names, keys and missing files, ScannerSettingsError for impossible settings.
         """
         if preset is not None and settings is not None:
             raise ConfigError("give a preset or explicit settings, not both")
+        fields["sensor"] = resolve_sensor(sensor, realism=realism)
         model = scanner if isinstance(scanner, ScannerModel) else load_scanner(scanner)
         if settings is None:
             preset = DEFAULT_PRESET if preset is None else preset
@@ -133,7 +139,11 @@ class ScanRecipe:
             "strict": self.strict,
         }
         if not self.sensor.is_paper:
-            document["sensor"] = self.sensor.to_json()
+            sensor = self.sensor.to_json()
+            if self.sensor.material_table is not None:  # by name and content, as station files
+                table = Path(self.sensor.material_table)
+                sensor["material_table"] = {"file": table.name, "sha256": file_sha256(table)}
+            document["sensor"] = sensor
         return document
 
     def fingerprint(self) -> str:
@@ -143,3 +153,22 @@ class ScanRecipe:
     def with_fields(self, **changes: Any) -> ScanRecipe:
         """A copy with fields replaced (validated again)."""
         return dataclasses.replace(self, **changes)
+
+
+def resolve_sensor(sensor: SensorModel | Mapping[str, Any] | str | Path | None = None, *,
+                   realism: str | None = None) -> SensorModel:
+    """A SensorModel from a model, a table of its keys or a TOML file of them; ``realism`` overrides."""
+    if isinstance(sensor, SensorModel):
+        return sensor if realism is None else dataclasses.replace(sensor, realism=realism)
+    if isinstance(sensor, str | Path):
+        where = str(sensor)
+        table: dict[str, Any] = dict(load_toml(sensor))
+    else:
+        where = "sensor settings"
+        table = dict(sensor or {})
+    if realism is not None:
+        table["realism"] = realism
+    try:
+        return build_dataclass(SensorModel, table, where=where)
+    except BimscanError as exc:
+        raise exc if str(exc).startswith(where) else type(exc)(f"{where}: {exc}") from exc
