@@ -363,9 +363,10 @@ def test_the_adaptive_footprint_samples_only_pulses_next_to_edges(busy_room):
     phase0 = start * pattern.dphase - np.arange(len(start))
     shift = np.zeros(len(start), dtype=np.int64)
     shift[:-1] = np.rint((phase0[:-1] - phase0[1:]) / pattern.dphase)
-    flag = np.zeros(len(t), dtype=bool)
+    bits = np.zeros(len(t), dtype=np.uint8)
     waveform.flag_edges(t, tri, scanner.face_component, VZ400.min_range_m, VZ400.max_range_m, offsets[:-1], counts,
-                        shift, 0, len(counts), full.edge_depth_m, flag)
+                        shift, 0, len(counts), full.edge_depth_m, bits)
+    flag = bits > 0
     component = np.where(tri < len(scanner.face_component), scanner.face_component[np.minimum(tri, len(tri) - 1)], -1)
     assert 0 < flag.mean() < 0.08  # a coarse scan (1 degree steps): about 4 pulses per line meet a junction
     # every pulse next to a component change along its line is flagged

@@ -20,6 +20,7 @@ from bimscan.scan import waveform
 from bimscan.types import ComponentSurfaces, ComponentTable, PointCloud, SceneMesh, Station
 
 DEFAULT_REFLECTANCE = 0.5
+_POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.int64)
 INTENSITY_REFERENCE_M = 5.0  # intensity falls with (5 m / range)^2 beyond 5 m
 
 
@@ -63,6 +64,7 @@ class VirtualScanner:
         self.deviations = deviations
         self.as_built: tuple | None = None  # what decided the deviations (set by survey.place_scanner)
         self._sensor_tables: dict[tuple, waveform.SensorTables] = {}
+        self._work_buffers: dict[str, np.ndarray] = {}  # the sensor path's working arrays, kept across chunks
         self.scanner = scanner
         self.engine = engine if not isinstance(engine, str) else make_engine(mesh, name=engine, threads=threads)
         self.threads = threads
@@ -103,7 +105,8 @@ class VirtualScanner:
                              f"{self.scanner.name!r}")
         self._set_threads()
         if not recipe.sensor.is_paper:
-            yield from self._scan_station_sensor(station, recipe, time0_s=time0_s, on_pulses=on_pulses)
+            yield from self._scan_station_sensor(station, recipe, time0_s=time0_s, on_pulses=on_pulses,
+                                                 reuse_buffers=reuse_buffers)
             return
         noise = recipe.noise
         pattern = PulsePattern.of(recipe.settings, self.scanner)
@@ -170,8 +173,16 @@ class VirtualScanner:
                 transparent_face=np.ascontiguousarray(transparency[self.face_component] > 0.0))
         return self._sensor_tables[cache_key]
 
+    def _work(self, name: str, shape: tuple[int, ...], dtype: type) -> np.ndarray:
+        """A working array of ``shape``: a view of a buffer kept for the next chunk (grown when too small)."""
+        buffer = self._work_buffers.get(name)
+        if buffer is None or len(buffer) < shape[0]:
+            buffer = np.empty((max(shape[0], 1), *shape[1:]), dtype=dtype)
+            self._work_buffers[name] = buffer
+        return buffer[:shape[0]]
+
     def _scan_station_sensor(self, station: Station, recipe: ScanRecipe, *, time0_s: float,
-                             on_pulses: Callable[[int], None] | None) -> Iterator[PointCloud]:
+                             on_pulses: Callable[[int], None] | None, reuse_buffers: bool) -> Iterator[PointCloud]:
         """scan_station with the sensor effects (see ``bimscan.scan.waveform`` for the steps)."""
         sensor, noise, device = recipe.sensor, recipe.noise, self.scanner
         tables = self.sensor_tables(sensor)
@@ -204,19 +215,16 @@ class VirtualScanner:
             if n_int == 0:
                 continue
             n_all = int(offsets[-1])
-            rays = np.empty((n_all, 6), dtype=np.float32)
-            pulse = np.empty(n_all, dtype=np.int64)
+            rays = self._work("rays", (n_all, 6), np.float32)
+            pulse = self._work("pulse", (n_all,), np.int64)
             generate_rays(start, stop, offsets[:-1], halo_lo, pattern.dphase, pattern.sweep_deg, pattern.head_start_deg,
                           pattern.head_deg_per_pulse, station.heading_deg, origin_local, rays, pulse)
             t0, tri0 = self.engine.cast(rays)
-            flagged = np.zeros(n_all, dtype=np.bool_)
+            flagged = np.zeros(n_all, dtype=np.bool_)  # pulses that get the whole sub-ray pattern
             if footprint and n_sub:
                 if adaptive:
-                    phase0 = start * pattern.dphase - (halo_lo + np.arange(len(start)))
-                    shift = np.zeros(len(start), dtype=np.int64)
-                    shift[:-1] = np.rint((phase0[:-1] - phase0[1:]) / pattern.dphase).astype(np.int64)
-                    waveform.flag_edges(t0, tri0, self.face_component, device.min_range_m, device.max_range_m,
-                                        offsets[:-1], counts, shift, j0, j1, sensor.edge_depth_m, flagged)
+                    flagged[self._straddling(rays, t0, tri0, start, halo_lo, pattern, offsets, counts, j0, j1,
+                                             sensor.edge_depth_m)] = True
                 else:
                     flagged[first:first + n_int] = True
             extra = self._extra_hits(rays, t0, tri0, flagged, first, n_int, off, azimuth, tables, layers, n_faces)
@@ -226,11 +234,11 @@ class VirtualScanner:
             if on_pulses is not None:
                 on_pulses(n_int)
             n_slots = n_int * slots
-            out_t, out_energy = np.empty(n_slots), np.empty(n_slots, dtype=np.float32)
-            out_comp, out_tri = np.empty(n_slots, dtype=np.int32), np.empty(n_slots, dtype=np.uint32)
-            out_cos = np.empty(n_slots, dtype=np.float32)
-            out_number, out_count_of = np.empty(n_slots, dtype=np.uint8), np.empty(n_slots, dtype=np.uint8)
-            count = np.empty(n_int, dtype=np.int32)
+            out_t, out_energy = self._work("t", (n_slots,), np.float64), self._work("energy", (n_slots,), np.float32)
+            out_comp, out_tri = self._work("comp", (n_slots,), np.int32), self._work("tri", (n_slots,), np.uint32)
+            out_cos = self._work("cos", (n_slots,), np.float32)
+            out_number, out_count_of = self._work("number", (n_slots,), np.uint8), self._work("of", (n_slots,), np.uint8)
+            count = self._work("count", (n_int,), np.int32)
             waveform.gather_returns(
                 first, n_int, t0, tri0, flagged, rays, pulse, extra_offsets, e_sub, e_layer, e_t, e_tri, weight,
                 (n_sub + 1) * (layers + 1) + 1, self.face_component, tables.face_normal, tables.reflectance,
@@ -240,10 +248,13 @@ class VirtualScanner:
             n_out = int(count.sum())
             if n_out == 0:
                 continue
-            xyz, label, component = np.empty((n_out, 3)), np.empty(n_out, np.uint8), np.empty(n_out, np.int32)
-            station_column, intensity, time = np.empty(n_out, np.uint16), np.empty(n_out, np.uint16), np.empty(n_out)
-            number, count_of = np.empty(n_out, np.uint8), np.empty(n_out, np.uint8)
-            rgb = np.empty((n_out, 3), np.uint8)
+            out = self._work if reuse_buffers else (lambda _, shape, dtype: np.empty(shape, dtype))
+            xyz, label, component = out("xyz", (n_out, 3), np.float64), out("label", (n_out,), np.uint8), out(
+                "component", (n_out,), np.int32)
+            station_column, intensity, time = out("station", (n_out,), np.uint16), out(
+                "intensity", (n_out,), np.uint16), out("time", (n_out,), np.float64)
+            number, count_of = out("return_number", (n_out,), np.uint8), out("number_of_returns", (n_out,), np.uint8)
+            rgb = out("rgb", (n_out, 3), np.uint8)
             waveform.finish_returns(
                 first, n_int, slots, count, out_t, out_comp, out_tri, out_energy, out_cos, out_number, out_count_of,
                 rays, pulse, origin_world, key, noise.range_sigma_m,
@@ -259,6 +270,32 @@ class VirtualScanner:
             yield PointCloud(xyz=xyz, label=label, component=component, station=station_column, intensity=intensity,
                              time=time, return_number=number, number_of_returns=count_of,
                              rgb=rgb if sensor.on("color") else None)
+
+    def _straddling(self, rays: np.ndarray, t0: np.ndarray, tri0: np.ndarray, start: np.ndarray, line0: int,
+                    pattern: PulsePattern, offsets: np.ndarray, counts: np.ndarray, j0: int, j1: int,
+                    edge_depth_m: float) -> np.ndarray:
+        """Indices of the pulses of lines j0..j1-1 whose footprint straddles an edge: a neighbour in the
+        scan grid disagrees (``waveform.flag_edges``), and a probe ray at the footprint's edge towards
+        that neighbour meets another surface than the centre ray (``waveform.straddling``)."""
+        device = self.scanner
+        phase0 = start * pattern.dphase - (line0 + np.arange(len(start)))
+        shift = np.zeros(len(start), dtype=np.int64)
+        shift[:-1] = np.rint((phase0[:-1] - phase0[1:]) / pattern.dphase).astype(np.int64)
+        bits = np.zeros(len(t0), dtype=np.uint8)
+        waveform.flag_edges(t0, tri0, self.face_component, device.min_range_m, device.max_range_m, offsets[:-1],
+                            counts, shift, j0, j1, edge_depth_m, bits)
+        candidates = np.flatnonzero(bits)
+        if len(candidates) == 0:
+            return candidates
+        probe_bits = bits[candidates]
+        probe_offsets = np.zeros(len(candidates) + 1, dtype=np.int64)
+        np.cumsum(_POPCOUNT[probe_bits], out=probe_offsets[1:])
+        probes = np.empty((int(probe_offsets[-1]), 6), dtype=np.float32)
+        waveform.probe_rays(rays, candidates, probe_bits, probe_offsets, device.beam_divergence_rad / 2.0, probes)
+        t_probe, tri_probe = self.engine.cast(probes)
+        return candidates[waveform.straddling(candidates, probe_offsets, t0, tri0, t_probe, tri_probe,
+                                              self.face_component, device.min_range_m, device.max_range_m,
+                                              edge_depth_m)]
 
     def _extra_hits(self, rays: np.ndarray, t0: np.ndarray, tri0: np.ndarray, flagged: np.ndarray, first: int,
                     n_int: int, off: np.ndarray, azimuth: np.ndarray, tables: waveform.SensorTables, layers: int,

@@ -98,15 +98,24 @@ def _surface(t: float, tri: np.uint32, face_component: np.ndarray, min_range: fl
     return -1
 
 
+# Which neighbours of a pulse disagree with it (flag_edges' bits), and the direction of each, as an
+# azimuth about the beam in footprint_rays' basis (u towards increasing azimuth, v up).
+TOWARDS = {1: 1.5 * math.pi, 2: 0.5 * math.pi, 4: math.pi, 8: 0.0}  # previous / next pulse, previous / next line
+
+
 @nb.njit(cache=True, parallel=True)
 def flag_edges(t: np.ndarray, tri: np.ndarray, face_component: np.ndarray, min_range: float, max_range: float,
                offsets: np.ndarray, counts: np.ndarray, shift_next: np.ndarray, first: int, stop: int,
                edge_depth_m: float, flag: np.ndarray) -> None:
-    """flag (n,) bool: pulses of lines first..stop-1 whose footprint may straddle an edge.
+    """flag (n,) uint8: for pulses of lines first..stop-1, which grid neighbours disagree with it.
 
-    offsets/counts: where each line's rays begin and how many; shift_next[j]: index shift from a
-    pulse of line j to the pulse of line j + 1 nearest in elevation. Lines first - 1 and stop
-    (when present) are read as neighbours only.
+    Bits: 1 the previous pulse of its line (lower), 2 the next (higher), 4 the nearest pulse of the
+    line before (smaller azimuth), 8 of the line after. A neighbour disagrees when it hits another
+    component or nothing, or when the pulse's range departs from the straight line through the
+    two neighbours on that axis by more than ``edge_depth_m`` (both then count). offsets/counts:
+    where each line's rays begin and how many; shift_next[j]: index shift from a pulse of line j to
+    the pulse of line j + 1 nearest in elevation. Lines first - 1 and stop (when present) are read
+    as neighbours only.
     """
     n_lines = len(counts)
     for j in nb.prange(first, stop):
@@ -115,18 +124,9 @@ def flag_edges(t: np.ndarray, tri: np.ndarray, face_component: np.ndarray, min_r
         for m in range(n):
             i = base + m
             c = _surface(t[i], tri[i], face_component, min_range, max_range)
-            edge = False
-            # along the line: previous and next pulse
-            prev_ok = m > 0
-            next_ok = m + 1 < n
-            if prev_ok and _surface(t[i - 1], tri[i - 1], face_component, min_range, max_range) != c:
-                edge = True
-            if next_ok and _surface(t[i + 1], tri[i + 1], face_component, min_range, max_range) != c:
-                edge = True
-            if not edge and c >= 0 and prev_ok and next_ok:
-                if abs(float(t[i - 1]) - 2.0 * float(t[i]) + float(t[i + 1])) > edge_depth_m:
-                    edge = True
-            # across lines: the nearest pulse of the lines before and after
+            bits = 0
+            lower = i - 1 if m > 0 else -1
+            upper = i + 1 if m + 1 < n else -1
             below = -1
             above = -1
             if j > 0:
@@ -137,14 +137,69 @@ def flag_edges(t: np.ndarray, tri: np.ndarray, face_component: np.ndarray, min_r
                 mm = m + shift_next[j]
                 if mm >= 0 and mm < counts[j + 1]:
                     above = offsets[j + 1] + mm
-            if not edge and below >= 0 and _surface(t[below], tri[below], face_component, min_range, max_range) != c:
-                edge = True
-            if not edge and above >= 0 and _surface(t[above], tri[above], face_component, min_range, max_range) != c:
-                edge = True
-            if not edge and c >= 0 and below >= 0 and above >= 0:
+            if lower >= 0 and _surface(t[lower], tri[lower], face_component, min_range, max_range) != c:
+                bits |= 1
+            if upper >= 0 and _surface(t[upper], tri[upper], face_component, min_range, max_range) != c:
+                bits |= 2
+            if below >= 0 and _surface(t[below], tri[below], face_component, min_range, max_range) != c:
+                bits |= 4
+            if above >= 0 and _surface(t[above], tri[above], face_component, min_range, max_range) != c:
+                bits |= 8
+            if c >= 0 and lower >= 0 and upper >= 0 and (bits & 3) == 0:
+                if abs(float(t[lower]) - 2.0 * float(t[i]) + float(t[upper])) > edge_depth_m:
+                    bits |= 3
+            if c >= 0 and below >= 0 and above >= 0 and (bits & 12) == 0:
                 if abs(float(t[below]) - 2.0 * float(t[i]) + float(t[above])) > edge_depth_m:
-                    edge = True
-            flag[i] = edge
+                    bits |= 12
+            flag[i] = bits
+
+
+@nb.njit(cache=True, parallel=True)
+def probe_rays(rays: np.ndarray, pulses: np.ndarray, bits: np.ndarray, offsets: np.ndarray, half_divergence: float,
+               out: np.ndarray) -> None:
+    """out (K, 6) float32: for each pulse of ``pulses`` one ray at the footprint's edge towards each
+    disagreeing neighbour (``bits``, see flag_edges); ``offsets`` (len(pulses) + 1): where each
+    pulse's probes begin."""
+    c_off, s_off = math.cos(half_divergence), math.sin(half_divergence)
+    for q in nb.prange(len(pulses)):
+        i = pulses[q]
+        dx, dy, dz = float(rays[i, 3]), float(rays[i, 4]), float(rays[i, 5])
+        h = math.sqrt(dx * dx + dy * dy)
+        if h > 1e-9:
+            ux, uy, uz = -dy / h, dx / h, 0.0
+        else:
+            ux, uy, uz = 1.0, 0.0, 0.0
+        vx, vy, vz = dy * uz - dz * uy, dz * ux - dx * uz, dx * uy - dy * ux
+        k = offsets[q]
+        for bit in range(4):
+            if bits[q] & (1 << bit):
+                # 1: -v (lower), 2: +v (higher), 4: -u (previous line), 8: +u (next line)
+                su = -1.0 if bit == 2 else (1.0 if bit == 3 else 0.0)
+                sv = -1.0 if bit == 0 else (1.0 if bit == 1 else 0.0)
+                out[k, 0] = rays[i, 0]
+                out[k, 1] = rays[i, 1]
+                out[k, 2] = rays[i, 2]
+                out[k, 3] = c_off * dx + s_off * (su * ux + sv * vx)
+                out[k, 4] = c_off * dy + s_off * (su * uy + sv * vy)
+                out[k, 5] = c_off * dz + s_off * (su * uz + sv * vz)
+                k += 1
+
+
+@nb.njit(cache=True, parallel=True)
+def straddling(pulses: np.ndarray, offsets: np.ndarray, t0: np.ndarray, tri0: np.ndarray, t_probe: np.ndarray,
+               tri_probe: np.ndarray, face_component: np.ndarray, min_range: float, max_range: float,
+               edge_depth_m: float) -> np.ndarray:
+    """(len(pulses),) bool: whether any probe of a pulse meets another surface than its centre ray
+    (another component, nothing, or a range more than ``edge_depth_m`` away)."""
+    out = np.zeros(len(pulses), dtype=np.bool_)
+    for q in nb.prange(len(pulses)):
+        i = pulses[q]
+        c = _surface(t0[i], tri0[i], face_component, min_range, max_range)
+        for k in range(offsets[q], offsets[q + 1]):
+            cp = _surface(t_probe[k], tri_probe[k], face_component, min_range, max_range)
+            if cp != c or (c >= 0 and abs(float(t_probe[k]) - float(t0[i])) > edge_depth_m):
+                out[q] = True
+    return out
 
 
 @nb.njit(cache=True, parallel=True)
@@ -251,6 +306,29 @@ def gather_returns(first: int, n: int, t0: np.ndarray, tri0: np.ndarray, flagged
             r = first + local
             p = pulse[r]
             dx, dy, dz = float(rays[r, 3]), float(rays[r, 4]), float(rays[r, 5])
+            base = local * slots
+            if not flagged[r] and extra_offsets[r] == extra_offsets[r + 1] and not (
+                    glass and tri0[r] < len(face_component) and transparency[face_component[tri0[r]]] > 0.0):
+                # the common case: one opaque hit of the whole footprint, one echo, one return
+                count[local] = 0
+                c = _surface(float(t0[r]), tri0[r], face_component, min_range, max_range)
+                if c < 0:
+                    continue
+                t_hit = float(t0[r])
+                cosi = abs(dx * face_normal[tri0[r], 0] + dy * face_normal[tri0[r], 1] + dz * face_normal[tri0[r], 2])
+                energy = reflectance[c] * cosi
+                if detect and not draw_uniform(key, p, _P_DETECT) < detection_probability(
+                        energy / (reach_scale * t_hit * t_hit), detect_a, speckle_cells):
+                    continue
+                out_t[base] = t_hit
+                out_comp[base] = c
+                out_tri[base] = tri0[r]
+                out_energy[base] = energy
+                out_cos[base] = cosi
+                out_number[base] = 1
+                out_count_of[base] = 1
+                count[local] = 1
+                continue
             ne = 0
             sub = 0
             weight = sub_weight[0] if flagged[r] else 1.0
@@ -351,7 +429,6 @@ def gather_returns(first: int, n: int, t0: np.ndarray, tri0: np.ndarray, flagged
                 cluster += 1
                 start = stop
             # which returns become points
-            base = local * slots
             filled = 0
             if nc > 0:
                 if mode == 3:
