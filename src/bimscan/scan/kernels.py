@@ -123,6 +123,33 @@ def station_normals(key: np.uint64) -> np.ndarray:
     return out
 
 
+@nb.njit(cache=True, inline="always")
+def recorded_direction(dx: float, dy: float, dz: float, d_az: float, d_el: float) -> tuple[float, float, float]:
+    """The unit direction (dx, dy, dz) with its azimuth turned by d_az and its elevation by d_el (radians):
+    where a point is recorded when the encoders read the angles off by that much."""
+    # turn the azimuth (no division needed), then the elevation
+    sda, cda = _small_sincos(d_az)
+    hx = dx * cda - dy * sda
+    hy = dy * cda + dx * sda
+    sde, cde = _small_sincos(d_el)
+    ce = math.sqrt(dx * dx + dy * dy)
+    # horizontal length goes from ce to ce*cde - dz*sde; straight up/down keeps it
+    scale = cde - dz * sde / ce if ce > 1e-12 else 1.0
+    return hx * scale, hy * scale, dz * cde + ce * sde
+
+
+@nb.njit(cache=True, inline="always")
+def beam_basis(dx: float, dy: float, dz: float) -> tuple[float, float, float, float, float, float]:
+    """Two unit vectors across the beam direction d: u horizontal towards increasing azimuth (x for a
+    vertical beam) and v = d x u, pointing up."""
+    h = math.sqrt(dx * dx + dy * dy)
+    if h > 1e-9:
+        ux, uy, uz = -dy / h, dx / h, 0.0
+    else:
+        ux, uy, uz = 1.0, 0.0, 0.0
+    return ux, uy, uz, dy * uz - dz * uy, dz * ux - dx * uz, dx * uy - dy * ux
+
+
 @nb.njit(cache=True)
 def draw_normals(keys: np.ndarray, k: int) -> np.ndarray:
     """(n, k) standard normal deviates, row i drawn from generator key keys[i] (n,) uint64."""
@@ -157,12 +184,6 @@ def draw_normal(key: np.uint64, pulse: np.int64, purpose: np.int64) -> float:
 def pulse_normals(key: np.uint64, pulse: np.int64) -> tuple[float, float, float]:
     """The paper path's three deviates of a pulse (range, azimuth, elevation)."""
     return _pulse_normals(key, pulse)
-
-
-@nb.njit(cache=True, inline="always")
-def small_sincos(a: float) -> tuple[float, float]:
-    """sin and cos of a (small) angle, as the paper path computes them."""
-    return _small_sincos(a)
 
 
 @nb.njit(cache=True, inline="always")
@@ -262,17 +283,7 @@ def finish_hits(t_hit: np.ndarray, triangle: np.ndarray, rays: np.ndarray, pulse
             if noisy:
                 n_range, n_az, n_el = _pulse_normals(key, p)
                 r += range_sigma_m * n_range
-                # turn the azimuth (no division needed), then the elevation
-                sda, cda = _small_sincos(angle_sigma_rad * n_az)
-                hx = dx * cda - dy * sda
-                hy = dy * cda + dx * sda
-                sde, cde = _small_sincos(angle_sigma_rad * n_el)
-                ce = math.sqrt(dx * dx + dy * dy)
-                # horizontal length goes from ce to ce*cde - dz*sde; straight up/down keeps it
-                scale = cde - dz * sde / ce if ce > 1e-12 else 1.0
-                mx = hx * scale
-                my = hy * scale
-                mz = dz * cde + ce * sde
+                mx, my, mz = recorded_direction(dx, dy, dz, angle_sigma_rad * n_az, angle_sigma_rad * n_el)
             else:
                 mx, my, mz = dx, dy, dz
             xyz[out, 0] = ox + r * mx

@@ -33,7 +33,9 @@ import numba as nb
 import numpy as np
 from scipy.special import gammainccinv
 
-from bimscan.scan.kernels import _BLOCK, _FAST, draw_normal, draw_uniform, pulse_normals, small_sincos
+from bimscan.scan.kernels import (
+    _BLOCK, _FAST, beam_basis, draw_normal, draw_uniform, pulse_normals, recorded_direction,
+)
 
 MODE_CODES = {"first": 0, "last": 1, "strongest": 2, "all": 3}
 GLASS_STEP_M = 1e-4  # a ray cast on beyond a transparent hit starts this far past it
@@ -164,12 +166,7 @@ def probe_rays(rays: np.ndarray, pulses: np.ndarray, bits: np.ndarray, offsets: 
     for q in nb.prange(len(pulses)):
         i = pulses[q]
         dx, dy, dz = float(rays[i, 3]), float(rays[i, 4]), float(rays[i, 5])
-        h = math.sqrt(dx * dx + dy * dy)
-        if h > 1e-9:
-            ux, uy, uz = -dy / h, dx / h, 0.0
-        else:
-            ux, uy, uz = 1.0, 0.0, 0.0
-        vx, vy, vz = dy * uz - dz * uy, dz * ux - dx * uz, dx * uy - dy * ux
+        ux, uy, uz, vx, vy, vz = beam_basis(dx, dy, dz)
         k = offsets[q]
         for bit in range(4):
             if bits[q] & (1 << bit):
@@ -214,12 +211,7 @@ def footprint_rays(rays: np.ndarray, flagged: np.ndarray, cos_off: np.ndarray, s
     for q in nb.prange(len(flagged)):
         i = flagged[q]
         dx, dy, dz = float(rays[i, 3]), float(rays[i, 4]), float(rays[i, 5])
-        h = math.sqrt(dx * dx + dy * dy)
-        if h > 1e-9:
-            ux, uy, uz = -dy / h, dx / h, 0.0
-        else:
-            ux, uy, uz = 1.0, 0.0, 0.0
-        vx, vy, vz = dy * uz - dz * uy, dz * ux - dx * uz, dx * uy - dy * ux
+        ux, uy, uz, vx, vy, vz = beam_basis(dx, dy, dz)
         for s in range(s_count):
             k = q * s_count + s
             cu = sin_off[s] * cos_az[s]
@@ -498,13 +490,7 @@ def finish_returns(first: int, n: int, slots: int, count: np.ndarray, out_t: np.
             dx, dy, dz = float(rays[r_index, 3]), float(rays[r_index, 4]), float(rays[r_index, 5])
             n_range, n_az, n_el = pulse_normals(key, p)
             if angle_sigma_rad > 0.0:
-                sda, cda = small_sincos(angle_sigma_rad * n_az)
-                hx = dx * cda - dy * sda
-                hy = dy * cda + dx * sda
-                sde, cde = small_sincos(angle_sigma_rad * n_el)
-                ce = math.sqrt(dx * dx + dy * dy)
-                scale = cde - dz * sde / ce if ce > 1e-12 else 1.0
-                mx, my, mz = hx * scale, hy * scale, dz * cde + ce * sde
+                mx, my, mz = recorded_direction(dx, dy, dz, angle_sigma_rad * n_az, angle_sigma_rad * n_el)
             else:
                 mx, my, mz = dx, dy, dz
             for k in range(filled):
