@@ -66,7 +66,7 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
     """
     from bimscan.pipeline import scan_model
     from bimscan.scan.noise import NoiseModel
-    from bimscan.scan.recipe import ScanRecipe
+    from bimscan.scan.recipe import ScanRecipe, resolve_sensor
     from bimscan.toml_files import load_toml
 
     if no_noise:
@@ -78,9 +78,10 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
              "detection": detection, "glass": glass, "color": color, "deviations": deviations,
              "material_table": material_table}
     sensor |= {key: value for key, value in flags.items() if value is not None}
+    settings = resolve_sensor(sensor, realism=realism,
+                              where=f"{sensor_file} with the sensor flags" if sensor_file else "the sensor flags")
     recipe = ScanRecipe.resolve(preset=preset, scanner=scanner, head_deg_per_s=head_deg_per_s, noise=noise, seed=seed,
-                                engine=engine, stations_from=stations, strict=strict, threads=threads,
-                                realism=realism, sensor=sensor)
+                                engine=engine, stations_from=stations, strict=strict, threads=threads, sensor=settings)
     result = scan_model(model, out, recipe, scheme=scheme, overwrite=overwrite,
                         warn=lambda line: click.echo(f"warning: {line}", err=True))
     extents = result.summary.extents()

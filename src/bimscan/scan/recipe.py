@@ -156,15 +156,15 @@ class ScanRecipe:
 
 
 def resolve_sensor(sensor: SensorModel | Mapping[str, Any] | str | Path | None = None, *,
-                   realism: str | None = None) -> SensorModel:
-    """A SensorModel from a model, a table of its keys or a TOML file of them; ``realism`` overrides."""
+                   realism: str | None = None, where: str = "sensor settings") -> SensorModel:
+    """A SensorModel from a model, a table of its keys or a TOML file of them; ``realism`` overrides.
+    ``where`` names a table's origin in error messages (a file names itself)."""
     if isinstance(sensor, SensorModel):
         return sensor if realism is None else dataclasses.replace(sensor, realism=realism)
     if isinstance(sensor, str | Path):
         where = str(sensor)
         table: dict[str, Any] = dict(load_toml(sensor))
     else:
-        where = "sensor settings"
         table = dict(sensor or {})
     if realism is not None:
         table["realism"] = realism
