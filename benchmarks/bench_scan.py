@@ -7,7 +7,11 @@ Run: python benchmarks/bench_scan.py [--model MODEL.ifc] [--memory]
 2. Scan path: pulses/s and labelled points/s of VirtualScanner.scan_station (ray generation,
    casting, noise, labels, intensity, compaction) against Open3D's raw cast of exactly the rays
    it generates, measured side by side (best of several rounds, interleaved).
-3. With --memory: peak resident memory of whole `bimscan scan` runs to LAZ of about 10M and
+3. Sensor effects (bimscan.scan.sensor): the same station with each effect alone, with every
+   effect (realism "full"), and with the footprint's sub-rays on every pulse (HELIOS++'s way),
+   each as a ratio of time to the paper path and of the raw engine's time to it, interleaved;
+   in wall time and in the process's CPU time (the work done, which a busy machine disturbs less).
+4. With --memory: peak resident memory of whole `bimscan scan` runs to LAZ of about 10M and
    100M points (in subprocesses), to show it stays flat as the point count grows.
 
 Default model: a generated demo building if bimscan.ifc.generate is available, else the duplex
@@ -53,6 +57,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--model", type=Path)
     parser.add_argument("--memory", action="store_true", help="also measure peak memory of 10M/100M point scans")
+    parser.add_argument("--quick", action="store_true", help="fewer rounds of the sensor effects")
     args = parser.parse_args()
     os.environ.setdefault("BIMSCAN_CACHE_DIR", tempfile.mkdtemp(prefix="bimscan-bench-"))
     from bimscan.pipeline import load_scene
@@ -69,7 +74,8 @@ def main() -> None:
     model = args.model or default_model(work)
     scene = load_scene(model)
     vz400 = SCANNERS["riegl_vz400"]
-    scanner = VirtualScanner(scene.mesh, scene.components.label, scanner=vz400)
+    scanner = VirtualScanner(scene.mesh, scene.components.label, scanner=vz400, components=scene.components,
+                             surfaces=scene.surfaces)
     stations, _ = plan_stations(scene, scanner)
     # the station whose rays most often give a point (a room, not a narrow corridor where the
     # 1.5 m minimum range drops most returns): "labelled points/s" then means most of the rays
@@ -120,8 +126,45 @@ def main() -> None:
               f"({points / path / 1e6:5.2f} M labelled points/s, {points / n:.1%} of pulses hit) | "
               f"path/raw = {raw / path:.1%} (target >= 85 %)")
 
+    print("\n3. sensor effects on the same station (noise on; interleaved rounds, best of each)")
+    from bimscan.scan.sensor import SensorModel
+    from bimscan.survey.survey import place_scanner
+
+    variants = [("paper", SensorModel())]
+    variants += [(effect, SensorModel(**{effect: True})) for effect in
+                 ("footprint", "detection", "geometric_noise", "materials", "glass", "color", "deviations")]
+    variants += [("full", SensorModel(realism="full")),
+                 ("full, sub-rays on every pulse", SensorModel(realism="full", adaptive_footprint=False))]
+    runs = []
+    for name, sensor in variants:
+        recipe = ScanRecipe(scanner=vz400, settings=settings, preset=None, noise=NoiseModel(), seed=1, sensor=sensor)
+        placed = place_scanner(scene, recipe) if sensor.on("deviations") else scanner
+        runs.append((name, recipe, placed))
+
+    def effect_once(recipe: ScanRecipe, placed: VirtualScanner) -> int:
+        return sum(len(c) for c in placed.scan_station(station, recipe, reuse_buffers=True))
+
+    def timed(fn) -> tuple[float, float]:
+        """(wall seconds, CPU seconds of the whole process: every thread's work, not the waits of a busy machine)."""
+        wall, cpu = time.perf_counter(), time.process_time()
+        fn()
+        return time.perf_counter() - wall, time.process_time() - cpu
+
+    counts = {name: effect_once(recipe, placed) for name, recipe, placed in runs}  # JIT warm-up
+    best = {name: (float("inf"), float("inf")) for name, _, _ in runs}
+    raw = (float("inf"), float("inf"))
+    for _ in range(3 if args.quick else 5):
+        raw = tuple(map(min, raw, timed(lambda: scanner.engine.cast(rays))))
+        for name, recipe, placed in runs:
+            best[name] = tuple(map(min, best[name], timed(lambda: effect_once(recipe, placed))))
+    print(f"   {'':<31} {'':>15} {'':>23} | wall time: x paper, path/raw | CPU time: x paper, path/raw")
+    for name, _, _ in runs:
+        (wall, cpu), (paper_wall, paper_cpu) = best[name], best["paper"]
+        print(f"   {name:<31} {n / wall / 1e6:6.2f} Mpulses/s  {counts[name] / n:6.1%} points per pulse | "
+              f"x{wall / paper_wall:5.2f} {raw[0] / wall:6.1%} | x{cpu / paper_cpu:5.2f} {raw[1] / cpu:6.1%}")
+
     if args.memory:
-        print("\n3. peak memory of whole scans written to LAZ (subprocess max RSS)")
+        print("\n4. peak memory of whole scans written to LAZ (subprocess max RSS)")
         for target in (10_000_000, 100_000_000):
             # pulse count per station at 500 kHz: 500000 * 360/head * 100/240
             per_station_at_1dps = 500000 * 360 * 100 / 240

@@ -102,9 +102,9 @@ class TinyModel:
         return path
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def tiny_model():
-    """Factory for TinyModel: ``tiny_model(schema="IFC2X3")``."""
+    """Factory for TinyModel: ``tiny_model(schema="IFC2X3")`` (the class: usable from fixtures of any scope)."""
     return TinyModel
 
 

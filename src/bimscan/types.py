@@ -260,9 +260,47 @@ class FailedElement:
 
 
 @dataclass(frozen=True)
+class ComponentSurfaces:
+    """What the IFC model says about each component's surface, one row per component (C,).
+
+    color: (C, 3) float32 linear RGB in [0, 1] of its surface style (IfcSurfaceStyleShading /
+    Rendering ``SurfaceColour``), NaN where the model gives none. transparency: (C,) float32 in
+    [0, 1] (0 opaque), the highest of its styles (a window with glazing is transparent).
+    style: (C,) unicode, the style's name; material: (C,) unicode, the names of its materials
+    joined by "; " (IfcMaterial, layer and constituent sets). Empty strings where absent.
+    """
+
+    color: np.ndarray
+    transparency: np.ndarray
+    style: np.ndarray
+    material: np.ndarray
+
+    def __post_init__(self) -> None:
+        _check("color", self.color, "float32", (None, 3))
+        _check("transparency", self.transparency, "float32", (None,))
+        for column in ("style", "material"):
+            array = getattr(self, column)
+            if not isinstance(array, np.ndarray) or array.dtype.kind != "U" or array.ndim != 1:
+                raise TypeError(f"ComponentSurfaces.{column} must be a 1-D NumPy unicode array")
+        _check_rows("ComponentSurfaces", len(self.color), transparency=self.transparency, style=self.style,
+                    material=self.material)
+
+    def __len__(self) -> int:
+        return int(len(self.color))
+
+    @staticmethod
+    def unknown(n: int) -> ComponentSurfaces:
+        """n components the model says nothing about (no colour, opaque, no names)."""
+        return ComponentSurfaces(color=np.full((n, 3), np.nan, dtype=np.float32), transparency=np.zeros(n, np.float32),
+                                 style=np.full(n, "", dtype="<U1"), material=np.full(n, "", dtype="<U1"))
+
+
+@dataclass(frozen=True, kw_only=True)
 class ParsedModel:
     """Stage 1's output: an IFC model's scannable mesh, component table, storeys, spaces and
-    failures, before any label scheme (``components.label`` is all zeros)."""
+    failures, before any label scheme (``components.label`` is all zeros). ``surfaces``: the
+    components' surface styles and materials (None: not read, e.g. a model built in memory).
+    Fields are keyword-only (a labelled ``BimScene`` adds its own after these defaults)."""
 
     source: str
     file_sha256: str
@@ -272,9 +310,10 @@ class ParsedModel:
     storeys: tuple[Storey, ...]
     spaces: tuple[Space, ...]
     failed: tuple[FailedElement, ...]
+    surfaces: ComponentSurfaces | None = None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class BimScene(ParsedModel):
     """A parsed IFC model with its components labelled under ``scheme`` (``components.label``)."""
 
@@ -285,6 +324,8 @@ class BimScene(ParsedModel):
     def __post_init__(self) -> None:
         if len(self.mesh.face_component) and self.mesh.face_component.max() >= len(self.components):
             raise ValueError("mesh.face_component refers to components beyond the component table")
+        if self.surfaces is not None and len(self.surfaces) != len(self.components):
+            raise ValueError(f"surfaces has {len(self.surfaces)} rows for {len(self.components)} components")
 
 
 @dataclass(frozen=True)
@@ -317,8 +358,11 @@ class PointCloud:
 
     xyz: (N, 3) float64 metres. label: (N,) uint8 semantic class id. component: (N,) int32
     component id. station: (N,) uint16. intensity: (N,) uint16.
-    time: (N,) float64 seconds since the start of the survey. Only ``xyz`` is required (real scans
-    may lack the rest).
+    time: (N,) float64 seconds since the start of the survey. return_number / number_of_returns:
+    (N,) uint8, which echo of its pulse a point is (1-based) and how many echoes the pulse gave
+    (scans with the beam footprint; LAS names them the same). rgb: (N, 3) uint8 colour (scans
+    with colour, or a foreign file's red/green/blue). Only ``xyz`` is required (real scans may
+    lack the rest).
     """
 
     xyz: np.ndarray
@@ -327,6 +371,9 @@ class PointCloud:
     station: np.ndarray | None = None
     intensity: np.ndarray | None = None
     time: np.ndarray | None = None
+    return_number: np.ndarray | None = None
+    number_of_returns: np.ndarray | None = None
+    rgb: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         _check("xyz", self.xyz, "float64", (None, 3))
@@ -335,15 +382,20 @@ class PointCloud:
         _check("station", self.station, "uint16", (None,))
         _check("intensity", self.intensity, "uint16", (None,))
         _check("time", self.time, "float64", (None,))
+        _check("return_number", self.return_number, "uint8", (None,))
+        _check("number_of_returns", self.number_of_returns, "uint8", (None,))
+        _check("rgb", self.rgb, "uint8", (None, 3))
         _check_rows(
             "PointCloud", len(self.xyz), label=self.label, component=self.component,
-            station=self.station, intensity=self.intensity, time=self.time,
+            station=self.station, intensity=self.intensity, time=self.time, return_number=self.return_number,
+            number_of_returns=self.number_of_returns, rgb=self.rgb,
         )
 
     def __len__(self) -> int:
         return int(len(self.xyz))
 
-    COLUMNS = ("xyz", "label", "component", "station", "intensity", "time")
+    # Column order of writers and headers; columns added later go last, so older files keep their bytes.
+    COLUMNS = ("xyz", "label", "component", "station", "intensity", "time", "return_number", "number_of_returns", "rgb")
 
     def take(self, index: np.ndarray) -> PointCloud:
         """The rows selected by a boolean mask or an index array."""

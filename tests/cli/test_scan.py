@@ -163,3 +163,23 @@ def test_a_file_name_that_is_not_utf8_is_reported_in_one_printable_line(tmp_path
     assert result.returncode == 1
     lines = result.stderr.decode("utf-8").strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and "model-\\udcff.ifc" in lines[0]
+
+
+def test_full_realism_from_the_command_line_writes_returns_colour_and_the_as_built_transforms(box_room_ifc, tmp_path):
+    import laspy
+
+    out = tmp_path / "full.laz"
+    assert main(["scan", str(box_room_ifc), str(out), *FAST, "--seed", "1", "--realism", "full",
+                 "--returns", "first", "--no-glass"]) == 0
+    header = read_cloud_header(out)
+    sensor = header.metadata["sensor"]
+    assert sensor["realism"] == "full" and sensor["returns"] == "first" and sensor["glass"] is False
+    assert sensor["footprint"] is True and len(header.metadata["as_built"]["components"]["global_id"]) == 6
+    las = laspy.read(out)
+    assert las.header.point_format.id == 7 and np.asarray(las.red).max() > 0
+    cloud = read_cloud(out)
+    assert cloud.rgb is not None and (cloud.return_number == 1).all()
+    assert np.array_equal(cloud.label, header.components.label[cloud.component])
+    plain = tmp_path / "plain.laz"
+    assert main(["scan", str(box_room_ifc), str(plain), *FAST, "--seed", "1", "--realism", "paper"]) == 0
+    assert "sensor" not in read_cloud_header(plain).metadata and read_cloud(plain).rgb is None

@@ -63,6 +63,33 @@ def test_a_spec_loads_with_paths_made_absolute_and_settings_resolved(spec_folder
     assert room_exp2.stations_from == room.stations and spec.recipe(generated, spec.configs[0]).stations_from == "auto"
 
 
+def test_sensor_realism_and_settings_apply_per_configuration_over_the_spec(spec_folder: Path) -> None:
+    (spec_folder / "materials.toml").write_text(
+        (Path(__import__("bimscan.scan", fromlist=["x"]).__file__).parent / "materials.toml").read_text())
+    text = GOOD.replace("voxel_size_m = 0.02", 'voxel_size_m = 0.02\nrealism = "full"')
+    text = text.replace("[[scenes]]", '[sensor]\nreturns = "first"\nmaterial_table = "materials.toml"\n[[scenes]]', 1)
+    text += 'realism = "paper"\nsensor = { footprint = true }\n'
+    spec = load_spec(_write(spec_folder, text))
+    room = spec.scenes[0]
+    full, mine = (spec.recipe(room, config).sensor for config in spec.configs)
+    assert full.realism == "full" and full.returns == "first" and full.on("glass")
+    assert full.material_table == str((spec_folder / "materials.toml").resolve())
+    assert mine.realism == "paper" and mine.on("footprint") and not mine.on("glass") and mine.returns == "first"
+    assert spec.recipe(room, spec.configs[0]).to_json()["sensor"]["material_table"]["file"] == "materials.toml"
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    (lambda t: t + 'sensor = { footprnt = true }\n', "unknown key(s) 'footprnt'"),
+    (lambda t: t + 'realism = "photo"\n', "realism = 'photo'"),
+    (lambda t: t + 'sensor = { material_table = "nowhere.toml" }\nrealism = "full"\n', "material table"),
+])
+def test_bad_sensor_settings_are_refused_before_any_work_naming_the_configuration(spec_folder: Path, edit,
+                                                                                  message: str) -> None:
+    with pytest.raises(ConfigError) as caught:
+        load_spec(_write(spec_folder, edit(GOOD)))
+    assert message in str(caught.value) and "[[configs]] 'mine'" in str(caught.value)
+
+
 def test_every_unit_of_a_spec_draws_its_own_noise_stream(spec_folder: Path) -> None:
     spec = load_spec(_write(spec_folder, GOOD))
     recipes = [spec.recipe(scene, config) for scene in spec.scenes for config in spec.configs]

@@ -58,8 +58,16 @@ def header(scheme: LabelScheme, components: ComponentTable) -> CloudHeader:
     )
 
 
-def make_cloud(n: int, *, seed: int, columns: tuple[str, ...] = PointCloud.COLUMNS) -> PointCloud:
-    """A seeded scan-like cloud: points on the walls of a 20 x 12 x 3 m room around ORIGIN."""
+# The columns of a paper-style scan (no returns, no colour): what most writer tests exercise.
+SCAN_COLUMNS = ("xyz", "label", "component", "station", "intensity", "time")
+
+
+def make_cloud(n: int, *, seed: int, columns: tuple[str, ...] = SCAN_COLUMNS) -> PointCloud:
+    """A seeded scan-like cloud: points on the walls of a 20 x 12 x 3 m room around ORIGIN.
+
+    ``columns``: which PointCloud columns it carries (``PointCloud.COLUMNS`` for all of them:
+    return numbers of up to 4 echoes per pulse and RGB colour included).
+    """
     rng = np.random.default_rng(seed)
     azimuth = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
     elevation = np.tile(np.linspace(-0.7, 1.0, 97), n // 97 + 1)[:n]
@@ -75,6 +83,11 @@ def make_cloud(n: int, *, seed: int, columns: tuple[str, ...] = PointCloud.COLUM
         intensity=rng.integers(0, 65536, n).astype(np.uint16),
         time=np.cumsum(rng.uniform(0.0, 1e-5, n)),
     )
+    extra_rng = np.random.default_rng(seed + 1_000)  # drawn apart, so the older columns keep their values
+    count = extra_rng.integers(1, 5, n).astype(np.uint8)
+    extra = {"number_of_returns": count, "return_number": (1 + extra_rng.integers(0, 4, n) % count).astype(np.uint8),
+             "rgb": extra_rng.integers(0, 256, (n, 3)).astype(np.uint8)}
+    cloud = PointCloud(**{c: getattr(cloud, c) for c in SCAN_COLUMNS}, **extra)
     return PointCloud(xyz=cloud.xyz, **{c: getattr(cloud, c) for c in columns if c != "xyz"})
 
 

@@ -66,15 +66,24 @@ def output_bytes(path: Path) -> dict[str, bytes]:
 
 @pytest.mark.parametrize("key", FORMATS)
 def test_every_writer_round_trips_every_column_through_its_reader(key, tmp_path, header, cloud_factory, chunk_splitter):
-    cloud = cloud_factory(25_013, seed=1)
+    cloud = cloud_factory(25_013, seed=1, columns=PointCloud.COLUMNS)
     path = tmp_path / NAMES[key]
     written = write_chunks(path, header, chunk_splitter(cloud, seed=2, low=1, high=4_000))
     back = read_cloud(path)
     assert written.n_points == len(back) == len(cloud)
     assert np.abs(back.xyz - cloud.xyz).max() <= xyz_tolerance(key, cloud.xyz, header.origin)
-    for column in ("label", "component", "station", "intensity", "time"):
+    for column in PointCloud.COLUMNS[1:]:
         assert np.array_equal(getattr(back, column), getattr(cloud, column)), column
         assert getattr(back, column).dtype == getattr(cloud, column).dtype
+    assert read_cloud_header(path) is not None
+
+
+@pytest.mark.parametrize("key", FORMATS)
+def test_returns_and_colour_are_left_out_of_files_of_clouds_without_them(key, tmp_path, header, cloud_factory):
+    path = tmp_path / NAMES[key]
+    write_chunks(path, header, [cloud_factory(500, seed=8)])
+    back = read_cloud(path)
+    assert back.return_number is None and back.number_of_returns is None and back.rgb is None
 
 
 @pytest.mark.parametrize("key", FORMATS)
@@ -297,7 +306,7 @@ def test_reading_an_unknown_format_or_a_missing_path_is_an_input_error(tmp_path)
 def test_any_chunking_gives_the_bytes_of_the_unchunked_stream(key, cuts, header, cloud_factory):
     # Small re-blocking units, so hypothesis' cuts land on, before and after block boundaries
     # (the fixtures are immutable, so sharing them between examples is safe).
-    cloud = cloud_factory(3_500, seed=16)
+    cloud = cloud_factory(3_500, seed=16, columns=PointCloud.COLUMNS)
     bounds = [0, *sorted(cuts), len(cloud)]
     chunks = [cloud.take(slice(a, b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
     with tempfile.TemporaryDirectory() as scratch, \

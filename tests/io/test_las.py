@@ -11,6 +11,7 @@ import pytest
 from bimscan.errors import InputFileError, OutputError
 from bimscan.io import open_cloud_writer, read_cloud, read_cloud_header
 from bimscan.io.las import LAS_SCALE_M, lookup_name
+from bimscan.types import PointCloud
 
 
 def write(path, header, cloud):
@@ -144,3 +145,28 @@ def test_a_file_that_is_not_las_is_an_input_error(tmp_path):
     (tmp_path / "fake.laz").write_bytes(b"this is not a point cloud")
     with pytest.raises(InputFileError, match="not a readable LAS/LAZ file"):
         read_cloud(tmp_path / "fake.laz")
+
+
+@pytest.mark.parametrize("name", ["cloud.las", "cloud.laz"])
+def test_returns_and_colour_go_to_point_format_7_fields_that_laspy_reads(name, tmp_path, header, cloud_factory):
+    cloud = cloud_factory(20_000, seed=11, columns=PointCloud.COLUMNS)
+    write(tmp_path / name, header, cloud)
+    las = laspy.read(tmp_path / name)
+    assert las.header.point_format.id == 7
+    assert np.array_equal(np.asarray(las.return_number), cloud.return_number)
+    assert np.array_equal(np.asarray(las.number_of_returns), cloud.number_of_returns)
+    for channel, field in enumerate(("red", "green", "blue")):
+        assert np.array_equal(np.asarray(getattr(las, field)), cloud.rgb[:, channel].astype(np.uint16) * 257)
+    by_return = np.bincount(cloud.return_number, minlength=16)[1:]
+    assert list(las.header.number_of_points_by_return) == list(by_return[: len(las.header.number_of_points_by_return)])
+
+
+def test_a_foreign_las_gives_its_return_numbers_and_colour(tmp_path):
+    las = laspy.create(point_format=3, file_version="1.2")
+    las.x, las.y, las.z = np.arange(4.0), np.zeros(4), np.zeros(4)
+    las.return_number, las.number_of_returns = np.array([1, 2, 1, 1]), np.array([2, 2, 1, 1])
+    las.red, las.green, las.blue = np.array([0, 65535, 256 * 7, 512]), np.zeros(4), np.full(4, 65535)
+    las.write(tmp_path / "foreign.las")
+    cloud = read_cloud(tmp_path / "foreign.las")
+    assert cloud.return_number.tolist() == [1, 2, 1, 1] and cloud.number_of_returns.tolist() == [2, 2, 1, 1]
+    assert cloud.rgb[:, 0].tolist() == [0, 255, 7, 2] and (cloud.rgb[:, 2] == 255).all()

@@ -85,3 +85,14 @@ def test_columns_of_different_lengths_are_an_input_error(tmp_path):
     np.save(tmp_path / "segment.npy", np.zeros(4, np.int32))
     with pytest.raises(InputFileError, match="4 rows but coord.npy has 3"):
         read_cloud(tmp_path)
+
+
+def test_colour_and_returns_are_plain_uint8_files_with_pointcepts_colour_name(tmp_path, header, cloud_factory):
+    from bimscan.types import PointCloud
+
+    cloud = cloud_factory(2_000, seed=13, columns=PointCloud.COLUMNS)
+    write(tmp_path / "scan", header, [cloud])
+    color = np.load(tmp_path / "scan" / "color.npy")
+    assert color.dtype == np.uint8 and color.shape == (2_000, 3) and np.array_equal(color, cloud.rgb)
+    assert np.array_equal(np.load(tmp_path / "scan" / "return_number.npy"), cloud.return_number)
+    assert np.array_equal(np.load(tmp_path / "scan" / "number_of_returns.npy"), cloud.number_of_returns)

@@ -138,3 +138,15 @@ def test_a_sidecar_that_does_not_match_the_points_is_not_trusted(tmp_path, heade
     stale = read_cloud_header(large)
     assert stale.components is None
     assert [c.name for c in stale.scheme.classes] == [c.name for c in header.scheme.classes]
+
+
+def test_open3d_reads_our_ply_colours(tmp_path, header, cloud_factory):
+    import open3d as o3d
+
+    from bimscan.types import PointCloud
+
+    cloud = cloud_factory(3_000, seed=12, columns=PointCloud.COLUMNS)
+    with open_cloud_writer(tmp_path / "colour.ply", header=header) as writer:
+        writer.write(cloud)
+    pcd = o3d.io.read_point_cloud(str(tmp_path / "colour.ply"))
+    assert np.array_equal(np.rint(np.asarray(pcd.colors) * 255).astype(np.uint8), cloud.rgb)

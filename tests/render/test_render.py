@@ -148,6 +148,21 @@ def test_render_colours_by_station_and_reads_foreign_files(tmp_path: Path) -> No
     assert len(colours) == 2  # two stations, one colour each
 
 
+def test_render_draws_the_points_own_colours_with_color_rgb(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    room = _room_cloud()
+    painted = {0: (200, 40, 40), 2: (40, 200, 40), 3: (40, 40, 200), 4: (250, 200, 0)}  # by class: walls, ceiling, ...
+    rgb = np.array([painted[int(label)] for label in room.label], dtype=np.uint8)
+    _write(PointCloud(xyz=room.xyz, label=room.label, rgb=rgb), tmp_path / "painted.ply")
+    assert main(["render", str(tmp_path / "painted.ply"), str(tmp_path / "rgb.png"), "--color", "rgb",
+                 "--size", "600x400", "--cut", "none"]) == 0
+    colours = {tuple(int(v) for v in p) for panel in _panels(_pixels(tmp_path / "rgb.png"), 2)
+               for p in np.unique(panel.reshape(-1, 3), axis=0)} - {WHITE}
+    assert colours and colours <= set(painted.values()) and (40, 200, 40) in colours
+    _write(room, tmp_path / "plain.ply")
+    assert main(["render", str(tmp_path / "plain.ply"), str(tmp_path / "none.png"), "--color", "rgb"]) != 0
+    assert "has no rgb column" in capsys.readouterr().err and not (tmp_path / "none.png").exists()
+
+
 def test_the_same_cloud_renders_to_the_same_bytes(tmp_path: Path) -> None:
     cloud = _write(_room_cloud(), tmp_path / "room")
     render_cloud(cloud, tmp_path / "a.png", width=400, height=300, max_points=20_000)

@@ -101,8 +101,9 @@ def stats(dataset_dir: Path, out_dir: Path | None, from_clouds: bool) -> None:
 @click.command("render")
 @click.argument("cloud", type=click.Path(path_type=Path))
 @click.argument("out", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--color", type=click.Choice(["label", "station", "intensity", "component", "height"]), default="label",
-              show_default=True, help="What the colours show.")
+@click.option("--color", type=click.Choice(["label", "station", "intensity", "component", "height", "rgb", "returns"]),
+              default="label", show_default=True,
+              help="What the colours show (rgb: the points' own colour; returns: single / first / last returns).")
 @click.option("--max-points", type=click.IntRange(min=1), default=3_000_000, show_default=True,
               help="Uniform random sample drawn (the whole file is streamed).")
 @click.option("--size", default="1600x800", show_default=True, help=SIZE_HELP)

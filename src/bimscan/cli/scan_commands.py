@@ -38,6 +38,22 @@ if TYPE_CHECKING:
               help="Head rotation in deg/s, overriding the preset (fewer points per station when faster).")
 @click.option("--scheme", default=None, help=SCHEME_HELP)
 @click.option("--engine", default="open3d", show_default=True, help="Ray engine: open3d or embreex.")
+@click.option("--realism", type=click.Choice(["paper", "full"]), default=None,
+              help="Sensor effects: paper (thin ray, Gaussian noise; the default) or full (every effect below on).")
+@click.option("--sensor", "sensor_file", default=None,
+              help="A TOML file of sensor settings (the keys of a dataset spec's [sensor] table).")
+@click.option("--returns", type=click.Choice(["first", "last", "strongest", "all"]), default=None,
+              help="Which echoes of a pulse become points (with the footprint or glass). Default: all.")
+@click.option("--footprint/--no-footprint", default=None, help="Beam footprint with sub-rays at edges (mixed pixels).")
+@click.option("--beam-sample-quality", type=int, default=None,
+              help="Sub-ray rings of the footprint (HELIOS++'s beamSampleQuality; 3 = 19 sub-rays).")
+@click.option("--detection/--no-detection", default=None,
+              help="Return probability from the range equation (reflectance, incidence, range) with speckle.")
+@click.option("--glass/--no-glass", default=None, help="Transparent surfaces pass the beam.")
+@click.option("--rgb/--no-rgb", "color", default=None, help="Per-point colour from the surface styles.")
+@click.option("--as-built/--no-as-built", "deviations", default=None,
+              help="As-built deviations of every component within construction tolerances (ACI 117).")
+@click.option("--material-table", default=None, help="A TOML material table replacing the built-in one.")
 @click.option("--threads", default=0, show_default=True, type=int, help="Cores to use (0 = all).")
 @click.option("--max-station-pulses", default=DEFAULT_MAX_STATION_PULSES, show_default=True, type=int,
               help="Refuse settings under which one station would fire more pulses (a guard against typos).")
@@ -46,27 +62,38 @@ if TYPE_CHECKING:
 def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, no_noise: bool,
          range_sigma_m: float | None, angle_sigma_deg: float | None, registration_sigma_m: float,
          registration_sigma_deg: float, strict: bool, scanner: str | None, head_deg_per_s: float | None,
-         scheme: str | None, engine: str, threads: int, max_station_pulses: int, overwrite: bool,
-         site: SiteModel) -> None:
+         scheme: str | None, engine: str, realism: str | None, sensor_file: str | None, returns: str | None,
+         footprint: bool | None, beam_sample_quality: int | None, detection: bool | None, glass: bool | None,
+         color: bool | None, deviations: bool | None, material_table: str | None, threads: int,
+         max_station_pulses: int, overwrite: bool, site: SiteModel) -> None:
     """Scan MODEL.ifc with a virtual TLS and write a labelled cloud to OUT.
 
     OUT's suffix picks the format: .laz, .las, .e57, .ply, or a folder (no suffix) of NumPy arrays
     in the Pointcept layout. Class ids go to LAS classification; component and station are
-    extra dimensions; class names and the component table are stored with the file.
-    With --clutter/--stage the building is scanned as a site (objects added as components,
-    elements not yet built left out); stations are planned on that scene.
+    extra dimensions; class names and the component table are stored with the file. With
+    sensor effects on, return numbers (and colour with --rgb) are stored too. With
+    --clutter/--stage the building is scanned as a site (objects added as components, elements
+    not yet built left out); stations are planned on that scene.
     """
     from bimscan.pipeline import scan_model
     from bimscan.scan.noise import NoiseModel
-    from bimscan.scan.recipe import ScanRecipe
+    from bimscan.scan.recipe import ScanRecipe, resolve_sensor
+    from bimscan.toml_files import load_toml
 
     if no_noise:
         range_sigma_m, angle_sigma_deg = 0.0, 0.0
     noise = NoiseModel(range_sigma_m=range_sigma_m, angle_sigma_deg=angle_sigma_deg,
                        registration_sigma_m=registration_sigma_m, registration_sigma_deg=registration_sigma_deg)
+    sensor = dict(load_toml(sensor_file)) if sensor_file is not None else {}
+    flags = {"returns": returns, "footprint": footprint, "beam_sample_quality": beam_sample_quality,
+             "detection": detection, "glass": glass, "color": color, "deviations": deviations,
+             "material_table": material_table}
+    sensor |= {key: value for key, value in flags.items() if value is not None}
+    settings = resolve_sensor(sensor, realism=realism,
+                              where=f"{sensor_file} with the sensor flags" if sensor_file else "the sensor flags")
     recipe = ScanRecipe.resolve(preset=preset, scanner=scanner, head_deg_per_s=head_deg_per_s, noise=noise, seed=seed,
                                 engine=engine, stations_from=stations, strict=strict, threads=threads,
-                                max_station_pulses=max_station_pulses, site=site)
+                                max_station_pulses=max_station_pulses, sensor=settings, site=site)
     result = scan_model(model, out, recipe, scheme=scheme, overwrite=overwrite,
                         warn=lambda line: click.echo(f"warning: {line}", err=True))
     extents = result.summary.extents()

@@ -38,7 +38,7 @@ import numpy as np
 
 from bimscan.errors import DatasetError, InputFileError
 from bimscan.files import atomic_output, dump_json, file_sha256, temp_path, write_atomic
-from bimscan.types import BimScene, ComponentTable, SceneMesh, SiteState, Station
+from bimscan.types import BimScene, ComponentSurfaces, ComponentTable, SceneMesh, SiteState, Station
 
 MANIFEST_NAME = "manifest.json"
 DATASET_NAME = "dataset.json"
@@ -53,7 +53,8 @@ UNIT_VERSION = 3
 STATIONS_FORMAT = "bimscan-stations"
 STATIONS_VERSION = 1
 SITE_FORMAT = "bimscan-site-scene"
-SITE_VERSION = 1
+SITE_VERSION = 2
+_SURFACE_COLUMNS = ("color", "transparency", "style", "material")
 _SITE_COLUMNS = ("global_id", "ifc_class", "predefined_type", "name", "storey", "parent_class", "label")
 STATUSES = ("done", "failed", "pending")
 UNIT_SEPARATOR = "__"
@@ -338,6 +339,8 @@ def write_site_scene(path: Path, scene: BimScene, key: str) -> None:
     arrays = {"vertices": scene.mesh.vertices, "faces": scene.mesh.faces, "face_component": scene.mesh.face_component,
               **{f"component_{c}": getattr(scene.components, c) for c in _SITE_COLUMNS},
               "meta": np.frombuffer(dump_json(meta), dtype=np.uint8)}
+    if scene.surfaces is not None:
+        arrays |= {f"surface_{c}": getattr(scene.surfaces, c) for c in _SURFACE_COLUMNS}
     with atomic_output(path) as temp, zipfile.ZipFile(temp, "w", zipfile.ZIP_STORED) as archive:
         for name, array in arrays.items():
             member = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
@@ -356,11 +359,13 @@ def read_site_scene(path: Path, base: BimScene, key: str) -> BimScene | None:
             mesh = SceneMesh(vertices=arrays["vertices"], faces=arrays["faces"], face_component=arrays["face_component"])
             table = ComponentTable(**{c: arrays[f"component_{c}"] for c in _SITE_COLUMNS},
                                    class_ancestry={k: tuple(v) for k, v in meta["class_ancestry"].items()})
+            surfaces = (ComponentSurfaces(**{c: arrays[f"surface_{c}"] for c in _SURFACE_COLUMNS})
+                        if "surface_color" in arrays.files else None)
         site = meta["site"]
         state = SiteState(settings=site["settings"], removed=site["removed"], placed=site["placed"],
                           rooms=int(site["rooms"]), free_floor_m2=float(site["free_floor_m2"]))
         return dataclasses.replace(base, mesh=mesh, components=table, unmapped_classes=meta["unmapped_classes"],
-                                   site=state)
+                                   site=state, surfaces=surfaces)
     except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile):
         return None  # dressed again by the unit
 

@@ -16,6 +16,10 @@ A spec is one TOML file (paths inside it are relative to the file)::
     range_sigma_m = 0.005
     angle_sigma_deg = 0.03
 
+    realism = "paper"             # optional: "paper" (default) or "full" sensor effects
+    [sensor]                      # optional: sensor settings (bimscan.scan.sensor.SensorModel keys)
+    returns = "all"
+
     [[scenes]]
     name = "duplex"
     ifc = "models/duplex.ifc"
@@ -33,6 +37,8 @@ A spec is one TOML file (paths inside it are relative to the file)::
     [[configs]]
     name = "custom"
     settings = { pulse_freq_hz = 300000, scan_freq_hz = 100, head_deg_per_s = 20 }
+    realism = "full"              # optional: this configuration's realism and sensor settings,
+    sensor = { glass = false }    # key by key over the spec's
     stage = "enclosed"            # optional: the construction stage (bimscan.site), a name or a table
     clutter = { density = 0.2, kinds = ["site", "people"] }   # optional: clutter on the floors
 
@@ -62,6 +68,7 @@ from bimscan.scan.device import DEFAULT_SCANNER, ScanSettings
 from bimscan.scan.engine import DEFAULT_ENGINE
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.recipe import AUTO_STATIONS, DEFAULT_MAX_STATION_PULSES, ScanRecipe
+from bimscan.scan.sensor import merge_sensor_tables
 from bimscan.site.model import ClutterSettings, SiteModel, StageSettings, stage_table
 from bimscan.toml_files import build_dataclass, load_toml
 from bimscan.types import LabelScheme
@@ -90,13 +97,16 @@ class SceneSpec:
 
 @dataclass(frozen=True)
 class ConfigSpec:
-    """One scanner configuration: a preset or an explicit settings table, optional head speed, and
-    optionally the site as scanned (construction stage, clutter; default: the spec's)."""
+    """One scanner configuration: a preset or an explicit settings table, optional head speed,
+    optional sensor realism and settings (over the spec's), and optionally the site as scanned
+    (construction stage, clutter; default: the spec's)."""
 
     name: str
     preset: str | None = None
     settings: ScanSettings | None = None
     head_deg_per_s: float | None = None
+    realism: str | None = None
+    sensor: dict[str, Any] | None = None
     stage: StageSettings | None = None
     clutter: ClutterSettings | None = None
 
@@ -115,6 +125,8 @@ class DatasetSpec:
     strict: bool = False
     max_station_pulses: int = DEFAULT_MAX_STATION_PULSES
     noise: NoiseModel = field(default_factory=NoiseModel)
+    realism: str | None = None
+    sensor: dict[str, Any] | None = None
     stage: StageSettings | None = None  # default stage of the configurations
     clutter: ClutterSettings | None = None  # default clutter of the configurations
     stages: tuple[StageSettings, ...] = ()  # a sweep: every configuration once per stage
@@ -146,7 +158,8 @@ class DatasetSpec:
                                   head_deg_per_s=config.head_deg_per_s, noise=self.noise, seed=self.seed,
                                   noise_stream=unit_id(scene.name, config.name), engine=self.engine,
                                   stations_from=scene.stations, strict=self.strict, site=self.site(config),
-                                  max_station_pulses=self.max_station_pulses)
+                                  max_station_pulses=self.max_station_pulses, realism=config.realism or self.realism,
+                                  sensor=merge_sensor_tables(self.sensor, config.sensor))
 
 
 def load_spec(path: str | Path) -> DatasetSpec:
@@ -287,9 +300,17 @@ def _local_path(value: str, base: Path) -> str:
 
 def _absolute(spec: DatasetSpec, *, base: Path) -> DatasetSpec:
     """The spec with its scheme, scanner and preset files made absolute (workers run anywhere)."""
-    configs = tuple(dataclasses.replace(c, preset=_local_path(c.preset, base)) if c.preset else c for c in spec.configs)
+    configs = tuple(dataclasses.replace(c, preset=_local_path(c.preset, base) if c.preset else None,
+                                        sensor=_local_sensor(c.sensor, base)) for c in spec.configs)
     return dataclasses.replace(spec, scheme=_local_path(spec.scheme, base), scanner=_local_path(spec.scanner, base),
-                               configs=configs)
+                               sensor=_local_sensor(spec.sensor, base), configs=configs)
+
+
+def _local_sensor(table: dict[str, Any] | None, base: Path) -> dict[str, Any] | None:
+    """A sensor table with its material table file made absolute."""
+    if not table or not isinstance(table.get("material_table"), str):
+        return table
+    return table | {"material_table": str((base / table["material_table"]).resolve())}
 
 
 def resolve_scheme(spec: DatasetSpec) -> LabelScheme:

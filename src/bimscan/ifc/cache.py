@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.files import atomic_output, write_atomic
-from bimscan.types import ComponentTable, FailedElement, ParsedModel, SceneMesh, Space, Storey
+from bimscan.types import ComponentSurfaces, ComponentTable, FailedElement, ParsedModel, SceneMesh, Space, Storey
 
 _TABLE_COLUMNS = ("global_id", "ifc_class", "predefined_type", "name", "storey", "parent_class")
 
@@ -44,6 +44,10 @@ def load_parsed(key: str) -> ParsedModel | None:
             f_split = np.cumsum(meta["space_face_counts"])[:-1]
             space_vertices = np.split(arrays["space_vertices"], v_split) if meta["spaces"] else []
             space_faces = np.split(arrays["space_faces"], f_split) if meta["spaces"] else []
+            surfaces = None
+            if "surface_color" in arrays:
+                surfaces = ComponentSurfaces(color=arrays["surface_color"], transparency=arrays["surface_transparency"],
+                                             style=arrays["surface_style"], material=arrays["surface_material"])
         spaces = tuple(
             Space(vertices=np.ascontiguousarray(v), faces=np.ascontiguousarray(f), **s)
             for s, v, f in zip(meta["spaces"], space_vertices, space_faces)
@@ -51,7 +55,7 @@ def load_parsed(key: str) -> ParsedModel | None:
         return ParsedModel(
             source="", file_sha256="", schema=meta["schema"], mesh=mesh, components=table,
             storeys=tuple(Storey(**s) for s in meta["storeys"]), spaces=spaces,
-            failed=tuple(FailedElement(**f) for f in meta["failed"]),
+            failed=tuple(FailedElement(**f) for f in meta["failed"]), surfaces=surfaces,
         )
     except (OSError, ValueError, KeyError, TypeError):
         return None  # a damaged entry is simply parsed again
@@ -69,6 +73,8 @@ def store_parsed(key: str, parsed: ParsedModel) -> None:
             "space_vertices": np.concatenate([s.vertices for s in spaces]) if spaces else np.empty((0, 3)),
             "space_faces": np.concatenate([s.faces for s in spaces]) if spaces else np.empty((0, 3), np.int32),
         }
+        if parsed.surfaces is not None:
+            arrays |= {f"surface_{c}": getattr(parsed.surfaces, c) for c in ("color", "transparency", "style", "material")}
         meta = {
             "schema": parsed.schema,
             "class_ancestry": dict(parsed.components.class_ancestry),

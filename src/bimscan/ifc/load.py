@@ -24,12 +24,13 @@ import numpy as np
 from bimscan.errors import EmptyModelError, IfcError, InputFileError
 from bimscan.files import file_sha256
 from bimscan.ifc import cache as geometry_cache
+from bimscan.ifc.materials import read_surfaces
 from bimscan.ifc.schema import SUPPORTED_SCHEMAS, class_ancestry
 from bimscan.progress import progress_bar
 from bimscan.types import ComponentTable, FailedElement, ParsedModel, SceneMesh, Space, Storey
 
 # Bumped whenever what _parse_model produces changes, so stale cache entries are never used.
-LOADER_VERSION = 1
+LOADER_VERSION = 2  # 2: component surface styles and materials (ifc/materials.py)
 
 # Representation identifiers that are never the element's solid body.
 _NON_BODY_IDENTIFIERS = {
@@ -152,7 +153,8 @@ def _parse_model(path: Path, *, threads: int) -> ParsedModel:
     storeys = _storeys(model, unit_scale)
     table = _component_table(components, schema)
     spaces = _spaces(model, threads=threads)
-    return ParsedModel(source=str(path), file_sha256="", schema=schema, mesh=mesh, components=table, storeys=storeys, spaces=spaces, failed=tuple(failed))
+    surfaces = read_surfaces(components)
+    return ParsedModel(source=str(path), file_sha256="", schema=schema, mesh=mesh, components=table, storeys=storeys, spaces=spaces, failed=tuple(failed), surfaces=surfaces)
 
 
 def _scannable_elements(model):  # -> list[entity_instance]

@@ -211,7 +211,9 @@ _FIELD_DTYPES: dict[str, type] = {
     "sphericalRange": np.float64, "sphericalAzimuth": np.float64, "sphericalElevation": np.float64,
     "intensity": np.uint16, "timeStamp": np.float64, "returnIndex": np.uint8, "returnCount": np.uint8,
     "rowIndex": np.longlong, "columnIndex": np.longlong, LABEL_FIELD: np.uint8, COMPONENT_FIELD: np.longlong,
+    "colorRed": np.uint8, "colorGreen": np.uint8, "colorBlue": np.uint8,
 }
+COLOR_FIELDS = ("colorRed", "colorGreen", "colorBlue")
 
 
 class _OpenScan:
@@ -222,6 +224,7 @@ class _OpenScan:
         self.writer = writer
         self.station = station
         self.n_points = 0
+        self.return_high = 0
         self.low = np.full(3, np.inf)
         self.high = np.full(3, -np.inf)
         self.spherical_low = np.full(3, np.inf)  # range, azimuth, elevation
@@ -247,6 +250,7 @@ class E57CloudWriter(StreamingCloudWriter):
         self._posed = False
         self._grid: _Grid | None = None
         self._root_guid = ""
+        self._returns = False
 
     # -- layout ---------------------------------------------------------------------------------
     def _begin(self, columns: tuple[str, ...]) -> None:
@@ -261,6 +265,8 @@ class E57CloudWriter(StreamingCloudWriter):
         if "time" in columns:
             fields.append("timeStamp")
         fields += ["returnIndex", "returnCount"]
+        if "rgb" in columns:
+            fields += list(COLOR_FIELDS)
         if self._grid is not None:
             fields += ["rowIndex", "columnIndex"]
         if "label" in columns:
@@ -268,6 +274,7 @@ class E57CloudWriter(StreamingCloudWriter):
         if "component" in columns:
             fields.append(COMPONENT_FIELD)
         self._fields = tuple(fields)
+        self._returns = "return_number" in columns
         self._buffers = {name: np.zeros(E57_BLOCK_POINTS, dtype=_FIELD_DTYPES[name]) for name in self._fields}
         self._scratch = np.zeros(E57_BLOCK_POINTS)
         if "returnCount" in self._buffers:
@@ -317,7 +324,10 @@ class E57CloudWriter(StreamingCloudWriter):
         image = self._image
         prototype = libe57.StructureNode(image)
         bounds: dict[str, tuple[int, int]] = {
-            "intensity": (0, INTENSITY_MAX), "returnIndex": (0, 0), "returnCount": (1, 1), LABEL_FIELD: (0, 255),
+            "intensity": (0, INTENSITY_MAX), LABEL_FIELD: (0, 255),
+            "colorRed": (0, 255), "colorGreen": (0, 255), "colorBlue": (0, 255),
+            # E57 counts returns from 0; scans without the beam footprint have one return per pulse
+            "returnIndex": (0, 254) if self._returns else (0, 0), "returnCount": (1, 255) if self._returns else (1, 1),
             COMPONENT_FIELD: (-1, len(self.header.components) - 1 if self.header.components is not None
                               else int(np.iinfo(np.int32).max)),
         }
@@ -399,8 +409,14 @@ class E57CloudWriter(StreamingCloudWriter):
             index.set("columnMinimum", libe57.IntegerNode(image, int(scan.grid_low[1])))
             index.set("columnMaximum", libe57.IntegerNode(image, int(scan.grid_high[1])))
         index.set("returnMinimum", libe57.IntegerNode(image, 0))
-        index.set("returnMaximum", libe57.IntegerNode(image, 0))
+        index.set("returnMaximum", libe57.IntegerNode(image, int(scan.return_high)))
         node.set("indexBounds", index)
+        if "colorRed" in self._buffers:
+            limits = libe57.StructureNode(image)
+            for name in ("Red", "Green", "Blue"):
+                limits.set(f"color{name}Minimum", libe57.IntegerNode(image, 0))
+                limits.set(f"color{name}Maximum", libe57.IntegerNode(image, 255))
+            node.set("colorLimits", limits)
         if "intensity" in self._buffers:
             limits = libe57.StructureNode(image)
             limits.set("intensityMinimum", libe57.IntegerNode(image, 0))
@@ -478,6 +494,14 @@ class E57CloudWriter(StreamingCloudWriter):
             buffers["intensity"][into] = rows.intensity
         if "timeStamp" in buffers:
             buffers["timeStamp"][into] = rows.time
+        if self._returns:
+            np.subtract(rows.return_number, 1, out=buffers["returnIndex"][into])
+            buffers["returnCount"][into] = rows.number_of_returns
+            if len(rows):
+                scan.return_high = max(scan.return_high, int(rows.return_number.max()) - 1)
+        if "colorRed" in buffers:
+            for channel, name in enumerate(COLOR_FIELDS):
+                buffers[name][into] = rows.rgb[:, channel]
         if "rowIndex" in buffers:
             row, column = self._grid_cells(rows.time, scan.station)  # type: ignore[arg-type]
             buffers["rowIndex"][into] = row
@@ -681,7 +705,9 @@ def _plan(image: Any, scans: list[Any], document: dict[str, Any] | None, label_f
     else:
         every = set.intersection(*names) if names else set()
         columns = {"xyz", "station"} | ({"intensity"} if "intensity" in every else set()) \
-            | ({"time"} if "timeStamp" in every else set())
+            | ({"time"} if "timeStamp" in every else set()) \
+            | ({"return_number", "number_of_returns"} if {"returnIndex", "returnCount"} <= every else set()) \
+            | ({"rgb"} if set(COLOR_FIELDS) <= every else set())
         label_source = label_field
     if label_source is not None:
         columns.add("label")
@@ -711,6 +737,15 @@ def _read_scan(image: Any, scan: Any, index: int, plan: _Plan, path: Path, block
         wanted[plan.label_source] = np.float64
     if "component" in plan.columns and COMPONENT_FIELD in present:
         wanted[COMPONENT_FIELD] = np.longlong
+    if "return_number" in plan.columns:
+        wanted["returnIndex"] = np.longlong
+        wanted["returnCount"] = np.longlong
+    if "rgb" in plan.columns:
+        wanted.update({name: np.float64 for name in COLOR_FIELDS})
+    color_low, color_high = 0.0, 255.0
+    if "rgb" in plan.columns and scan.isDefined("colorLimits"):  # other tools store 0..65535 or 0..1
+        limits = scan["colorLimits"]
+        color_low, color_high = _number(limits["colorRedMinimum"]), _number(limits["colorRedMaximum"])
     station = np.uint16(index)
     if plan.bimscan and scan.isDefined(STATION_NODE):
         station = np.uint16(scan[STATION_NODE].value())
@@ -756,8 +791,17 @@ def _read_scan(image: Any, scan: Any, index: int, plan: _Plan, path: Path, block
             if "component" in plan.columns:
                 component = (buffers[COMPONENT_FIELD][keep].astype(np.int32) if COMPONENT_FIELD in buffers
                              else np.full(count, -1, dtype=np.int32))
+            returns = {}
+            if "return_number" in plan.columns:
+                returns = {"return_number": np.clip(buffers["returnIndex"][keep] + 1, 1, 255).astype(np.uint8),
+                           "number_of_returns": np.clip(buffers["returnCount"][keep], 1, 255).astype(np.uint8)}
+            rgb = None
+            if "rgb" in plan.columns:
+                scale = 255.0 / (color_high - color_low) if color_high > color_low else 0.0
+                rgb = np.stack([np.clip(np.rint((buffers[name][keep] - color_low) * scale), 0, 255)
+                                for name in COLOR_FIELDS], axis=1).astype(np.uint8)
             yield PointCloud(
-                xyz=xyz, label=label, component=component,
+                xyz=xyz, label=label, component=component, rgb=rgb, **returns,
                 station=np.full(count, station, dtype=np.uint16) if "station" in plan.columns else None,
                 intensity=intensity,
                 time=buffers["timeStamp"][keep].astype(np.float64) if "timeStamp" in wanted else None,
@@ -784,8 +828,12 @@ def _rechunk(pieces: Iterator[PointCloud], chunk_points: int) -> Iterator[PointC
 
 
 def _empty(columns: set[str]) -> PointCloud:
-    dtypes = {"label": np.uint8, "component": np.int32, "station": np.uint16, "intensity": np.uint16, "time": np.float64}
-    return PointCloud(xyz=np.zeros((0, 3)), **{c: np.zeros(0, dtype=d) for c, d in dtypes.items() if c in columns})
+    dtypes = {"label": np.uint8, "component": np.int32, "station": np.uint16, "intensity": np.uint16, "time": np.float64,
+              "return_number": np.uint8, "number_of_returns": np.uint8}
+    empty = {c: np.zeros(0, dtype=d) for c, d in dtypes.items() if c in columns}
+    if "rgb" in columns:
+        empty["rgb"] = np.zeros((0, 3), dtype=np.uint8)
+    return PointCloud(xyz=np.zeros((0, 3)), **empty)
 
 
 def iter_e57_chunks(

@@ -2,15 +2,19 @@
 
 Layout of a bimscan LAS/LAZ file:
 
-- Point format 6. Coordinates are int32 steps of ``LAS_SCALE_M`` = 0.0001 m (0.1 mm) around the
-  header offset, which is ``CloudHeader.origin``: a file reaches about +-214 km from its origin.
-  Points farther out are refused (``OutputError``) rather than wrapped.
+- Point format 6, or 7 (format 6 plus RGB) when the cloud has colour. Coordinates are int32
+  steps of ``LAS_SCALE_M`` = 0.0001 m (0.1 mm) around the header offset, which is
+  ``CloudHeader.origin``: a file reaches about +-214 km from its origin. Points farther out are
+  refused (``OutputError``) rather than wrapped.
 - ``label`` -> ``classification``; ``intensity`` -> ``intensity``; ``time`` -> ``gps_time``
   (seconds since the start of the survey, not GPS time); ``station`` -> ``point_source_id``
   and the extra dimension ``station`` (uint16); ``component`` -> extra dimension ``component``
-  (int32). Every point is return 1 of 1. Of the columns a cloud lacks, the extra dimensions are
-  left out and the standard fields stay zero; all read back as None (the header document lists
-  the columns that were written).
+  (int32); ``return_number`` / ``number_of_returns`` -> the LAS fields of the same names (at
+  most 15, the format's limit; without the columns every point is return 1 of 1); ``rgb`` ->
+  ``red``/``green``/``blue`` scaled to 16 bits (x 257, so 255 -> 65535). Of the columns a cloud
+  lacks, the extra dimensions are left out and the standard fields stay zero; all read back as
+  None (the header document lists the columns that were written). Foreign files give their
+  return numbers, and their colour when the point format has it.
 - VLR ``LASF_Spec``/0, the LAS 1.4 classification lookup: 256 x (uint8 class, char[15] name),
   the scheme's class names cut to 15 ASCII bytes, so CloudCompare and friends show them.
 - EVLR ``bimscan``/1: the full header document as JSON (scheme, component table, stations,
@@ -54,6 +58,8 @@ from bimscan.io._writer import BLOCK_POINTS, StreamingCloudWriter, WatchedFile, 
 from bimscan.types import CloudHeader, LabelScheme, PointCloud
 
 LAS_SCALE_M = 1e-4  # 0.1 mm coordinate step
+MAX_RETURNS = 15  # return numbers of point formats 6-10 are 4 bits
+RGB_SCALE = 257  # 8-bit colour to LAS's 16 bits: 255 -> 65535, and back exactly by // 257
 LAZ_CHUNK_POINTS = 50_000  # lazrs' default LAZ chunk; BLOCK_POINTS must stay a multiple of it
 BIMSCAN_USER_ID = "bimscan"
 BIMSCAN_RECORD_ID = 1
@@ -85,7 +91,7 @@ def _classification_lookup(scheme: LabelScheme) -> ClassificationLookupVlr:
 
 
 def _las_header(header: CloudHeader, columns: tuple[str, ...]) -> laspy.LasHeader:
-    las_header = laspy.LasHeader(version="1.4", point_format=6)
+    las_header = laspy.LasHeader(version="1.4", point_format=7 if "rgb" in columns else 6)
     extra = []
     if "component" in columns:
         extra.append(laspy.ExtraBytesParams(name="component", type=np.int32, description="BIM component id"))
@@ -120,6 +126,7 @@ class LasCloudWriter(StreamingCloudWriter):
         self._fill = 0
         self._low = np.full(3, np.inf)  # bounds in coordinate steps, for the LAS header
         self._high = np.full(3, -np.inf)
+        self._by_return = np.zeros(16, dtype=np.int64)  # points per return number, for the LAS header
 
     def _begin(self, columns: tuple[str, ...]) -> None:
         las_header = _las_header(self.header, columns)
@@ -163,6 +170,15 @@ class LasCloudWriter(StreamingCloudWriter):
         if chunk.station is not None:
             out["station"] = chunk.station
             out["point_source_id"] = chunk.station
+        if chunk.return_number is not None and chunk.number_of_returns is not None:
+            number = np.clip(chunk.return_number, 1, MAX_RETURNS)
+            out["bit_fields"] = number | (np.clip(chunk.number_of_returns, number, MAX_RETURNS) << 4)
+            self._by_return += np.bincount(number, minlength=16)
+        else:
+            self._by_return[1] += len(chunk)
+        if chunk.rgb is not None:
+            for channel, name in enumerate(("red", "green", "blue")):
+                out[name] = chunk.rgb[:, channel].astype(np.uint16) * RGB_SCALE
 
     def _append(self, chunk: PointCloud) -> None:
         assert self._block is not None
@@ -192,8 +208,7 @@ class LasCloudWriter(StreamingCloudWriter):
         self._flush()
         las_header = self._writer.header
         las_header.point_count = self.n_points
-        las_header.number_of_points_by_return[:] = 0
-        las_header.number_of_points_by_return[0] = self.n_points
+        las_header.number_of_points_by_return[:] = self._by_return[1:1 + len(las_header.number_of_points_by_return)]
         if self.n_points:
             las_header.mins = self._low * las_header.scales + las_header.offsets
             las_header.maxs = self._high * las_header.scales + las_header.offsets
@@ -283,6 +298,15 @@ def count_las_points(path: str | Path) -> int:
     return count
 
 
+def _rgb8(raw: np.ndarray, *, ours: bool) -> np.ndarray:
+    """(N, 3) uint8 colour of LAS records: ours exactly (// 257); foreign 16-bit colour by its high
+    byte, and files that wrote 8-bit values into the 16-bit fields (none above 255) as they are."""
+    rgb = np.stack([np.asarray(raw[name], dtype=np.uint16) for name in ("red", "green", "blue")], axis=1)
+    if ours:
+        return (rgb // RGB_SCALE).astype(np.uint8)
+    return (rgb >> 8).astype(np.uint8) if len(rgb) and rgb.max() > 255 else rgb.astype(np.uint8)
+
+
 def iter_las_chunks(
     path: str | Path, *, chunk_points: int = 2_000_000, label_field: str | None = None
 ) -> Iterator[PointCloud]:
@@ -306,7 +330,8 @@ def iter_las_chunks(
         if document is not None:
             columns = set(document["columns"])
         else:
-            columns = {"xyz", "label", "intensity"} | ({"time"} if "gps_time" in names else set())
+            columns = {"xyz", "label", "intensity", "return_number", "number_of_returns"}
+            columns |= ({"time"} if "gps_time" in names else set()) | ({"rgb"} if "red" in names else set())
         if label_field is not None:
             columns.add("label")
         label_source = label_field or "classification"
@@ -328,6 +353,10 @@ def iter_las_chunks(
                 intensity=np.asarray(raw["intensity"], dtype=np.uint16) if "intensity" in columns else None,
                 time=np.asarray(raw["gps_time"], dtype=np.float64)
                 if "time" in columns and "gps_time" in names else None,
+                return_number=np.asarray(points.return_number, dtype=np.uint8) if "return_number" in columns else None,
+                number_of_returns=np.asarray(points.number_of_returns, dtype=np.uint8)
+                if "number_of_returns" in columns else None,
+                rgb=_rgb8(raw, ours=document is not None) if "rgb" in columns and "red" in names else None,
             )
 
         try:

@@ -2,18 +2,21 @@
 
 Layout of a bimscan NumPy folder (``scan/``):
 
-====================  ==========  =====================================================
-file                  dtype       content
-====================  ==========  =====================================================
-``coord.npy``         (N, 3) f4   xyz - origin, metres (float32 keeps ~1e-5 m within 100 m)
-``origin.npy``        (3,) f8     the origin (``CloudHeader.origin``), metres
-``segment.npy``       (N,) i4     label (semantic class id)
-``instance.npy``      (N,) i4     component id (-1: none)
-``station.npy``       (N,) u2     station id
-``intensity.npy``     (N,) u2     intensity
-``time.npy``          (N,) f8     seconds since the start of the survey
-``meta.json``                     the header document (``bimscan.io._header``), origin included
-====================  ==========  =====================================================
+===========================  ==========  =============================================================
+file                         dtype       content
+===========================  ==========  =============================================================
+``coord.npy``                (N, 3) f4   xyz - origin, metres (float32 keeps ~1e-5 m within 100 m)
+``origin.npy``               (3,) f8     the origin (``CloudHeader.origin``), metres
+``segment.npy``              (N,) i4     label (semantic class id)
+``instance.npy``             (N,) i4     component id (-1: none)
+``station.npy``              (N,) u2     station id
+``intensity.npy``            (N,) u2     intensity
+``time.npy``                 (N,) f8     seconds since the start of the survey
+``return_number.npy``        (N,) u1     which echo of its pulse (1-based)
+``number_of_returns.npy``    (N,) u1     echoes of its pulse
+``color.npy``                (N, 3) u1   RGB colour (Pointcept's name)
+``meta.json``                            the header document (``bimscan.io._header``), origin included
+===========================  ==========  =============================================================
 
 Files of columns the cloud lacks are not written. Each ``.npy`` is streamed: its header is
 written first with a fixed size (``NPY_HEADER_BYTES``) and rewritten at close with the final
@@ -42,6 +45,9 @@ NPDIR_FILES: dict[str, tuple[str, str, tuple[int, ...]]] = {
     "station": ("station", "<u2", ()),
     "intensity": ("intensity", "<u2", ()),
     "time": ("time", "<f8", ()),
+    "return_number": ("return_number", "u1", ()),
+    "number_of_returns": ("number_of_returns", "u1", ()),
+    "rgb": ("color", "u1", (3,)),
 }
 META_NAME = "meta.json"
 ORIGIN_NAME = "origin.npy"
@@ -159,7 +165,8 @@ def iter_npdir_chunks(
         if origin.shape != (3,):
             raise InputFileError(f"{folder / ORIGIN_NAME}: shape {origin.shape}, expected (3,); the folder is damaged")
     stems = {"label": label_field or "segment", "component": "instance", "station": "station",
-             "intensity": "intensity", "time": "time"}
+             "intensity": "intensity", "time": "time", "return_number": "return_number",
+             "number_of_returns": "number_of_returns", "rgb": "color"}
     if label_field is not None and not (folder / f"{label_field}.npy").is_file():
         present = sorted(p.stem for p in folder.glob("*.npy"))
         raise InputFileError(f"{folder}: no {label_field}.npy to read labels from; the folder has {', '.join(present)}")
@@ -170,7 +177,12 @@ def iter_npdir_chunks(
             array = _load(file)
             if array.shape[0] != coord.shape[0]:
                 raise InputFileError(f"{file}: {array.shape[0]} rows but coord.npy has {coord.shape[0]}; the folder is inconsistent")
-            arrays[column] = array.reshape(len(array), -1)[:, 0] if array.ndim > 1 else array
+            if column == "rgb":
+                if array.ndim != 2 or array.shape[1] < 3:
+                    raise InputFileError(f"{file}: shape {array.shape}, expected (N, 3) colours; the folder is damaged")
+                arrays[column] = array
+            else:
+                arrays[column] = array.reshape(len(array), -1)[:, 0] if array.ndim > 1 else array
     where = str(folder)
     for start in range(0, max(len(coord), 1), chunk_points):
         stop = min(start + chunk_points, len(coord))
@@ -184,6 +196,14 @@ def iter_npdir_chunks(
                 columns[column] = values.astype(np.int32)
             elif column in ("station", "intensity"):
                 columns[column] = values.astype(np.uint16)
+            elif column in ("return_number", "number_of_returns"):
+                columns[column] = values.astype(np.uint8)
+            elif column == "rgb":
+                # Pointcept stores colour as uint8 or as floats 0..255 (or 0..1 from some converters)
+                rgb = np.asarray(values[:, :3])
+                if rgb.dtype.kind == "f":
+                    rgb = np.clip(np.rint(rgb * 255.0 if len(rgb) and rgb.max() <= 1.0 else rgb), 0, 255)
+                columns[column] = rgb.astype(np.uint8)
             else:
                 columns[column] = values.astype(np.float64)
         yield PointCloud(xyz=xyz, **columns)

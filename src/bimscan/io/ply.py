@@ -4,7 +4,9 @@ Layout of a bimscan PLY file (``scan.ply``):
 
 - One ``vertex`` element with the properties of the columns the cloud has, in this order:
   ``x y z`` (double, metres, absolute), ``label`` (uchar), ``component`` (int), ``station``
-  (ushort), ``intensity`` (ushort), ``time`` (double, seconds).
+  (ushort), ``intensity`` (ushort), ``time`` (double, seconds), ``return_number`` and
+  ``number_of_returns`` (uchar), ``red green blue`` (uchar, the names CloudCompare, Open3D and
+  MeshLab read as colour).
 - Header comments that CloudCompare, Open3D and friends show: ``comment bimscan cloud 1``,
   ``comment origin_m x y z``, ``comment scheme "<name>" default "<class>"`` and one
   ``comment class <id> <#rrggbb> "<name>"`` per class (names JSON-quoted, ASCII).
@@ -50,6 +52,9 @@ PLY_PROPERTIES: dict[str, tuple[tuple[str, str, str], ...]] = {
     "station": (("station", "ushort", "<u2"),),
     "intensity": (("intensity", "ushort", "<u2"),),
     "time": (("time", "double", "<f8"),),
+    "return_number": (("return_number", "uchar", "u1"),),
+    "number_of_returns": (("number_of_returns", "uchar", "u1"),),
+    "rgb": (("red", "uchar", "u1"), ("green", "uchar", "u1"), ("blue", "uchar", "u1")),
 }
 PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
@@ -116,7 +121,10 @@ class PlyCloudWriter(StreamingCloudWriter):
         rows = np.empty(len(chunk), dtype=self._dtype)
         rows["x"], rows["y"], rows["z"] = chunk.xyz[:, 0], chunk.xyz[:, 1], chunk.xyz[:, 2]
         for column in self.columns or ():
-            if column != "xyz":
+            if column == "rgb":
+                for channel, (name, _, _) in enumerate(PLY_PROPERTIES["rgb"]):
+                    rows[name] = chunk.rgb[:, channel]
+            elif column != "xyz":
                 rows[PLY_PROPERTIES[column][0][0]] = getattr(chunk, column)
         self._file.write(memoryview(rows).cast("B"))
 
@@ -273,9 +281,11 @@ def _column_sources(layout: PlyLayout, vertex: PlyElement, label_field: str | No
             raise InputFileError(f"{where}: no vertex property {label_field!r} to read labels from; the file has {', '.join(names)}")
         sources["label"] = label_field
     if ours:
-        for column in ("label", "component", "station", "intensity", "time"):
+        for column in ("label", "component", "station", "intensity", "time", "return_number", "number_of_returns"):
             if column in names:
                 sources.setdefault(column, column)
+        if {"red", "green", "blue"} <= set(names):
+            sources["rgb"] = "red"
         return sources
     label = _find(names, LABEL_CANDIDATES)
     if label is not None:
@@ -292,7 +302,24 @@ def _column_sources(layout: PlyLayout, vertex: PlyElement, label_field: str | No
     time = _find(names, TIME_CANDIDATES)
     if time is not None:
         sources["time"] = time
+    if all(_find(names, (c,)) is not None for c in ("red", "green", "blue")):
+        sources["rgb"] = _find(names, ("red",))  # type: ignore[assignment]
     return sources
+
+
+def _rgb8(rows: np.ndarray, names: list[str]) -> np.ndarray:
+    """(N, 3) uint8 colour from red/green/blue properties: uchar as is, 16-bit by its high byte,
+    floats in [0, 1] scaled to 255."""
+    lowered = {n.lower(): n for n in names}
+    channels = [np.asarray(rows[lowered[c]]) for c in ("red", "green", "blue")]
+    out = np.empty((len(rows), 3), dtype=np.uint8)
+    for i, values in enumerate(channels):
+        if values.dtype.kind == "f":
+            values = np.clip(np.rint(values * 255.0 if len(values) and values.max() <= 1.0 else values), 0, 255)
+        elif values.dtype.itemsize > 1:
+            values = values >> 8 if len(values) and values.max() > 255 else values
+        out[:, i] = values
+    return out
 
 
 def _as_uint16(values: np.ndarray, *, field: str, where: str) -> np.ndarray:
@@ -368,6 +395,10 @@ def iter_ply_chunks(
                     columns[column] = values.astype(np.int32)
                 elif column == "station":
                     columns[column] = values.astype(np.uint16)
+                elif column in ("return_number", "number_of_returns"):
+                    columns[column] = values.astype(np.uint8)
+                elif column == "rgb":
+                    columns[column] = _rgb8(rows, names)
                 else:
                     columns[column] = values.astype(np.float64)
             return PointCloud(xyz=xyz, **columns)

@@ -22,8 +22,10 @@ from bimscan.render.raster import new_canvas, splat_points
 from bimscan.render.view import OBLIQUE, TOP, Camera, Section, find_section
 from bimscan.types import CloudHeader, LabelScheme, PointCloud
 
-COLOR_MODES = ("label", "station", "intensity", "component", "height")
+COLOR_MODES = ("label", "station", "intensity", "component", "height", "rgb", "returns")
 DEFAULT_MAX_POINTS = 3_000_000
+RETURN_COLORS = (("single return", (170, 170, 170)), ("first of several", (31, 119, 180)),
+                 ("intermediate", (44, 160, 44)), ("last of several", (214, 39, 40)))
 
 
 @dataclass(frozen=True)
@@ -53,7 +55,9 @@ def sample_cloud(path: str | Path, *, max_points: int = DEFAULT_MAX_POINTS, seed
     sampler = UniformSampler(max_points, seed=seed)
     for chunk in iter_cloud_chunks(path, chunk_points=chunk_points):
         sampler.add(PointCloud(xyz=chunk.xyz, label=chunk.label, component=chunk.component, station=chunk.station,
-                               intensity=chunk.intensity))  # time is not drawn: do not keep it
+                               intensity=chunk.intensity, return_number=chunk.return_number,
+                               number_of_returns=chunk.number_of_returns,
+                               rgb=chunk.rgb))  # time is not drawn: do not keep it
     return CloudSample(cloud=sampler.result(), total=sampler.seen, header=header)
 
 
@@ -76,16 +80,26 @@ def point_colors(cloud: PointCloud, mode: str, scheme: LabelScheme | None) -> tu
 
     label: the scheme's class colours (ids it lacks grey), or distinct colours per class id for a
     foreign file (``scheme`` None); station / component: distinct colours per id; intensity /
-    height: viridis from the 2nd to the 98th percentile.
+    height: viridis from the 2nd to the 98th percentile; rgb: the points' own colour; returns:
+    single returns grey, first / intermediate / last of several returns in three colours.
     Raises ConfigError when the cloud lacks the column ``mode`` needs.
     """
     if mode not in COLOR_MODES:
         raise ConfigError(f"unknown colour mode {mode!r}; use one of {', '.join(COLOR_MODES)}")
     n = len(cloud)
     column = {"label": cloud.label, "station": cloud.station, "intensity": cloud.intensity,
-              "component": cloud.component, "height": cloud.xyz[:, 2]}[mode]
-    if column is None:
+              "component": cloud.component, "height": cloud.xyz[:, 2], "rgb": cloud.rgb,
+              "returns": cloud.number_of_returns}[mode]
+    if column is None or (mode == "returns" and cloud.return_number is None):
         raise ConfigError(f"the cloud has no {mode} column to colour by; use --color height (or another column it has)")
+    if mode == "rgb":
+        return np.ascontiguousarray(column), [("the points' own colour (RGB)", (128, 128, 128))]
+    if mode == "returns":
+        kinds = np.where(column <= 1, 0, np.where(cloud.return_number == 1, 1,
+                                                   np.where(cloud.return_number >= column, 3, 2)))
+        table = np.array([RETURN_COLORS[k][1] for k in range(4)], dtype=np.uint8)
+        present = np.bincount(kinds, minlength=4) if n else np.zeros(4, dtype=np.int64)
+        return table[kinds], [RETURN_COLORS[k] for k in range(4) if present[k]]  # type: ignore[return-value]
     if mode == "label" and scheme is None:
         # a foreign file: its class ids follow its own convention (ASPRS codes, ...), not ours
         ids, inverse = np.unique(column, return_inverse=True)

@@ -28,6 +28,13 @@ class ScannerModel:
     rate; pulses are emitted only while the beam is inside [elevation_min_deg, elevation_max_deg).
     The head turns about the vertical axis. The beam leaves ``tripod_height_m +
     beam_origin_height_m`` above the floor.
+
+    Facts the sensor effects use (``bimscan.scan.sensor``; a paper scan ignores them):
+    ``beam_divergence_rad`` is the full angle (footprint diameter = range x divergence);
+    ``pulse_length_ns`` sets the range resolution (c * pulse length / 2: echoes closer than that
+    merge); ``wavelength_nm`` says which reflectance the material table must hold; the datasheet's
+    maximum range ``reach_range_m[i]`` for flat targets of reflectance ``reach_reflectance[i]``
+    at normal incidence and pulse rate ``reach_pulse_freq_hz`` calibrates the detection model.
     """
 
     name: str
@@ -46,9 +53,25 @@ class ScannerModel:
     head_deg_per_s_max: float = 60.0
     tripod_height_m: float = 1.5
     beam_origin_height_m: float = 0.2
+    wavelength_nm: float = 1550.0
+    pulse_length_ns: float = 5.0
+    reach_reflectance: tuple[float, ...] = (0.9, 0.2)
+    reach_range_m: tuple[float, ...] = (600.0, 280.0)
+    reach_pulse_freq_hz: float = 100000.0
 
     def __post_init__(self) -> None:
         problems = []
+        for name in ("wavelength_nm", "pulse_length_ns", "reach_pulse_freq_hz"):
+            value = getattr(self, name)
+            if not math.isfinite(value) or value <= 0:
+                problems.append(f"{name} must be a number > 0, got {value}")
+        if not self.reach_reflectance or len(self.reach_reflectance) != len(self.reach_range_m):
+            problems.append(f"reach_reflectance and reach_range_m must be lists of the same length >= 1, got "
+                            f"{list(self.reach_reflectance)} and {list(self.reach_range_m)}")
+        elif not all(0 < r <= 1 for r in self.reach_reflectance) or not all(
+                math.isfinite(m) and m > 0 for m in self.reach_range_m):
+            problems.append("reach_reflectance must lie in (0, 1] and reach_range_m be > 0, got "
+                            f"{list(self.reach_reflectance)} and {list(self.reach_range_m)}")
         for name in ("range_accuracy_m", "angle_accuracy_deg", "beam_divergence_rad"):
             value = getattr(self, name)
             if not math.isfinite(value) or value < 0:
@@ -83,6 +106,23 @@ class ScannerModel:
     def instrument_height_m(self) -> float:
         """Height of the beam origin above the floor the tripod stands on."""
         return self.tripod_height_m + self.beam_origin_height_m
+
+    @property
+    def range_resolution_m(self) -> float:
+        """Echoes closer than this along the beam merge into one return: c * pulse length / 2."""
+        return SPEED_OF_LIGHT_M_PER_NS * self.pulse_length_ns / 2.0
+
+    def reach_constant(self) -> float:
+        """K in the datasheet's reach law rho / R_max^2 = K (at ``reach_pulse_freq_hz``): the geometric
+        mean of rho_i / R_i^2 over the datasheet's points (per square metre)."""
+        logs = [math.log(r / m**2) for r, m in zip(self.reach_reflectance, self.reach_range_m, strict=True)]
+        return math.exp(sum(logs) / len(logs))
+
+
+SPEED_OF_LIGHT_M_PER_NS = 0.299792458
+# Facts only the sensor effects use: a paper scan's recorded recipe leaves them out, so its
+# metadata (and the fingerprints of datasets built before they existed) stay as they were.
+SENSOR_DEVICE_FIELDS = ("wavelength_nm", "pulse_length_ns", "reach_reflectance", "reach_range_m", "reach_pulse_freq_hz")
 
 
 @dataclass(frozen=True)

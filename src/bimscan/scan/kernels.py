@@ -124,6 +124,69 @@ def station_normals(key: np.uint64) -> np.ndarray:
 
 
 @nb.njit(cache=True, inline="always")
+def recorded_direction(dx: float, dy: float, dz: float, d_az: float, d_el: float) -> tuple[float, float, float]:
+    """The unit direction (dx, dy, dz) with its azimuth turned by d_az and its elevation by d_el (radians):
+    where a point is recorded when the encoders read the angles off by that much."""
+    # turn the azimuth (no division needed), then the elevation
+    sda, cda = _small_sincos(d_az)
+    hx = dx * cda - dy * sda
+    hy = dy * cda + dx * sda
+    sde, cde = _small_sincos(d_el)
+    ce = math.sqrt(dx * dx + dy * dy)
+    # horizontal length goes from ce to ce*cde - dz*sde; straight up/down keeps it
+    scale = cde - dz * sde / ce if ce > 1e-12 else 1.0
+    return hx * scale, hy * scale, dz * cde + ce * sde
+
+
+@nb.njit(cache=True, inline="always")
+def beam_basis(dx: float, dy: float, dz: float) -> tuple[float, float, float, float, float, float]:
+    """Two unit vectors across the beam direction d: u horizontal towards increasing azimuth (x for a
+    vertical beam) and v = d x u, pointing up."""
+    h = math.sqrt(dx * dx + dy * dy)
+    if h > 1e-9:
+        ux, uy, uz = -dy / h, dx / h, 0.0
+    else:
+        ux, uy, uz = 1.0, 0.0, 0.0
+    return ux, uy, uz, dy * uz - dz * uy, dz * ux - dx * uz, dx * uy - dy * ux
+
+
+@nb.njit(cache=True)
+def draw_normals(keys: np.ndarray, k: int) -> np.ndarray:
+    """(n, k) standard normal deviates, row i drawn from generator key keys[i] (n,) uint64."""
+    out = np.empty((len(keys), k))
+    for i in range(len(keys)):
+        for j in range(k):
+            h = _mix64(np.uint64(keys[i]) ^ (np.uint64(j + 1) * _STREAM))
+            out[i, j] = _normal_from_bits(h >> np.uint64(32))
+    return out
+
+
+@nb.njit(cache=True, inline="always")
+def draw_bits(key: np.uint64, pulse: np.int64, purpose: np.int64) -> np.uint64:
+    """64 random bits of one (pulse, purpose) of a station's generator: counter-based, so any chunking
+    or thread count draws the same. Purposes are small integers naming what the draw is for."""
+    return _mix64(np.uint64(key) ^ (np.uint64(pulse) * _GOLDEN) ^ ((np.uint64(purpose) + np.uint64(1)) * _M2))
+
+
+@nb.njit(cache=True, inline="always")
+def draw_uniform(key: np.uint64, pulse: np.int64, purpose: np.int64) -> float:
+    """A uniform deviate in [0, 1) (53 bits) of one (pulse, purpose)."""
+    return float(draw_bits(key, pulse, purpose) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+@nb.njit(cache=True, inline="always")
+def draw_normal(key: np.uint64, pulse: np.int64, purpose: np.int64) -> float:
+    """A standard normal deviate of one (pulse, purpose)."""
+    return _normal_from_bits(draw_bits(key, pulse, purpose) >> np.uint64(32))
+
+
+@nb.njit(cache=True, inline="always")
+def pulse_normals(key: np.uint64, pulse: np.int64) -> tuple[float, float, float]:
+    """The paper path's three deviates of a pulse (range, azimuth, elevation)."""
+    return _pulse_normals(key, pulse)
+
+
+@nb.njit(cache=True, inline="always")
 def _small_sincos(a: float) -> tuple[float, float]:
     """sin and cos of an angle; Taylor series for the tiny angles of angular noise (|a| < 0.05 rad)."""
     if abs(a) < 0.05:
@@ -220,17 +283,7 @@ def finish_hits(t_hit: np.ndarray, triangle: np.ndarray, rays: np.ndarray, pulse
             if noisy:
                 n_range, n_az, n_el = _pulse_normals(key, p)
                 r += range_sigma_m * n_range
-                # turn the azimuth (no division needed), then the elevation
-                sda, cda = _small_sincos(angle_sigma_rad * n_az)
-                hx = dx * cda - dy * sda
-                hy = dy * cda + dx * sda
-                sde, cde = _small_sincos(angle_sigma_rad * n_el)
-                ce = math.sqrt(dx * dx + dy * dy)
-                # horizontal length goes from ce to ce*cde - dz*sde; straight up/down keeps it
-                scale = cde - dz * sde / ce if ce > 1e-12 else 1.0
-                mx = hx * scale
-                my = hy * scale
-                mz = dz * cde + ce * sde
+                mx, my, mz = recorded_direction(dx, dy, dz, angle_sigma_rad * n_az, angle_sigma_rad * n_el)
             else:
                 mx, my, mz = dx, dy, dz
             xyz[out, 0] = ox + r * mx

@@ -16,20 +16,23 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 from typing import Any
 
-from bimscan.files import dump_json
+from bimscan.files import dump_json, file_sha256
 from bimscan.scan.device import (
-    DEFAULT_PRESET, DEFAULT_SCANNER, PRESETS, SCANNERS, ScannerModel, ScanSettings, check_settings, load_scanner,
-    load_settings, with_overrides,
+    DEFAULT_PRESET, DEFAULT_SCANNER, PRESETS, SCANNERS, SENSOR_DEVICE_FIELDS, ScannerModel, ScanSettings,
+    check_settings, load_scanner, load_settings, with_overrides,
 )
+from bimscan.errors import BimscanError, ConfigError, ScannerSettingsError
 from bimscan.scan.engine import DEFAULT_ENGINE, ENGINES
 from bimscan.scan.noise import NoiseModel
-from bimscan.errors import ConfigError, ScannerSettingsError
+from bimscan.scan.sensor import SensorModel
 from bimscan.site.model import SiteModel
+from bimscan.toml_files import build_dataclass, load_toml
 
 DEFAULT_CHUNK_PULSES = 1 << 20  # ~70 MB of working arrays per chunk
 # The most pulses one station may fire unless the user raises it: the paper's densest preset fires
@@ -59,11 +62,12 @@ class ScanRecipe:
     seed, noise_stream: the noise generator's key is (seed, noise_stream, station); a dataset gives
     every unit its own stream (its id) so that no two units share a noise sequence; "" for a
     single scan. engine: a ``scan.engine.ENGINES`` name. stations_from: "auto" (planned) or a
-    station CSV file. strict: settings outside the device's limits are errors. site: what the site
-    looks like when scanned (construction stage, clutter; ``bimscan.site``), dressed with ``seed``.
-    threads (0 = all cores) and chunk_pulses change speed and memory only, never the output.
-    max_station_pulses: a station that would fire more pulses is refused before any work (with the
-    number it would fire).
+    station CSV file. strict: settings outside the device's limits are errors. sensor: which
+    effects beyond the paper's thin ray are simulated (``SensorModel``; the default is the paper's
+    scanner). site: what the site looks like when scanned (construction stage, clutter;
+    ``bimscan.site``), dressed with ``seed``. threads (0 = all cores) and chunk_pulses change speed
+    and memory only, never the output. max_station_pulses: a station that would fire more pulses is
+    refused before any work (with the number it would fire).
     """
 
     scanner: ScannerModel = field(default_factory=lambda: SCANNERS[DEFAULT_SCANNER])
@@ -75,6 +79,7 @@ class ScanRecipe:
     engine: str = DEFAULT_ENGINE
     stations_from: str = AUTO_STATIONS
     strict: bool = False
+    sensor: SensorModel = field(default_factory=SensorModel)
     site: SiteModel = field(default_factory=SiteModel)
     threads: int = 0
     chunk_pulses: int = DEFAULT_CHUNK_PULSES
@@ -82,6 +87,12 @@ class ScanRecipe:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "noise", self.noise.resolved(self.scanner))
+        if not isinstance(self.sensor, SensorModel):
+            raise ConfigError(f"sensor must be a SensorModel, got {type(self.sensor).__name__}")
+        if self.sensor.needs_surfaces:
+            from bimscan.scan.surfaces import load_material_table
+
+            load_material_table(self.sensor.material_table)  # a bad table fails now, before any work
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed < 2**64:
             raise ConfigError(f"seed = {self.seed!r} is impossible; give an integer in 0..2^64-1")
         if self.engine not in ENGINES:
@@ -105,15 +116,19 @@ class ScanRecipe:
     @staticmethod
     def resolve(*, preset: str | Path | None = None, settings: ScanSettings | None = None,
                 scanner: str | Path | ScannerModel | None = None, head_deg_per_s: float | None = None,
+                realism: str | None = None, sensor: SensorModel | Mapping[str, Any] | str | Path | None = None,
                 **fields: Any) -> ScanRecipe:
         """A recipe from what a user wrote: a preset name or settings TOML (or a settings table),
-        a scanner name or TOML, a head speed override; ``fields`` are the other ScanRecipe fields.
+        a scanner name or TOML, a head speed override, the sensor realism (``realism`` "paper" or
+        "full", and ``sensor``: a SensorModel, a table of its keys or a TOML file of them; an
+        explicit ``realism`` wins over the table's); ``fields`` are the other ScanRecipe fields.
 
         Without ``preset`` and ``settings``: the default preset. Raises ConfigError for unknown
-        names and missing files, ScannerSettingsError for impossible settings.
+        names, keys and missing files, ScannerSettingsError for impossible settings.
         """
         if preset is not None and settings is not None:
             raise ConfigError("give a preset or explicit settings, not both")
+        fields["sensor"] = resolve_sensor(sensor, realism=realism)
         model = scanner if isinstance(scanner, ScannerModel) else load_scanner(scanner)
         if settings is None:
             preset = DEFAULT_PRESET if preset is None else preset
@@ -132,9 +147,11 @@ class ScanRecipe:
     def to_json(self) -> dict[str, Any]:
         """The recipe as JSON-able data (what clouds and units record; the fingerprint's input).
 
-        Every field but ``RUNTIME_FIELDS``, nested settings as dicts. A station file is recorded
-        by its name (a dataset adds its checksum), so moving a dataset's folder changes neither
-        fingerprints nor bytes.
+        Every field but ``RUNTIME_FIELDS``, nested settings through their ``to_json`` or as dicts.
+        A station file (and a material table) is recorded by its name (a dataset adds its
+        checksum), so moving a dataset's folder changes neither fingerprints nor bytes. The sensor
+        settings (and the device facts only they use) are recorded when an effect beyond the paper
+        is on: a paper scan records exactly what it did before those effects existed.
         """
         document = {}
         for f in dataclasses.fields(self):
@@ -143,6 +160,12 @@ class ScanRecipe:
                 document[f.name] = _json_value(value)
         if self.stations_from != AUTO_STATIONS:
             document["stations_from"] = Path(self.stations_from).name
+        if self.sensor.is_paper:
+            del document["sensor"]
+            document["scanner"] = {k: v for k, v in document["scanner"].items() if k not in SENSOR_DEVICE_FIELDS}
+        elif self.sensor.material_table is not None:  # by name and content, as station files
+            table = Path(self.sensor.material_table)
+            document["sensor"]["material_table"] = {"file": table.name, "sha256": file_sha256(table)}
         return document
 
     def fingerprint(self) -> str:
@@ -152,3 +175,22 @@ class ScanRecipe:
     def with_fields(self, **changes: Any) -> ScanRecipe:
         """A copy with fields replaced (validated again)."""
         return dataclasses.replace(self, **changes)
+
+
+def resolve_sensor(sensor: SensorModel | Mapping[str, Any] | str | Path | None = None, *,
+                   realism: str | None = None, where: str = "sensor settings") -> SensorModel:
+    """A SensorModel from a model, a table of its keys or a TOML file of them; ``realism`` overrides.
+    ``where`` names a table's origin in error messages (a file names itself)."""
+    if isinstance(sensor, SensorModel):
+        return sensor if realism is None else dataclasses.replace(sensor, realism=realism)
+    if isinstance(sensor, str | Path):
+        where = str(sensor)
+        table: dict[str, Any] = dict(load_toml(sensor))
+    else:
+        table = dict(sensor or {})
+    if realism is not None:
+        table["realism"] = realism
+    try:
+        return build_dataclass(SensorModel, table, where=where)
+    except BimscanError as exc:
+        raise exc if str(exc).startswith(where) else type(exc)(f"{where}: {exc}") from exc

@@ -8,15 +8,19 @@ from collections.abc import Callable, Iterator
 import numba
 import numpy as np
 
+from bimscan.scan.asbuilt import Deviations
 from bimscan.scan.engine import RayEngine, make_engine
 from bimscan.scan.kernels import finish_hits, generate_rays, noise_key, station_normals
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.pattern import PulsePattern
 from bimscan.scan.device import ScannerModel
 from bimscan.scan.recipe import ScanRecipe
-from bimscan.types import PointCloud, SceneMesh, Station
+from bimscan.scan.sensor import SensorModel
+from bimscan.scan import waveform
+from bimscan.types import ComponentSurfaces, ComponentTable, PointCloud, SceneMesh, Station
 
 DEFAULT_REFLECTANCE = 0.5
+_POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.int64)
 INTENSITY_REFERENCE_M = 5.0  # intensity falls with (5 m / range)^2 beyond 5 m
 
 
@@ -41,14 +45,26 @@ def registration_error(noise: NoiseModel, key: np.uint64) -> tuple[np.ndarray, n
 class VirtualScanner:
     """A scanner model placed in one scene mesh; scans stations into labelled point chunks.
 
-    mesh: the merged scene mesh; component_label: (C,) uint8 class of each component.
-    reflectance: (C,) float32 in [0, 1] for the intensity model (default 0.5 everywhere).
-    threads: cores for the engine and the fused kernels (0 = all).
+    mesh: the merged scene mesh (as built: already moved by ``deviations`` when given);
+    component_label: (C,) uint8 class of each component. reflectance: (C,) float32 in [0, 1] for
+    the paper path's intensity model (default 0.5 everywhere). components / surfaces: the
+    component table and the IFC surface facts, for the sensor effects' materials, glass and
+    colour (classes alone without surfaces; all defaults without either). deviations: the
+    as-built transforms the mesh was moved by (recorded in metadata). threads: cores for the
+    engine and the fused kernels (0 = all).
     """
 
     def __init__(self, mesh: SceneMesh, component_label: np.ndarray, *, scanner: ScannerModel,
-                 engine: str | RayEngine = "open3d", threads: int = 0, reflectance: np.ndarray | None = None) -> None:
+                 engine: str | RayEngine = "open3d", threads: int = 0, reflectance: np.ndarray | None = None,
+                 components: ComponentTable | None = None, surfaces: ComponentSurfaces | None = None,
+                 deviations: Deviations | None = None) -> None:
         self.mesh = mesh
+        self.components = components
+        self.surfaces = surfaces
+        self.deviations = deviations
+        self.as_built: tuple | None = None  # what decided the deviations (set by survey.place_scanner)
+        self._sensor_tables: dict[tuple, waveform.SensorTables] = {}
+        self._work_buffers: dict[str, np.ndarray] = {}  # the sensor path's working arrays, kept across chunks
         self.scanner = scanner
         self.engine = engine if not isinstance(engine, str) else make_engine(mesh, name=engine, threads=threads)
         self.threads = threads
@@ -88,6 +104,10 @@ class VirtualScanner:
             raise ValueError(f"the recipe's scanner {recipe.scanner.name!r} is not this VirtualScanner's "
                              f"{self.scanner.name!r}")
         self._set_threads()
+        if not recipe.sensor.is_paper:
+            yield from self._scan_station_sensor(station, recipe, time0_s=time0_s, on_pulses=on_pulses,
+                                                 reuse_buffers=reuse_buffers)
+            return
         noise = recipe.noise
         pattern = PulsePattern.of(recipe.settings, self.scanner)
         origin_world = np.asarray(station.position, dtype=np.float64)
@@ -126,6 +146,197 @@ class VirtualScanner:
                 xyz[:kept] = local @ rotation.T + origin_world + shift
             yield PointCloud(xyz=xyz[:kept], label=label[:kept], component=component[:kept],
                              station=station_column[:kept], intensity=intensity[:kept], time=time[:kept])
+
+    def sensor_tables(self, sensor: SensorModel) -> waveform.SensorTables:
+        """Per-component and per-triangle tables of the sensor kernels for ``sensor`` (built once)."""
+        from bimscan.scan.surfaces import PAPER_REFLECTANCE, load_material_table, surface_table
+
+        cache_key = (sensor.needs_surfaces, sensor.on("materials"), sensor.on("glass"), sensor.material_table)
+        if cache_key not in self._sensor_tables:
+            n = len(self.component_label)
+            reflectance = np.full(n, PAPER_REFLECTANCE, dtype=np.float64)
+            transparency = np.zeros(n)
+            color = np.full((n, 3), 0.7, dtype=np.float64)
+            if sensor.needs_surfaces:
+                ifc_class = self.components.ifc_class if self.components is not None else np.full(n, "", dtype=str)
+                ancestry = dict(self.components.class_ancestry) if self.components is not None else {}
+                table = surface_table(self.surfaces, ifc_class, ancestry, load_material_table(sensor.material_table),
+                                      material_reflectance=sensor.on("materials"))
+                reflectance = table.reflectance.astype(np.float64)
+                transparency = table.transparency.astype(np.float64) if sensor.on("glass") else transparency
+                color = table.color.astype(np.float64)
+            phase = self.deviations.phase if self.deviations is not None else np.zeros(n)
+            normals = self.mesh.face_normals().astype(np.float32)
+            self._sensor_tables[cache_key] = waveform.SensorTables(
+                reflectance=reflectance, transparency=transparency, color=color, phase=np.asarray(phase, dtype=np.float64),
+                face_normal=np.ascontiguousarray(normals),
+                transparent_face=np.ascontiguousarray(transparency[self.face_component] > 0.0))
+        return self._sensor_tables[cache_key]
+
+    def _work(self, name: str, shape: tuple[int, ...], dtype: type) -> np.ndarray:
+        """A working array of ``shape``: a view of a buffer kept for the next chunk (grown when too small)."""
+        buffer = self._work_buffers.get(name)
+        if buffer is None or len(buffer) < shape[0]:
+            buffer = np.empty((max(shape[0], 1), *shape[1:]), dtype=dtype)
+            self._work_buffers[name] = buffer
+        return buffer[:shape[0]]
+
+    def _scan_station_sensor(self, station: Station, recipe: ScanRecipe, *, time0_s: float,
+                             on_pulses: Callable[[int], None] | None, reuse_buffers: bool) -> Iterator[PointCloud]:
+        """scan_station with the sensor effects (see ``bimscan.scan.waveform`` for the steps)."""
+        sensor, noise, device = recipe.sensor, recipe.noise, self.scanner
+        tables = self.sensor_tables(sensor)
+        pattern = PulsePattern.of(recipe.settings, device)
+        origin_world = np.asarray(station.position, dtype=np.float64)
+        origin_local = (origin_world - self.engine.centre).astype(np.float32)
+        key = np.uint64(noise_key(recipe.seed, station.id, recipe.noise_stream))
+        registration = registration_error(noise, key) if noise.registers_with_error else None
+        footprint, glass = sensor.on("footprint"), sensor.on("glass")
+        adaptive = footprint and sensor.adaptive_footprint
+        off, azimuth, weight = waveform.subray_pattern(sensor.beam_sample_quality if footprint else 1,
+                                                       device.beam_divergence_rad)
+        n_sub = len(off) - 1
+        layers = sensor.max_glass_layers if glass else 0
+        mode = waveform.MODE_CODES[sensor.returns]
+        slots = sensor.max_returns if sensor.returns == "all" else 1
+        reach_scale = device.reach_constant() * recipe.settings.pulse_freq_hz / device.reach_pulse_freq_hz
+        detect_a = waveform.detection_constant(sensor.speckle_cells)
+        n_faces = len(self.face_component)
+        min_cos = math.cos(math.radians(sensor.max_incidence_deg))
+        for first_line, stop_line in pattern.chunks(recipe.chunk_pulses):
+            halo_lo = max(0, first_line - 1) if adaptive else first_line
+            halo_hi = min(pattern.n_lines, stop_line + 1) if adaptive else stop_line
+            start, stop = pattern.line_pulses(halo_lo, halo_hi)
+            counts = stop - start
+            offsets = np.zeros(len(counts) + 1, dtype=np.int64)
+            np.cumsum(counts, out=offsets[1:])
+            j0, j1 = first_line - halo_lo, stop_line - halo_lo
+            first, n_int = int(offsets[j0]), int(offsets[j1] - offsets[j0])
+            if n_int == 0:
+                continue
+            n_all = int(offsets[-1])
+            rays = self._work("rays", (n_all, 6), np.float32)
+            pulse = self._work("pulse", (n_all,), np.int64)
+            generate_rays(start, stop, offsets[:-1], halo_lo, pattern.dphase, pattern.sweep_deg, pattern.head_start_deg,
+                          pattern.head_deg_per_pulse, station.heading_deg, origin_local, rays, pulse)
+            t0, tri0 = self.engine.cast(rays)
+            flagged = np.zeros(n_all, dtype=np.bool_)  # pulses that get the whole sub-ray pattern
+            if footprint and n_sub:
+                if adaptive:
+                    flagged[self._straddling(rays, t0, tri0, start, halo_lo, pattern, offsets, counts, j0, j1,
+                                             sensor.edge_depth_m)] = True
+                else:
+                    flagged[first:first + n_int] = True
+            extra = self._extra_hits(rays, t0, tri0, flagged, first, n_int, off, azimuth, tables, layers, n_faces)
+            e_pulse, e_sub, e_layer, e_t, e_tri = extra
+            extra_offsets = np.zeros(n_all + 1, dtype=np.int64)
+            np.cumsum(np.bincount(e_pulse, minlength=n_all), out=extra_offsets[1:])
+            if on_pulses is not None:
+                on_pulses(n_int)
+            n_slots = n_int * slots
+            out_t, out_energy = self._work("t", (n_slots,), np.float64), self._work("energy", (n_slots,), np.float32)
+            out_comp, out_tri = self._work("comp", (n_slots,), np.int32), self._work("tri", (n_slots,), np.uint32)
+            out_cos = self._work("cos", (n_slots,), np.float32)
+            out_number, out_count_of = self._work("number", (n_slots,), np.uint8), self._work("of", (n_slots,), np.uint8)
+            count = self._work("count", (n_int,), np.int32)
+            waveform.gather_returns(
+                first, n_int, t0, tri0, flagged, rays, pulse, extra_offsets, e_sub, e_layer, e_t, e_tri, weight,
+                (n_sub + 1) * (layers + 1) + 1, self.face_component, tables.face_normal, tables.reflectance,
+                tables.transparency, glass, sensor.glass_return_probability, device.min_range_m, device.max_range_m,
+                device.range_resolution_m, key, sensor.on("detection"), reach_scale, detect_a, sensor.speckle_cells,
+                mode, slots, out_t, out_comp, out_tri, out_energy, out_cos, out_number, out_count_of, count)
+            n_out = int(count.sum())
+            if n_out == 0:
+                continue
+            out = self._work if reuse_buffers else (lambda _, shape, dtype: np.empty(shape, dtype))
+            xyz, label, component = out("xyz", (n_out, 3), np.float64), out("label", (n_out,), np.uint8), out(
+                "component", (n_out,), np.int32)
+            station_column, intensity, time = out("station", (n_out,), np.uint16), out(
+                "intensity", (n_out,), np.uint16), out("time", (n_out,), np.float64)
+            number, count_of = out("return_number", (n_out,), np.uint8), out("number_of_returns", (n_out,), np.uint8)
+            rgb = out("rgb", (n_out, 3), np.uint8)
+            waveform.finish_returns(
+                first, n_int, slots, count, out_t, out_comp, out_tri, out_energy, out_cos, out_number, out_count_of,
+                rays, pulse, origin_world, key, noise.range_sigma_m,
+                sensor.range_noise_ppm if sensor.on("geometric_noise") else 0.0, sensor.on("geometric_noise"), min_cos,
+                math.radians(noise.angle_sigma_deg), time0_s, 1.0 / pattern.pulse_freq_hz, INTENSITY_REFERENCE_M,
+                station.id, self.component_label, tables.face_normal, sensor.on("color"), tables.color,
+                sensor.color_noise, sensor.ambient, sensor.waviness_m if sensor.on("deviations") else 0.0,
+                sensor.waviness_wavelength_m, tables.phase, xyz, label, component, station_column, intensity, time,
+                number, count_of, rgb)
+            if registration is not None:
+                rotation, shift_m = registration
+                xyz = (xyz - origin_world) @ rotation.T + origin_world + shift_m
+            yield PointCloud(xyz=xyz, label=label, component=component, station=station_column, intensity=intensity,
+                             time=time, return_number=number, number_of_returns=count_of,
+                             rgb=rgb if sensor.on("color") else None)
+
+    def _straddling(self, rays: np.ndarray, t0: np.ndarray, tri0: np.ndarray, start: np.ndarray, line0: int,
+                    pattern: PulsePattern, offsets: np.ndarray, counts: np.ndarray, j0: int, j1: int,
+                    edge_depth_m: float) -> np.ndarray:
+        """Indices of the pulses of lines j0..j1-1 whose footprint straddles an edge: a neighbour in the
+        scan grid disagrees (``waveform.flag_edges``), and a probe ray at the footprint's edge towards
+        that neighbour meets another surface than the centre ray (``waveform.straddling``)."""
+        device = self.scanner
+        phase0 = start * pattern.dphase - (line0 + np.arange(len(start)))
+        shift = np.zeros(len(start), dtype=np.int64)
+        shift[:-1] = np.rint((phase0[:-1] - phase0[1:]) / pattern.dphase).astype(np.int64)
+        bits = np.zeros(len(t0), dtype=np.uint8)
+        waveform.flag_edges(t0, tri0, self.face_component, device.min_range_m, device.max_range_m, offsets[:-1],
+                            counts, shift, j0, j1, edge_depth_m, bits)
+        candidates = np.flatnonzero(bits)
+        if len(candidates) == 0:
+            return candidates
+        probe_bits = bits[candidates]
+        probe_offsets = np.zeros(len(candidates) + 1, dtype=np.int64)
+        np.cumsum(_POPCOUNT[probe_bits], out=probe_offsets[1:])
+        probes = np.empty((int(probe_offsets[-1]), 6), dtype=np.float32)
+        waveform.probe_rays(rays, candidates, probe_bits, probe_offsets, device.beam_divergence_rad / 2.0, probes)
+        t_probe, tri_probe = self.engine.cast(probes)
+        return candidates[waveform.straddling(candidates, probe_offsets, t0, tri0, t_probe, tri_probe,
+                                              self.face_component, device.min_range_m, device.max_range_m,
+                                              edge_depth_m)]
+
+    def _extra_hits(self, rays: np.ndarray, t0: np.ndarray, tri0: np.ndarray, flagged: np.ndarray, first: int,
+                    n_int: int, off: np.ndarray, azimuth: np.ndarray, tables: waveform.SensorTables, layers: int,
+                    n_faces: int) -> tuple[np.ndarray, ...]:
+        """Hits besides each pulse's centre hit, sorted by (pulse, sub-ray, layer): the centre ray's hits
+        behind transparent surfaces, the flagged pulses' sub-ray hits and theirs behind glass.
+
+        Returns (ray index (K,) int64, sub-ray (K,) int64, layer (K,) int64, range (K,) float64,
+        triangle (K,) uint32).
+        """
+        n_sub = len(off) - 1
+        parts = []
+        if layers:
+            centre = slice(first, first + n_int)
+            index, layer, t, tri = waveform.cast_layers(self.engine, rays[centre], t0[centre], tri0[centre],
+                                                        tables.transparent_face, layers)
+            parts.append((index + first, np.zeros(len(index), np.int64), layer, t, tri))
+        flagged_index = np.flatnonzero(flagged)
+        if n_sub and len(flagged_index):
+            sub_rays = np.empty((len(flagged_index) * n_sub, 6), dtype=np.float32)
+            waveform.footprint_rays(rays, flagged_index, np.cos(off[1:]), np.sin(off[1:]), np.cos(azimuth[1:]),
+                                    np.sin(azimuth[1:]), sub_rays)
+            t_sub, tri_sub = self.engine.cast(sub_rays)
+            sub_pulse = np.repeat(flagged_index, n_sub)
+            sub_id = np.tile(np.arange(1, n_sub + 1, dtype=np.int64), len(flagged_index))
+            hit = tri_sub < n_faces
+            parts.append((sub_pulse[hit], sub_id[hit], np.zeros(int(hit.sum()), np.int64),
+                          t_sub[hit].astype(np.float64), tri_sub[hit]))
+            if layers:
+                index, layer, t, tri = waveform.cast_layers(self.engine, sub_rays, t_sub, tri_sub,
+                                                            tables.transparent_face, layers)
+                parts.append((sub_pulse[index], sub_id[index], layer, t, tri))
+        if not parts:
+            return (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0),
+                    np.zeros(0, np.uint32))
+        e_pulse, e_sub, e_layer, e_t, e_tri = (np.concatenate(column) for column in zip(*parts))
+        if len(parts) > 1 or layers:
+            order = np.argsort((e_pulse * (n_sub + 1) + e_sub) * (layers + 1) + e_layer, kind="stable")
+            e_pulse, e_sub, e_layer, e_t, e_tri = e_pulse[order], e_sub[order], e_layer[order], e_t[order], e_tri[order]
+        return (np.ascontiguousarray(e_pulse), np.ascontiguousarray(e_sub), np.ascontiguousarray(e_layer),
+                np.ascontiguousarray(e_t, dtype=np.float64), np.ascontiguousarray(e_tri, dtype=np.uint32))
 
     def _outputs(self, n: int, reuse: bool) -> tuple[np.ndarray, ...]:
         """Output columns for n rays: fresh, or views of buffers kept for the next chunk."""

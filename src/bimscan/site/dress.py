@@ -31,7 +31,7 @@ from bimscan.site.library import CLUTTER_KINDS, ClutterKind, select_kinds
 from bimscan.site.model import SiteModel, site_settings
 from bimscan.site.placement import PlacedObject, RoomPlacer
 from bimscan.site.stage import built_components, open_ceilings
-from bimscan.types import BimScene, BuildDates, ComponentTable, SceneMesh, SiteState
+from bimscan.types import BimScene, BuildDates, ComponentSurfaces, ComponentTable, SceneMesh, SiteState
 
 FULL_AFTER_MISSES = 8
 _GUID_CHARS = "0123456789ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz_$"
@@ -138,11 +138,15 @@ def _subset(scene: BimScene, keep: np.ndarray) -> BimScene:
     used, inverse = np.unique(faces, return_inverse=True)
     table = scene.components
     columns = {f.name: getattr(table, f.name)[keep] for f in dataclasses.fields(table) if f.name != "class_ancestry"}
+    surfaces = scene.surfaces
+    if surfaces is not None:
+        surfaces = ComponentSurfaces(color=surfaces.color[keep], transparency=surfaces.transparency[keep],
+                                     style=surfaces.style[keep], material=surfaces.material[keep])
     return dataclasses.replace(
         scene,
         mesh=SceneMesh(vertices=mesh.vertices[used], faces=inverse.reshape(-1, 3).astype(np.int32),
                        face_component=new_id[mesh.face_component[faces_kept]].astype(np.int32)),
-        components=ComponentTable(**columns, class_ancestry=table.class_ancestry),
+        components=ComponentTable(**columns, class_ancestry=table.class_ancestry), surfaces=surfaces,
     )
 
 
@@ -197,6 +201,13 @@ def _append(scene: BimScene, placed: list[PlacedObject], *, seed: int) -> BimSce
                                                              for k, p in enumerate(placed)])
     unmapped = Counter(dict(scene.unmapped_classes))
     unmapped.update(mapping.unmapped)
+    surfaces = scene.surfaces
+    if surfaces is not None:  # the objects have no style: the sensor's material table goes by their IFC class
+        more = ComponentSurfaces.unknown(len(placed))
+        surfaces = ComponentSurfaces(
+            color=np.concatenate([surfaces.color, more.color]),
+            transparency=np.concatenate([surfaces.transparency, more.transparency]),
+            style=np.concatenate([surfaces.style, more.style]), material=np.concatenate([surfaces.material, more.material]))
     return dataclasses.replace(scene, mesh=SceneMesh(vertices=vertices, faces=faces, face_component=face_component),
                                components=ComponentTable(**columns, class_ancestry=ancestry),
-                               unmapped_classes=dict(sorted(unmapped.items())))
+                               unmapped_classes=dict(sorted(unmapped.items())), surfaces=surfaces)

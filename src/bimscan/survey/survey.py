@@ -57,9 +57,33 @@ def choose_stations(scene: BimScene, scanner: VirtualScanner, stations_from: str
 
 
 def place_scanner(scene: BimScene, recipe: ScanRecipe) -> VirtualScanner:
-    """The recipe's scanner placed in the scene's mesh, on its engine and threads."""
-    return VirtualScanner(scene.mesh, scene.components.label, scanner=recipe.scanner, engine=recipe.engine,
-                          threads=recipe.threads)
+    """The recipe's scanner placed in the scene's mesh, on its engine and threads; with as-built
+    deviations on, in the mesh moved by them (drawn from the recipe's seed and each GlobalId)."""
+    mesh, deviations = scene.mesh, None
+    if recipe.sensor.on("deviations"):
+        from bimscan.scan.asbuilt import apply_deviations, sample_deviations
+
+        deviations = sample_deviations(scene.mesh, scene.components.global_id, recipe.sensor, recipe.seed)
+        mesh = apply_deviations(scene.mesh, deviations)
+    scanner = VirtualScanner(mesh, scene.components.label, scanner=recipe.scanner, engine=recipe.engine,
+                             threads=recipe.threads, components=scene.components, surfaces=scene.surfaces,
+                             deviations=deviations)
+    scanner.as_built = _as_built(recipe)
+    return scanner
+
+
+def _as_built(recipe: ScanRecipe) -> tuple | None:
+    """What decides a scanner's as-built mesh (None: the IFC-true mesh)."""
+    sensor = recipe.sensor
+    if not sensor.on("deviations"):
+        return None
+    return (recipe.seed, sensor.position_tolerance_m, sensor.level_tolerance_m, sensor.plumb_tolerance_m,
+            sensor.sigmas_per_tolerance)
+
+
+def fits(scanner: VirtualScanner, recipe: ScanRecipe) -> bool:
+    """Whether ``scanner`` can scan with ``recipe``: the same device in the same (as-built) mesh."""
+    return scanner.scanner == recipe.scanner and scanner.as_built == _as_built(recipe)
 
 
 def check_site(scene: BimScene, recipe: ScanRecipe) -> None:
@@ -83,7 +107,7 @@ def prepare_survey(scene: BimScene, recipe: ScanRecipe, *, scanner: VirtualScann
     configuration, as the dataset builder does); ``recipe.stations_from`` is then not consulted.
     """
     check_site(scene, recipe)
-    if scanner is None or scanner.scanner != recipe.scanner:
+    if scanner is None or not fits(scanner, recipe):
         scanner = place_scanner(scene, recipe)
     if stations is not None:
         if not stations:
@@ -116,13 +140,16 @@ def survey_metadata(survey: Survey) -> dict[str, Any]:
     """What a cloud file records about how it was made (JSON-able): the recipe, the source, the
     stations and the device warnings."""
     scene = survey.scene
-    return survey.recipe.to_json() | {
+    metadata = survey.recipe.to_json() | {
         "software": f"bimscan {__version__}",
         "source": {"file": Path(scene.source).name, "sha256": scene.file_sha256, "schema": scene.schema},
         "stations": [dataclasses.asdict(s) for s in survey.stations],
         "device_warnings": list(survey.recipe.warnings),
         "site_state": None if scene.site is None else scene.site.to_json(),
     }
+    if survey.scanner.deviations is not None:
+        metadata["as_built"] = survey.scanner.deviations.to_json(survey.recipe.sensor)
+    return metadata
 
 
 def cloud_header(survey: Survey, *, extra_metadata: dict[str, Any] | None = None) -> CloudHeader:

@@ -1,0 +1,160 @@
+"""Sensor realism beyond the paper: which effects a scan simulates, and their settings, as data.
+
+``SensorModel`` is one frozen value held by ``ScanRecipe.sensor``. ``realism`` picks the defaults
+of every effect: ``"paper"`` (the default) is the SPC paper's scanner, a thin ray with Gaussian
+range and angle noise, bit for bit what bimscan did before these effects existed; ``"full"`` turns
+every effect on with the defaults below. Each effect can also be switched on or off alone (a
+``None`` switch follows ``realism``). The models, their formulas and sources are in the README
+("Sensor realism"); in short:
+
+- ``footprint``: the beam has the scanner's divergence; pulses whose footprint may straddle a
+  depth or component edge (their neighbours in the scan grid disagree) are sampled with
+  HELIOS++'s sub-ray pattern (``beam_sample_quality`` rings); sub-ray echoes closer in range
+  than the pulse's range resolution merge into one return (mixed pixels), the rest are separate
+  returns (``returns``: first, last, strongest or all).
+- ``detection``: a return is detected with the probability the lidar range equation and speckle
+  give for its energy (reflectance, incidence, share of the footprint) and range, calibrated to
+  the scanner's datasheet reach.
+- ``geometric_noise``: the range noise grows with range and with 1 / cos(incidence).
+- ``materials``: near-infrared reflectance from IFC material and style names (a small table).
+- ``glass``: transparent surfaces pass the beam; each crossing echoes with a small probability.
+- ``color``: per-point RGB from the surface style colour with simple shading noise.
+- ``deviations``: as-built deviations of every component (rigid offset and tilt within
+  construction tolerances, optional waviness).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from bimscan.errors import ConfigError
+
+REALISMS = ("paper", "full")
+RETURN_MODES = ("first", "last", "strongest", "all")
+# The switches; None follows ``realism`` (off for paper, on for full).
+EFFECTS = ("footprint", "detection", "geometric_noise", "materials", "glass", "color", "deviations")
+MAX_BEAM_SAMPLE_QUALITY = 6  # 1 + 3 Q (Q - 1) sub-rays: 91 at 6
+MAX_RETURNS = 15  # what LAS point formats 6-10 can number
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """What the virtual scanner simulates beyond a thin ray with Gaussian noise (see the module docs).
+
+    Switches (``None``: follow ``realism``): footprint, detection, geometric_noise, materials,
+    glass, color, deviations.
+
+    Footprint: beam_sample_quality Q (HELIOS++'s ``beamSampleQuality``: a centre ray and Q - 1
+    rings of 6, 12, ... sub-rays); adaptive_footprint (sub-rays only where neighbouring pulses
+    disagree; False: on every pulse, as HELIOS++ does); edge_depth_m (a pulse's range differing
+    from the straight-line prediction of its neighbours by more than this marks a depth edge);
+    returns (which echoes become points: first, last, strongest, all) and max_returns (at most this
+    many points per pulse under "all").
+    Detection: speckle_cells M (speckle cells the receiver averages; 1 = fully developed speckle).
+    Geometric noise: range_noise_ppm (growth of the range sigma with range, mm per km) and
+    max_incidence_deg (the 1 / cos(incidence) growth stops here).
+    Materials: material_table (a TOML file replacing the built-in table; None: built-in).
+    Glass: glass_return_probability (chance that a transparent surface crossing echoes) and
+    max_glass_layers (transparent surfaces one ray crosses at most).
+    Colour: color_noise (relative sigma of each point's brightness) and ambient (share of light
+    that does not depend on the incidence angle).
+    Deviations: position_tolerance_m, level_tolerance_m, plumb_tolerance_m (ACI 117 limits),
+    sigmas_per_tolerance (a tolerance is this many sigmas), waviness_m (amplitude of surface
+    waviness, 0 = none) and waviness_wavelength_m.
+    """
+
+    realism: str = "paper"
+    footprint: bool | None = None
+    beam_sample_quality: int = 3
+    adaptive_footprint: bool = True
+    edge_depth_m: float = 0.02
+    returns: str = "first"
+    max_returns: int = 4
+    detection: bool | None = None
+    speckle_cells: int = 1
+    geometric_noise: bool | None = None
+    range_noise_ppm: float = 10.0
+    max_incidence_deg: float = 85.0
+    materials: bool | None = None
+    material_table: str | None = None
+    glass: bool | None = None
+    glass_return_probability: float = 0.1
+    max_glass_layers: int = 6
+    color: bool | None = None
+    color_noise: float = 0.03
+    ambient: float = 0.5
+    deviations: bool | None = None
+    position_tolerance_m: float = 0.025
+    level_tolerance_m: float = 0.019
+    plumb_tolerance_m: float = 0.025
+    sigmas_per_tolerance: float = 2.0
+    waviness_m: float = 0.0
+    waviness_wavelength_m: float = 2.0
+
+    def __post_init__(self) -> None:
+        problems = []
+        if self.realism not in REALISMS:
+            problems.append(f"realism = {self.realism!r}; allowed: {', '.join(REALISMS)}")
+        if self.returns not in RETURN_MODES:
+            problems.append(f"returns = {self.returns!r}; allowed: {', '.join(RETURN_MODES)}")
+        for name in EFFECTS + ("adaptive_footprint",):
+            value = getattr(self, name)
+            if value is not None and not isinstance(value, bool):
+                problems.append(f"{name} = {value!r}; allowed: true or false")
+        for name, low, high in (("beam_sample_quality", 1, MAX_BEAM_SAMPLE_QUALITY), ("max_returns", 1, MAX_RETURNS),
+                                ("speckle_cells", 1, 64), ("max_glass_layers", 1, 32)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+                problems.append(f"{name} = {value!r}; allowed: an integer in {low}..{high}")
+        for name, low, high in (("edge_depth_m", 1e-6, 10.0), ("range_noise_ppm", 0.0, 1e5),
+                                ("max_incidence_deg", 0.0, 89.9), ("glass_return_probability", 0.0, 1.0),
+                                ("color_noise", 0.0, 1.0), ("ambient", 0.0, 1.0), ("position_tolerance_m", 0.0, 1.0),
+                                ("level_tolerance_m", 0.0, 1.0), ("plumb_tolerance_m", 0.0, 1.0),
+                                ("sigmas_per_tolerance", 0.5, 10.0), ("waviness_m", 0.0, 0.5),
+                                ("waviness_wavelength_m", 0.01, 1000.0)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float) or not (
+                    math.isfinite(value) and low <= value <= high):
+                problems.append(f"{name} = {value!r}; allowed: a number in {low:g}..{high:g}")
+        if problems:
+            raise ConfigError("impossible sensor settings: " + "; ".join(problems))
+
+    def on(self, effect: str) -> bool:
+        """Whether ``effect`` (one of ``EFFECTS``) is simulated."""
+        value = getattr(self, effect)
+        return self.realism == "full" if value is None else bool(value)
+
+    def resolved(self) -> SensorModel:
+        """This model with every switch decided (True/False), as recorded in metadata."""
+        return dataclasses.replace(self, **{effect: self.on(effect) for effect in EFFECTS})
+
+    @property
+    def is_paper(self) -> bool:
+        """True when no effect is on: the scan is the paper's, bit for bit."""
+        return not any(self.on(effect) for effect in EFFECTS)
+
+    @property
+    def needs_surfaces(self) -> bool:
+        """Whether per-component reflectance, transparency or colour is used."""
+        return self.on("materials") or self.on("glass") or self.on("color")
+
+    def to_json(self) -> dict[str, Any]:
+        """The resolved settings as JSON-able data."""
+        return dataclasses.asdict(self.resolved())
+
+    @staticmethod
+    def preset(realism: str, **overrides: Any) -> SensorModel:
+        """``realism``'s defaults with some settings replaced (None values ignored)."""
+        return SensorModel(realism=realism, **{k: v for k, v in overrides.items() if v is not None})
+
+
+def merge_sensor_tables(*tables: dict[str, Any] | None) -> dict[str, Any]:
+    """Sensor settings tables merged key by key, later ones winning (a dataset config over its spec)."""
+    merged: dict[str, Any] = {}
+    for table in tables:
+        if table:
+            merged.update(table)
+    return merged
