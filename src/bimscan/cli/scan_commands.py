@@ -32,7 +32,9 @@ from bimscan.scan.recipe import DEFAULT_MAX_STATION_PULSES
 @click.option("--head-speed", "head_deg_per_s", type=float, default=None,
               help="Head rotation in deg/s, overriding the preset (fewer points per station when faster).")
 @click.option("--scheme", default=None, help=SCHEME_HELP)
-@click.option("--engine", default="open3d", show_default=True, help="Ray engine: open3d or embreex.")
+@click.option("--engine", default="open3d", show_default=True,
+              help="Ray engine: open3d, embreex, warp (NVIDIA Warp: CUDA GPU, else its CPU device) or auto "
+                   "(warp on a CUDA GPU, open3d otherwise).")
 @click.option("--threads", default=0, show_default=True, type=int, help="Cores to use (0 = all).")
 @click.option("--max-station-pulses", default=DEFAULT_MAX_STATION_PULSES, show_default=True, type=int,
               help="Refuse settings under which one station would fire more pulses (a guard against typos).")

@@ -8,7 +8,7 @@ from collections.abc import Callable, Iterator
 import numba
 import numpy as np
 
-from bimscan.scan.engine import RayEngine, make_engine
+from bimscan.scan.engine import FaceTables, HitSettings, LineChunk, RayEngine, make_engine
 from bimscan.scan.kernels import finish_hits, generate_rays, noise_key, station_normals
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.pattern import PulsePattern
@@ -61,6 +61,8 @@ class VirtualScanner:
         self.face_label = self.component_label[self.face_component]
         self.face_brightness = (mesh.face_normals() * (65535.0 * self.reflectance[self.face_component])[:, None]
                                 ).astype(np.float32)
+        self._face_tables = FaceTables(component=self.face_component, label=self.face_label,
+                                       brightness=self.face_brightness)
         # Working buffers of scan_station, reused (outputs are fresh arrays): one scan at a time
         # per VirtualScanner.
         self._ray_buffer = np.empty((0, 6), dtype=np.float32)
@@ -95,6 +97,15 @@ class VirtualScanner:
         key = np.uint64(noise_key(recipe.seed, station.id, recipe.noise_stream))
         angle_sigma = math.radians(noise.angle_sigma_deg)
         registration = registration_error(noise, key) if noise.registers_with_error else None
+        # An engine with a fused path (Warp) generates, casts and finishes each chunk on its device;
+        # it implements finish_hits as it is here (the paper's realism), so it fills the same points
+        # in the same order. Other engines cast here and finish_hits finishes on the host.
+        fused = getattr(self.engine, "cast_and_finish", None)
+        hits = HitSettings(origin_world=origin_world, origin_local=origin_local.astype(np.float32),
+                           min_range_m=self.scanner.min_range_m, max_range_m=self.scanner.max_range_m, key=int(key),
+                           range_sigma_m=noise.range_sigma_m, angle_sigma_rad=angle_sigma, time0_s=time0_s,
+                           pulse_period_s=1.0 / pattern.pulse_freq_hz, intensity_ref_m=INTENSITY_REFERENCE_M,
+                           station_id=station.id)
         for first_line, stop_line in pattern.chunks(recipe.chunk_pulses):
             start, stop = pattern.line_pulses(first_line, stop_line)
             counts = stop - start
@@ -102,6 +113,15 @@ class VirtualScanner:
             np.cumsum(counts[:-1], out=offsets[1:])
             n = int(counts.sum())
             if n == 0:
+                continue
+            if fused is not None:
+                columns = self._outputs(n, reuse_buffers)
+                if on_pulses is not None:
+                    on_pulses(n)
+                lines = LineChunk(first_line=first_line, start=start, stop=stop, offsets=offsets, n=n)
+                kept = fused(pattern, station.heading_deg, lines, hits, self._face_tables, columns)
+                if kept:
+                    yield self._chunk_cloud(columns, kept, registration, origin_world)
                 continue
             if len(self._ray_buffer) < n:  # working buffers reused across chunks and stations
                 self._ray_buffer = np.empty((n, 6), dtype=np.float32)
@@ -120,12 +140,20 @@ class VirtualScanner:
                                station_column, intensity, time)
             if kept == 0:
                 continue
-            if registration is not None:
-                rotation, shift = registration
-                local = xyz[:kept] - origin_world
-                xyz[:kept] = local @ rotation.T + origin_world + shift
-            yield PointCloud(xyz=xyz[:kept], label=label[:kept], component=component[:kept],
-                             station=station_column[:kept], intensity=intensity[:kept], time=time[:kept])
+            yield self._chunk_cloud((xyz, label, component, station_column, intensity, time), kept, registration,
+                                    origin_world)
+
+    @staticmethod
+    def _chunk_cloud(columns: tuple[np.ndarray, ...], kept: int, registration: tuple[np.ndarray, np.ndarray] | None,
+                     origin_world: np.ndarray) -> PointCloud:
+        """The first ``kept`` rows of a chunk's output columns, moved by the station's registration error."""
+        xyz, label, component, station_column, intensity, time = columns
+        if registration is not None:
+            rotation, shift = registration
+            local = xyz[:kept] - origin_world
+            xyz[:kept] = local @ rotation.T + origin_world + shift
+        return PointCloud(xyz=xyz[:kept], label=label[:kept], component=component[:kept],
+                          station=station_column[:kept], intensity=intensity[:kept], time=time[:kept])
 
     def _outputs(self, n: int, reuse: bool) -> tuple[np.ndarray, ...]:
         """Output columns for n rays: fresh, or views of buffers kept for the next chunk."""
