@@ -159,8 +159,13 @@ class VirtualScanner:
         """Output columns for n rays: fresh, or views of buffers kept for the next chunk."""
         if reuse and len(self._output_buffers[0]) >= n:
             return tuple(b[:n] for b in self._output_buffers)
-        columns = (np.empty((n, 3), dtype=np.float64), np.empty(n, dtype=np.uint8), np.empty(n, dtype=np.int32),
-                   np.empty(n, dtype=np.uint16), np.empty(n, dtype=np.uint16), np.empty(n, dtype=np.float64))
+        # kept buffers of a GPU engine live in page-locked memory, which its copies fill at full speed
+        allocate = getattr(self.engine, "empty_outputs", None) if reuse else None
+        if allocate is not None:
+            columns = allocate(n)
+        else:
+            columns = (np.empty((n, 3), dtype=np.float64), np.empty(n, dtype=np.uint8), np.empty(n, dtype=np.int32),
+                       np.empty(n, dtype=np.uint16), np.empty(n, dtype=np.uint16), np.empty(n, dtype=np.float64))
         if reuse:
             self._output_buffers = columns
         return columns

@@ -315,6 +315,17 @@ class WarpEngine:
         wp.launch(_cast, dim=rays.shape[0], inputs=[self._mesh.id, rays, max_t], outputs=[t_hit, face],
                   device=self.device)
 
+    def empty_outputs(self, n: int) -> tuple[np.ndarray, ...]:
+        """Output columns for n rays (as ``cast_and_finish`` takes them) that the scanner keeps
+        for its next chunks: page-locked host memory on CUDA (device-to-host copies run at full
+        bus speed only into it), plain NumPy arrays on the CPU device."""
+        shapes = (((n, 3), np.float64), (n, np.uint8), (n, np.int32), (n, np.uint16), (n, np.uint16), (n, np.float64))
+        if self.on_cpu:
+            return tuple(np.empty(shape, dtype=dtype) for shape, dtype in shapes)
+        # the NumPy views keep their Warp arrays (and so the pinned memory) alive
+        return tuple(wp.empty(shape, dtype=wp.dtype_from_numpy(np.dtype(dtype)), device="cpu", pinned=True).numpy()
+                     for shape, dtype in shapes)
+
     def _device_faces(self, faces: FaceTables) -> tuple[wp.array, wp.array, wp.array]:
         """Device copies of the per-triangle tables (uploaded once per FaceTables object)."""
         if faces is not self._faces:
