@@ -90,11 +90,20 @@ def test_the_fused_path_equals_the_open3d_scan_to_float32_rounding(room, warp_cp
     assert_same_points(scan(room, warp_cpu), scan(room, "open3d"), xyz_m=1e-5)
 
 
-def test_the_fused_path_does_not_depend_on_the_chunk_size(room, warp_cpu):
+def scan_reusing_buffers(room, engine, **fields) -> PointCloud:
+    """A scan whose chunks share output buffers (as the pipeline runs it), each chunk copied out."""
+    recipe = ScanRecipe(scanner=VZ400, **({"settings": SETTINGS, "preset": None, "noise": NOISE, "seed": 7} | fields))
+    virtual = VirtualScanner(room.mesh, room.components.label, scanner=VZ400, engine=engine)
+    chunks = virtual.scan_station(STATION, recipe, reuse_buffers=True)
+    return PointCloud.concatenate([PointCloud(**{c: getattr(chunk, c).copy() for c in PointCloud.COLUMNS})
+                                   for chunk in chunks])
+
+
+def test_the_fused_path_does_not_depend_on_the_chunk_size_or_reused_buffers(room, warp_cpu):
     whole = scan(room, warp_cpu)
-    chunked = scan(room, warp_cpu, chunk_pulses=9_000)
-    for column in PointCloud.COLUMNS:
-        assert np.array_equal(getattr(whole, column), getattr(chunked, column)), column
+    for chunked in (scan(room, warp_cpu, chunk_pulses=9_000), scan_reusing_buffers(room, warp_cpu, chunk_pulses=9_000)):
+        for column in PointCloud.COLUMNS:
+            assert np.array_equal(getattr(whole, column), getattr(chunked, column)), column
 
 
 def test_the_fused_path_drops_hits_beyond_the_range_limits_as_the_cpu_path_does(room, warp_cpu):
@@ -155,11 +164,30 @@ def test_the_gpu_casts_the_same_first_hits_as_warps_cpu_device(room, warp_cpu):
     t_cpu, triangle_cpu = warp_cpu.cast(rays)
     np.testing.assert_allclose(t_gpu, t_cpu, atol=1e-5)
     assert np.array_equal(room.mesh.face_component[triangle_gpu], room.mesh.face_component[triangle_cpu])
+    assert np.array_equal(gpu.count_crossings(rays[:500]), warp_cpu.count_crossings(rays[:500]))
 
 
 @pytest.mark.gpu
 @needs_cuda
-def test_a_gpu_scan_equals_the_cpu_devices_and_open3ds(room, warp_cpu):
-    gpu = scan(room, WarpEngine(room.mesh, device="cuda:0"))
-    assert_same_points(gpu, scan(room, warp_cpu), xyz_m=1e-5)
-    assert_same_points(gpu, scan(room, "open3d"), xyz_m=1e-5)
+def test_a_gpu_scan_equals_the_cpu_devices_and_host_finishing(room, warp_cpu):
+    # (no Open3D here: GPU machines may lack it; the CPU device equals Open3D in the tests above)
+    gpu_engine = WarpEngine(room.mesh, device="cuda:0")
+    gpu = scan(room, gpu_engine, time0_s=3.0)
+    assert_same_points(gpu, scan(room, warp_cpu, time0_s=3.0), xyz_m=1e-5)
+    assert_same_points(gpu, scan(room, HostFinished(gpu_engine), time0_s=3.0), xyz_m=1e-8)
+    # the pinned output buffers of a CUDA engine (reused by the chunks) give the same points
+    reused = scan_reusing_buffers(room, gpu_engine, chunk_pulses=50_000)
+    for column in PointCloud.COLUMNS:
+        assert np.array_equal(getattr(reused, column), getattr(scan(room, gpu_engine), column)), column
+
+
+def test_station_probes_find_the_solid_around_a_point_as_open3d_does(room, warp_cpu):
+    by_warp = VirtualScanner(room.mesh, room.components.label, scanner=VZ400, engine=warp_cpu)
+    by_open3d = VirtualScanner(room.mesh, room.components.label, scanner=VZ400, engine="open3d")
+    names = list(room.components.name)
+    # inside the south wall (y from -0.25 to 0), the roof slab, the room's air, and outside the building
+    for point, expected in (((4.0, -0.1, 1.0), "south"), ((4.0, 3.0, 3.6), "roof"), ((4.0, 3.0, 1.7), None),
+                            ((20.0, 3.0, 1.0), None)):
+        found = by_warp.solid_containing(np.array(point))
+        assert found == by_open3d.solid_containing(np.array(point))
+        assert (names[found] if found is not None else None) == expected, point

@@ -193,6 +193,16 @@ class VirtualScanner:
         """
         from bimscan.scan.engine import Open3DEngine
 
+        count_crossings = getattr(self.engine, "count_crossings", None)
+        if count_crossings is not None:  # crossings per component counted by the engine itself (Warp)
+            rays = np.empty((n_rays, 6), dtype=np.float32)
+            rays[:, :3] = np.asarray(point_world, dtype=np.float64) - self.engine.centre
+            rays[:, 3:] = sphere_directions(n_rays)
+            rays_odd = (count_crossings(rays) % 2 == 1).sum(axis=0)
+            if not rays_odd.any():
+                return None
+            best = int(np.argmax(rays_odd))
+            return best if rays_odd[best] >= 0.8 * n_rays else None
         if hasattr(self.engine, "list_intersections"):
             probe = self.engine
         else:  # engines without it (embreex): an Open3D scene for these rare probes
