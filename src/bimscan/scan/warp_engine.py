@@ -263,7 +263,7 @@ def default_device() -> str:
     return "cuda:0" if wp.is_cuda_available() else "cpu"
 
 
-def _grow(buffers: dict[str, wp.array], name: str, n: int, dtype: type, device: wp.context.Device) -> wp.array:
+def _grow(buffers: dict[str, wp.array], name: str, n: int, dtype: type, device: wp.Device) -> wp.array:
     """The first n rows of a reusable device buffer (reallocated, 25 % larger, when too small)."""
     array = buffers.get(name)
     if array is None or len(array) < n:
@@ -296,6 +296,7 @@ class WarpEngine:
         self._small = wp.array(_QUANTILE_SMALL, dtype=wp.float64, device=self.device)
         self._face_component = np.ascontiguousarray(mesh.face_component, dtype=np.int32)
         self._grouped: wp.Mesh | None = None  # the mesh grouped by component, built on first use
+        self._has_faces: wp.array | None = None  # (C,) int32: 1 where a component has triangles
         self._faces: FaceTables | None = None
         self._face_arrays: tuple[wp.array, wp.array, wp.array] | None = None
         self._buffers: dict[str, wp.array] = {}
@@ -360,15 +361,15 @@ class WarpEngine:
 
     def _device_faces(self, faces: FaceTables) -> tuple[wp.array, wp.array, wp.array]:
         """Device copies of the per-triangle tables (uploaded once per FaceTables object)."""
-        if faces is not self._faces:
-            if len(faces.component) != self.n_faces:
-                raise ConfigError(f"face tables of {len(faces.component)} triangles for a mesh of {self.n_faces}")
-            self._face_arrays = (
-                wp.array(np.ascontiguousarray(faces.component, dtype=np.int32), dtype=wp.int32, device=self.device),
-                wp.array(np.ascontiguousarray(faces.label, dtype=np.uint8), dtype=wp.uint8, device=self.device),
-                wp.array(np.ascontiguousarray(faces.brightness, dtype=np.float32), dtype=wp.vec3, device=self.device))
-            self._faces = faces
-        assert self._face_arrays is not None
+        if faces is self._faces and self._face_arrays is not None:
+            return self._face_arrays
+        if len(faces.component) != self.n_faces:
+            raise ConfigError(f"face tables of {len(faces.component)} triangles for a mesh of {self.n_faces}")
+        self._face_arrays = (
+            wp.array(np.ascontiguousarray(faces.component, dtype=np.int32), dtype=wp.int32, device=self.device),
+            wp.array(np.ascontiguousarray(faces.label, dtype=np.uint8), dtype=wp.uint8, device=self.device),
+            wp.array(np.ascontiguousarray(faces.brightness, dtype=np.float32), dtype=wp.vec3, device=self.device))
+        self._faces = faces
         return self._face_arrays
 
     def cast_and_finish(self, pattern: PulsePattern, heading_deg: float, lines: LineChunk, hits: HitSettings,
