@@ -12,9 +12,11 @@ import importlib.util
 import numpy as np
 import pytest
 
+from bimscan.errors import ConfigError
 from bimscan.pipeline import load_scene
+from bimscan.scan import engine as engine_module
 from bimscan.scan.device import SCANNERS, ScanSettings
-from bimscan.scan.engine import MISS, EmbreexEngine, Open3DEngine, RayEngine
+from bimscan.scan.engine import MISS, EmbreexEngine, Open3DEngine, RayEngine, make_engine, resolve_engine
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.recipe import ScanRecipe
 from bimscan.scan.virtual_scanner import VirtualScanner, sphere_directions
@@ -118,3 +120,18 @@ def test_a_station_scanned_with_every_engine_gives_the_same_points(engine, room)
         assert np.array_equal(getattr(cloud, column), getattr(reference, column)), column
     assert np.abs(cloud.time - reference.time).max() < 1e-9  # the same pulses (1 microsecond apart at most)
     assert np.abs(cloud.intensity.astype(int) - reference.intensity).max() <= 1
+
+
+def test_asking_for_warp_where_it_is_not_installed_says_how_to_install_it(monkeypatch, room):
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(engine_module.importlib.util, "find_spec",
+                        lambda name, *args: None if name == "warp" else find_spec(name, *args))
+    engine_module.warp_sees_cuda.cache_clear()
+    try:
+        with pytest.raises(ConfigError, match=r"bimscan\[gpu\]"):
+            make_engine(room.mesh, name="warp")
+        assert resolve_engine("auto") == "open3d"  # no Warp: the CPU engine
+    finally:
+        engine_module.warp_sees_cuda.cache_clear()
+    with pytest.raises(ConfigError, match="choose one of open3d, embreex, warp, auto"):
+        resolve_engine("optix")
