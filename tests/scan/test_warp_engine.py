@@ -164,7 +164,9 @@ def test_the_gpu_casts_the_same_first_hits_as_warps_cpu_device(room, warp_cpu):
     t_cpu, triangle_cpu = warp_cpu.cast(rays)
     np.testing.assert_allclose(t_gpu, t_cpu, atol=1e-5)
     assert np.array_equal(room.mesh.face_component[triangle_gpu], room.mesh.face_component[triangle_cpu])
-    assert np.array_equal(gpu.count_crossings(rays[:500]), warp_cpu.count_crossings(rays[:500]))
+    # crossings per component (station probes): a ray through a shared edge may count once or twice
+    differ = (gpu.count_crossings(rays[:500]) != warp_cpu.count_crossings(rays[:500])).any(axis=1)
+    assert differ.mean() < 0.01
 
 
 @pytest.mark.gpu
