@@ -37,7 +37,9 @@ if TYPE_CHECKING:
 @click.option("--head-speed", "head_deg_per_s", type=float, default=None,
               help="Head rotation in deg/s, overriding the preset (fewer points per station when faster).")
 @click.option("--scheme", default=None, help=SCHEME_HELP)
-@click.option("--engine", default="open3d", show_default=True, help="Ray engine: open3d or embreex.")
+@click.option("--engine", default="open3d", show_default=True,
+              help="Ray engine: open3d, embreex, warp (NVIDIA Warp: CUDA GPU, else its CPU device) or auto "
+                   "(warp on a CUDA GPU, open3d otherwise).")
 @click.option("--realism", type=click.Choice(["paper", "full"]), default=None,
               help="Sensor effects: paper (thin ray, Gaussian noise; the default) or full (every effect below on).")
 @click.option("--sensor", "sensor_file", default=None,

@@ -8,7 +8,7 @@ A spec is one TOML file (paths inside it are relative to the file)::
     scanner = "riegl_vz400"       # built-in scanner or a scanner TOML file
     formats = ["laz", "npy"]      # one or several of laz, las, ply, npy per unit
     voxel_size_m = 0.02           # optional: voxel subsampling of every unit
-    engine = "open3d"             # ray engine
+    engine = "open3d"             # ray engine: open3d, embreex, warp or auto (warp on a CUDA GPU)
     strict = false                # settings outside the device's limits are errors
     max_station_pulses = 500000000  # refuse settings that would fire more per station
 

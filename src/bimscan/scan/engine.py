@@ -6,15 +6,27 @@ where nothing is hit) and the hit triangle index (N,) uint32. One merged mesh, s
 index maps straight to a component (thousands of separate meshes cast about 10x slower).
 
 ``ENGINES`` holds the available engines: ``open3d`` (Embree through Open3D's RaycastingScene,
-all cores, the default) and ``embreex`` (Embree 4 through embreex; it holds the GIL, so it runs
-on one core per process). A GPU engine (e.g. NVIDIA Warp) plugs in by adding an entry.
-Coordinates are re-centred before the float32 conversion so georeferenced models (site
-coordinates in the hundreds of kilometres) keep millimetre precision.
+all cores, the default), ``embreex`` (Embree 4 through embreex; it holds the GIL, so it runs
+on one core per process) and ``warp`` (NVIDIA Warp: a BVH on a CUDA GPU, or on Warp's CPU
+device where no GPU is visible; ``scan.warp_engine``). ``resolve_engine("auto")`` picks Warp on
+CUDA and Open3D otherwise. Coordinates are re-centred before the float32 conversion so
+georeferenced models (site coordinates in the hundreds of kilometres) keep millimetre precision.
+
+An engine may also offer the fused scan path ``cast_and_finish(pattern, heading_deg, lines, hits,
+faces, outputs) -> kept``: it generates the rays of a chunk of mirror lines, casts them and does
+the per-hit work of ``kernels.finish_hits`` itself (Warp: on the device, so hits never travel
+back unfinished), writing the same points in the same order. ``VirtualScanner`` uses it when
+present; the types it takes (``LineChunk``, ``HitSettings``, ``FaceTables``) are below.
 """
 
 from __future__ import annotations
 
+import ctypes
+import functools
+import importlib.util
+import sys
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -93,12 +105,112 @@ class EmbreexEngine:
         return t_hit, np.where(missed, MISS, primitive).astype(np.uint32)
 
 
-ENGINES: dict[str, Callable[..., RayEngine]] = {"open3d": Open3DEngine, "embreex": EmbreexEngine}
+def make_warp_engine(mesh: SceneMesh, *, threads: int = 0) -> RayEngine:
+    """NVIDIA Warp's engine on the default device (the first CUDA GPU, else Warp's CPU device).
+
+    Imported here, on use, so ``import bimscan`` neither needs nor waits for Warp.
+    """
+    if importlib.util.find_spec("warp") is None:
+        raise ConfigError("ray engine 'warp' needs NVIDIA Warp, which is not installed; "
+                          "pip install 'bimscan[gpu]' or use --engine open3d")
+    from bimscan.scan.warp_engine import WarpEngine
+
+    return WarpEngine(mesh, threads=threads)
+
+
+ENGINES: dict[str, Callable[..., RayEngine]] = {"open3d": Open3DEngine, "embreex": EmbreexEngine,
+                                                "warp": make_warp_engine}
 DEFAULT_ENGINE = "open3d"
+AUTO_ENGINE = "auto"  # not an engine: a name resolved once by resolve_engine
+
+
+def cuda_driver_loads() -> bool:
+    """Whether the NVIDIA driver library loads (no GPU without it; Warp need not start to know)."""
+    names = ("nvcuda.dll",) if sys.platform == "win32" else ("libcuda.so.1", "libcuda.so")
+    for name in names:
+        try:
+            ctypes.CDLL(name)
+            return True
+        except OSError:
+            continue
+    return False
+
+
+@functools.cache
+def warp_sees_cuda() -> bool:
+    """Whether NVIDIA Warp is installed and sees a CUDA device (starts Warp: about a second)."""
+    if importlib.util.find_spec("warp") is None or not cuda_driver_loads():
+        return False
+    from bimscan.scan.warp_engine import cuda_available
+
+    return cuda_available()
+
+
+def resolve_engine(name: str) -> str:
+    """An engine name as given -> the ``ENGINES`` name to use.
+
+    ``"auto"``: ``"warp"`` when Warp is installed and a CUDA device is visible, ``"open3d"``
+    otherwise (Warp's CPU device runs on one core, far slower than Embree on all of them).
+    Other names are checked and returned as they are.
+    """
+    if name == AUTO_ENGINE:
+        return "warp" if warp_sees_cuda() else DEFAULT_ENGINE
+    if name not in ENGINES:
+        raise ConfigError(f"unknown ray engine {name!r}; choose one of {', '.join([*ENGINES, AUTO_ENGINE])}")
+    return name
 
 
 def make_engine(mesh: SceneMesh, *, name: str = DEFAULT_ENGINE, threads: int = 0) -> RayEngine:
-    """Build the named engine over ``mesh``."""
-    if name not in ENGINES:
-        raise ConfigError(f"unknown ray engine {name!r}; choose one of {', '.join(ENGINES)}")
-    return ENGINES[name](mesh, threads=threads)
+    """Build the named engine over ``mesh`` (``"auto"`` resolved by ``resolve_engine``)."""
+    return ENGINES[resolve_engine(name)](mesh, threads=threads)
+
+
+@dataclass(frozen=True, eq=False)
+class FaceTables:
+    """What a hit reads of its triangle (built once per scene and scanner; see ``finish_hits``).
+
+    component: (F,) int32 component of each triangle. label: (F,) uint8 class of each triangle.
+    brightness: (F, 3) float32 unit normal scaled by 65535 * reflectance of its component.
+    Compared by identity, so an engine can keep a device copy for the object it was given.
+    """
+
+    component: np.ndarray
+    label: np.ndarray
+    brightness: np.ndarray
+
+
+@dataclass(frozen=True)
+class LineChunk:
+    """The emitting pulses of mirror lines ``first_line .. first_line + L - 1`` (one scan chunk).
+
+    start, stop: (L,) int64 pulse index range [start, stop) of each line; offsets: (L,) int64
+    row where each line's rays begin in the chunk; n: rays in all (the sum of stop - start).
+    """
+
+    first_line: int
+    start: np.ndarray
+    stop: np.ndarray
+    offsets: np.ndarray
+    n: int
+
+
+@dataclass(frozen=True)
+class HitSettings:
+    """One station's constants of the per-hit work (the scalar arguments of ``finish_hits``).
+
+    origin_world: (3,) float64 beam origin in world metres; origin_local: (3,) float32 the same
+    in the engine's frame (world minus ``centre``). key: the station's noise generator key
+    (``kernels.noise_key``). A hit is kept at a true range in [min_range_m, max_range_m].
+    """
+
+    origin_world: np.ndarray
+    origin_local: np.ndarray
+    min_range_m: float
+    max_range_m: float
+    key: int
+    range_sigma_m: float
+    angle_sigma_rad: float
+    time0_s: float
+    pulse_period_s: float
+    intensity_ref_m: float
+    station_id: int

@@ -28,7 +28,7 @@ from bimscan.scan.device import (
     check_settings, load_scanner, load_settings, with_overrides,
 )
 from bimscan.errors import BimscanError, ConfigError, ScannerSettingsError
-from bimscan.scan.engine import DEFAULT_ENGINE, ENGINES
+from bimscan.scan.engine import DEFAULT_ENGINE, resolve_engine
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.sensor import SensorModel
 from bimscan.site.model import SiteModel
@@ -61,10 +61,11 @@ class ScanRecipe:
     noise: resolved against the scanner on construction (None sigmas -> its accuracies).
     seed, noise_stream: the noise generator's key is (seed, noise_stream, station); a dataset gives
     every unit its own stream (its id) so that no two units share a noise sequence; "" for a
-    single scan. engine: a ``scan.engine.ENGINES`` name. stations_from: "auto" (planned) or a
-    station CSV file. strict: settings outside the device's limits are errors. sensor: which
-    effects beyond the paper's thin ray are simulated (``SensorModel``; the default is the paper's
-    scanner). site: what the site looks like when scanned (construction stage, clutter;
+    single scan. engine: a ``scan.engine.ENGINES`` name, or "auto" (resolved on construction: Warp
+    on a CUDA GPU, Open3D otherwise; see ``scan.engine.resolve_engine``). stations_from: "auto"
+    (planned) or a station CSV file. strict: settings outside the device's limits are errors.
+    sensor: which effects beyond the paper's thin ray are simulated (``SensorModel``; the default is
+    the paper's scanner). site: what the site looks like when scanned (construction stage, clutter;
     ``bimscan.site``), dressed with ``seed``. threads (0 = all cores) and chunk_pulses change speed
     and memory only, never the output. max_station_pulses: a station that would fire more pulses is
     refused before any work (with the number it would fire).
@@ -95,8 +96,8 @@ class ScanRecipe:
             load_material_table(self.sensor.material_table)  # a bad table fails now, before any work
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed < 2**64:
             raise ConfigError(f"seed = {self.seed!r} is impossible; give an integer in 0..2^64-1")
-        if self.engine not in ENGINES:
-            raise ConfigError(f"unknown ray engine {self.engine!r}; choose one of {', '.join(ENGINES)}")
+        # "auto" becomes the engine this machine runs, so the metadata records the one used
+        object.__setattr__(self, "engine", resolve_engine(self.engine))
         if self.threads < 0:
             raise ConfigError(f"threads = {self.threads} is impossible; give 0 (all cores) or more")
         if self.chunk_pulses < 1:

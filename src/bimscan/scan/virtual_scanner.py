@@ -9,7 +9,7 @@ import numba
 import numpy as np
 
 from bimscan.scan.asbuilt import Deviations
-from bimscan.scan.engine import RayEngine, make_engine
+from bimscan.scan.engine import FaceTables, HitSettings, LineChunk, RayEngine, make_engine
 from bimscan.scan.kernels import finish_hits, generate_rays, noise_key, station_normals
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.pattern import PulsePattern
@@ -77,6 +77,8 @@ class VirtualScanner:
         self.face_label = self.component_label[self.face_component]
         self.face_brightness = (mesh.face_normals() * (65535.0 * self.reflectance[self.face_component])[:, None]
                                 ).astype(np.float32)
+        self._face_tables = FaceTables(component=self.face_component, label=self.face_label,
+                                       brightness=self.face_brightness)
         # Working buffers of scan_station, reused (outputs are fresh arrays): one scan at a time
         # per VirtualScanner.
         self._ray_buffer = np.empty((0, 6), dtype=np.float32)
@@ -115,6 +117,15 @@ class VirtualScanner:
         key = np.uint64(noise_key(recipe.seed, station.id, recipe.noise_stream))
         angle_sigma = math.radians(noise.angle_sigma_deg)
         registration = registration_error(noise, key) if noise.registers_with_error else None
+        # An engine with a fused path (Warp) generates, casts and finishes each chunk on its device;
+        # it implements finish_hits as it is here (the paper's realism), so it fills the same points
+        # in the same order. Other engines cast here and finish_hits finishes on the host.
+        fused = getattr(self.engine, "cast_and_finish", None)
+        hits = HitSettings(origin_world=origin_world, origin_local=origin_local.astype(np.float32),
+                           min_range_m=self.scanner.min_range_m, max_range_m=self.scanner.max_range_m, key=int(key),
+                           range_sigma_m=noise.range_sigma_m, angle_sigma_rad=angle_sigma, time0_s=time0_s,
+                           pulse_period_s=1.0 / pattern.pulse_freq_hz, intensity_ref_m=INTENSITY_REFERENCE_M,
+                           station_id=station.id)
         for first_line, stop_line in pattern.chunks(recipe.chunk_pulses):
             start, stop = pattern.line_pulses(first_line, stop_line)
             counts = stop - start
@@ -122,6 +133,15 @@ class VirtualScanner:
             np.cumsum(counts[:-1], out=offsets[1:])
             n = int(counts.sum())
             if n == 0:
+                continue
+            if fused is not None:
+                columns = self._outputs(n, reuse_buffers)
+                if on_pulses is not None:
+                    on_pulses(n)
+                lines = LineChunk(first_line=first_line, start=start, stop=stop, offsets=offsets, n=n)
+                kept = fused(pattern, station.heading_deg, lines, hits, self._face_tables, columns)
+                if kept:
+                    yield self._chunk_cloud(columns, kept, registration, origin_world)
                 continue
             if len(self._ray_buffer) < n:  # working buffers reused across chunks and stations
                 self._ray_buffer = np.empty((n, 6), dtype=np.float32)
@@ -140,12 +160,20 @@ class VirtualScanner:
                                station_column, intensity, time)
             if kept == 0:
                 continue
-            if registration is not None:
-                rotation, shift = registration
-                local = xyz[:kept] - origin_world
-                xyz[:kept] = local @ rotation.T + origin_world + shift
-            yield PointCloud(xyz=xyz[:kept], label=label[:kept], component=component[:kept],
-                             station=station_column[:kept], intensity=intensity[:kept], time=time[:kept])
+            yield self._chunk_cloud((xyz, label, component, station_column, intensity, time), kept, registration,
+                                    origin_world)
+
+    @staticmethod
+    def _chunk_cloud(columns: tuple[np.ndarray, ...], kept: int, registration: tuple[np.ndarray, np.ndarray] | None,
+                     origin_world: np.ndarray) -> PointCloud:
+        """The first ``kept`` rows of a chunk's output columns, moved by the station's registration error."""
+        xyz, label, component, station_column, intensity, time = columns
+        if registration is not None:
+            rotation, shift = registration
+            local = xyz[:kept] - origin_world
+            xyz[:kept] = local @ rotation.T + origin_world + shift
+        return PointCloud(xyz=xyz[:kept], label=label[:kept], component=component[:kept],
+                          station=station_column[:kept], intensity=intensity[:kept], time=time[:kept])
 
     def sensor_tables(self, sensor: SensorModel) -> waveform.SensorTables:
         """Per-component and per-triangle tables of the sensor kernels for ``sensor`` (built once)."""
@@ -342,8 +370,13 @@ class VirtualScanner:
         """Output columns for n rays: fresh, or views of buffers kept for the next chunk."""
         if reuse and len(self._output_buffers[0]) >= n:
             return tuple(b[:n] for b in self._output_buffers)
-        columns = (np.empty((n, 3), dtype=np.float64), np.empty(n, dtype=np.uint8), np.empty(n, dtype=np.int32),
-                   np.empty(n, dtype=np.uint16), np.empty(n, dtype=np.uint16), np.empty(n, dtype=np.float64))
+        # kept buffers of a GPU engine live in page-locked memory, which its copies fill at full speed
+        allocate = getattr(self.engine, "empty_outputs", None) if reuse else None
+        if allocate is not None:
+            columns = allocate(n)
+        else:
+            columns = (np.empty((n, 3), dtype=np.float64), np.empty(n, dtype=np.uint8), np.empty(n, dtype=np.int32),
+                       np.empty(n, dtype=np.uint16), np.empty(n, dtype=np.uint16), np.empty(n, dtype=np.float64))
         if reuse:
             self._output_buffers = columns
         return columns
@@ -371,6 +404,16 @@ class VirtualScanner:
         """
         from bimscan.scan.engine import Open3DEngine
 
+        count_crossings = getattr(self.engine, "count_crossings", None)
+        if count_crossings is not None:  # crossings per component counted by the engine itself (Warp)
+            rays = np.empty((n_rays, 6), dtype=np.float32)
+            rays[:, :3] = np.asarray(point_world, dtype=np.float64) - self.engine.centre
+            rays[:, 3:] = sphere_directions(n_rays)
+            rays_odd = (count_crossings(rays) % 2 == 1).sum(axis=0)
+            if not rays_odd.any():
+                return None
+            best = int(np.argmax(rays_odd))
+            return best if rays_odd[best] >= 0.8 * n_rays else None
         if hasattr(self.engine, "list_intersections"):
             probe = self.engine
         else:  # engines without it (embreex): an Open3D scene for these rare probes
