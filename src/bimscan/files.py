@@ -6,11 +6,13 @@ place only when complete, so a reader never sees half a file, whatever stopped t
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import os
 import secrets
 import shutil
+import stat
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -26,6 +28,29 @@ def file_sha256(path: str | Path) -> str:
         while block := handle.read(8 << 20):
             digest.update(block)
     return digest.hexdigest()
+
+
+def path_kind(path: str | Path) -> str | None:
+    """What ``path`` is when it is not a regular file, in words ("a folder", "a FIFO (named pipe)",
+    "a symbolic link loop", "no such file", ...); None for a regular file (or a link to one)."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return "a broken symbolic link" if os.path.islink(path) else "no such file"
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return "a symbolic link loop"
+        if exc.errno == errno.ENAMETOOLONG:
+            return "a name too long for the file system"
+        if exc.errno == errno.ENOTDIR:
+            return "no such file (a part of the path is not a folder)"
+        return f"not accessible ({exc.strerror or exc})"
+    for test, words in ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+                        (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                        (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return words
+    return None if stat.S_ISREG(mode) else "not a regular file"
 
 
 def temp_path(final: str | Path) -> Path:

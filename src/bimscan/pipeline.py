@@ -199,16 +199,18 @@ def load_label_scheme(source: str | Path | LabelScheme | None = None) -> LabelSc
 
 
 def load_scene(path: str | Path, *, scheme: str | Path | LabelScheme | None = None, use_cache: bool = True,
-               threads: int | None = None) -> BimScene:
+               threads: int | None = None, strict: bool = False, length_unit: str | None = None) -> BimScene:
     """IFC file -> labelled scene: stage 1 (``load_ifc``) then stage 3 (``label_model``).
 
-    The scheme is checked before the (slow) parse.
+    The scheme is checked before the (slow) parse. ``strict`` and ``length_unit``: see ``load_ifc``;
+    the scene's ``report`` and ``failed`` say what loading repaired, assumed, found wrong or lost.
     """
     from bimscan.ifc.load import load_ifc
     from bimscan.semantics import label_model
 
     label_scheme = load_label_scheme(scheme)
-    return label_model(load_ifc(path, use_cache=use_cache, threads=threads), label_scheme)
+    model = load_ifc(path, use_cache=use_cache, threads=threads, strict=strict, length_unit=length_unit)
+    return label_model(model, label_scheme)
 
 
 def scan_model(model: str | Path, out: str | Path, options: ScanOptions = ScanOptions(), *, scheme: str | None = None,

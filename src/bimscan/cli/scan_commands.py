@@ -6,7 +6,8 @@ from pathlib import Path
 
 import click
 
-from bimscan.cli.ifc_commands import SCHEME_HELP
+from bimscan.cli.ifc_commands import LENGTH_UNIT_HELP, SCHEME_HELP, echo_load_report
+from bimscan.ifc.units import LENGTH_UNITS
 
 
 @click.command("scan")
@@ -25,7 +26,9 @@ from bimscan.cli.ifc_commands import SCHEME_HELP
               help="Per-station registration error: translation sigma per axis, metres (0 = perfect registration).")
 @click.option("--registration-sigma-deg", "registration_sigma_deg", default=0.0, show_default=True, type=float,
               help="Per-station registration error: rotation sigma about the vertical, degrees.")
-@click.option("--strict", is_flag=True, help="Settings outside the device's limits are errors, not warnings.")
+@click.option("--strict", is_flag=True, help="Settings outside the device's limits are errors, not warnings; so is an "
+              "IFC file that needed a repair, has a problem or loses an element (see 'bimscan info --help').")
+@click.option("--length-unit", type=click.Choice(list(LENGTH_UNITS)), default=None, help=LENGTH_UNIT_HELP)
 @click.option("--scanner", default=None, help="Scanner: riegl_vz400 (default) or a scanner TOML file.")
 @click.option("--head-speed", "head_deg_per_s", type=float, default=None,
               help="Head rotation in deg/s, overriding the preset (fewer points per station when faster).")
@@ -35,7 +38,7 @@ from bimscan.cli.ifc_commands import SCHEME_HELP
 @click.option("--overwrite", is_flag=True, help="Replace OUT if it exists.")
 def scan(model: Path, out: Path, preset: str, stations: str, seed: int, no_noise: bool, range_sigma_m: float,
          angle_sigma_deg: float, registration_sigma_m: float, registration_sigma_deg: float, strict: bool, scanner: str | None, head_deg_per_s: float | None, scheme: str | None,
-         engine: str, threads: int, overwrite: bool) -> None:
+         engine: str, threads: int, overwrite: bool, length_unit: str | None) -> None:
     """Scan MODEL.ifc with a virtual TLS and write a labelled cloud to OUT.
 
     OUT's suffix picks the format: .laz, .las, .ply, or a folder (no suffix) of NumPy arrays
@@ -56,7 +59,8 @@ def scan(model: Path, out: Path, preset: str, stations: str, seed: int, no_noise
     _, _, warnings = resolve_settings(options)
     for warning in warnings:
         click.echo(f"warning: {warning}", err=True)
-    scene = load_scene(model, scheme=scheme)
+    scene = load_scene(model, scheme=scheme, strict=strict, length_unit=length_unit)
+    echo_load_report(scene)
     survey = prepare_survey(scene, options)
     if survey.plan is not None and survey.plan.rooms_without_station:
         click.echo("warning: rooms without a station (too small for a tripod or no floor): "

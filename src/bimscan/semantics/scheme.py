@@ -191,5 +191,5 @@ def label_model(model: ParsedModel, scheme: LabelScheme) -> BimScene:
     return BimScene(
         source=model.source, file_sha256=model.file_sha256, schema=model.schema, mesh=model.mesh,
         components=replace(model.components, label=mapping.labels), scheme=scheme, storeys=model.storeys,
-        spaces=model.spaces, failed=model.failed, unmapped_classes=mapping.unmapped,
+        spaces=model.spaces, failed=model.failed, unmapped_classes=mapping.unmapped, report=model.report,
     )
