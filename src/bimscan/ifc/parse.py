@@ -397,7 +397,8 @@ def _placement_extent(model: Any, elements: list[Any]) -> float:
             matrices[local.id()] = matrix
         return matrix
 
-    origins = [world(_entity(e, "ObjectPlacement"))[:3, 3] for e in elements]
+    with np.errstate(all="ignore"):  # a zero-length axis gives NaN: such origins are left out below
+        origins = [world(_entity(e, "ObjectPlacement"))[:3, 3] for e in elements]
     origins = [o for o in origins if np.isfinite(o).all()]
     return float(np.max(np.ptp(np.array(origins), axis=0))) if len(origins) > 1 else 0.0
 

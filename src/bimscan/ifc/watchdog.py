@@ -31,6 +31,7 @@ import sys
 import threading
 import time
 import traceback
+import warnings
 from dataclasses import dataclass, field, replace
 from multiprocessing.connection import Connection
 from typing import Any
@@ -250,6 +251,7 @@ def shutdown_workers() -> None:
 def serve(fd: int) -> None:
     """The worker's loop: parse each request received on ``fd``, report progress and the outcome."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    warnings.simplefilter("ignore")  # NumPy noise from degenerate placements; what matters is reported
     _die_with_parent()
     connection = Connection(fd)
     from bimscan.ifc.parse import parse_model  # imports IfcOpenShell once per worker
