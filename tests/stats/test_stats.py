@@ -130,3 +130,32 @@ def test_the_stats_command_writes_beside_the_dataset_and_refuses_a_folder_withou
     (tmp_path / "nothing").mkdir()
     assert main(["stats", str(tmp_path / "nothing")]) == 1
     assert "no manifest.json" in capsys.readouterr().err
+
+
+def _checksummed(dataset: Path) -> Path:
+    """Give unit A__c1 a cloud file and the checksums a build records."""
+    from bimscan.dataset.manifest import UNIT_FORMAT, UNIT_VERSION, read_json
+    from bimscan.files import file_sha256
+
+    unit = dataset / "units" / "A__c1"
+    (unit / "cloud").mkdir()
+    (unit / "cloud" / "coord.npy").write_bytes(b"\x93NUMPY fake but checksummed")
+    meta = read_json(unit / "unit.json")
+    meta.update(format=UNIT_FORMAT, version=UNIT_VERSION, fingerprint="f" * 64, files={"npy": "cloud"},
+                checksums={"cloud/coord.npy": file_sha256(unit / "cloud" / "coord.npy")})
+    write_json(unit / "unit.json", meta)
+    return unit
+
+
+def test_verify_checks_unit_files_against_their_checksums(dataset: Path, capsys) -> None:
+    for uid in ("A__c2", "B__c1", "B__c2"):  # only one unit carries files in this hand-written dataset
+        write_manifest(dataset, [e for e in json.loads((dataset / "manifest.json").read_text())["units"] if e["id"] != uid])
+    unit = _checksummed(dataset)
+    assert main(["stats", str(dataset), "--verify"]) == 0
+    assert "unit files verified against their checksums" in capsys.readouterr().out
+    (unit / "cloud" / "coord.npy").write_bytes(b"\x93NUMPY damaged on disk")
+    assert main(["stats", str(dataset), "--verify"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "A__c1: cloud/coord.npy does not match its checksum" in err
+    assert main(["stats", str(dataset)]) == 0  # without --verify it says it did not check
+    assert "not verified against their checksums (pass --verify" in capsys.readouterr().out

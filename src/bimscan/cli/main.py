@@ -8,12 +8,13 @@ Signals: SIGINT (Ctrl-C) and SIGTERM stop a command the same way, by an exceptio
 main thread, so every ``finally`` runs (temporary outputs are removed) before the one line
 ``error: interrupted`` (exit 130) or ``error: terminated`` (exit 143). A Ctrl-C that lands while a
 library is being imported (Open3D turns it into an ImportError) gives the same one line. Python
-warnings of the libraries print as ``warning: ...`` lines.
+warnings and log records of the libraries print as ``warning: ...`` lines.
 """
 
 from __future__ import annotations
 
 import errno
+import logging
 import signal
 import sys
 import threading
@@ -74,6 +75,13 @@ def _show_warning(message: Warning | str, category: type[Warning], filename: str
     click.echo(f"warning: {' '.join(str(message).split())}", err=True)
 
 
+class _WarningLines(logging.Handler):
+    """Library log records (laspy, Ray, ...) as ``warning: ...`` lines."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        click.echo(f"warning: {' '.join(record.getMessage().split())}", err=True)
+
+
 def _stopped() -> int:
     """Print the one line for a stopped run; its exit status (130 Ctrl-C, 143 SIGTERM)."""
     if _STOPPING["signal"] == signal.SIGTERM:
@@ -91,18 +99,28 @@ def main(argv: list[str] | None = None) -> int:
         previous = {number: signal.getsignal(number) for number in (signal.SIGINT, signal.SIGTERM)}
         for number in previous:
             signal.signal(number, _on_signal)
+    root = logging.getLogger()
+    lines = _WarningLines(logging.WARNING) if not root.handlers else None  # keep a caller's own logging set-up
+    if lines is not None:
+        root.addHandler(lines)
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _show_warning
             return _run(argv)
     finally:
+        if lines is not None:
+            root.removeHandler(lines)
         for number, handler in previous.items():
             signal.signal(number, handler)
 
 
 def _run(argv: list[str] | None) -> int:
     try:
-        status = cli.main(args=argv, prog_name="bimscan", standalone_mode=False)
+        # click's own main() would print a blank line on Ctrl-C: the context is made and invoked here.
+        with cli.make_context("bimscan", list(sys.argv[1:] if argv is None else argv)) as context:
+            status = cli.invoke(context)
+    except click.exceptions.Exit as exc:  # --help, --version
+        return exc.exit_code
     except click.exceptions.Abort:
         return _stopped()
     except click.UsageError as exc:  # a bad option or argument: one line, like every other error

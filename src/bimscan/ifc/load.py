@@ -39,7 +39,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from bimscan.errors import ConfigError, IfcError, InputFileError
-from bimscan.files import file_sha256, path_kind
+from bimscan.files import check_input_file, file_sha256
 from bimscan.ifc import cache as geometry_cache
 from bimscan.ifc.units import LENGTH_UNITS
 from bimscan.types import ParsedModel
@@ -70,7 +70,7 @@ def load_ifc(path: str | Path, *, use_cache: bool = True, threads: int | None = 
     if length_unit is not None and length_unit not in LENGTH_UNITS:
         raise ConfigError(f"length unit {length_unit!r} is unknown; use one of {', '.join(LENGTH_UNITS)}")
     timeout_s = element_timeout(element_timeout_s)
-    _check_input(path, str(path))
+    check_input_file(path, what="an IFC file (.ifc or .ifczip)")
     with _spf_file(path) as spf:
         _check_ifc_file(spf, str(path))
         digest = file_sha256(spf)
@@ -106,17 +106,6 @@ def _parse(path: Path, *, name: str, digest: str, threads: int, length_unit: str
     request = ParseRequest(path=str(path), name=name, file_sha256=digest, threads=threads,
                            length_unit_m=LENGTH_UNITS[length_unit] if length_unit else None)
     return run_parse(request, timeout_s=timeout_s, file_bytes=path.stat().st_size, progress=progress)
-
-
-def _check_input(path: Path, name: str) -> None:
-    kind = path_kind(path)
-    if kind is None:
-        return
-    if kind.startswith("no such file"):
-        raise InputFileError(f"{name}: {kind}; check the path")
-    if kind == "a folder":
-        raise InputFileError(f"{name}: is a folder, not an IFC file")
-    raise InputFileError(f"{name}: is {kind}, not an IFC file; pass a regular .ifc or .ifczip file")
 
 
 @contextmanager

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from bimscan.dataset.manifest import UNIT_NAME, read_json, read_manifest
+from bimscan.dataset.manifest import UNIT_NAME, read_json, read_manifest, verify_unit
 from bimscan.errors import DatasetError
 from bimscan.types import LabelClass
 
@@ -57,8 +57,13 @@ class CollectedDataset:
     scenes: list[str]
 
 
-def collect_units(dataset_dir: str | Path, *, from_clouds: bool = False, chunk_points: int = 2_000_000) -> CollectedDataset:
-    """Figures of every finished unit of the dataset in ``dataset_dir`` (see the module docs)."""
+def collect_units(dataset_dir: str | Path, *, from_clouds: bool = False, chunk_points: int = 2_000_000,
+                  verify: bool = False) -> CollectedDataset:
+    """Figures of every finished unit of the dataset in ``dataset_dir`` (see the module docs).
+
+    ``verify``: first check each finished unit's files against the SHA-256 checksums its unit.json
+    recorded at build time; a damaged or missing file is a DatasetError naming the unit.
+    """
     folder = Path(dataset_dir)
     manifest = read_manifest(folder)
     units: list[UnitStats] = []
@@ -75,6 +80,11 @@ def collect_units(dataset_dir: str | Path, *, from_clouds: bool = False, chunk_p
             missing.append(entry)
             continue
         meta = read_json(folder / "units" / entry["id"] / UNIT_NAME)
+        if verify:
+            damage = verify_unit(folder / "units" / entry["id"], expected_fingerprint=str(meta.get("fingerprint")))
+            if damage is not None:
+                raise DatasetError(f"unit {entry['id']}: {damage}; run 'bimscan build' with the dataset's spec again "
+                                   "to rebuild it")
         unit_classes = _classes_of(meta, where=str(folder / "units" / entry["id"] / UNIT_NAME))
         if not classes:
             classes = unit_classes
