@@ -38,6 +38,9 @@ def echo_load_report(scene: object) -> None:
 @ifc_options
 def info(model: Path, as_json: bool, scheme: str | None, no_cache: bool, strict: bool, length_unit: str | None) -> None:
     """Parse MODEL.ifc and summarise its components, labels, failures, repairs, problems and bounds."""
+    from bimscan.ifc.watchdog import prestart_worker
+
+    prestart_worker()
     from bimscan.pipeline import load_scene
     from bimscan.ifc.summary import format_summary, summarize_scene
 
@@ -59,6 +62,9 @@ def export_obj_command(model: Path, out_dir: Path, helios: bool, scheme: str | N
     """Export MODEL.ifc as OBJ: model.obj (one group per component), components/c<id>.obj
     (one file per component, as HELIOS++ wants), classes.mtl and index.csv (component id,
     GlobalId, IFC class, label)."""
+    from bimscan.ifc.watchdog import prestart_worker
+
+    prestart_worker()
     from bimscan.pipeline import load_scene
     from bimscan.io import export_obj
 

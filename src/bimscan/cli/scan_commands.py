@@ -45,6 +45,9 @@ def scan(model: Path, out: Path, preset: str, stations: str, seed: int, no_noise
     in the Pointcept layout. Class ids go to LAS classification; component and station are
     extra dimensions; class names and the component table are stored with the file.
     """
+    from bimscan.ifc.watchdog import prestart_worker
+
+    prestart_worker()  # IfcOpenShell loads in the geometry worker while this process loads the scanner
     from bimscan.pipeline import load_scene
     from bimscan.io import check_cloud_output
     from bimscan.pipeline import ScanOptions, prepare_survey, resolve_settings, scan_survey

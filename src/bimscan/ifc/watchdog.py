@@ -15,7 +15,8 @@ a damaged file) or loop forever on one element. ``run_parse`` sends the parse
 The worker is a plain ``python -c`` process (no re-import of the caller's ``__main__``) that
 ignores SIGINT (Ctrl-C reaches the whole process group; the parent decides) and dies with its
 parent. One idle worker is kept for the next load, so a process that loads many models pays the
-start-up (about 0.3 s of imports) once.
+start-up (about 0.3 s of imports) once; commands start it first thing (``prestart_worker``), so
+that it loads IfcOpenShell while they load their own libraries.
 """
 
 from __future__ import annotations
@@ -237,6 +238,19 @@ def _release_worker(worker: _Worker) -> None:
     worker.kill()
 
 
+def prestart_worker() -> None:
+    """Start a worker now, so that its start-up (imports) overlaps the caller's own; it waits idle
+    for the next parse (a command calls this first when it will parse a model)."""
+    with _LOCK:
+        if any(worker.alive() for worker in _IDLE):
+            return
+    try:
+        worker = _Worker()
+    except IfcError:
+        return  # the parse will say why, if it comes to that
+    _release_worker(worker)
+
+
 @atexit.register
 def shutdown_workers() -> None:
     """End the idle workers (they also end by themselves when this process goes)."""
@@ -294,4 +308,4 @@ def _die_with_parent() -> None:
         os._exit(1)
 
 
-__all__ = ["ELEMENT_TIMEOUT_S", "element_timeout", "run_parse", "serve", "shutdown_workers"]
+__all__ = ["ELEMENT_TIMEOUT_S", "element_timeout", "prestart_worker", "run_parse", "serve", "shutdown_workers"]
