@@ -35,7 +35,7 @@ import numpy as np
 from bimscan.errors import EmptyModelError, IfcError
 from bimscan.ifc import step
 from bimscan.ifc.schema import SUPPORTED_SCHEMAS, class_ancestry
-from bimscan.ifc.units import GUESS_MM_ABOVE_M, unit_name
+from bimscan.ifc.units import GUESS_MM_ABOVE_M
 from bimscan.types import (
     ComponentTable,
     FailedElement,

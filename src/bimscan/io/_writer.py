@@ -20,7 +20,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import BinaryIO, Protocol, Self
 
-from bimscan.errors import InputFileError, OutputError
+from bimscan.errors import OutputError
 from bimscan.files import check_input_file, file_sha256, remove_path, replace_path, temp_path
 from bimscan.io._header import dump_json, header_to_document, present_columns
 from bimscan.types import CloudHeader, PointCloud
