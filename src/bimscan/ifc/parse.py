@@ -426,7 +426,8 @@ def _declared_elements(model: Any, scan: step.StepScan | None, schema: str, data
         for step_id, statement in sorted(scan.unknown.items()):
             if _looks_like_element(statement, scan):
                 failed.append(FailedElement(
-                    global_id="", ifc_class=statement.entity, step_id=step_id, cause="unknown-entity",
+                    global_id=_string_at(data, statement, 0), ifc_class=statement.entity, step_id=step_id,
+                    cause="unknown-entity",
                     line=unknown_lines.get(step_id, 0),
                     reason=f"{statement.entity} is not an entity of {schema}; the element is skipped"))
         for step_id, (entity, line) in sorted(scan.broken.items()):

@@ -373,8 +373,8 @@ def _read_chunk(data: bytes, span: tuple[int, int], schema: str, lines: LineInde
         if statement.entity and _declaration(schema, statement.entity) is None:
             scan.unknown[statement.step_id] = statement
             scan.problems.append(Problem("unknown-entity", line, statement.step_id,
-                                         f"#{statement.step_id} is a {statement.entity}, which {schema} does not define; "
-                                         "skipped", statement.entity))
+                                         f"#{statement.step_id} is of entity {statement.entity}, which {schema} does not "
+                                         "define; skipped", statement.entity))
             continue
         scan.statements[statement.step_id] = statement
         _check_statement(data, statement, schema, line, scan)
@@ -447,7 +447,7 @@ def scan_step(data: bytes, schema: str) -> StepScan:
             if target in defined:
                 continue
             line = lines.line_of(statement.start)
-            why = (f"a {scan.unknown[target].entity}, which {schema} does not define" if target in scan.unknown
+            why = (f"of entity {scan.unknown[target].entity}, unknown to {schema}" if target in scan.unknown
                    else "garbled" if target in scan.broken else "not defined in the file")
             scan.problems.append(Problem(
                 "dangling-reference", line, statement.step_id,
