@@ -31,12 +31,12 @@ def test_statements_record_attribute_kinds_spans_and_references():
                "#2=IFCMEASUREWITHUNIT(IFCPLANEANGLEMEASURE(0.01745),#3);",
                "#3=IFCSIUNIT(*,.PLANEANGLEUNIT.,$,.RADIAN.);",
                "#4=IFCPERSON($,'O''Brien; Jr. (x)',$,$,$,$,$,$); /* a comment; with ( */")
-    scan = step.scan_step(data, "IFC4")
+    scan = step.scan_step(data, "IFC4", keep_attributes=True)
     assert scan.problems == []
     unit = scan.statements[3]
     assert unit.entity == "IFCSIUNIT" and unit.kinds == ["*", "enum", "$", "enum"]
     assert [data[a:b] for a, b in unit.attributes] == [b"*", b".PLANEANGLEUNIT.", b"$", b".RADIAN."]
-    assert scan.statements[2].references == [(1, 3)] and scan.statements[2].kinds == ["", "ref"]
+    assert list(scan.statements[2].reference_pairs()) == [(1, 3)] and scan.statements[2].kinds == ["", "ref"]
     assert scan.statements[4].kinds[1] == "str"
 
 

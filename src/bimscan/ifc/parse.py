@@ -251,23 +251,23 @@ def _issues(problems: list[step.Problem]) -> tuple[IfcIssue, ...]:
 
 
 class InstanceLines:
-    """STEP id -> 1-based line of its definition (0 when not found), indexed on first use."""
+    """STEP id -> 1-based line of its definition (0 when not found), looked up when asked (only
+    failures and refusals ask): from the scan when there is one, else by searching the text."""
 
     def __init__(self, text: bytes, scan: step.StepScan | None) -> None:
         """``text``: the file's bytes (those ``scan`` read, when given)."""
         self.text = text
         self.scan = scan
-        self._lines: dict[int, int] | None = None
+        self._index: step.LineIndex | None = None
 
     def __call__(self, step_id: int) -> int:
-        if self._lines is None:
-            index = step.LineIndex(self.text)
-            if self.scan is not None:
-                self._lines = {i: index.line_of(s.start) for i, s in self.scan.statements.items()}
-            else:
-                self._lines = {int(m.group(1)): index.line_of(m.start())
-                               for m in re.finditer(rb"(?m)^[ \t]*#([0-9]+)[ \t]*=", self.text)}
-        return self._lines.get(step_id, 0)
+        if self._index is None:
+            self._index = step.LineIndex(self.text)
+        if self.scan is not None:
+            statement = self.scan.statements.get(step_id)
+            return self._index.line_of(statement.start) if statement is not None else 0
+        match = re.search(rb"(?m)^[ \t]*#%d[ \t]*=" % step_id, self.text)
+        return self._index.line_of(match.start()) if match else 0
 
 
 # -- checks before the geometry ---------------------------------------------------------------------
@@ -453,7 +453,7 @@ def _dangling_bodies(scan: step.StepScan, schema: str) -> dict[int, tuple[int, i
             continue
         statement = scan.statements[problem.step_id]
         index = _representation_index(schema, statement.entity)
-        for attribute, target in statement.references:
+        for attribute, target in statement.reference_pairs():
             if attribute == index and target not in scan.statements:
                 out[problem.step_id] = (problem.line, target)
     return out
@@ -473,7 +473,7 @@ def _looks_like_element(statement: step.Statement, scan: step.StepScan) -> bool:
     and, seventh, a reference to an IfcProductDefinitionShape."""
     if len(statement.kinds) < 7 or statement.kinds[0] != "str" or statement.kinds[6] != "ref":
         return False
-    targets = [t for a, t in statement.references if a == 6]
+    targets = [t for a, t in statement.reference_pairs() if a == 6]
     shape = scan.statements.get(targets[0]) if targets else None
     return shape is not None and shape.entity == "IFCPRODUCTDEFINITIONSHAPE"
 

@@ -25,9 +25,11 @@ reports trouble). Offsets are byte offsets into the file; lines are 1-based.
 from __future__ import annotations
 
 import re
+import sys
 import uuid
+from array import array
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from functools import cache
 
@@ -57,9 +59,33 @@ _TOKEN = re.compile(
     |(?P<bad>.)""",
     re.X | re.S,
 )
-# Candidates for the quick path: '*' or '$' as a whole attribute, and '$' as a first attribute.
-_STAR_OR_DOLLAR_FIRST = re.compile(rb"[(,]\s*\*\s*[,)]|=\s*[A-Za-z_][A-Za-z0-9_]*\s*\(\s*\$")
+_HEAD_BEFORE = re.compile(rb"=\s*([A-Za-z_][A-Za-z0-9_]*)\s*\Z")  # "=ENTITY" just before a '('
 _VALUE_KINDS = frozenset(("str", "ref", "num", "enum", "bin"))
+
+
+def _well_formed_statement(depth: int) -> re.Pattern[bytes]:
+    """A regex for one whole well-formed simple statement ``#n=ENTITY(...);`` whose values nest at
+    most ``depth`` lists (or typed values) deep: the fast path of ``scan_step``. Each level holds
+    the one below once, so the pattern grows linearly with ``depth``; every alternative starts with
+    its own character, so matching never backtracks far. (A typed value with several values
+    passes: IfcOpenShell reports that one.)"""
+    value = (rb"'(?:[^'\x00]|'')*'|\#[0-9]+|[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
+             rb"|\.[A-Za-z_][A-Za-z0-9_]*\.|\$|\*|\"[0-9A-Fa-f]*\"")
+
+    def listed(item: bytes) -> bytes:  # (item, item, ...) without a leading or trailing comma
+        return rb"\(\s*(?:(?:" + item + rb")\s*(?:,\s*(?!\))|(?=\))))*\)"
+
+    item = value
+    for _ in range(depth):
+        item = value + rb"|(?:[A-Za-z_][A-Za-z0-9_]*\s*)?" + listed(item)
+    return re.compile(rb"\s*\#([0-9]+)\s*=\s*([A-Za-z_][A-Za-z0-9_]*)\s*\(\s*((?:(?:" + item
+                      + rb")\s*(?:,\s*(?!\))|(?=\))))*)\)\s*;\s*")
+
+
+_WELL_FORMED = _well_formed_statement(5)
+_REFERENCE = re.compile(rb"#([0-9]+)")
+_STRING = re.compile(rb"'(?:[^']|'')*'")
+_INNERMOST = re.compile(rb"\([^()]*\)")
 
 
 class LineIndex:
@@ -72,13 +98,16 @@ class LineIndex:
         return int(np.searchsorted(self._newlines, offset, side="left")) + 1
 
 
-@dataclass
+@dataclass(slots=True)
 class Statement:
     """One parsed instance: ``#step_id=ENTITY(attributes);`` (entity "" for a complex instance).
 
     attributes: byte spans of the top-level attribute values; kinds: their token kind when the
-    value is one token ("$", "*", "str", "ref", ...), else "" (lists, typed values).
-    references: (top-level attribute index, referenced id) for every ``#n`` inside.
+    value is one token ("$", "*", "str", "ref", ...), else "" (lists, typed values); both are
+    dropped once checked (``scan_step``), to keep the memory of a large file's scan small.
+    references: flat (top-level attribute index, referenced id) pairs for every ``#n`` inside
+    (index -1 when the statement was read by the fast path; ``scan_step`` resolves it where a
+    reference dangles).
     """
 
     step_id: int
@@ -87,7 +116,12 @@ class Statement:
     end: int
     attributes: list[tuple[int, int]] = field(default_factory=list)
     kinds: list[str] = field(default_factory=list)
-    references: list[tuple[int, int]] = field(default_factory=list)
+    references: array = field(default_factory=lambda: array("q"))
+
+    def reference_pairs(self) -> Iterator[tuple[int, int]]:
+        """(top-level attribute index, referenced id) of every reference."""
+        pairs = self.references
+        return zip(pairs[0::2], pairs[1::2])
 
 
 @dataclass(frozen=True)
@@ -146,8 +180,13 @@ def data_section(data: bytes) -> tuple[int, int]:
     match = _DATA_START.search(data)
     if match is None:
         return len(data), len(data)
-    end = re.compile(rb"(?m)^[ \t]*ENDSEC[ \t]*;").search(data, match.end())
-    return match.end(), end.start() if end else len(data)
+    position = match.end()
+    while (position := data.find(b"ENDSEC", position)) >= 0:  # bytes.find: memchr speed on large files
+        line_start = data.rfind(b"\n", 0, position) + 1
+        if not data[line_start:position].strip() and data[position + 6:position + 32].lstrip(b" \t")[:1] == b";":
+            return match.end(), line_start
+        position += 6
+    return match.end(), len(data)
 
 
 @cache
@@ -216,7 +255,7 @@ def _parse_statement(data: bytes, tokens: list[tuple[str, int, int]]) -> Stateme
         raise _SyntaxProblem("does not start with '#n='")
     step_id = int(data[tokens[0][1] + 1:tokens[0][2]])
     if tokens[2][0] == "kw":
-        entity = data[tokens[2][1]:tokens[2][2]].decode("ascii").upper()
+        entity = sys.intern(data[tokens[2][1]:tokens[2][2]].decode("ascii").upper())
         statement = Statement(step_id=step_id, entity=entity, start=tokens[0][1], end=tokens[-1][2])
         if tokens[3][0] != "(":
             raise _SyntaxProblem(f"{entity} is not followed by '('")
@@ -266,7 +305,7 @@ def _parse_parameters(data: bytes, tokens: list[tuple[str, int, int]], position:
                 if depth == 1:
                     single_kind = kind
                 if kind == "ref" and top:
-                    statement.references.append((attribute, int(data[start + 1:end])))
+                    statement.references.extend((attribute, int(data[start + 1:end])))
                 expect = "separator"
             elif kind == "kw":  # a typed value: NAME(value)
                 if position >= len(tokens) or tokens[position][0] != "(":
@@ -342,7 +381,40 @@ def _chunks(data: bytes, start: int, end: int) -> Iterable[tuple[int, int]]:
         yield previous, end
 
 
-def _read_chunk(data: bytes, span: tuple[int, int], schema: str, lines: LineIndex, scan: StepScan) -> None:
+def _read_well_formed(data: bytes, span: tuple[int, int], schema: str, lines: LineIndex, scan: StepScan) -> bool:
+    """The fast path: a chunk holding one well-formed statement of a known entity that needs no
+    repair, read with a few regular expressions (no tokens). False: the chunk needs the full read."""
+    match = _WELL_FORMED.fullmatch(data, *span)
+    if match is None:
+        return False
+    entity = sys.intern(match.group(2).decode("ascii").upper())
+    step_id = int(match.group(1))
+    body = match.group(3) or b""
+    if (_declaration(schema, entity) is None or step_id in scan.statements or step_id in scan.unknown
+            or b"*" in body or (body[:1] != b"'" and is_a(schema, entity, "IfcRoot"))):
+        return False  # unknown, duplicate or maybe to repair: the full read keeps what those need
+    statement = Statement(step_id=step_id, entity=entity, start=match.start(1) - 1, end=span[0] + len(match.group(0).rstrip()))
+    flat = _STRING.sub(b"s", body) if b"'" in body else body
+    if b"#" in flat:
+        targets = array("q", map(int, _REFERENCE.findall(flat)))
+        statement.references = array("q", (-1,)) * (2 * len(targets))  # attribute indices: resolved if needed
+        statement.references[1::2] = targets
+    while b"(" in flat:
+        flat = _INNERMOST.sub(b"l", flat)
+    count = flat.count(b",") + 1 if flat.strip() else 0
+    expected = _attribute_count(schema, entity)
+    if count != expected:
+        scan.problems.append(Problem(
+            "attribute-count", lines.line_of(statement.start), step_id,
+            f"#{step_id} ({entity}) has {count} attributes, {schema} defines {expected}", entity))
+    scan.statements[step_id] = statement
+    return True
+
+
+def _read_chunk(data: bytes, span: tuple[int, int], schema: str, lines: LineIndex, scan: StepScan, *,
+                keep_attributes: bool) -> None:
+    if not keep_attributes and _read_well_formed(data, span, schema, lines, scan):
+        return
     for tokens, ended in _split_statements(data, *span):
         if not tokens:
             continue
@@ -378,6 +450,8 @@ def _read_chunk(data: bytes, span: tuple[int, int], schema: str, lines: LineInde
             continue
         scan.statements[statement.step_id] = statement
         _check_statement(data, statement, schema, line, scan)
+        if not keep_attributes:
+            statement.attributes, statement.kinds = [], []
 
 
 def _statement_end(data: bytes, tokens: list[tuple[str, int, int]], ended: bool) -> int:
@@ -434,16 +508,23 @@ def _repairs(statement: Statement, schema: str, line: int) -> list[Edit]:
 
 # -- whole-file reads ---------------------------------------------------------------------------
 
-def scan_step(data: bytes, schema: str) -> StepScan:
-    """Read every statement of the DATA section (see the module docstring)."""
+def scan_step(data: bytes, schema: str, *, keep_attributes: bool = False) -> StepScan:
+    """Read every statement of the DATA section (see the module docstring). ``keep_attributes``:
+    keep the attribute spans and kinds of every statement (else only of unknown entities and
+    duplicates, which the element report reads)."""
     lines = LineIndex(data)
     scan = StepScan()
     start, end = data_section(data)
     for span in _chunks(data, start, end):
-        _read_chunk(data, span, schema, lines, scan)
+        _read_chunk(data, span, schema, lines, scan, keep_attributes=keep_attributes)
     defined = scan.statements
     for statement in defined.values():
-        for attribute, target in statement.references:
+        if all(target in defined for target in statement.references[1::2]):
+            continue
+        if statement.references and statement.references[0] < 0:  # read by the fast path: learn the attributes
+            tokens = next(iter(_split_statements(data, statement.start, statement.end)))[0]
+            statement.references = _parse_statement(data, tokens).references
+        for attribute, target in statement.reference_pairs():
             if target in defined:
                 continue
             line = lines.line_of(statement.start)
@@ -457,21 +538,22 @@ def scan_step(data: bytes, schema: str) -> StepScan:
 
 
 def quick_repairs(data: bytes, schema: str) -> list[Edit]:
-    """The repair edits of the statements that hold a '*' attribute or a leading '$' (only those
-    are read). Statements that do not parse are left to ``scan_step``."""
+    """The repair edits of the statements that hold a '*' or an IfcRoot with a '$' GlobalId (only
+    those are read). Statements that do not parse, and GlobalIds of other kinds (IfcOpenShell
+    complains of those), are left to ``scan_step``."""
     lines: LineIndex | None = None
     seen: set[int] = set()
     edits: list[Edit] = []
     start, end = data_section(data)
-    for match in _STAR_OR_DOLLAR_FIRST.finditer(data, start, end):
-        chunk_start = data.rfind(b"\n", start, match.start()) + 1
+    for candidate in _repair_candidates(data, start, end, schema):
+        chunk_start = data.rfind(b"\n", start, candidate) + 1
         while chunk_start > start and not _STATEMENT_START.match(data, chunk_start):
             chunk_start = data.rfind(b"\n", start, chunk_start - 1) + 1  # a statement spread over lines
         chunk_start = max(chunk_start, start)
         if chunk_start in seen:
             continue
         seen.add(chunk_start)
-        following = _STATEMENT_START.search(data, match.end(), end)
+        following = _STATEMENT_START.search(data, candidate + 1, end)
         chunk_end = following.start() if following else end
         for tokens, ended in _split_statements(data, chunk_start, chunk_end):
             try:
@@ -483,6 +565,21 @@ def quick_repairs(data: bytes, schema: str) -> list[Edit]:
             lines = lines or LineIndex(data)
             edits.extend(_repairs(statement, schema, lines.line_of(statement.start)))
     return edits
+
+
+def _repair_candidates(data: bytes, start: int, end: int, schema: str) -> Iterator[int]:
+    """Offsets of every '*' and of every '($' that opens an IfcRoot's attributes (a '$' GlobalId),
+    found with bytes.find (a regular expression over the whole file would cost more than the rest)."""
+    position = data.find(b"*", start, end)
+    while position >= 0:
+        yield position
+        position = data.find(b"*", position + 1, end)
+    position = data.find(b"($", start, end)
+    while position >= 0:
+        head = _HEAD_BEFORE.search(data, max(start, position - 128), position)
+        if head is not None and is_a(schema, head.group(1).decode("ascii"), "IfcRoot"):
+            yield position
+        position = data.find(b"($", position + 2, end)
 
 
 def apply_edits(data: bytes, edits: list[Edit], *, file_sha256: str) -> bytes:

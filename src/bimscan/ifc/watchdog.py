@@ -10,7 +10,9 @@ a damaged file) or loop forever on one element. ``run_parse`` sends the parse
   is killed; the elements of that run it had not finished are then tried one at a time in a
   fresh worker, so the culprit is named, reported as failed (cause ``crash`` or ``timeout``) and
   skipped, and the rest of the model still loads;
-- a crash or hang outside the geometry (reading the file) is an ``IfcError`` naming the phase.
+- a crash or hang outside the geometry (reading the file: limit ``MIN_WHOLE_FILE_S`` or the time
+  limit per element, whichever is longer, plus ``READ_S_PER_MB`` per MB) is an ``IfcError``
+  naming the phase.
 
 The worker is a plain ``python -c`` process (no re-import of the caller's ``__main__``) that
 ignores SIGINT (Ctrl-C reaches the whole process group; the parent decides) and dies with its
@@ -43,6 +45,7 @@ from bimscan.types import FailedElement, ParsedModel
 
 ELEMENT_TIMEOUT_S = 120.0  # longest a single element may take (OpenCascade booleans on big walls take seconds)
 READ_S_PER_MB = 2.0  # extra allowance for the phases that read the whole file (IfcOpenShell reads ~50 MB/s)
+MIN_WHOLE_FILE_S = 60.0  # at least this for starting the worker (imports) and each whole-file phase
 MAX_CULPRITS = 32  # elements that crash or hang before a model is given up as a whole
 _ELEMENT_PHASES = ("elements", "spaces")
 _PHASE_WORDS = {"reading": "reading the file", "checking": "checking the model", "assembling": "assembling the mesh",
@@ -70,7 +73,7 @@ def run_parse(request: Any, *, timeout_s: float, file_bytes: int, progress: bool
     """Parse ``request`` (a ``ParseRequest``) in a worker process under the watchdog (see the module)."""
     skip: dict[int, FailedElement] = dict(request.skip)
     isolate: set[int] = set(request.isolate)
-    read_limit = timeout_s + READ_S_PER_MB * file_bytes / 1e6
+    read_limit = max(timeout_s, MIN_WHOLE_FILE_S) + READ_S_PER_MB * file_bytes / 1e6
     while True:
         attempt = replace(request, isolate=frozenset(isolate), skip=dict(skip))
         worker = _take_worker()
