@@ -271,7 +271,13 @@ def serve(fd: int) -> None:
     warnings.simplefilter("ignore")  # NumPy noise from degenerate placements; what matters is reported
     _die_with_parent()
     connection = Connection(fd)
-    from bimscan.ifc.parse import parse_model  # imports IfcOpenShell once per worker
+    # Everything the parse needs, imported once per worker (while it waits, when started early).
+    import ifcopenshell.geom  # noqa: F401
+    import ifcopenshell.util.element  # noqa: F401
+    import ifcopenshell.util.placement  # noqa: F401
+    import ifcopenshell.util.unit  # noqa: F401
+
+    from bimscan.ifc.parse import parse_model
 
     def emit(kind: str, payload: Any) -> None:
         connection.send((kind, payload))
