@@ -2,9 +2,17 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
+
+# CI runs the same hypothesis examples every time (a failure is reproducible, never a coin toss);
+# HYPOTHESIS_PROFILE=explore draws new ones, as a search for bugs.
+settings.register_profile("ci", derandomize=True, deadline=None)
+settings.register_profile("explore", deadline=None)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 SHARED_IFC = Path(__file__).resolve().parents[2] / "shared" / "data" / "ifc"
 

@@ -6,17 +6,22 @@ place only when complete, so a reader never sees half a file, whatever stopped t
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import os
+import re
 import secrets
 import shutil
+import stat
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from bimscan.errors import InputFileError
 
 
 def file_sha256(path: str | Path) -> str:
@@ -28,10 +33,93 @@ def file_sha256(path: str | Path) -> str:
     return digest.hexdigest()
 
 
+def path_kind(path: str | Path) -> str | None:
+    """What ``path`` is when it is not a regular file, in words ("a folder", "a FIFO (named pipe)",
+    "a symbolic link loop", "no such file", ...); None for a regular file (or a link to one)."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return "a broken symbolic link" if os.path.islink(path) else "no such file"
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return "a symbolic link loop"
+        if exc.errno == errno.ENAMETOOLONG:
+            return "a name too long for the file system"
+        if exc.errno == errno.ENOTDIR:
+            return "no such file (a part of the path is not a folder)"
+        return f"not accessible ({exc.strerror or exc})"
+    for test, words in ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+                        (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                        (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return words
+    return None if stat.S_ISREG(mode) else "not a regular file"
+
+
+# Temporary names: ".<name>.<pid>-<12 hex>.tmp" (the writer's process id, so that a later run can
+# tell a dead writer's leftovers from a live one's); ".<name>.<12 hex>.tmp" from older versions.
+_TEMP_SUFFIX = re.compile(r"(?:(?P<pid>[0-9]+)-)?[0-9a-f]{12}\.tmp")
+
+
+def check_input_file(path: str | Path, *, what: str, folders: bool = False) -> Path:
+    """``path`` when it is a regular file (or a folder, with ``folders``), else an InputFileError
+    that says what it is: "no such file", "a FIFO (named pipe)", "a symbolic link loop", ...
+    (reading a FIFO or a device would block or never end)."""
+    kind = path_kind(path)
+    if kind is None or (folders and kind == "a folder"):
+        return Path(path)
+    if kind.startswith("no such file"):
+        raise InputFileError(f"{path}: {kind}{' or folder' if folders and kind == 'no such file' else ''}; "
+                             "check the path")
+    raise InputFileError(f"{path}: is {kind}, not {what}; pass a regular file")
+
+
 def temp_path(final: str | Path) -> Path:
-    """A hidden, unique sibling name for staging ``final`` (``.<name>.<random>.tmp``)."""
+    """A hidden, unique sibling name for staging ``final`` (``.<name>.<pid>-<random>.tmp``).
+
+    Temporaries of the same ``final`` left by writers that died (killed, power cut) are removed
+    first (see ``remove_stale_temps``).
+    """
     final = Path(final)
-    return final.with_name(f".{final.name}.{secrets.token_hex(6)}.tmp")
+    remove_stale_temps(final)
+    return final.with_name(f".{final.name}.{os.getpid()}-{secrets.token_hex(6)}.tmp")
+
+
+def _process_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True  # someone else's live process (or a number we cannot check): keep its file
+    return True
+
+
+def remove_stale_temps(final: str | Path) -> int:
+    """Delete the temporaries of ``final`` whose writer process is gone; returns how many.
+
+    A temporary of a live process on this machine is kept. (A writer on another machine sharing
+    the folder cannot be seen: two machines writing the same output at once is not supported.)
+    """
+    final = Path(final)
+    prefix = f".{final.name}."
+    removed = 0
+    try:
+        names = [n for n in os.listdir(final.parent) if n.startswith(prefix)]
+    except OSError:
+        return 0
+    for name in names:
+        match = _TEMP_SUFFIX.fullmatch(name[len(prefix):])
+        if match is None or (match.group("pid") and _process_alive(int(match.group("pid")))):
+            continue
+        try:
+            remove_path(final.parent / name)
+            removed += 1
+        except OSError:
+            continue  # not ours to delete after all (permissions): leave it
+    return removed
 
 
 def remove_path(path: Path) -> None:

@@ -52,16 +52,18 @@ def load_label_scheme(source: str | Path | LabelScheme | None = None) -> LabelSc
 
 
 def load_scene(path: str | Path, *, scheme: str | Path | LabelScheme | None = None, use_cache: bool = True,
-               threads: int | None = None) -> BimScene:
+               threads: int | None = None, strict: bool = False, length_unit: str | None = None) -> BimScene:
     """IFC file -> labelled scene: stage 1 (``load_ifc``) then stage 3 (``label_model``).
 
-    The scheme is checked before the (slow) parse.
+    The scheme is checked before the (slow) parse. ``strict`` and ``length_unit``: see ``load_ifc``;
+    the scene's ``report`` and ``failed`` say what loading repaired, assumed, found wrong or lost.
     """
     from bimscan.ifc.load import load_ifc
     from bimscan.semantics import label_model
 
     label_scheme = load_label_scheme(scheme)
-    return label_model(load_ifc(path, use_cache=use_cache, threads=threads), label_scheme)
+    model = load_ifc(path, use_cache=use_cache, threads=threads, strict=strict, length_unit=length_unit)
+    return label_model(model, label_scheme)
 
 
 def build_site(scene: BimScene, recipe: ScanRecipe) -> BimScene:
@@ -180,22 +182,29 @@ def scan_survey(survey: Survey, out: str | Path, *, overwrite: bool = False, pro
 
 def scan_model(model: str | Path, out: str | Path, recipe: ScanRecipe, *,
                scheme: str | Path | LabelScheme | None = None, overwrite: bool = False, progress: bool = True,
-               warn: Callable[[str], None] | None = None) -> ScanResult:
+               length_unit: str | None = None, warn: Callable[[str], None] | None = None) -> ScanResult:
     """IFC file -> labelled multi-station cloud file: the whole of ``bimscan scan``.
 
-    Output and scheme errors come before the (slow) parse. ``warn`` receives one line per thing a
-    user should know (settings outside the device's limits, rooms left without a station).
+    Output and scheme errors come before the (slow) parse. ``recipe.strict`` also refuses an IFC
+    file that needed repairs or lost an element; ``length_unit`` overrides the model's. ``warn``
+    receives one line per thing a user should know (settings outside the device's limits, what
+    loading the model repaired, assumed or lost, rooms left without a station).
     """
+    from bimscan.ifc.summary import report_lines
     from bimscan.io import check_cloud_output, check_free_space
 
     check_cloud_output(out, overwrite=overwrite)
+    say = warn or (lambda line: None)
     for warning in recipe.warnings:
-        if warn is not None:
-            warn(warning)
-    scene = build_site(load_scene(model, scheme=scheme, threads=recipe.threads or None), recipe)
+        say(warning)
+    scene = load_scene(model, scheme=scheme, threads=recipe.threads or None, strict=recipe.strict,
+                       length_unit=length_unit)
+    for line in report_lines(scene):
+        say(line)
+    scene = build_site(scene, recipe)
     survey = prepare_survey(scene, recipe)
-    if warn is not None and survey.plan is not None and survey.plan.rooms_without_station:
-        warn("rooms without a station (too small for a tripod or no floor): "
-             + ", ".join(survey.plan.rooms_without_station))
+    if survey.plan is not None and survey.plan.rooms_without_station:
+        say("rooms without a station (too small for a tripod or no floor): "
+            + ", ".join(survey.plan.rooms_without_station))
     check_free_space(out, points=survey.pulses())
     return scan_survey(survey, out, overwrite=overwrite, progress=progress)

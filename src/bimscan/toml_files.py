@@ -15,16 +15,15 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
-from bimscan.errors import ConfigError, InputFileError
+from bimscan.errors import ConfigError
+from bimscan.files import check_input_file
 
 T = TypeVar("T")
 
 
 def load_toml(path: str | Path) -> dict[str, Any]:
     """Read a TOML file; missing files and syntax errors become one-line errors."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputFileError(f"{path}: no such file; check the path")
+    path = check_input_file(path, what="a TOML file")
     try:
         with path.open("rb") as handle:
             return tomllib.load(handle)

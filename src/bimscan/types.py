@@ -97,6 +97,7 @@ class ComponentTable:
     parent_class: np.ndarray
     label: np.ndarray
     class_ancestry: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    step_id: np.ndarray | None = None  # (C,) int64 STEP instance id (#n) in the source file; -1 for components not in it (site objects); None when unknown
 
     def __post_init__(self) -> None:
         n = len(self.global_id)
@@ -105,9 +106,11 @@ class ComponentTable:
             if not isinstance(array, np.ndarray) or array.dtype.kind != "U" or array.ndim != 1:
                 raise TypeError(f"ComponentTable.{column} must be a 1-D NumPy unicode array")
         _check("label", self.label, "uint8", (None,))
+        _check("step_id", self.step_id, "int64", (None,))
         _check_rows(
             "ComponentTable", n, ifc_class=self.ifc_class, predefined_type=self.predefined_type,
             name=self.name, storey=self.storey, parent_class=self.parent_class, label=self.label,
+            step_id=self.step_id,
         )
 
     def __len__(self) -> int:
@@ -250,13 +253,85 @@ class SiteState:
                 "free_floor_m2": round(self.free_floor_m2, 3)}
 
 
+# Why a declared element (an IfcElement with a body) is not in the mesh.
+FAILURE_CAUSES = ("geometry", "crash", "timeout", "dangling-reference", "unknown-entity", "syntax", "duplicate-id")
+
+
 @dataclass(frozen=True)
 class FailedElement:
-    """An element whose geometry could not be triangulated; reported and skipped."""
+    """A declared element that produced no geometry; reported and skipped.
+
+    cause: one of ``FAILURE_CAUSES`` (geometry: IfcOpenShell could not triangulate it; crash /
+    timeout: the geometry kernel died or ran past the watchdog's limit on it; dangling-reference:
+    it needs an instance the file does not define; unknown-entity: its entity name is not in the
+    schema; syntax: its line is garbled; duplicate-id: an earlier instance has its id). step_id: its ``#n`` in the file; line: 1-based line of
+    its definition (0 when unknown).
+    """
 
     global_id: str
     ifc_class: str
     reason: str
+    step_id: int = 0
+    line: int = 0
+    cause: str = "geometry"
+
+
+# Kinds of IFC file problems (``IfcIssue.kind``); each is a warning, and an error under strict.
+ISSUE_KINDS = ("syntax", "unknown-entity", "duplicate-id", "dangling-reference", "attribute-count",
+               "invalid-attribute", "length-unit")
+# Kinds of repairs made to content viewers accept (``IfcRepair.kind``).
+REPAIR_KINDS = ("derived-attribute", "globalid")
+
+
+@dataclass(frozen=True)
+class IfcIssue:
+    """One kind of problem found in an IFC file, with how often it occurs and where.
+
+    lines: 1-based lines of the first occurrences (at most ``MAX_LINES``); example: the first
+    occurrence in words.
+    """
+
+    kind: str
+    count: int
+    lines: tuple[int, ...]
+    example: str
+
+    MAX_LINES = 20
+
+
+@dataclass(frozen=True)
+class IfcRepair:
+    """One kind of repair made before the geometry: instances repaired per IFC class, first lines."""
+
+    kind: str
+    per_class: Mapping[str, int]
+    lines: tuple[int, ...]
+
+    @property
+    def count(self) -> int:
+        return int(sum(self.per_class.values()))
+
+
+@dataclass(frozen=True)
+class IfcLoadReport:
+    """What loading an IFC file repaired, assumed and found wrong (JSON-able via ``dataclasses.asdict``).
+
+    declared_elements: IfcElements with a body representation the file declares (by STEP id),
+    failed ones included. length_unit_m: metres per model length unit as used; length_unit_source:
+    "file" (the project's unit assignment), "assumed" (none usable: guessed, see the
+    ``length-unit`` issue) or "override" (given by the caller).
+    """
+
+    declared_elements: int = 0
+    length_unit_m: float = 1.0
+    length_unit_source: str = "file"
+    repairs: tuple[IfcRepair, ...] = ()
+    issues: tuple[IfcIssue, ...] = ()
+
+    @property
+    def clean(self) -> bool:
+        """True when nothing was repaired, assumed or found wrong."""
+        return not self.repairs and not self.issues
 
 
 @dataclass(frozen=True)
@@ -297,10 +372,11 @@ class ComponentSurfaces:
 
 @dataclass(frozen=True, kw_only=True)
 class ParsedModel:
-    """Stage 1's output: an IFC model's scannable mesh, component table, storeys, spaces and
-    failures, before any label scheme (``components.label`` is all zeros). ``surfaces``: the
-    components' surface styles and materials (None: not read, e.g. a model built in memory).
-    Fields are keyword-only (a labelled ``BimScene`` adds its own after these defaults)."""
+    """Stage 1's output: an IFC model's scannable mesh, component table, storeys, spaces,
+    failures and load report, before any label scheme (``components.label`` is all zeros).
+    ``surfaces``: the components' surface styles and materials (None: not read, e.g. a model
+    built in memory). Fields are keyword-only (a labelled ``BimScene`` adds its own after these
+    defaults)."""
 
     source: str
     file_sha256: str
@@ -311,6 +387,7 @@ class ParsedModel:
     spaces: tuple[Space, ...]
     failed: tuple[FailedElement, ...]
     surfaces: ComponentSurfaces | None = None
+    report: IfcLoadReport = field(default_factory=IfcLoadReport)
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections import Counter, deque
 
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from bimscan.ifc.generate.layout import (
@@ -144,6 +144,7 @@ def test_exterior_walls_follow_the_outline_and_rooms_touch_no_outline_edge_witho
 
 @settings(max_examples=60, deadline=None)
 @given(seed=seeds, storeys=storey_counts, style=styles)
+@example(seed=24883, storeys=4, style="office")  # a room whose corridor frontage a column nearly fills
 def test_openings_fit_their_walls_below_lintels_and_keep_clear_of_columns_beams_and_each_other(
     seed: int, storeys: int, style: str
 ) -> None:

@@ -49,6 +49,12 @@ def test_shared_models_load_with_the_expected_counts_per_class_and_label(name, s
     assert dict(Counter(scene.components.ifc_class.tolist())) == per_class
     assert len(scene.spaces) == spaces
     assert scene.failed == ()
+    assert scene.report.declared_elements == len(scene.components)
+    assert not scene.report.repairs and scene.report.length_unit_source == "file"
+    # example.ifc really has 4 dangling references (an IfcWindowStyle) and an IfcSpace with 8 of 11 attributes
+    expected_issues = {"dangling-reference": 4, "attribute-count": 1} if name == "example.ifc" else {}
+    assert {i.kind: i.count for i in scene.report.issues} == expected_issues
+    assert len(set(scene.components.step_id.tolist())) == len(scene.components)
     expected_labels = Counter()
     for cls, n in per_class.items():
         expected_labels[SPC5.get(cls, "Others")] += n
@@ -89,6 +95,8 @@ def test_cached_load_equals_a_fresh_parse_and_skips_the_parse(shared_ifc, privat
     assert [s.name for s in cached.spaces] == [s.name for s in fresh.spaces]
     assert all(np.array_equal(a.vertices, b.vertices) for a, b in zip(cached.spaces, fresh.spaces))
     assert cached.storeys == fresh.storeys
+    assert np.array_equal(cached.components.step_id, fresh.components.step_id)
+    assert cached.report == fresh.report
     # not a timing target: a cache hit that parsed again would take seconds on this model
     assert cached_seconds < 1.0
 
@@ -133,7 +141,7 @@ def test_a_model_with_one_broken_element_still_loads_and_reports_it(tiny_model, 
     assert len(scene.failed) == 1
     failure = scene.failed[0]
     assert (failure.global_id, failure.ifc_class) == (broken.GlobalId, "IfcColumn")
-    assert failure.reason
+    assert failure.reason and failure.cause == "geometry" and failure.step_id == broken.id() and failure.line > 0
 
 
 def test_a_model_whose_only_element_is_broken_is_an_empty_model_error(tiny_model, tmp_path):
@@ -178,24 +186,35 @@ def test_a_truncated_ifc_is_rejected(shared_ifc, tmp_path):
         load_scene(path)
 
 
-def test_a_garbled_ifc_is_rejected(shared_ifc, tmp_path):
+def _line_of(data: bytes, offset: int) -> int:
+    return data.count(b"\n", 0, offset) + 1
+
+
+def test_a_garbled_line_is_a_warning_naming_it_and_an_error_under_strict(shared_ifc, tmp_path):
     data = shared_ifc("example.ifc").read_bytes()
-    middle = len(data) // 2
+    middle = data.index(b"\n#", len(data) // 2) + 1
     path = tmp_path / "garbled.ifc"
-    junk = b"\n#999999=IFCWALL(((garbage;;\n"
+    junk = b"#999999=IFCWALL(((garbage;;\n"
     path.write_bytes(data[:middle] + junk + data[middle + len(junk):])
-    with pytest.raises(IfcError, match="garbled"):
-        load_scene(path)
+    scene = load_scene(path)
+    syntax = [i for i in scene.report.issues if i.kind == "syntax"]
+    assert syntax and _line_of(data, middle) in syntax[0].lines
+    assert len(scene.components) >= 110  # the rest of the model still loads (115 when nothing is hit)
+    with pytest.raises(IfcError, match=f"line {_line_of(data, middle)}.*strict"):
+        load_scene(path, strict=True)
 
 
-def test_binary_noise_inside_an_ifc_is_rejected(shared_ifc, tmp_path):
+def test_binary_noise_inside_an_ifc_loses_only_the_lines_it_hits_and_says_so(shared_ifc, tmp_path):
     data = shared_ifc("example.ifc").read_bytes()
     middle = len(data) // 2
     junk = np.random.default_rng(0).integers(0, 256, 2000, dtype=np.uint8).tobytes()
     path = tmp_path / "noise.ifc"
     path.write_bytes(data[:middle] + junk + data[middle + len(junk):])
-    with pytest.raises(IfcError, match="could not be parsed|garbled"):
-        load_scene(path)
+    scene = load_scene(path)
+    hit = range(_line_of(data, middle), _line_of(data, middle + len(junk)) + 1)
+    syntax = [i for i in scene.report.issues if i.kind == "syntax"][0]
+    assert set(syntax.lines) <= set(hit) and syntax.count >= 1
+    assert len(scene.components) + len(scene.failed) >= 100
 
 
 def test_an_ifczip_loads_like_the_ifc_inside(shared_ifc, tmp_path):

@@ -24,8 +24,9 @@ def first_seed(style: str, storeys: int, wanted) -> int:
 )
 def test_generated_buildings_load_with_the_planned_elements_labels_bounds_and_rooms(style, seed, storeys, tmp_path):
     building = make_building(tmp_path / "b.ifc", seed=seed, storeys=storeys, style=style)
-    scene = load_scene(building.path)
-    assert scene.failed == ()
+    scene = load_scene(building.path, strict=True)  # the generator writes files nothing needs repairing in
+    assert scene.failed == () and scene.report.clean
+    assert scene.report.declared_elements == len(scene.components)
     names = scene.scheme.names
     table = scene.components
     found = Counter(

@@ -134,3 +134,34 @@ def test_the_stats_command_writes_beside_the_dataset_and_refuses_a_folder_withou
     (tmp_path / "nothing").mkdir()
     assert main(["stats", str(tmp_path / "nothing")]) == 1
     assert "no manifest.json" in capsys.readouterr().err
+
+
+def _checksummed(dataset: Path) -> Path:
+    """Give unit A__c1 a cloud file and the checksums a build records; the other units leave the
+    manifest (only this one carries files here)."""
+    import dataclasses
+
+    from bimscan.files import file_sha256
+
+    folder = DatasetFolder(dataset)
+    manifest = folder.read_manifest()
+    folder.write_manifest(Manifest(units=tuple(u for u in manifest.units if u.id in ("A__c1", "B__c3"))))
+    unit = folder.unit_dir("A__c1")
+    (unit / "cloud").mkdir()
+    (unit / "cloud" / "coord.npy").write_bytes(b"\x93NUMPY fake but checksummed")
+    record = folder.read_unit("A__c1")
+    write_unit_record(unit, dataclasses.replace(
+        record, checksums={"cloud/coord.npy": file_sha256(unit / "cloud" / "coord.npy")}))
+    return unit
+
+
+def test_verify_checks_unit_files_against_their_checksums(dataset: Path, capsys) -> None:
+    unit = _checksummed(dataset)
+    assert main(["stats", str(dataset), "--verify"]) == 0
+    assert "unit files verified against their checksums" in capsys.readouterr().out
+    (unit / "cloud" / "coord.npy").write_bytes(b"\x93NUMPY damaged on disk")
+    assert main(["stats", str(dataset), "--verify"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "A__c1: cloud/coord.npy does not match its checksum" in err
+    assert main(["stats", str(dataset)]) == 0  # without --verify it says it did not check
+    assert "not verified against their checksums (pass --verify" in capsys.readouterr().out

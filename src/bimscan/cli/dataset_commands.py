@@ -80,7 +80,9 @@ def build(spec: Path, out_dir: Path, workers: int | None, executor: str, ray_add
               help="Folder for the tables, plots and report (default: DATASET_DIR/stats).")
 @click.option("--from-clouds", is_flag=True,
               help="Recount every unit by streaming its cloud file instead of reading the counts in unit.json.")
-def stats(dataset_dir: Path, out_dir: Path | None, from_clouds: bool) -> None:
+@click.option("--verify", is_flag=True,
+              help="Check every unit's files against the checksums recorded when it was built (reads them all).")
+def stats(dataset_dir: Path, out_dir: Path | None, from_clouds: bool, verify: bool) -> None:
     """Statistics of a built dataset: points, extents and class proportions per configuration.
 
     Writes units.csv, configs.csv, scenes.csv, stats.json, points.png (paper Fig. 4),
@@ -89,10 +91,12 @@ def stats(dataset_dir: Path, out_dir: Path | None, from_clouds: bool) -> None:
     """
     from bimscan.stats.report import write_stats
 
-    result = write_stats(dataset_dir, out_dir, from_clouds=from_clouds)
+    result = write_stats(dataset_dir, out_dir, from_clouds=from_clouds, verify=verify)
     extent, extent_scene, axis = result.stats.max_extent_spread()
     share, share_scene, name = result.stats.max_class_spread()
     click.echo(f"{len(result.stats.units)} units summarised -> {result.out_dir / 'report.md'}")
+    click.echo("  unit files verified against their checksums" if verify else
+               "  unit files not verified against their checksums (pass --verify to check them)")
     if extent_scene:
         click.echo(f"  largest extent spread across configurations: {100 * extent:.2f} % ({extent_scene}, {axis.upper()})")
         click.echo(f"  largest class share spread: {share:.2f} percentage points ({share_scene}, {name})")

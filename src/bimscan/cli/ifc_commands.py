@@ -9,8 +9,27 @@ from typing import Any
 import click
 
 from bimscan.cli.site_options import site_options
+from bimscan.ifc.units import LENGTH_UNITS
 
 SCHEME_HELP = "Label scheme: a built-in name (spc5) or a TOML file. Default: spc5, the paper's five classes."
+STRICT_IFC_HELP = ("Refuse an IFC file that needed a repair, has a problem (syntax error, dangling reference, unknown "
+                   "entity, no length unit, ...) or loses an element, instead of loading what a viewer shows.")
+LENGTH_UNIT_HELP = "Read the model's lengths in this unit, whatever the file says (or when it says nothing)."
+
+
+def ifc_options(command: click.Command) -> click.Command:
+    """The IFC loading options every command that reads a model shares: --strict, --length-unit."""
+    command = click.option("--length-unit", type=click.Choice(list(LENGTH_UNITS)), default=None,
+                           help=LENGTH_UNIT_HELP)(command)
+    return click.option("--strict", is_flag=True, help=STRICT_IFC_HELP)(command)
+
+
+def echo_load_report(scene: object) -> None:
+    """Print what loading the model repaired, assumed, found wrong or lost, as ``warning:`` lines."""
+    from bimscan.ifc.summary import report_lines
+
+    for line in report_lines(scene):  # type: ignore[arg-type]
+        click.echo(f"warning: {line}", err=True)
 
 
 @click.command("info")
@@ -18,12 +37,17 @@ SCHEME_HELP = "Label scheme: a built-in name (spc5) or a TOML file. Default: spc
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON object instead of a report.")
 @click.option("--scheme", default=None, help=SCHEME_HELP)
 @click.option("--no-cache", is_flag=True, help="Parse again even if this file's geometry is cached.")
-def info(model: Path, as_json: bool, scheme: str | None, no_cache: bool) -> None:
-    """Parse MODEL.ifc and summarise its components, labels, failures and bounds."""
+@ifc_options
+def info(model: Path, as_json: bool, scheme: str | None, no_cache: bool, strict: bool, length_unit: str | None) -> None:
+    """Parse MODEL.ifc and summarise its components, labels, failures, repairs, problems and bounds."""
+    from bimscan.ifc.watchdog import prestart_worker
+
+    prestart_worker()
     from bimscan.pipeline import load_scene
     from bimscan.ifc.summary import format_summary, summarize_scene
 
-    scene = load_scene(model, scheme=scheme, use_cache=not no_cache)
+    scene = load_scene(model, scheme=scheme, use_cache=not no_cache, strict=strict, length_unit=length_unit)
+    echo_load_report(scene)
     summary = summarize_scene(scene)
     click.echo(json.dumps(summary, indent=2) if as_json else format_summary(summary))
 
@@ -50,14 +74,18 @@ HELIOS_HELP = ("Also write HELIOS++ inputs: helios/scene.xml (one <part> per com
 @click.option("--overwrite", is_flag=True, help="Replace files already in OUT_DIR.")
 @click.option("--seed", default=0, show_default=True, type=int, help="Placement seed of the site flags' clutter.")
 @site_options
+@ifc_options
 def export_obj_command(model: Path, out_dir: Path, helios: bool, stations: str | None, preset: str | None,
                        scanner: str | None, head_deg_per_s: float | None, scheme: str | None, overwrite: bool,
-                       seed: int, site: Any) -> None:
+                       seed: int, site: Any, strict: bool, length_unit: str | None) -> None:
     """Export MODEL.ifc as OBJ: model.obj (one group per component), components/c<id>.obj
     (one file per component, as HELIOS++ wants), classes.mtl and index.csv (component id,
     GlobalId, IFC class, label); with --helios also a HELIOS++ scene and survey. With the site
     flags, the scene as 'bimscan scan' with the same flags and seed scans it (clutter as
     components, elements not yet built left out)."""
+    from bimscan.ifc.watchdog import prestart_worker
+
+    prestart_worker()  # IfcOpenShell loads in the geometry worker while this process goes on
     from bimscan.io import export_obj
     from bimscan.pipeline import build_site, load_scene
     from bimscan.scan.recipe import ScanRecipe
@@ -75,7 +103,9 @@ def export_obj_command(model: Path, out_dir: Path, helios: bool, stations: str |
         helios_scanner(recipe.scanner)  # a scanner HELIOS++ has a definition of
         for warning in recipe.warnings:
             click.echo(f"warning: {warning}", err=True)
-    scene = build_site(load_scene(model, scheme=scheme), recipe)
+    scene = load_scene(model, scheme=scheme, strict=strict, length_unit=length_unit)
+    echo_load_report(scene)
+    scene = build_site(scene, recipe)
     survey_xml = None
     n_legs = 0
     if helios:

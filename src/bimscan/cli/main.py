@@ -3,12 +3,24 @@
 Commands live in one module per area (``cli/ifc_commands.py``, ...) and are registered here.
 User errors (``BimscanError``) become one line on stderr and a non-zero exit, never a traceback.
 Heavy libraries (Open3D, torch, Ray) are imported inside commands so ``--help`` stays fast.
+
+Signals: SIGINT (Ctrl-C) and SIGTERM stop a command the same way, by an exception raised in the
+main thread, so every ``finally`` runs (temporary outputs are removed) before the one line
+``error: interrupted`` (exit 130) or ``error: terminated`` (exit 143). A Ctrl-C that lands while a
+library is being imported (Open3D turns it into an ImportError) gives the same one line. Python
+warnings and log records of the libraries print as ``warning: ...`` lines.
 """
 
 from __future__ import annotations
 
 import errno
+import logging
+import signal
 import sys
+import threading
+import time
+import warnings
+from types import FrameType
 
 import click
 
@@ -44,13 +56,80 @@ def _error(message: str) -> None:
     click.echo(f"error: {line}", err=True)
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C's KeyboardInterrupt so that the same clean-up runs."""
+
+
+# The signal that stops this run (signal number), and when it was last raised as an exception.
+_STOPPING: dict[str, float] = {"signal": 0, "raised_at": 0.0}
+_REPEAT_GRACE_S = 2.0  # a second Ctrl-C this soon after the first does not cut the clean-up short
+
+
+def _on_signal(number: int, frame: FrameType | None) -> None:
+    del frame
+    first = not _STOPPING["signal"]
+    _STOPPING["signal"] = _STOPPING["signal"] or number
+    now = time.monotonic()
+    if not first and now - _STOPPING["raised_at"] < _REPEAT_GRACE_S:
+        return
+    _STOPPING["raised_at"] = now
+    raise Terminated() if number == signal.SIGTERM else KeyboardInterrupt()
+
+
+def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                  file: object = None, line: str | None = None) -> None:
+    del category, filename, lineno, file, line
+    click.echo(f"warning: {' '.join(str(message).split())}", err=True)
+
+
+class _WarningLines(logging.Handler):
+    """Library log records (laspy, Ray, ...) as ``warning: ...`` lines."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        click.echo(f"warning: {' '.join(record.getMessage().split())}", err=True)
+
+
+def _stopped() -> int:
+    """Print the one line for a stopped run; its exit status (130 Ctrl-C, 143 SIGTERM)."""
+    if _STOPPING["signal"] == signal.SIGTERM:
+        click.echo("error: terminated; finished work is kept, run the same command to resume", err=True)
+        return 128 + signal.SIGTERM
+    click.echo("error: interrupted; finished work is kept, run the same command to resume", err=True)
+    return 130
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit status."""
+    _STOPPING.update(signal=0, raised_at=0.0)
+    previous = {}
+    if threading.current_thread() is threading.main_thread():  # only the main thread may set handlers
+        previous = {number: signal.getsignal(number) for number in (signal.SIGINT, signal.SIGTERM)}
+        for number in previous:
+            signal.signal(number, _on_signal)
+    root = logging.getLogger()
+    lines = _WarningLines(logging.WARNING) if not root.handlers else None  # keep a caller's own logging set-up
+    if lines is not None:
+        root.addHandler(lines)
     try:
-        status = cli.main(args=argv, prog_name="bimscan", standalone_mode=False)
+        with warnings.catch_warnings():
+            warnings.showwarning = _show_warning
+            return _run(argv)
+    finally:
+        if lines is not None:
+            root.removeHandler(lines)
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+
+
+def _run(argv: list[str] | None) -> int:
+    try:
+        # click's own main() would print a blank line on Ctrl-C: the context is made and invoked here.
+        with cli.make_context("bimscan", list(sys.argv[1:] if argv is None else argv)) as context:
+            status = cli.invoke(context)
+    except click.exceptions.Exit as exc:  # --help, --version
+        return exc.exit_code
     except click.exceptions.Abort:
-        _error("interrupted")
-        return 130
+        return _stopped()
     except click.UsageError as exc:  # a bad option or argument: one line, like every other error
         command = f"bimscan {exc.ctx.command_path.split(' ', 1)[1]} " if exc.ctx and " " in exc.ctx.command_path else "bimscan "
         _error(f"{exc.format_message()} (see '{command}--help')")
@@ -62,14 +141,19 @@ def main(argv: list[str] | None = None) -> int:
         _error(str(exc))
         return exc.exit_code
     except KeyboardInterrupt:
-        _error("interrupted; finished work is kept, run the same command to resume")
-        return 130
+        return _stopped()
     except OSError as exc:
+        if _STOPPING["signal"]:
+            return _stopped()
         if exc.errno == errno.ENOSPC:
             _error(f"disk full while writing {exc.filename or 'output'}; free space and run again")
         else:
             _error(f"{exc.strerror or exc}: {exc.filename or ''}".rstrip(": "))
         return 1
+    except Exception:
+        if _STOPPING["signal"]:  # e.g. Open3D's "initialization failed" ImportError after a Ctrl-C in its import
+            return _stopped()
+        raise
     return status if isinstance(status, int) else 0
 
 

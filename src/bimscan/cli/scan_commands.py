@@ -7,9 +7,10 @@ from typing import TYPE_CHECKING
 
 import click
 
-from bimscan.cli.ifc_commands import SCHEME_HELP
-from bimscan.scan.recipe import DEFAULT_MAX_STATION_PULSES
+from bimscan.cli.ifc_commands import LENGTH_UNIT_HELP, SCHEME_HELP
 from bimscan.cli.site_options import describe_site, site_options
+from bimscan.ifc.units import LENGTH_UNITS
+from bimscan.scan.recipe import DEFAULT_MAX_STATION_PULSES
 
 if TYPE_CHECKING:
     from bimscan.site.model import SiteModel
@@ -32,7 +33,9 @@ if TYPE_CHECKING:
               help="Per-station registration error: translation sigma per axis, metres (0 = perfect registration).")
 @click.option("--registration-sigma-deg", "registration_sigma_deg", default=0.0, show_default=True, type=float,
               help="Per-station registration error: rotation sigma about the vertical, degrees.")
-@click.option("--strict", is_flag=True, help="Settings outside the device's limits are errors, not warnings.")
+@click.option("--strict", is_flag=True, help="Settings outside the device's limits are errors, not warnings; so is an "
+              "IFC file that needed a repair, has a problem or loses an element (see 'bimscan info --help').")
+@click.option("--length-unit", type=click.Choice(list(LENGTH_UNITS)), default=None, help=LENGTH_UNIT_HELP)
 @click.option("--scanner", default=None, help="Scanner: riegl_vz400 (default) or a scanner TOML file.")
 @click.option("--head-speed", "head_deg_per_s", type=float, default=None,
               help="Head rotation in deg/s, overriding the preset (fewer points per station when faster).")
@@ -67,7 +70,7 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
          scheme: str | None, engine: str, realism: str | None, sensor_file: str | None, returns: str | None,
          footprint: bool | None, beam_sample_quality: int | None, detection: bool | None, glass: bool | None,
          color: bool | None, deviations: bool | None, material_table: str | None, threads: int,
-         max_station_pulses: int, overwrite: bool, site: SiteModel) -> None:
+         max_station_pulses: int, overwrite: bool, length_unit: str | None, site: SiteModel) -> None:
     """Scan MODEL.ifc with a virtual TLS and write a labelled cloud to OUT.
 
     OUT's suffix picks the format: .laz, .las, .e57, .ply, or a folder (no suffix) of NumPy arrays
@@ -77,6 +80,9 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
     --clutter/--stage the building is scanned as a site (objects added as components, elements
     not yet built left out); stations are planned on that scene.
     """
+    from bimscan.ifc.watchdog import prestart_worker
+
+    prestart_worker()  # IfcOpenShell loads in the geometry worker while this process loads the scanner
     from bimscan.pipeline import scan_model
     from bimscan.scan.noise import NoiseModel
     from bimscan.scan.recipe import ScanRecipe, resolve_sensor
@@ -96,7 +102,7 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
     recipe = ScanRecipe.resolve(preset=preset, scanner=scanner, head_deg_per_s=head_deg_per_s, noise=noise, seed=seed,
                                 engine=engine, stations_from=stations, strict=strict, threads=threads,
                                 max_station_pulses=max_station_pulses, sensor=settings, site=site)
-    result = scan_model(model, out, recipe, scheme=scheme, overwrite=overwrite,
+    result = scan_model(model, out, recipe, scheme=scheme, overwrite=overwrite, length_unit=length_unit,
                         warn=lambda line: click.echo(f"warning: {line}", err=True))
     extents = result.summary.extents()
     names = result.survey.scene.scheme.names

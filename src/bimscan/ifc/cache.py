@@ -7,6 +7,7 @@ Entries are keyed by the file's SHA-256 plus the loader version; each is one unc
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from pathlib import Path
@@ -14,7 +15,18 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.files import atomic_output, write_atomic
-from bimscan.types import ComponentSurfaces, ComponentTable, FailedElement, ParsedModel, SceneMesh, Space, Storey
+from bimscan.types import (
+    ComponentSurfaces,
+    ComponentTable,
+    FailedElement,
+    IfcIssue,
+    IfcLoadReport,
+    IfcRepair,
+    ParsedModel,
+    SceneMesh,
+    Space,
+    Storey,
+)
 
 _TABLE_COLUMNS = ("global_id", "ifc_class", "predefined_type", "name", "storey", "parent_class")
 
@@ -39,6 +51,7 @@ def load_parsed(key: str) -> ParsedModel | None:
                 **{c: arrays[f"component_{c}"] for c in _TABLE_COLUMNS},
                 label=np.zeros(len(arrays["component_global_id"]), dtype=np.uint8),
                 class_ancestry={k: tuple(v) for k, v in meta["class_ancestry"].items()},
+                step_id=arrays["component_step_id"],
             )
             v_split = np.cumsum(meta["space_vertex_counts"])[:-1]
             f_split = np.cumsum(meta["space_face_counts"])[:-1]
@@ -56,6 +69,7 @@ def load_parsed(key: str) -> ParsedModel | None:
             source="", file_sha256="", schema=meta["schema"], mesh=mesh, components=table,
             storeys=tuple(Storey(**s) for s in meta["storeys"]), spaces=spaces,
             failed=tuple(FailedElement(**f) for f in meta["failed"]), surfaces=surfaces,
+            report=_report_from(meta["report"]),
         )
     except (OSError, ValueError, KeyError, TypeError):
         return None  # a damaged entry is simply parsed again
@@ -70,6 +84,8 @@ def store_parsed(key: str, parsed: ParsedModel) -> None:
         arrays = {
             "vertices": parsed.mesh.vertices, "faces": parsed.mesh.faces, "face_component": parsed.mesh.face_component,
             **{f"component_{c}": getattr(parsed.components, c) for c in _TABLE_COLUMNS},
+            "component_step_id": (parsed.components.step_id if parsed.components.step_id is not None
+                                  else np.zeros(len(parsed.components), dtype=np.int64)),
             "space_vertices": np.concatenate([s.vertices for s in spaces]) if spaces else np.empty((0, 3)),
             "space_faces": np.concatenate([s.faces for s in spaces]) if spaces else np.empty((0, 3), np.int32),
         }
@@ -79,7 +95,8 @@ def store_parsed(key: str, parsed: ParsedModel) -> None:
             "schema": parsed.schema,
             "class_ancestry": dict(parsed.components.class_ancestry),
             "storeys": [{"name": s.name, "elevation_m": s.elevation_m} for s in parsed.storeys],
-            "failed": [{"global_id": f.global_id, "ifc_class": f.ifc_class, "reason": f.reason} for f in parsed.failed],
+            "failed": [dataclasses.asdict(f) for f in parsed.failed],
+            "report": dataclasses.asdict(parsed.report),
             "spaces": [{"global_id": s.global_id, "name": s.name, "storey": s.storey} for s in spaces],
             "space_vertex_counts": [len(s.vertices) for s in spaces],
             "space_face_counts": [len(s.faces) for s in spaces],
@@ -89,3 +106,14 @@ def store_parsed(key: str, parsed: ParsedModel) -> None:
         write_atomic(folder / f"{key}.json", json.dumps(meta).encode())
     except OSError:
         return
+
+
+def _report_from(document: dict) -> IfcLoadReport:
+    return IfcLoadReport(
+        declared_elements=int(document["declared_elements"]), length_unit_m=float(document["length_unit_m"]),
+        length_unit_source=str(document["length_unit_source"]),
+        repairs=tuple(IfcRepair(kind=r["kind"], per_class=dict(r["per_class"]), lines=tuple(r["lines"]))
+                      for r in document["repairs"]),
+        issues=tuple(IfcIssue(kind=i["kind"], count=int(i["count"]), lines=tuple(i["lines"]), example=str(i["example"]))
+                     for i in document["issues"]),
+    )

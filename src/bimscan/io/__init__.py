@@ -23,6 +23,8 @@ import shutil
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import numpy as np
+
 from bimscan.errors import InputFileError, OutputError
 from bimscan.io._writer import CloudWriter, WrittenCloud, check_input_path, check_output_path
 from bimscan.io.e57 import count_e57_points, iter_e57_chunks, open_e57_writer, read_e57_header
@@ -136,7 +138,23 @@ def iter_cloud_chunks(
 ) -> Iterator[PointCloud]:
     """Stream a cloud as ``PointCloud`` chunks of at most ``chunk_points`` rows (see read_cloud)."""
     path = check_input_path(path)
-    return CHUNK_READERS[_input_format(path)](path, chunk_points=chunk_points, label_field=label_field)
+    chunks = CHUNK_READERS[_input_format(path)](path, chunk_points=chunk_points, label_field=label_field)
+    return _finite_points(chunks, path)
+
+
+def _finite_points(chunks: Iterator[PointCloud], path: Path) -> Iterator[PointCloud]:
+    """The chunks as they come; InputFileError at the first point with a NaN or infinite coordinate
+    (a damaged file: every figure computed from it would be nonsense)."""
+    seen = 0
+    for chunk in chunks:
+        finite = np.isfinite(chunk.xyz).all(axis=1)
+        if not finite.all():
+            first = int(np.flatnonzero(~finite)[0])
+            raise InputFileError(
+                f"{path}: point {seen + first:,} has coordinates {chunk.xyz[first].tolist()} ({int((~finite).sum()):,} "
+                "non-finite points in its chunk); the file is damaged: export it again")
+        seen += len(chunk)
+        yield chunk
 
 
 def count_points(path: str | Path) -> int:

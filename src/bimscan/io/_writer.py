@@ -1,7 +1,7 @@
 """What every cloud writer shares: temporary outputs renamed at close, column checks, errors.
 
 A writer stages its output under a hidden temporary name in the destination folder
-(``.<name>.<random>.tmp``), streams chunks into it and, at ``close()``, finishes the headers and
+(``.<name>.<pid>-<random>.tmp``, see ``bimscan.files.temp_path``), streams chunks into it and, at ``close()``, finishes the headers and
 renames it into place with ``os.replace`` (atomic for a file on one file system). Any failure,
 and ``abort()``, removes the temporary output; a reader never sees a half-written cloud. The
 temporary name is random but never part of the output bytes.
@@ -21,8 +21,8 @@ from pathlib import Path
 from types import TracebackType
 from typing import BinaryIO, Protocol, Self
 
-from bimscan.errors import InputFileError, OutputError
-from bimscan.files import file_sha256, remove_path, replace_path, temp_path
+from bimscan.errors import OutputError
+from bimscan.files import check_input_file, file_sha256, remove_path, replace_path, temp_path
 from bimscan.io._header import dump_json, header_to_document, present_columns
 from bimscan.types import CloudHeader, PointCloud
 
@@ -97,11 +97,8 @@ def source_date_epoch() -> int | None:
 
 
 def check_input_path(path: str | Path) -> Path:
-    """``path`` as a Path that exists, or an InputFileError."""
-    path = Path(path)
-    if not path.exists():
-        raise InputFileError(f"{path}: no such file or folder; check the path")
-    return path
+    """``path`` as a Path to a regular file or a folder, or an InputFileError saying what it is."""
+    return check_input_file(path, what="a point cloud file or folder", folders=True)
 
 
 class WatchedFile:

@@ -254,6 +254,37 @@ def _stored_document(las_header: laspy.LasHeader, path: Path) -> dict[str, Any] 
     return None
 
 
+def check_header(las_header: laspy.LasHeader, path: Path) -> None:
+    """InputFileError (one line) for a header that cannot describe real points: a scale that is
+    not a positive finite number, a non-finite offset, or point counts that disagree with each
+    other or with the size of an uncompressed file."""
+    for axis, (scale, offset) in enumerate(zip(las_header.scales, las_header.offsets)):
+        if not (np.isfinite(scale) and scale > 0) or not np.isfinite(offset):
+            raise InputFileError(
+                f"{path}: the LAS header's {'xyz'[axis]} scale {float(scale)!r} / offset {float(offset)!r} cannot "
+                "give coordinates (the scale must be a positive number, both finite); the file is damaged: export it again")
+    count = int(las_header.point_count)
+    if las_header.version.minor >= 4:  # LAS 1.4 keeps a 32-bit legacy count (byte 107) beside the 64-bit one
+        with path.open("rb") as handle:
+            handle.seek(107)
+            legacy = int.from_bytes(handle.read(4), "little")
+        if legacy and count < 2**32 and legacy != count:
+            raise InputFileError(f"{path}: the LAS header gives two point counts ({legacy:,} and {count:,}); the file is "
+                                 "damaged: export it again")
+    if las_header.are_points_compressed:
+        return  # the LAZ chunk table is checked by the decompressor
+    record = int(las_header.point_format.size)
+    start = int(las_header.offset_to_point_data)
+    evlr = int(las_header.start_of_first_evlr or 0)
+    end = evlr if evlr > start else path.stat().st_size
+    held, extra = divmod(end - start, record) if record else (count, 0)
+    # Fewer records than the count: cut short. More, filling the data exactly: the count is wrong.
+    # (Other trailing bytes are tolerated: some writers pad.)
+    if held < count or (held != count and (extra == 0 or evlr > start)):
+        raise InputFileError(f"{path}: the LAS header says {count:,} points, the file holds {max(held, 0):,}; the file "
+                             "is damaged or cut short: copy or export it again")
+
+
 def read_las_header(path: str | Path) -> CloudHeader | None:
     """The ``CloudHeader`` bimscan stored in a LAS/LAZ file, or None for a foreign file."""
     path = check_input_path(path)
@@ -321,6 +352,7 @@ def iter_las_chunks(
         raise ValueError(f"chunk_points must be positive, got {chunk_points}")
     with _open(path) as reader:
         las_header = reader.header
+        check_header(las_header, path)
         document = _stored_document(las_header, path)
         names = list(las_header.point_format.dimension_names)
         if label_field is not None and label_field not in names:
@@ -371,6 +403,7 @@ def iter_las_chunks(
 
 
 __all__ = [
-    "LAS_SCALE_M", "LAZ_CHUNK_POINTS", "LasCloudWriter", "count_las_points", "iter_las_chunks", "lookup_name",
+    "LAS_SCALE_M", "LAZ_CHUNK_POINTS", "LasCloudWriter", "check_header", "count_las_points", "iter_las_chunks",
+    "lookup_name",
     "open_las_writer", "open_laz_writer", "read_las_header",
 ]

@@ -137,7 +137,8 @@ def _subset(scene: BimScene, keep: np.ndarray) -> BimScene:
     faces = mesh.faces[faces_kept]
     used, inverse = np.unique(faces, return_inverse=True)
     table = scene.components
-    columns = {f.name: getattr(table, f.name)[keep] for f in dataclasses.fields(table) if f.name != "class_ancestry"}
+    columns = {f.name: None if getattr(table, f.name) is None else getattr(table, f.name)[keep]
+               for f in dataclasses.fields(table) if f.name != "class_ancestry"}
     surfaces = scene.surfaces
     if surfaces is not None:
         surfaces = ComponentSurfaces(color=surfaces.color[keep], transparency=surfaces.transparency[keep],
@@ -192,7 +193,12 @@ def _append(scene: BimScene, placed: list[PlacedObject], *, seed: int) -> BimSce
     for f in dataclasses.fields(table):
         if f.name == "class_ancestry":
             continue
+        if getattr(table, f.name) is None:  # an optional column the model does not have (STEP ids)
+            columns[f.name] = None
+            continue
         values = mapping.labels if f.name == "label" else getattr(added, f.name)
+        if values is None:  # STEP ids: the objects are not in the IFC file
+            values = np.full(len(rows), -1, dtype=getattr(table, f.name).dtype)
         columns[f.name] = np.concatenate([getattr(table, f.name), values])
     offsets = np.cumsum([0] + [len(p.vertices) for p in placed]) + len(mesh.vertices)
     vertices = np.concatenate([mesh.vertices] + [p.vertices for p in placed])

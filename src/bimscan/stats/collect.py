@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bimscan.dataset.layout import DatasetFolder, ManifestEntry, UnitRecord
+from bimscan.dataset.layout import DatasetFolder, ManifestEntry, UnitRecord, verify_unit
 from bimscan.errors import DatasetError
 from bimscan.types import LabelClass
 
@@ -51,8 +51,13 @@ class CollectedDataset:
     scenes: list[str]
 
 
-def collect_units(dataset_dir: str | Path, *, from_clouds: bool = False, chunk_points: int = 2_000_000) -> CollectedDataset:
-    """Figures of every finished unit of the dataset in ``dataset_dir`` (see the module docs)."""
+def collect_units(dataset_dir: str | Path, *, from_clouds: bool = False, chunk_points: int = 2_000_000,
+                  verify: bool = False) -> CollectedDataset:
+    """Figures of every finished unit of the dataset in ``dataset_dir`` (see the module docs).
+
+    ``verify``: first check each finished unit's files against the SHA-256 checksums its unit.json
+    recorded at build time; a damaged or missing file is a DatasetError naming the unit.
+    """
     folder = DatasetFolder(dataset_dir)
     manifest = folder.read_manifest()
     units: list[UnitStats] = []
@@ -69,6 +74,11 @@ def collect_units(dataset_dir: str | Path, *, from_clouds: bool = False, chunk_p
             missing.append(entry)
             continue
         record = folder.read_unit(entry.id)
+        if verify:
+            damage = verify_unit(folder.unit_dir(entry.id), expected_fingerprint=record.fingerprint)
+            if damage is not None:
+                raise DatasetError(f"unit {entry.id}: {damage}; run 'bimscan build' with the dataset's spec again "
+                                   "to rebuild it")
         unit_classes = _classes_of(record, where=str(folder.unit_record_path(entry.id)))
         if not classes:
             classes = unit_classes

@@ -149,12 +149,17 @@ def _class_rows(stats: DatasetStats) -> list[list[object]]:
     return rows
 
 
-def write_stats(dataset_dir: str | Path, out_dir: str | Path | None = None, *, from_clouds: bool = False) -> StatsOutputs:
-    """Compute and write the statistics of a built dataset (default output: ``DATASET_DIR/stats``)."""
+def write_stats(dataset_dir: str | Path, out_dir: str | Path | None = None, *, from_clouds: bool = False,
+                verify: bool = False) -> StatsOutputs:
+    """Compute and write the statistics of a built dataset (default output: ``DATASET_DIR/stats``).
+
+    ``verify``: check every finished unit's files against the checksums in its unit.json first
+    (a DatasetError names the first damaged unit).
+    """
     from bimscan.errors import DatasetError, OutputError
 
     dataset = Path(dataset_dir)
-    collected = collect_units(dataset, from_clouds=from_clouds)
+    collected = collect_units(dataset, from_clouds=from_clouds, verify=verify)
     if not collected.units:
         raise DatasetError(f"{dataset}: no finished unit to summarise; run 'bimscan build' first")
     stats = summarize_dataset(collected)

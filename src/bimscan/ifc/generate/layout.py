@@ -1162,7 +1162,8 @@ def _door_spot(
     """Near edge (world coordinate along the wall) of a door in [lo, hi], clear of columns and,
     where there is room, of beam ends."""
     column_zones = [(c.x0 - 0.1, c.x1 + 0.1) for c in columns]
-    for zones in (blocked, column_zones):
+    column_faces = [(c.x0, c.x1) for c in columns]  # a narrow room: the door may touch the column
+    for zones in (blocked, column_zones, column_faces):
         free = [(a, b) for a, b in _free_intervals(lo, hi, zones) if b - a >= DOOR_WIDTH_M]
         if free:
             a, b = free[int(rng.integers(len(free)))]

@@ -1,0 +1,73 @@
+"""Stopping a command: SIGTERM like Ctrl-C (clean-up, one line, exit 143), Ctrl-C while libraries
+load, library warnings as one line each (issue 13)."""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import pytest
+
+from bimscan.cli.main import main
+from bimscan.errors import IfcError
+
+COMMAND = [sys.executable, "-c", "import sys; from bimscan.cli.main import main; sys.exit(main())"]
+
+
+def _start(args: list[str], cwd: Path) -> subprocess.Popen[str]:
+    return subprocess.Popen([*COMMAND, *args], cwd=cwd, env={**os.environ, "BIMSCAN_PROGRESS": "0"},
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_for(condition, process: subprocess.Popen[str], limit_s: float = 240.0) -> None:
+    start = time.monotonic()
+    while not condition():
+        assert process.poll() is None, process.communicate()
+        assert time.monotonic() - start < limit_s, "the condition never came"
+        time.sleep(0.01)
+
+
+@pytest.mark.slow
+def test_sigterm_during_a_scan_removes_the_temporary_output_and_exits_143(box_room_ifc, tmp_path):
+    process = _start(["scan", str(box_room_ifc), "out.laz", "--preset", "exp1", "--head-speed", "1"], tmp_path)
+    _wait_for(lambda: any(p.name.startswith(".out.laz.") for p in tmp_path.iterdir()), process)
+    process.send_signal(signal.SIGTERM)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 143, err
+    assert err.splitlines()[-1].startswith("error: terminated") and "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # no output, no temporary
+
+
+@pytest.mark.slow
+def test_ctrl_c_while_open3d_loads_is_one_line(box_room_ifc, tmp_path):
+    process = _start(["scan", str(box_room_ifc), "out.laz"], tmp_path)
+    maps = Path(f"/proc/{process.pid}/maps")
+    if not maps.exists():
+        process.kill()
+        pytest.skip("needs /proc to see when Open3D loads")
+    _wait_for(lambda: "open3d" in maps.read_text(), process)
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 130, err
+    assert "Traceback" not in err and err.splitlines()[-1].startswith("error: interrupted")
+    assert [line for line in err.splitlines() if not line.startswith("warning: ")] == [err.splitlines()[-1]]
+    assert not list(tmp_path.iterdir())
+
+
+def test_library_warnings_and_log_records_print_as_warning_lines(monkeypatch, capsys):
+    def noisy_load(*args, **kwargs):
+        warnings.warn("a library\nwarning", UserWarning, stacklevel=1)
+        logging.getLogger("laspy").warning("a library log record")
+        raise IfcError("model.ifc: stop here")
+
+    monkeypatch.setattr("bimscan.pipeline.load_scene", noisy_load)
+    monkeypatch.setattr(logging.getLogger(), "handlers", [])  # as in a console run (pytest adds its own)
+    assert main(["info", "model.ifc"]) == 1
+    assert capsys.readouterr().err.splitlines() == [
+        "warning: a library warning", "warning: a library log record", "error: model.ifc: stop here"]
