@@ -56,6 +56,7 @@ def test_unit_metadata_records_inputs_counts_and_checksums_that_match_the_files(
         assert meta["inputs"]["recipe"]["settings"]["head_deg_per_s"] == 360.0
         assert meta["inputs"]["scene"]["sha256"] == _sha256(out / "scenes" / f"{entry['scene']}.ifc")
         assert meta["ifc_schema"] == "IFC4" and meta["inputs"]["software"].startswith("bimscan ")
+        assert meta["ifc"]["failed"] == [] and meta["ifc"]["report"]["declared_elements"] > 0  # what the IFC needed
         assert len(meta["stations"]) >= 2
         assert meta["points"] == entry["points"] > 10_000
         assert sum(meta["class_histogram"].values()) == meta["points"]

@@ -30,9 +30,12 @@ def _report_build(report: BuildReport) -> None:
 
     for note in report.notes:
         click.echo(f"warning: {note}", err=True)
+    said: set[tuple[str, str]] = set()  # a scene dressed as several sites reports its IFC once
     for scene in report.scenes:
         for note in scene.notes:
-            click.echo(f"warning: scene {scene.scene}: {note}", err=True)
+            if (scene.scene, note) not in said:
+                said.add((scene.scene, note))
+                click.echo(f"warning: scene {scene.scene}: {note}", err=True)
     for entry in report.entries:
         if entry.status == "failed":
             click.echo(f"failed: {entry.id}: {entry.error}", err=True)

@@ -17,6 +17,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 import queue
+import signal
 import threading
 import time
 from collections.abc import Callable
@@ -46,6 +47,9 @@ def driver_alive() -> bool:
 
 
 def _init_worker(channel: Any, parent: int, environment: dict[str, str]) -> None:
+    # Ctrl-C reaches the whole process group: the driver handles it (one line, and it ends the
+    # workers), so a worker does not print a traceback of its own
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     _WORKER_STATE["queue"] = channel
     _WORKER_STATE["parent"] = parent
     os.environ.update(environment)
@@ -142,6 +146,9 @@ class LocalExecutor:
                 return total  # the queue is gone with a broken pool; progress is cosmetic
 
     def close(self, *, cancel: bool = False) -> None:
+        if cancel:  # stopped (Ctrl-C, SIGTERM): end the running units now; the next build sweeps their staging
+            for process in list(getattr(self._pool, "_processes", {}).values()):
+                process.terminate()
         self._pool.shutdown(wait=True, cancel_futures=cancel)
         self._queue.close()
 

@@ -49,7 +49,7 @@ TIMINGS_NAME = "timings.json"
 MANIFEST_FORMAT = "bimscan-dataset"
 MANIFEST_VERSION = 1
 UNIT_FORMAT = "bimscan-unit"
-UNIT_VERSION = 3
+UNIT_VERSION = 4
 STATIONS_FORMAT = "bimscan-stations"
 STATIONS_VERSION = 1
 SITE_FORMAT = "bimscan-site-scene"
@@ -167,7 +167,9 @@ class UnitRecord:
     points. station_counts: station id (text) -> points. files: format key -> name in the unit
     folder; checksums: file name -> SHA-256 of every file written. site: what dressing the scene
     as a site did (``types.SiteState.to_json``: components not built, objects placed per class);
-    empty for the model as it is.
+    empty for the model as it is. ifc: what loading the IFC file repaired, assumed, found wrong
+    (``report``, ``bimscan.ifc.summary.report_document``) and which declared elements produced
+    no geometry (``failed``, with their cause).
     """
 
     id: str
@@ -189,6 +191,7 @@ class UnitRecord:
     checksums: Mapping[str, str]
     bytes: int
     site: Mapping[str, Any] = field(default_factory=dict)
+    ifc: Mapping[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         document = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
@@ -207,7 +210,7 @@ class UnitRecord:
             values["device_warnings"] = tuple(str(w) for w in values["device_warnings"])
             for name in ("points", "points_scanned", "dropped_invalid", "dropped_by_voxel", "bytes"):
                 values[name] = int(values[name])
-            for name in ("files", "checksums", "class_histogram", "station_counts", "extents", "inputs", "site"):
+            for name in ("files", "checksums", "class_histogram", "station_counts", "extents", "inputs", "site", "ifc"):
                 if not isinstance(values[name], dict):
                     raise TypeError(f"{name} must be an object")
             return UnitRecord(**values)

@@ -44,6 +44,7 @@ class SceneJob:
     stations_key: str  # fingerprint of what the stations depend on
     site_tag: str = ""  # the site state ("" for the model as it is)
     site_file: str = ""  # where the dressed scene goes ("" for the model as it is)
+    length_unit: str | None = None  # the scene's length unit override
 
 
 @dataclass(frozen=True)
@@ -63,6 +64,7 @@ class UnitJob:
     fingerprint: str
     site_tag: str = ""  # which of the scene's station files (and dressed scenes) it scans from
     site_key: str = ""  # what its dressed scene must have been dressed from (the scene job's stations key)
+    length_unit: str | None = None  # the scene's length unit override
 
 
 @dataclass(frozen=True)
@@ -134,7 +136,8 @@ def scene_inputs(scene: SceneSpec, scene_file: Path) -> dict[str, Any]:
     if scene.stations != AUTO_STATIONS:
         stations = {"file": Path(scene.stations).name, "sha256": file_sha256(Path(scene.stations))}
     return {"scene": {"name": scene.name, "file": scene_file.name, "sha256": file_sha256(scene_file),
-                      "generated": None if scene.generate is None else dataclasses.asdict(scene.generate)},
+                      "generated": None if scene.generate is None else dataclasses.asdict(scene.generate),
+                      "length_unit": scene.length_unit},
             "stations": stations}
 
 
@@ -205,7 +208,8 @@ def plan_build(spec: DatasetSpec, folder: DatasetFolder, scenes: SceneFiles, *,
             unit_jobs[uid] = UnitJob(unit=uid, scene=scene.name, config=config.name, ifc=str(scene_files[scene.name]),
                                      scheme=spec.scheme, recipe=recipe, formats=spec.formats,
                                      voxel_size_m=spec.voxel_size_m, out_dir=str(folder.root), inputs=inputs,
-                                     fingerprint=key, site_tag=tag, site_key=stations_key(inputs_of_scene, recipe))
+                                     fingerprint=key, site_tag=tag, site_key=stations_key(inputs_of_scene, recipe),
+                                     length_unit=scene.length_unit)
             scene_recipes.setdefault(tag, recipe)
         if inputs_of_scene is not None:
             for tag, scene_recipe in scene_recipes.items():
@@ -214,5 +218,5 @@ def plan_build(spec: DatasetSpec, folder: DatasetFolder, scenes: SceneFiles, *,
                 scene_jobs.append(SceneJob(scene=scene.name, ifc=str(scene_files[scene.name]), scheme=spec.scheme,
                                            recipe=scene_recipe, stations_file=stations_file,
                                            stations_key=stations_key(inputs_of_scene, scene_recipe), site_tag=tag,
-                                           site_file=site_file))
+                                           site_file=site_file, length_unit=scene.length_unit))
     return BuildPlan(entries=entries, unit_jobs=unit_jobs, scene_jobs=scene_jobs)

@@ -24,6 +24,7 @@ A spec is one TOML file (paths inside it are relative to the file)::
     name = "duplex"
     ifc = "models/duplex.ifc"
     stations = "auto"             # or a station CSV file
+    length_unit = "mm"            # optional: the IFC's lengths in this unit, whatever it says (m, cm, mm, ft, in)
 
     [[scenes]]
     name = "demo1"
@@ -93,6 +94,13 @@ class SceneSpec:
     ifc: str | None = None
     generate: GeneratedScene | None = None
     stations: str = AUTO_STATIONS  # "auto" or a station CSV file (absolute once loaded)
+    length_unit: str | None = None  # read the IFC's lengths in this unit (bimscan.ifc.units.LENGTH_UNITS)
+
+    def __post_init__(self) -> None:
+        from bimscan.ifc.units import LENGTH_UNITS
+
+        if self.length_unit is not None and self.length_unit not in LENGTH_UNITS:
+            raise ValueError(f"length_unit {self.length_unit!r} is not one of {', '.join(LENGTH_UNITS)}")
 
 
 @dataclass(frozen=True)

@@ -82,13 +82,16 @@ def _one_line(error: BaseException) -> str:
 
 def run_scene_job(job: SceneJob) -> SceneOutcome:
     """Parse the scene (filling the geometry cache), dress it, and plan or read its stations once."""
+    from bimscan.ifc.summary import report_lines
     from bimscan.pipeline import build_site_timed, load_scene
     from bimscan.survey.survey import choose_stations, place_scanner
 
     try:
         start = time.perf_counter()
-        scene = load_scene(job.ifc, scheme=job.scheme, threads=job.recipe.threads)
+        scene = load_scene(job.ifc, scheme=job.scheme, threads=job.recipe.threads, strict=job.recipe.strict,
+                           length_unit=job.length_unit)
         parse_s = time.perf_counter() - start
+        loading = tuple(report_lines(scene))  # what the IFC needed repaired or lost: said at every build
         path = Path(job.stations_file)
         site_path = Path(job.site_file) if job.site_file else None
         if path.is_file():
@@ -96,8 +99,8 @@ def run_scene_job(job: SceneJob) -> SceneOutcome:
                 stored = read_json(path)
                 dressed_ok = site_path is None or read_site_scene(site_path, scene, job.stations_key) is not None
                 if stored.get("key") == job.stations_key and dressed_ok:
-                    return SceneOutcome(scene=job.scene, n_stations=len(stored["stations"]),
-                                        parse_s=parse_s, notes=tuple(stored.get("notes", ())), site_tag=job.site_tag)
+                    return SceneOutcome(scene=job.scene, n_stations=len(stored["stations"]), parse_s=parse_s,
+                                        notes=loading + tuple(stored.get("notes", ())), site_tag=job.site_tag)
             except (DatasetError, KeyError, TypeError):
                 pass  # damaged: plan again
         site_start = time.perf_counter()
@@ -112,7 +115,7 @@ def run_scene_job(job: SceneJob) -> SceneOutcome:
         write_json(path, {"format": STATIONS_FORMAT, "version": STATIONS_VERSION, "key": job.stations_key,
                           "scene": job.scene, "site": job.site_tag,
                           "stations": [dataclasses.asdict(s) for s in stations], "notes": notes})
-        return SceneOutcome(scene=job.scene, n_stations=len(stations), parse_s=parse_s, notes=tuple(notes),
+        return SceneOutcome(scene=job.scene, n_stations=len(stations), parse_s=parse_s, notes=loading + tuple(notes),
                             site_tag=job.site_tag, site_s=site_s, placement_s=timings.placement_s,
                             site_rooms=timings.rooms)
     except (BimscanError, OSError) as exc:
@@ -122,6 +125,7 @@ def run_scene_job(job: SceneJob) -> SceneOutcome:
 def run_unit_job(job: UnitJob) -> UnitOutcome:
     """Scan one unit into a staging folder, check what was written, and move it into place."""
     from bimscan.io import open_cloud_writer
+    from bimscan.ifc.summary import report_document
     from bimscan.pipeline import build_site, load_scene, stream_checked
     from bimscan.process.checks import SemanticError
     from bimscan.process.subsample import VoxelSubsampler
@@ -133,7 +137,8 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
     staged: Path | None = None
     writers: dict[str, CloudWriter] = {}
     try:
-        scene = load_scene(job.ifc, scheme=job.scheme, threads=job.recipe.threads)
+        scene = load_scene(job.ifc, scheme=job.scheme, threads=job.recipe.threads, strict=job.recipe.strict,
+                           length_unit=job.length_unit)
         load_s = time.perf_counter() - start
         if job.site_tag:  # the scene task's dressed scene, else dressed again (the same bytes)
             stored = read_site_scene(folder.site_scene_path(job.scene, job.site_tag), scene, job.site_key)
@@ -175,6 +180,7 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
             class_histogram=kept.histogram(scene.scheme.names),
             station_counts={str(k): v for k, v in sorted(kept.station_counts.items())}, files=files,
             checksums=checksums, bytes=n_bytes, site={} if scene.site is None else scene.site.to_json(),
+            ifc={"report": report_document(scene.report), "failed": [dataclasses.asdict(f) for f in scene.failed]},
         )
         write_unit_record(staged, record)
         write_json(staged / TIMINGS_NAME, {"load_s": round(load_s, 3), "site_s": round(site_s, 3),
