@@ -114,4 +114,25 @@ def predict(
     click.echo(f"wrote {result.path}: {result.points:,} points in {result.seconds:.1f} s ({shares})")
 
 
-COMMANDS: list[click.Command] = [train, evaluate, predict]
+@click.command("sim2real")
+@click.argument("experiment", type=click.Path(path_type=Path, dir_okay=False))
+@click.argument("out_dir", type=click.Path(path_type=Path, file_okay=False))
+@click.option("--real", "real", multiple=True, type=click.Path(path_type=Path),
+              help="Real labelled scenes to score on, replacing [real] scenes of the file (repeatable).")
+@click.option("--device", type=DEVICES, default=None, help="Replaces [train] device of the file.")
+def sim2real(experiment: Path, out_dir: Path, real: tuple[Path, ...], device: str | None) -> None:
+    """Train on synthetic variants only and score each on real scans (see configs/sim2real_cpu.toml).
+
+    Builds the variants' datasets (resumable), trains one PCT per variant with the same seed and
+    schedule (real scenes as validation: curves per epoch), evaluates each on every real scene
+    and writes OUT_DIR/report.md, results.csv/.json, val_miou.png and per variant its
+    confusion matrix and curves. Run the same command again to continue a killed run.
+    """
+    from bimscan.learn.experiment import format_report, load_experiment, run_experiment
+
+    parsed = load_experiment(experiment, real=list(real) or None, device=device)
+    summary = run_experiment(parsed, out_dir, log=lambda text: click.echo(text, err=True))
+    click.echo(format_report(summary), nl=False)
+
+
+COMMANDS: list[click.Command] = [train, evaluate, predict, sim2real]

@@ -59,7 +59,8 @@ def normalize_block(xyz: np.ndarray, *, lower: np.ndarray | None = None, upper: 
 
 @dataclass(frozen=True)
 class Block:
-    """One network input: xyz (N, 3) float32 normalised, label (N,) int64 (255 = ignore,
+    """One network input: xyz (N, D) float32, the normalised coordinates then any extra
+    channels (:mod:`bimscan.learn.features`), label (N,) int64 (255 = ignore,
     padding included), mask (N,) bool (False = padding), index (N,) int64 into the points the
     block was drawn from (-1 = padding)."""
 
@@ -71,22 +72,25 @@ class Block:
 
 def pad_block(
     xyz: np.ndarray, label: np.ndarray | None, index: np.ndarray, *, points: int,
-    lower: np.ndarray | None = None, upper: np.ndarray | None = None,
+    lower: np.ndarray | None = None, upper: np.ndarray | None = None, extra: np.ndarray | None = None,
 ) -> Block:
     """Normalise up to ``points`` selected points and zero-pad to exactly ``points`` rows.
 
     ``xyz`` (M, 3) float64 and ``label`` (M,) uint8 are the selected points, ``index`` (M,) their
-    indices in the source; M <= points.
+    indices in the source; M <= points. ``extra`` (M, E): more input channels, appended as they are.
     """
     m = len(xyz)
     if m > points:
         raise ValueError(f"{m} points do not fit a block of {points}")
-    out_xyz = np.zeros((points, 3), dtype=np.float32)
+    channels = 3 + (0 if extra is None else extra.shape[1])
+    out_xyz = np.zeros((points, channels), dtype=np.float32)
     out_label = np.full(points, IGNORE_LABEL, dtype=np.int64)
     mask = np.zeros(points, dtype=bool)
     out_index = np.full(points, -1, dtype=np.int64)
     if m:
-        out_xyz[:m] = normalize_block(xyz, lower=lower, upper=upper)
+        out_xyz[:m, :3] = normalize_block(xyz, lower=lower, upper=upper)
+        if extra is not None:
+            out_xyz[:m, 3:] = extra
         if label is not None:
             out_label[:m] = label
         mask[:m] = True

@@ -21,6 +21,7 @@ from torch import nn
 from bimscan.errors import InputFileError, LearnError
 from bimscan.files import atomic_output
 from bimscan.learn.train_config import TrainRunConfig, parse_config
+from bimscan.learn.features import input_channels
 from bimscan.learn.model import PCTSegmentation, build_model
 
 CHECKPOINT_FORMAT = "bimscan-pct-checkpoint"
@@ -143,7 +144,7 @@ def load_trained_model(
     class_names = tuple(payload["class_names"])
     if len(class_names) < 2:
         raise InputFileError(f"{path}: damaged checkpoint, {len(class_names)} class name(s); pass a bimscan checkpoint")
-    model = build_model(len(class_names), config.model)
+    model = build_model(len(class_names), config.model, in_dim=input_channels(config.input.features))
     key = "ema" if weights == "ema" else "model"
     load_state(model, payload[key], what=f"{key} weights", path=path)
     model.to(device).eval()

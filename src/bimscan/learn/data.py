@@ -31,8 +31,10 @@ from bimscan.dataset.layout import DatasetFolder
 from bimscan.errors import InputFileError, LearnError
 from bimscan.files import atomic_output
 from bimscan.io.text import TEXT_SUFFIXES
-from bimscan.learn.blocks import locate_columns, encode_column_key, sample_block, decode_column_key
-from bimscan.learn.train_config import DEFAULT_CLASS_NAMES, IGNORE_LABEL, BlockConfig
+from bimscan.learn.blocks import locate_columns, encode_column_key, pad_block, sample_block, decode_column_key
+from bimscan.learn.density import point_hash, voxel_hash
+from bimscan.learn.features import extra_features, floor_height
+from bimscan.learn.train_config import DEFAULT_CLASS_NAMES, IGNORE_LABEL, AugmentConfig, BlockConfig, InputConfig
 from bimscan.learn.mapping import (
     LabelMapping, apply_label_table, build_label_table, load_s3dis_mapping,
 )
@@ -235,7 +237,8 @@ class TileSet:
 
     xyz (P, 3) float32 metres relative to the tile's ``origin``; label (P,) uint8 training ids;
     offsets (T+1,) int64 into xyz/label; origin (T, 3) float64; key (T,) int64 column key;
-    count (T,) int64 points of the whole column; scene (T,) int32 index into ``scene_names``.
+    count (T,) int64 points of the whole column; scene (T,) int32 index into ``scene_names``;
+    floor (T,) float64 the floor level (absolute z) of the tile's scene.
     """
 
     xyz: np.ndarray
@@ -246,6 +249,7 @@ class TileSet:
     count: np.ndarray
     scene: np.ndarray
     scene_names: tuple[str, ...]
+    floor: np.ndarray
 
     def __len__(self) -> int:
         return int(len(self.offsets) - 1)
@@ -274,6 +278,7 @@ class TileSet:
             count=np.concatenate([p.count for p in parts]) if parts else np.empty(0, np.int64),
             scene=np.concatenate(scenes).astype(np.int32) if parts else np.empty(0, np.int32),
             scene_names=tuple(names),
+            floor=np.concatenate([p.floor for p in parts]) if parts else np.empty(0, np.float64),
         )
 
 
@@ -284,13 +289,18 @@ def _scene_seed(seed: int, source: SceneSource) -> np.random.SeedSequence:
 
 def collect_scene_tiles(
     source: SceneSource, *, blocks: BlockConfig, class_names: Sequence[str], seed: int,
-    chunk_points: int = CHUNK_POINTS,
+    chunk_points: int = CHUNK_POINTS, grid_m: float = 0.0,
 ) -> TileSet:
     """Stream one scene into its training columns, keeping <= ``blocks.cache_points`` each.
 
     Each point gets a random key; each column keeps its points with the smallest keys, i.e. a
     uniform random subset without replacement, independent of how the stream is chunked.
     Columns with fewer than ``blocks.min_points`` points or no labelled point are dropped.
+
+    With ``grid_m`` > 0 (density normalisation, :mod:`bimscan.learn.density`) the key is a hash
+    of the point's voxel, the same for all its points, and of the points sharing a voxel only the
+    one with the smallest coordinate hash is kept: each column keeps a uniform random subset of
+    its occupied voxels, one point each, whatever the stream's order and chunking.
 
     Cost: a chunk's points that cannot enter their (full) column are dropped by one lookup;
     the rest wait until they are a quarter of the kept points, then are sorted and merged
@@ -312,27 +322,37 @@ def collect_scene_tiles(
     for chunk in iter_scene_chunks(source, class_names=class_names, chunk_points=chunk_points):
         ix, iy = locate_columns(chunk.xyz[:, :2], size_m=blocks.size_m)
         key = encode_column_key(ix, iy)
-        prio = rng.random(len(key))
         unique, unique_counts = np.unique(key, return_counts=True)
         column_keys.append(unique)
         column_counts.append(unique_counts)
         xyz, label = chunk.xyz, chunk.label
+        if grid_m > 0:
+            voxel = voxel_hash(xyz, grid_m, seed=seed)
+            # one point per voxel within the chunk (smallest coordinate hash); across chunks in _keep_smallest
+            order = np.lexsort((point_hash(xyz), voxel))
+            first = order[np.r_[True, voxel[order][1:] != voxel[order][:-1]]] if len(order) else order
+            first.sort()
+            key, xyz, label = key[first], xyz[first], label[first]
+            prio = (voxel[first] >> np.uint64(11)).astype(np.float64) * 2.0**-53
+        else:
+            prio = rng.random(len(key))
         if len(full_key):
-            # points above their full column's largest kept key can never enter it
+            # points above their full column's largest kept key can never enter it (with a grid,
+            # a point of the largest kept voxel still can: it may be that voxel's representative)
             pos = np.clip(np.searchsorted(full_key, key), 0, len(full_key) - 1)
             threshold = np.where(full_key[pos] == key, full_prio[pos], np.inf)
-            take = prio < threshold
+            take = prio <= threshold if grid_m > 0 else prio < threshold
             key, prio, xyz, label = key[take], prio[take], xyz[take], label[take]
         pending.append((key, prio, xyz, label))
         pending_points += len(key)
         if pending_points >= len(kept_key) // 4:  # measured: a quarter beats a half or a tenth
             kept_key, kept_prio, kept_xyz, kept_label, full_key, full_prio = _keep_smallest(
-                [(kept_key, kept_prio, kept_xyz, kept_label), *pending], limit=limit,
+                [(kept_key, kept_prio, kept_xyz, kept_label), *pending], limit=limit, one_per_key=grid_m > 0,
             )
             pending, pending_points = [], 0
     if pending:
         kept_key, kept_prio, kept_xyz, kept_label, _, _ = _keep_smallest(
-            [(kept_key, kept_prio, kept_xyz, kept_label), *pending], limit=limit,
+            [(kept_key, kept_prio, kept_xyz, kept_label), *pending], limit=limit, one_per_key=grid_m > 0,
         )
     if column_keys:
         keys, inverse = np.unique(np.concatenate(column_keys), return_inverse=True)
@@ -340,22 +360,39 @@ def collect_scene_tiles(
         counts = dict(zip(keys.tolist(), totals.tolist(), strict=True))
     else:
         counts = {}
-    return _tiles_from_points(source, kept_key, kept_xyz, kept_label, counts, blocks=blocks)
+    floor = floor_height(kept_xyz[:, 2])
+    return _tiles_from_points(source, kept_key, kept_xyz, kept_label, counts, blocks=blocks, floor=floor)
 
 
 def _keep_smallest(
-    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]], *, limit: int,
+    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]], *, limit: int, one_per_key: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The ``limit`` points with the smallest random keys of each column among ``parts``.
 
     ``parts``: (column key (M,) int64, random key (M,) float64, xyz (M, 3), label (M,)) in
     stream order. Returns those four columns sorted by (column, random key), ties in stream
     order, then the full columns (F,) int64 with their largest kept random key (F,) float64.
+    With ``one_per_key`` (grid sampling: the random key is the voxel's) points sharing a column
+    and a key keep only the one with the smallest coordinate hash.
     """
     key = np.concatenate([p[0] for p in parts])
     prio = np.concatenate([p[1] for p in parts])
     order, sorted_column = _sort_by_column_and_key(key, prio)
-    n = len(key)
+    if one_per_key and len(order) > 1:
+        xyz_all = np.concatenate([p[2] for p in parts])
+        ordered_prio = prio[order]
+        tie = (sorted_column[1:] == sorted_column[:-1]) & (ordered_prio[1:] == ordered_prio[:-1])
+        if tie.any():
+            run_start = np.r_[True, ~tie]  # True where a new (column, key) run begins
+            run_id = np.cumsum(run_start) - 1
+            tied = np.flatnonzero(np.r_[tie, False] | np.r_[False, tie])
+            best = tied[np.lexsort((point_hash(xyz_all[order[tied]]), run_id[tied]))]
+            first_of_run = np.r_[True, run_id[best][1:] != run_id[best][:-1]]
+            keep = np.ones(len(order), dtype=bool)
+            keep[tied] = False
+            keep[best[first_of_run]] = True  # a run shares column and key: any position keeps the order
+            order, sorted_column = order[keep], sorted_column[keep]
+    n = len(order)
     starts = np.flatnonzero(np.r_[True, sorted_column[1:] != sorted_column[:-1]]) if n else np.empty(0, np.int64)
     sizes = np.diff(np.r_[starts, n])
     taken = np.minimum(sizes, limit)
@@ -403,7 +440,7 @@ def _sort_by_column_and_key(key: np.ndarray, prio: np.ndarray) -> tuple[np.ndarr
 
 def _tiles_from_points(
     source: SceneSource, key: np.ndarray, xyz: np.ndarray, label: np.ndarray, counts: dict[int, int],
-    *, blocks: BlockConfig,
+    *, blocks: BlockConfig, floor: float,
 ) -> TileSet:
     starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]]) if len(key) else np.empty(0, np.int64)
     ends = np.r_[starts[1:], len(key)].astype(np.int64)
@@ -430,6 +467,7 @@ def _tiles_from_points(
         count=np.asarray(totals, dtype=np.int64),
         scene=np.zeros(len(keys), dtype=np.int32),
         scene_names=(source.name,),
+        floor=np.full(len(keys), floor, dtype=np.float64),
     )
 
 
@@ -445,12 +483,14 @@ def _fingerprint(path: Path) -> list[object]:
     return rows
 
 
-def name_tile_cache(source: SceneSource, *, blocks: BlockConfig, class_names: Sequence[str], seed: int) -> str:
+def name_tile_cache(
+    source: SceneSource, *, blocks: BlockConfig, class_names: Sequence[str], seed: int, grid_m: float = 0.0,
+) -> str:
     """File name of a scene's cached tiles: a digest of everything the tiles depend on."""
     recipe = {
-        "version": 1, "scene": _fingerprint(source.path), "name": source.name, "kind": source.kind,
+        "version": 2, "scene": _fingerprint(source.path), "name": source.name, "kind": source.kind,
         "label_field": source.label_field, "mapping": None if source.mapping is None else asdict(source.mapping),
-        "blocks": asdict(blocks), "class_names": list(class_names), "seed": seed,
+        "blocks": asdict(blocks), "class_names": list(class_names), "seed": seed, "grid_m": grid_m,
     }
     digest = hashlib.sha256(json.dumps(recipe, sort_keys=True, default=str).encode()).hexdigest()[:24]
     return f"tiles-{digest}.npz"
@@ -458,29 +498,30 @@ def name_tile_cache(source: SceneSource, *, blocks: BlockConfig, class_names: Se
 
 def load_or_collect_tiles(
     source: SceneSource, *, blocks: BlockConfig, class_names: Sequence[str], seed: int,
-    cache_dir: Path | None = None, build: bool = True,
+    cache_dir: Path | None = None, build: bool = True, grid_m: float = 0.0,
 ) -> TileSet:
     """Tiles of one scene, from ``cache_dir`` when cached there, else collected (and cached).
 
     With ``build`` False a missing cache entry is an error (DDP ranks other than 0 only read).
     """
     if cache_dir is None:
-        return collect_scene_tiles(source, blocks=blocks, class_names=class_names, seed=seed)
-    path = cache_dir / name_tile_cache(source, blocks=blocks, class_names=class_names, seed=seed)
+        return collect_scene_tiles(source, blocks=blocks, class_names=class_names, seed=seed, grid_m=grid_m)
+    path = cache_dir / name_tile_cache(source, blocks=blocks, class_names=class_names, seed=seed, grid_m=grid_m)
     if path.is_file():
         with np.load(path) as data:
             return TileSet(
                 xyz=data["xyz"], label=data["label"], offsets=data["offsets"], origin=data["origin"],
                 key=data["key"], count=data["count"], scene=data["scene"], scene_names=(source.name,),
+                floor=data["floor"],
             )
     if not build:
         raise LearnError(f"{path}: tile cache missing (rank 0 should have written it); rerun the training")
-    tiles = collect_scene_tiles(source, blocks=blocks, class_names=class_names, seed=seed)
+    tiles = collect_scene_tiles(source, blocks=blocks, class_names=class_names, seed=seed, grid_m=grid_m)
     cache_dir.mkdir(parents=True, exist_ok=True)
     with atomic_output(path) as temp, temp.open("wb") as out:
         np.savez(
             out, xyz=tiles.xyz, label=tiles.label, offsets=tiles.offsets, origin=tiles.origin,
-            key=tiles.key, count=tiles.count, scene=tiles.scene,
+            key=tiles.key, count=tiles.count, scene=tiles.scene, floor=tiles.floor,
         )
     return tiles
 
@@ -491,13 +532,20 @@ class TileDataset:
     Items are addressed by ``(epoch, tile)`` keys: the block of a tile in an epoch is a random
     sample seeded by (seed, epoch, tile), so it is the same whatever process, worker or order
     draws it (the basis of exact resume and of DDP = one process). Each item is a dict of
-    ``xyz`` (N, 3) float32, ``label`` (N,) int64 (255 = ignore/padding), ``mask`` (N,) bool.
+    ``xyz`` (N, D) float32 (normalised xyz, then the ``inputs`` features), ``label`` (N,) int64
+    (255 = ignore/padding), ``mask`` (N,) bool. With ``augment`` the sampled points are
+    augmented (:mod:`bimscan.learn.augment`) before the features are computed from them.
     """
 
-    def __init__(self, tiles: TileSet, *, points: int, seed: int) -> None:
+    def __init__(
+        self, tiles: TileSet, *, points: int, seed: int, inputs: InputConfig | None = None,
+        augment: AugmentConfig | None = None,
+    ) -> None:
         self.tiles = tiles
         self.points = points
         self.seed = seed
+        self.inputs = inputs or InputConfig(grid_m=0.0, features=("xyz",))
+        self.augment = augment if augment is not None and augment.enabled else None
 
     def __len__(self) -> int:
         return len(self.tiles)
@@ -506,5 +554,23 @@ class TileDataset:
         epoch, index = key
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, epoch, index]))
         xyz, label = self.tiles.tile_points(index)
-        block = sample_block(xyz, label, points=self.points, rng=rng)
+        if self.augment is None and self.inputs.features == ("xyz",):
+            block = sample_block(xyz, label, points=self.points, rng=rng)  # the paper's block, bit for bit
+            return {"xyz": block.xyz, "label": block.label, "mask": block.mask}
+        from bimscan.learn.augment import augment_points
+
+        m = len(xyz)
+        chosen = np.sort(rng.choice(m, size=self.points, replace=False)) if m > self.points else np.arange(m)
+        xyz, label = xyz[chosen], label[chosen]
+        lower, upper = xyz.min(axis=0), xyz.max(axis=0)
+        if self.augment is not None:
+            xyz, kept = augment_points(xyz, config=self.augment, rng=rng)
+            label, chosen = label[kept], chosen[kept]
+            lower, upper = xyz.min(axis=0), xyz.max(axis=0)
+        absolute = xyz + np.array([0.0, 0.0, self.tiles.origin[index, 2]])
+        extra = extra_features(
+            absolute, features=self.inputs.features, floor_z=float(self.tiles.floor[index]),
+            height_scale_m=self.inputs.height_scale_m, neighbours=self.inputs.normal_neighbours,
+        )
+        block = pad_block(xyz, label, chosen, points=self.points, lower=lower, upper=upper, extra=extra)
         return {"xyz": block.xyz, "label": block.label, "mask": block.mask}

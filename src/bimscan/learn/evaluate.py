@@ -58,7 +58,7 @@ def evaluate_checkpoint(
         labels = label_scene(
             trained.model, source, class_names=trained.class_names, blocks=trained.config.blocks,
             device=torch_device, batch_size=batch_size, amp=trained.config.train.amp, seed=seed,
-            max_passes=max_passes, work_dir=work_dir,
+            max_passes=max_passes, work_dir=work_dir, inputs=trained.config.input,
         )
         if labels.labelled == 0:
             raise LearnError(

@@ -16,6 +16,11 @@ Bounded memory for scenes of tens of millions of points:
    density; ``max_passes`` can cap the groups per block, and points no group saw take the
    class of their nearest voted neighbour.
 
+With density normalisation (``inputs.grid_m`` > 0, :mod:`bimscan.learn.density`) blocks are
+made of one representative point per voxel, as in training; every other point takes the
+votes of its voxel's representative, which is the same point in every block holding it.
+Extra input features (height, normals) are computed per block group exactly as in training.
+
 Results reach the caller per finished stripe (``on_labels(index, prediction)``), so a
 caller writes labels to disk (prediction) or only counts them (evaluation).
 """
@@ -34,13 +39,16 @@ from torch import nn
 
 from bimscan.errors import LearnError
 from bimscan.learn.blocks import Block, pad_block, plan_passes
-from bimscan.learn.train_config import IGNORE_LABEL, BlockConfig
+from bimscan.learn.density import grid_representatives
+from bimscan.learn.features import extra_features, floor_height
+from bimscan.learn.train_config import IGNORE_LABEL, BlockConfig, InputConfig
 from bimscan.learn.data import CHUNK_POINTS, SceneSource, iter_raw_chunks, iter_scene_chunks
 from bimscan.learn.metrics import compute_confusion
 from bimscan.learn.model import autocast_context, flush_denormals
 from bimscan.progress import progress_bar
 from bimscan.types import PointCloud
 
+FLOOR_SAMPLE = 10_000  # heights kept to find the floor: memory bounded whatever the scene size
 RECORD = np.dtype([("xyz", "<f8", (3,)), ("label", "u1"), ("index", "<i8")])
 
 
@@ -110,19 +118,22 @@ def label_scene(
     device: torch.device | str = "cpu", batch_size: int = 8, amp: str = "off", seed: int = 0,
     max_passes: int = 0, use_labels: bool = True, work_dir: Path | None = None,
     on_labels: Callable[[np.ndarray, np.ndarray], None] | None = None, chunk_points: int = CHUNK_POINTS,
+    inputs: InputConfig | None = None,
 ) -> SceneLabels:
     """Predict a class for every point of ``source`` (see the module docstring).
 
     ``model`` must be in eval mode. ``use_labels`` False ignores the scene's labels (prediction
     of unlabelled or foreign-labelled scans). ``on_labels(index, prediction)`` receives (M,)
     int64 original point indices and (M,) uint8 classes, stripe by stripe. Temporary stripe
-    files go to ``work_dir`` (default: the system's temporary folder).
+    files go to ``work_dir`` (default: the system's temporary folder). ``inputs``: what the
+    network was trained on (default: the paper's raw XYZ).
     """
     with flush_denormals():
         return _label_scene(
             model, source, class_names=class_names, blocks=blocks, device=torch.device(device),
             batch_size=batch_size, amp=amp, seed=seed, max_passes=max_passes, use_labels=use_labels,
             work_dir=work_dir, on_labels=on_labels, chunk_points=chunk_points,
+            inputs=inputs or InputConfig(grid_m=0.0, features=("xyz",)),
         )
 
 
@@ -130,6 +141,7 @@ def _label_scene(
     model: nn.Module, source: SceneSource, *, class_names: Sequence[str], blocks: BlockConfig,
     device: torch.device, batch_size: int, amp: str, seed: int, max_passes: int, use_labels: bool,
     work_dir: Path | None, on_labels: Callable[[np.ndarray, np.ndarray], None] | None, chunk_points: int,
+    inputs: InputConfig,
 ) -> SceneLabels:
     started = time.perf_counter()
     stride = blocks.eval_stride_m
@@ -142,7 +154,7 @@ def _label_scene(
     block_count = 0
     with tempfile.TemporaryDirectory(prefix=".bimscan-stripes-", dir=work_dir) as temp:
         folder = Path(temp)
-        counts, lower, upper, cy_range = _bucket_points(
+        counts, lower, upper, cy_range, floor_z = _bucket_points(
             source, folder, class_names=class_names, stride=stride, use_labels=use_labels, chunk_points=chunk_points,
         )
         total = sum(counts.values())
@@ -161,6 +173,10 @@ def _label_scene(
                 xyz = np.concatenate([loaded[s][0]["xyz"] for s in window])
                 offsets = np.cumsum([0] + [len(loaded[s][0]) for s in window])
                 runner.votes = np.zeros((len(xyz), classes), dtype=np.float32)
+                if inputs.grid_m > 0:
+                    representatives, rep_of = grid_representatives(xyz, inputs.grid_m)
+                    is_rep = np.zeros(len(xyz), dtype=bool)
+                    is_rep[representatives] = True
                 cy = np.floor(xyz[:, 1] / stride).astype(np.int64)
                 order = np.argsort(cy, kind="stable")
                 cy_sorted = cy[order]
@@ -172,15 +188,24 @@ def _label_scene(
                     if hi == lo:
                         continue
                     members = order[lo:hi]
+                    if inputs.grid_m > 0:
+                        members = np.sort(members[is_rep[members]])
                     points = xyz[members]
                     box_lower, box_upper = points.min(axis=0), points.max(axis=0)
                     rng = np.random.default_rng(_seed(seed, column, row))
                     for group in plan_passes(len(members), points=blocks.points, rng=rng, max_passes=max_passes):
+                        extra = extra_features(
+                            points[group], features=inputs.features, floor_z=floor_z,
+                            height_scale_m=inputs.height_scale_m, neighbours=inputs.normal_neighbours,
+                        )
                         runner.add(pad_block(
                             points[group], None, members[group], points=blocks.points, lower=box_lower, upper=box_upper,
+                            extra=extra,
                         ))
                     block_count += 1
                 runner.flush()
+                if inputs.grid_m > 0:
+                    runner.votes = runner.votes[rep_of]  # every point votes as its voxel's representative
                 for s, a, b in zip(window, offsets[:-1], offsets[1:], strict=True):
                     loaded[s][1][:] += runner.votes[a:b]
                 next_column = columns[position + 1] if position + 1 < len(columns) else None
@@ -206,9 +231,11 @@ def _label_scene(
 def _bucket_points(
     source: SceneSource, folder: Path, *, class_names: Sequence[str], stride: float, use_labels: bool,
     chunk_points: int,
-) -> tuple[dict[int, int], np.ndarray, np.ndarray, tuple[int, int]]:
-    """Stream the scene into per-stripe record files; returns counts, bounds and the y-cell range."""
+) -> tuple[dict[int, int], np.ndarray, np.ndarray, tuple[int, int], float]:
+    """Stream the scene into per-stripe record files; returns counts, bounds, the y-cell range
+    and the floor level (:func:`bimscan.learn.features.floor_height` of a z sample)."""
     counts: dict[int, int] = {}
+    z_sample, z_stride = np.empty(0), 1  # every z_stride-th height, thinned to stay <= 2 * FLOOR_SAMPLE
     lower = np.full(3, np.inf)
     upper = np.full(3, -np.inf)
     cy_min, cy_max = None, None
@@ -226,6 +253,9 @@ def _bucket_points(
         records["label"] = chunk.label if use_labels and chunk.label is not None else IGNORE_LABEL
         records["index"] = np.arange(total, total + n, dtype=np.int64)
         total += n
+        z_sample = np.concatenate([z_sample, chunk.xyz[::z_stride, 2]])
+        if len(z_sample) > 2 * FLOOR_SAMPLE:
+            z_sample, z_stride = z_sample[::2], z_stride * 2
         lower = np.minimum(lower, chunk.xyz.min(axis=0))
         upper = np.maximum(upper, chunk.xyz.max(axis=0))
         cy = np.floor(chunk.xyz[:, 1] / stride).astype(np.int64)
@@ -242,7 +272,7 @@ def _bucket_points(
             counts[stripe] = counts.get(stripe, 0) + (b - a)
     if total == 0 or cy_min is None or cy_max is None:
         raise LearnError(f"{source.path}: the scene holds no points; pass a non-empty cloud")
-    return counts, lower, upper, (cy_min, cy_max)
+    return counts, lower, upper, (cy_min, cy_max), floor_height(z_sample)
 
 
 def _decide(

@@ -169,7 +169,7 @@ class OffsetAttention(nn.Module):
 
 
 class PCTSegmentation(nn.Module):
-    """PCT segmentation network: (B, N, 3) xyz + (B, N) mask -> (B, N, C) logits."""
+    """PCT segmentation network: (B, N, in_dim) inputs (xyz first) + (B, N) mask -> (B, N, C) logits."""
 
     def __init__(self, num_classes: int, config: ModelConfig | None = None, *, in_dim: int = 3) -> None:
         super().__init__()
@@ -221,9 +221,10 @@ class PCTSegmentation(nn.Module):
         return self.classifier(x).transpose(1, 2)
 
 
-def build_model(num_classes: int, config: ModelConfig | None = None) -> PCTSegmentation:
-    """A PCT segmentation network for ``num_classes`` classes (XYZ input, d = 3)."""
-    return PCTSegmentation(num_classes, config)
+def build_model(num_classes: int, config: ModelConfig | None = None, *, in_dim: int = 3) -> PCTSegmentation:
+    """A PCT segmentation network for ``num_classes`` classes and ``in_dim`` input channels
+    (3: the paper's XYZ; more with extra features, :func:`bimscan.learn.features.input_channels`)."""
+    return PCTSegmentation(num_classes, config, in_dim=in_dim)
 
 
 def count_parameters(model: nn.Module) -> int:

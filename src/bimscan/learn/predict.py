@@ -87,6 +87,7 @@ def predict_cloud(
                 trained.model, source, class_names=trained.class_names, blocks=trained.config.blocks,
                 device=torch_device, batch_size=batch_size, amp=trained.config.train.amp, seed=seed,
                 max_passes=max_passes, use_labels=False, work_dir=folder, on_labels=keep, chunk_points=chunk_points,
+                inputs=trained.config.input,
             )
         labels = np.memmap(folder / "labels.u1", dtype=np.uint8, mode="w+", shape=(result.points,))
         for offset in range(0, result.points, chunk_points):

@@ -43,6 +43,7 @@ from bimscan.learn.checkpoint import (
 )
 from bimscan.learn.train_config import IGNORE_LABEL, TrainConfig, TrainRunConfig, dump_config, parse_config, resolve_path
 from bimscan.learn.data import SceneSource, TileDataset, TileSet, list_scenes, load_or_collect_tiles
+from bimscan.learn.features import input_channels
 from bimscan.learn.mapping import load_label_mapping
 from bimscan.learn.metrics import METRIC_NAMES, compute_metrics
 from bimscan.learn.model import (
@@ -174,21 +175,49 @@ class WeightEMA:
         self.steps = steps
 
 
-def compute_loss(logits: torch.Tensor, label: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def compute_loss(
+    logits: torch.Tensor, label: torch.Tensor, weight: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Mean cross entropy over labelled points (label != 255; padding carries 255).
 
-    logits (B, N, C) float, label (B, N) int64. Returns (mean loss, number of points counted).
+    logits (B, N, C) float, label (B, N) int64, ``weight`` (C,) float32 class weights or None.
+    Returns (mean loss, number of points counted). Weighted, the mean is over the weights of
+    the counted points (PyTorch's "mean" reduction), so the loss keeps its scale.
     """
     flat_logits = logits.reshape(-1, logits.shape[-1]).float()
     flat_label = label.reshape(-1)
-    total = F.cross_entropy(flat_logits, flat_label, ignore_index=IGNORE_LABEL, reduction="sum")
-    count = (flat_label != IGNORE_LABEL).sum()
-    return total / count.clamp_min(1).to(total.dtype), count
+    total = F.cross_entropy(flat_logits, flat_label, weight=weight, ignore_index=IGNORE_LABEL, reduction="sum")
+    counted = flat_label != IGNORE_LABEL
+    count = counted.sum()
+    if weight is None:
+        return total / count.clamp_min(1).to(total.dtype), count
+    norm = weight[flat_label.clamp(0, len(weight) - 1)].masked_fill(~counted, 0.0).sum()
+    return total / norm.clamp_min(1e-12), count
+
+
+def class_weights_from_labels(label: np.ndarray, *, classes: int, mode: str) -> np.ndarray | None:
+    """(C,) float32 loss weights from training labels (``[train] class_weights``), or None for "none".
+
+    f_c = share of class c among the labelled points; w_c = 1 / f_c ("inverse") or 1 / sqrt(f_c)
+    ("inverse_sqrt"), normalised to mean 1 over the classes present; absent classes weigh 0
+    (they have no points to weigh anyway).
+    """
+    if mode == "none":
+        return None
+    counts = np.bincount(label[label < classes].astype(np.int64), minlength=classes).astype(np.float64)
+    if counts.sum() == 0:
+        return None
+    share = counts / counts.sum()
+    present = share > 0
+    weights = np.zeros(classes)
+    weights[present] = 1.0 / (share[present] if mode == "inverse" else np.sqrt(share[present]))
+    weights[present] /= weights[present].mean()
+    return weights.astype(np.float32)
 
 
 def run_micro_batch(
     model: nn.Module, xyz: torch.Tensor, label: torch.Tensor, mask: torch.Tensor, *,
-    scaler: torch.amp.GradScaler, amp: str, accumulation: int,
+    scaler: torch.amp.GradScaler, amp: str, accumulation: int, weight: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """One micro-batch: forward (autocast on CUDA), masked loss, scaled backward of loss / A.
 
@@ -197,7 +226,7 @@ def run_micro_batch(
     """
     with autocast_context(xyz.device, amp):
         logits = model(xyz, mask)
-    loss, count = compute_loss(logits, label)
+    loss, count = compute_loss(logits, label, weight)
     scaler.scale(loss / accumulation).backward()
     return logits, loss, count
 
@@ -261,7 +290,7 @@ def _collect_tiles(
         for source in mine:
             built[source.path] = load_or_collect_tiles(
                 source, blocks=config.blocks, class_names=config.data.class_names, seed=config.train.seed,
-                cache_dir=cache_dir,
+                cache_dir=cache_dir, grid_m=config.input.grid_m,
             )
             bar.update(1)
     if ctx.world > 1:
@@ -269,7 +298,7 @@ def _collect_tiles(
     parts = [
         built[source.path] if source.path in built else load_or_collect_tiles(
             source, blocks=config.blocks, class_names=config.data.class_names, seed=config.train.seed,
-            cache_dir=cache_dir, build=False,
+            cache_dir=cache_dir, build=False, grid_m=config.input.grid_m,
         )
         for source in sources
     ]
@@ -374,11 +403,18 @@ def _train(
             f"({config.blocks.min_points}) points; give the val scenes labels (val_label_field / val_mapping) or set val = []"
         )
     train_tiles = _collect_tiles(train_sources, config=config, cache_dir=cache_dir, ctx=ctx)
-    train_set = TileDataset(train_tiles, points=config.blocks.points, seed=settings.seed)
-    val_set = None if val_tiles is None else TileDataset(val_tiles, points=config.blocks.points, seed=settings.seed)
+    train_set = TileDataset(train_tiles, points=config.blocks.points, seed=settings.seed, inputs=config.input,
+                            augment=config.augment)
+    val_set = None if val_tiles is None else TileDataset(
+        val_tiles, points=config.blocks.points, seed=settings.seed, inputs=config.input,
+    )
+    weights = class_weights_from_labels(train_tiles.label, classes=classes, mode=settings.class_weights)
+    weight = None if weights is None else torch.from_numpy(weights).to(ctx.device)
 
     torch.manual_seed(settings.seed)  # the same initial weights in every process
-    model: PCTSegmentation = build_model(classes, config.model).to(ctx.device)
+    model: PCTSegmentation = build_model(
+        classes, config.model, in_dim=input_channels(config.input.features),
+    ).to(ctx.device)
     ema = WeightEMA(model, alpha=settings.ema_alpha)
     optimizer = torch.optim.Adam(model.parameters(), lr=settings.max_lr, weight_decay=settings.weight_decay)
     sampler = GlobalBatchSampler(
@@ -430,6 +466,9 @@ def _train(
             f"global batch {sampler.global_batch} = {settings.batch_size} x {ctx.world} process(es) x "
             f"{settings.accumulation_steps} accumulation, {sampler.steps_per_epoch} steps/epoch, device {ctx.device}"
         )
+        if weights is not None:
+            emit("class weights (" + settings.class_weights + "): " + ", ".join(
+                f"{name} {w:.2f}" for name, w in zip(config.data.class_names, weights.tolist(), strict=True)))
     ddp_model: nn.Module = model
     if ctx.world > 1:
         # buffers stay identical in every process by construction (see MaskedBatchNorm1d):
@@ -464,6 +503,7 @@ def _train(
                 with sync:
                     logits, loss, count = run_micro_batch(
                         ddp_model, xyz, label, mask, scaler=scaler, amp=settings.amp, accumulation=accumulation,
+                        weight=weight,
                     )
                 with torch.no_grad():
                     sums += torch.stack([loss.detach().double() * count, count.double()])

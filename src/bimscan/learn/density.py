@@ -1,0 +1,81 @@
+"""Density normalisation: one point per voxel of a regular grid, chosen by the points alone.
+
+Why: a TLS scan is dense near each station and sparse far away, and the pattern is the
+scanner's, not the building's; S3DIS-like real rooms are resampled to yet another density. A
+network fed raw points learns the density pattern. Grid sampling (Pointcept's ``GridSample``,
+mode "train"/"test") keeps one point per occupied ``grid_m`` voxel, applied identically to
+synthetic training scenes and real test scenes, so both reach the network at one density.
+
+The representative of a voxel is its point with the smallest hash of its coordinates' bits, so
+the result depends only on the set of points, not on their order, on how a stream is chunked
+or on which block reads them (a voxel has the same representative in every block that holds
+it). Voxels are anchored at multiples of ``grid_m`` in absolute coordinates.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+
+
+def _mix(value: np.ndarray) -> np.ndarray:
+    """splitmix64's finaliser on (N,) uint64 (a bijection with good avalanche)."""
+    z = value.copy()
+    z ^= z >> np.uint64(30)
+    z *= np.uint64(0xBF58476D1CE4E5B9)
+    z ^= z >> np.uint64(27)
+    z *= np.uint64(0x94D049BB133111EB)
+    z ^= z >> np.uint64(31)
+    return z
+
+
+def voxel_index(xyz: np.ndarray, grid_m: float) -> np.ndarray:
+    """(N, 3) int64 voxel indices of (N, 3) coordinates in metres."""
+    return np.floor(np.asarray(xyz, dtype=np.float64) / grid_m).astype(np.int64)
+
+
+def voxel_hash(xyz: np.ndarray, grid_m: float, *, seed: int = 0) -> np.ndarray:
+    """(N,) uint64 hash of each point's voxel (equal within a voxel; collisions 2**-64)."""
+    cells = voxel_index(xyz, grid_m).view(np.uint64)
+    with np.errstate(over="ignore"):
+        h = _mix(np.full(len(cells), np.uint64(seed % (1 << 64)), dtype=np.uint64) + _GOLDEN)
+        for axis in range(3):
+            h = _mix(h ^ (cells[:, axis] + _GOLDEN))
+    return h
+
+
+def point_hash(xyz: np.ndarray) -> np.ndarray:
+    """(N,) uint64 hash of each point's float64 coordinate bits: the order-free tie-break."""
+    bits = np.ascontiguousarray(np.asarray(xyz, dtype=np.float64)).view(np.uint64).reshape(-1, 3)
+    with np.errstate(over="ignore"):
+        h = np.full(len(bits), _GOLDEN, dtype=np.uint64)
+        for axis in range(3):
+            h = _mix(h ^ bits[:, axis])
+    return h
+
+
+def grid_representatives(xyz: np.ndarray, grid_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """One representative point per occupied voxel.
+
+    Returns (R,) int64 indices of the representatives, ascending, and (N,) int64 ``rep_of``:
+    for every point, the index of its voxel's representative (a representative maps to itself).
+    """
+    n = len(xyz)
+    if n == 0:
+        return np.empty(0, np.int64), np.empty(0, np.int64)
+    cells = voxel_index(xyz, grid_m)
+    secondary = point_hash(xyz)
+    # lexsort: last key first -> by voxel (x, y, z), then by the coordinate hash
+    order = np.lexsort((secondary, cells[:, 2], cells[:, 1], cells[:, 0]))
+    sorted_cells = cells[order]
+    starts = np.flatnonzero(np.r_[True, (sorted_cells[1:] != sorted_cells[:-1]).any(axis=1)])
+    sizes = np.diff(np.r_[starts, n])
+    rep_of = np.empty(n, dtype=np.int64)
+    rep_of[order] = np.repeat(order[starts], sizes)
+    return np.sort(order[starts]), rep_of
+
+
+def grid_sample(xyz: np.ndarray, grid_m: float) -> np.ndarray:
+    """(R,) int64 ascending indices of one point per occupied ``grid_m`` voxel (see the module)."""
+    return grid_representatives(xyz, grid_m)[0]
