@@ -1,18 +1,27 @@
-"""Evaluation: one row per scene from every point, the mean and pooled rows, and scenes
-without ground truth refused."""
+"""Evaluation: one row per scene from every point, the mean and pooled rows, per-class IoU and
+confusion matrices equal to scikit-learn's in every file written, and scenes without ground
+truth refused."""
 
 from __future__ import annotations
 
+import csv
+import json
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
+from sklearn.metrics import confusion_matrix, jaccard_score
 
 from bimscan.errors import LearnError
 from bimscan.io.text import write_text_cloud
-from bimscan.learn.evaluate import evaluate_checkpoint, format_csv, format_markdown, summarize_results
-from bimscan.learn.metrics import compute_metrics
+from bimscan.learn.evaluate import (
+    SceneEvaluation, evaluate_checkpoint, format_class_iou_markdown, format_csv, format_markdown, summarize_results,
+    write_evaluation,
+)
+from bimscan.learn.infer import SceneLabels
+from bimscan.learn.metrics import compute_confusion, compute_metrics
 from bimscan.types import PointCloud
 
 
@@ -42,6 +51,11 @@ def test_each_scene_is_scored_on_every_point_with_mean_and_pooled_rows(
     table = format_csv(results, ["Wall&Column", "Beam", "Covering", "Slab", "Others"]).splitlines()
     assert table[0].startswith("scene,oa,miou,macc,fwiou,kappa,points")
     assert table[1].endswith("Wall&Column;Beam;Covering;Slab;Others")
+
+    files = write_evaluation(results, tmp_path / "eval", results[0].class_names, title="tiny")
+    document = json.loads(files.json.read_text(encoding="utf-8"))
+    assert document["all points"]["confusion"]["matrix"] == pooled_confusion(results).tolist()
+    assert "IoU per class" in files.markdown.read_text(encoding="utf-8")
 
 
 def test_a_scene_without_ground_truth_is_refused(tmp_path: Path, trained_run: Path,
@@ -78,3 +92,94 @@ def test_an_unclassified_foreign_las_is_refused_for_evaluation_but_predicted(
     assert result.points > 0
     (scored,) = evaluate_checkpoint(trained_run / "run" / "last.pt", [scan], label_field="gt", device="cpu")
     assert scored.labels.labelled == scored.labels.points  # with the right field it scores
+
+
+CLASS_NAMES = ("Wall&Column", "Beam", "Covering", "Slab", "Others")
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def pooled_confusion(results: list[SceneEvaluation]) -> np.ndarray:
+    return np.sum([r.labels.confusion for r in results], axis=0)
+
+
+def scored_scene(name: str, truth: np.ndarray, prediction: np.ndarray) -> SceneEvaluation:
+    """A scene's evaluation from given labels, as ``evaluate_checkpoint`` returns it."""
+    confusion = compute_confusion(truth, prediction, num_classes=len(CLASS_NAMES))
+    labels = SceneLabels(name=name, points=len(truth), labelled=len(truth), confusion=confusion, blocks=1, passes=1,
+                         nearest_filled=0, lower=np.zeros(3), upper=np.ones(3), seconds=0.0)
+    return SceneEvaluation(name, Path(f"{name}.txt"), labels, compute_metrics(confusion), CLASS_NAMES)
+
+
+def random_scenes(seed: int) -> tuple[list[SceneEvaluation], list[tuple[np.ndarray, np.ndarray]]]:
+    """Three scenes of random labels: in the second, Beam (1) never occurs; Others (4) is
+    absent from every scene's ground truth and predicted only in the first."""
+    rng = np.random.default_rng(seed)
+    labels = []
+    for i, size in enumerate(rng.integers(50, 400, size=3)):
+        occurring = [0, 2, 3] if i == 1 else [0, 1, 2, 3]
+        truth = rng.choice(occurring, size=size)
+        guesses = rng.choice(occurring + [4] if i == 0 else occurring, size=size)
+        prediction = np.where(rng.random(size) < 0.3, guesses, truth)
+        labels.append((truth, prediction))
+    return [scored_scene(f"scene{i}", t, p) for i, (t, p) in enumerate(labels)], labels
+
+
+def expected_iou(truth: np.ndarray, prediction: np.ndarray) -> list[float | None]:
+    """scikit-learn's IoU per class, None for a class neither true nor predicted."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # classes without ground truth
+        iou = jaccard_score(truth, prediction, labels=range(len(CLASS_NAMES)), average=None, zero_division=0)
+    present = np.isin(range(len(CLASS_NAMES)), np.union1d(truth, prediction))
+    return [float(v) if p else None for v, p in zip(iou, present, strict=True)]
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_the_json_and_confusion_files_hold_scikit_learns_matrices_and_iou(tmp_path: Path, seed: int) -> None:
+    results, labels = random_scenes(seed)
+
+    files = write_evaluation(results, tmp_path / "eval", CLASS_NAMES, title=f"seed {seed}")
+
+    assert [p.name for p in files.paths()] == [
+        "evaluation.md", "evaluation.csv", "evaluation.json", "confusion.csv", "confusion.png"]
+    document = json.loads(files.json.read_text(encoding="utf-8"))
+    assert document["class_names"] == list(CLASS_NAMES)
+    for entry, (truth, prediction) in zip(document["scenes"], labels, strict=True):
+        assert entry["confusion"]["class_names"] == list(CLASS_NAMES)
+        assert entry["confusion"]["matrix"] == confusion_matrix(truth, prediction, labels=range(5)).tolist()
+        iou = [entry["iou"][c] for c in CLASS_NAMES]
+        assert iou == pytest.approx(expected_iou(truth, prediction))
+        assert [entry["support"][c] for c in CLASS_NAMES] == np.bincount(truth, minlength=5).tolist()
+        assert entry["points"] == len(truth)
+    truth, prediction = (np.concatenate(part) for part in zip(*labels, strict=True))
+    pooled = document["all points"]
+    scene_sum = np.sum([e["confusion"]["matrix"] for e in document["scenes"]], axis=0)
+    assert pooled["confusion"]["matrix"] == scene_sum.tolist()
+    assert pooled["confusion"]["matrix"] == confusion_matrix(truth, prediction, labels=range(5)).tolist()
+    assert [pooled["iou"][c] for c in CLASS_NAMES] == pytest.approx(expected_iou(truth, prediction))
+    assert pooled["acc"]["Others"] is None  # no ground truth anywhere: no recall
+    assert pooled["metrics"]["kappa"] == pytest.approx(compute_metrics(pooled_confusion(results)).kappa)
+    assert document["mean"]["metrics"]["miou"] == pytest.approx(np.mean([r.metrics.miou for r in results]))
+    assert document["mean"]["iou"]["Beam"] == pytest.approx((results[0].metrics.iou[1] + results[2].metrics.iou[1]) / 2)
+
+    with files.confusion_table.open(newline="", encoding="utf-8") as handle:
+        rows = list(csv.reader(handle))
+    assert rows[0][1:] == list(CLASS_NAMES) and [r[0] for r in rows[1:]] == list(CLASS_NAMES)
+    assert [[int(v) for v in r[1:]] for r in rows[1:]] == pooled["confusion"]["matrix"]
+    png = files.confusion_plot.read_bytes()
+    assert png.startswith(PNG_SIGNATURE) and len(png) > 1000
+
+
+def test_the_per_class_table_shows_a_dash_for_an_absent_class() -> None:
+    results, _ = random_scenes(7)
+
+    table = format_class_iou_markdown(results).splitlines()
+
+    assert table[0] == "| Scene | Wall&Column | Beam | Covering | Slab | Others |"
+    assert [row.split("|")[1].strip() for row in table[2:]] == ["scene0", "scene1", "scene2", "**all points**"]
+    scene1 = [cell.strip() for cell in table[3].split("|")[2:-1]]
+    assert scene1[1] == "-" and scene1[4] == "-"  # Beam and Others neither true nor predicted there
+    assert scene1[0] == f"{100 * results[1].metrics.iou[0]:.1f}"
+    pooled = [cell.strip() for cell in table[5].split("|")[2:-1]]
+    assert pooled[4] == "0.0"  # predicted in scene0, never true: a false alarm, IoU 0
+    assert format_class_iou_markdown(results) in format_markdown(results)
+    assert format_class_iou_markdown(results) not in format_markdown(results, class_iou=False)

@@ -117,6 +117,9 @@ def test_train_evaluate_and_predict_from_the_command_line(
         assert 0.0 <= float(row["oa"]) <= 1.0 and -1.0 <= float(row["kappa"]) <= 1.0
     mean_oa = (float(rows[0]["oa"]) + float(rows[1]["oa"])) / 2
     assert float(rows[2]["oa"]) == pytest.approx(mean_oa, abs=2e-6)
+    assert "| Scene | Wall&Column | Beam | Covering | Slab | Others |" in lines  # IoU per class
+    for name in ("evaluation.json", "confusion.csv", "confusion.png"):
+        assert (project / "eval" / name).stat().st_size > 0 and name in evaluated.out
 
     assert main(["predict", str(checkpoint), "site.las", "site-labelled.laz", "--device", "cpu"]) == 0
     predicted = capsys.readouterr()

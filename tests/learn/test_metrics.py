@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from sklearn.metrics import (
-    accuracy_score, balanced_accuracy_score, cohen_kappa_score, confusion_matrix, jaccard_score,
+    accuracy_score, balanced_accuracy_score, cohen_kappa_score, confusion_matrix, jaccard_score, recall_score,
 )
 
 from bimscan.learn.metrics import compute_confusion, compute_metrics
@@ -48,6 +48,33 @@ def test_metrics_equal_scikit_learn_on_random_labels(seed: int, n: int, classes:
         assert metrics.kappa == pytest.approx(expected_kappa)
     np.testing.assert_allclose(metrics.iou[present], per_class)
     assert np.isnan(np.delete(metrics.iou, present)).all()
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_per_class_iou_accuracy_and_confusion_equal_scikit_learn_with_absent_classes(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    classes = 6
+    # class 5 never occurs; class 4 is only predicted (a false alarm); the rest occur at random
+    truth = rng.choice(4, size=300, p=rng.dirichlet(np.ones(4)))
+    prediction = np.where(rng.random(300) < 0.35, rng.choice(5, size=300), truth)
+    labels = list(range(classes))
+
+    confusion = compute_confusion(truth, prediction, num_classes=classes)
+    metrics = compute_metrics(confusion)
+
+    np.testing.assert_array_equal(confusion, confusion_matrix(truth, prediction, labels=labels))
+    present = np.isin(labels, np.union1d(truth, prediction))
+    assert not present[5]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # sklearn warns about classes without ground truth
+        expected_iou = jaccard_score(truth, prediction, labels=labels, average=None, zero_division=0)
+        expected_acc = recall_score(truth, prediction, labels=labels, average=None, zero_division=np.nan)
+    np.testing.assert_allclose(metrics.iou[present], expected_iou[present])
+    assert np.isnan(metrics.iou[~present]).all()  # absent: NaN here, 0 (zero_division) in scikit-learn
+    assert (expected_iou[~present] == 0.0).all()
+    np.testing.assert_allclose(metrics.acc, expected_acc)  # NaN where no ground truth, in both
+    assert metrics.iou[4] == 0.0 if present[4] else math.isnan(metrics.iou[4])
+    np.testing.assert_array_equal(metrics.support, np.bincount(truth, minlength=classes))
 
 
 def test_confusion_matrix_equals_scikit_learn_and_skips_unlabelled_points() -> None:

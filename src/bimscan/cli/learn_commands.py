@@ -56,7 +56,7 @@ def train(config: Path, resume: bool, out_dir: Path | None) -> None:
 @click.argument("checkpoint", type=click.Path(path_type=Path, dir_okay=False))
 @click.argument("scenes", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(path_type=Path, file_okay=False), default=None,
-              help="Folder for evaluation.md and evaluation.csv.")
+              help="Folder for evaluation.md/.csv/.json and confusion.csv/.png.")
 @click.option("--label-field", default=None,
               help="Field holding the ground truth: LAS/PLY dimension, NumPy folder file, text header column "
                    "(default: classification/label; S3DIS rooms: their annotation names).")
@@ -70,7 +70,9 @@ def evaluate(
     """Score CHECKPOINT on labelled SCENE... (every point): OA, mIoU, mAcc, FWIoU, kappa per scene.
 
     SCENE: clouds (.las .laz .ply .txt ...), NumPy cloud folders, bimscan dataset folders,
-    S3DIS rooms or areas. Prints the table (as the paper's Table 3) in Markdown.
+    S3DIS rooms or areas. Prints the table (as the paper's Table 3) and the IoU per class in
+    Markdown; with --out also writes evaluation.md/.csv/.json (per-class IoU, accuracy, support
+    and confusion matrix per scene) and the pooled confusion matrix as confusion.csv/.png.
     """
     from bimscan.learn.evaluate import evaluate_checkpoint, format_markdown, write_evaluation
     from bimscan.learn.mapping import load_label_mapping
@@ -80,10 +82,11 @@ def evaluate(
         checkpoint, scenes, label_field=label_field, mapping=label_mapping, device=device, batch_size=batch_size,
         max_passes=max_passes, weights=weights, seed=seed,
     )
-    click.echo(format_markdown(results), nl=False)
+    click.echo(format_markdown(results), nl=False)  # the metrics table, then IoU per class
     if out_dir is not None:
-        markdown, table = write_evaluation(results, out_dir, results[0].class_names)
-        click.echo(f"wrote {markdown} and {table}")
+        title = f"{checkpoint.name}: confusion over {len(results)} scene(s), all points"
+        files = write_evaluation(results, out_dir, results[0].class_names, title=title)
+        click.echo("wrote " + ", ".join(str(p) for p in files.paths()))
 
 
 @click.command("predict")

@@ -2,8 +2,15 @@
 
 The table follows the paper's Table 3 (OA, mIoU, mAcc, FWIoU, kappa per scene, in percent),
 with two summary rows: ``mean`` (the average of the per-scene values, as the paper's scene
-means) and ``all points`` (the metrics of the pooled confusion matrix). Written as Markdown and
-CSV; the CSV adds point counts, per-class IoU and the classes present in each scene.
+means) and ``all points`` (the metrics of the pooled confusion matrix), followed by the IoU of
+each class per scene and over all points. Files written by ``write_evaluation``:
+
+- ``evaluation.md``: both tables; ``evaluation.csv``: fractions, point counts, per-class IoU and
+  the classes present in each scene;
+- ``evaluation.json``: per scene and for ``mean`` and ``all points``, the five metrics, IoU,
+  accuracy (recall) and support per class name, and the confusion matrix (rows = ground truth,
+  columns = prediction, counts); NaN (an absent class) is written as null;
+- ``confusion.csv`` (counts) and ``confusion.png`` (row-normalised): the pooled matrix.
 """
 
 from __future__ import annotations
@@ -18,15 +25,17 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.errors import LearnError
-from bimscan.files import write_atomic
+from bimscan.files import dump_json, write_atomic
 from bimscan.learn.checkpoint import load_trained_model
 from bimscan.learn.data import list_scenes
 from bimscan.learn.infer import SceneLabels, label_scene
 from bimscan.learn.mapping import LabelMapping
 from bimscan.learn.metrics import METRIC_NAMES, SegmentationMetrics, compute_metrics
 from bimscan.learn.model import pick_device
+from bimscan.learn.plots import plot_confusion
 
 HEADINGS = {"oa": "OA", "miou": "mIoU", "macc": "mAcc", "fwiou": "FWIoU", "kappa": "κ"}
+CONFUSION_AXES = "rows: ground truth, columns: prediction"
 
 
 @dataclass(frozen=True)
@@ -75,23 +84,48 @@ def _percent(value: float) -> str:
     return "-" if math.isnan(value) else f"{100.0 * value:.1f}"
 
 
+def pool_confusion(results: Sequence[SceneEvaluation]) -> np.ndarray:
+    """The (C, C) int64 sum of the scenes' confusion matrices (the ``all points`` row)."""
+    return np.sum([r.labels.confusion for r in results], axis=0).astype(np.int64)
+
+
 def summarize_results(results: Sequence[SceneEvaluation]) -> list[tuple[str, dict[str, float]]]:
     """(name, metrics) rows: one per scene, then ``mean`` and ``all points``."""
     rows = [(r.scene, r.metrics.scalars()) for r in results]
     if results:
         mean = {name: float(np.nanmean([r.metrics.scalars()[name] for r in results])) for name in METRIC_NAMES}
-        pooled = compute_metrics(np.sum([r.labels.confusion for r in results], axis=0)).scalars()
+        pooled = compute_metrics(pool_confusion(results)).scalars()
         rows += [("mean", mean), ("all points", pooled)]
     return rows
 
 
-def format_markdown(results: Sequence[SceneEvaluation]) -> str:
-    """The per-scene table (percent, one decimal) as Markdown."""
+def format_markdown(results: Sequence[SceneEvaluation], *, class_iou: bool = True) -> str:
+    """The per-scene table (percent, one decimal) as Markdown, followed by the per-class IoU
+    table (``format_class_iou_markdown``) unless ``class_iou`` is False."""
     lines = ["| Scene | " + " | ".join(HEADINGS[n] for n in METRIC_NAMES) + " |",
              "|---|" + "---:|" * len(METRIC_NAMES)]
     for i, (name, values) in enumerate(summarize_results(results)):
         label = name if i < len(results) else f"**{name}**"  # summary rows in bold
         lines.append(f"| {label} | " + " | ".join(_percent(values[n]) for n in METRIC_NAMES) + " |")
+    text = "\n".join(lines) + "\n"
+    if class_iou and results:
+        text += "\nIoU per class (%):\n\n" + format_class_iou_markdown(results)
+    return text
+
+
+def format_class_iou_markdown(results: Sequence[SceneEvaluation]) -> str:
+    """IoU per class in percent (one decimal) as Markdown: a row per scene and the ``all points``
+    row, a column per class of the checkpoint; ``-`` where the class is absent (neither in the
+    ground truth nor predicted). Empty without results."""
+    if not results:
+        return ""
+    class_names = results[0].class_names
+    lines = ["| Scene | " + " | ".join(c.replace("|", "\\|") for c in class_names) + " |",
+             "|---|" + "---:|" * len(class_names)]
+    rows = [(r.scene, r.metrics.iou) for r in results]
+    rows.append(("**all points**", compute_metrics(pool_confusion(results)).iou))
+    for name, iou in rows:
+        lines.append(f"| {name} | " + " | ".join(_percent(float(v)) for v in iou) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -115,10 +149,108 @@ def format_csv(results: Sequence[SceneEvaluation], class_names: Sequence[str]) -
     return buffer.getvalue()
 
 
-def write_evaluation(results: Sequence[SceneEvaluation], out_dir: Path, class_names: Sequence[str]) -> tuple[Path, Path]:
-    """Write ``evaluation.md`` and ``evaluation.csv`` into ``out_dir`` (created if missing)."""
+def _number(value: float) -> float | None:
+    return None if math.isnan(value) else float(value)
+
+
+def _per_class(values: np.ndarray, class_names: Sequence[str]) -> dict[str, float | None]:
+    return {name: _number(float(v)) for name, v in zip(class_names, values, strict=True)}
+
+
+def _confusion_document(confusion: np.ndarray, class_names: Sequence[str]) -> dict[str, object]:
+    return {"axes": CONFUSION_AXES, "class_names": list(class_names),
+            "matrix": np.asarray(confusion, dtype=np.int64).tolist()}
+
+
+def _metrics_document(name: str, metrics: SegmentationMetrics, confusion: np.ndarray,
+                      class_names: Sequence[str]) -> dict[str, object]:
+    return {
+        "name": name,
+        "metrics": {key: _number(value) for key, value in metrics.scalars().items()},
+        "iou": _per_class(metrics.iou, class_names),
+        "acc": _per_class(metrics.acc, class_names),
+        "support": {c: int(v) for c, v in zip(class_names, metrics.support, strict=True)},
+        "confusion": _confusion_document(confusion, class_names),
+    }
+
+
+def evaluation_document(results: Sequence[SceneEvaluation], class_names: Sequence[str]) -> dict[str, object]:
+    """The content of ``evaluation.json``: fractions 0..1 (kappa -1..1), NaN as None.
+
+    ``scenes`` (one entry each, with point counts), ``all points`` (the pooled confusion matrix,
+    the sum of the scenes') and ``mean``: the per-scene metrics and per-class IoU/accuracy
+    averaged over the scenes where defined; its support and confusion are the summed ones.
+    """
+    scenes = []
+    for result in results:
+        entry = _metrics_document(result.scene, result.metrics, result.labels.confusion, class_names)
+        entry.update(path=str(result.path), points=result.labels.points, labelled_points=result.labels.labelled,
+                     nearest_filled=result.labels.nearest_filled)
+        scenes.append(entry)
+    pooled_confusion = pool_confusion(results) if results else np.zeros((len(class_names),) * 2, np.int64)
+    pooled = compute_metrics(pooled_confusion)
+    document: dict[str, object] = {
+        "class_names": list(class_names), "scenes": scenes,
+        "all points": _metrics_document("all points", pooled, pooled_confusion, class_names),
+        "mean": None,
+    }
+    if results:
+        rows = dict(summarize_results(results))
+        mean = _metrics_document("mean", pooled, pooled_confusion, class_names)
+        mean["metrics"] = {key: _number(value) for key, value in rows["mean"].items()}
+        mean["iou"] = _per_class(_scene_mean([r.metrics.iou for r in results]), class_names)
+        mean["acc"] = _per_class(_scene_mean([r.metrics.acc for r in results]), class_names)
+        document["mean"] = mean
+    return document
+
+
+def _scene_mean(values: Sequence[np.ndarray]) -> np.ndarray:
+    """Per-class mean over the scenes where the value is defined; NaN where it never is."""
+    stacked = np.asarray(values, dtype=np.float64)
+    defined = ~np.isnan(stacked)
+    count = defined.sum(axis=0)
+    total = np.where(defined, stacked, 0.0).sum(axis=0)
+    return np.where(count > 0, total / np.maximum(count, 1), np.nan)
+
+
+def format_confusion_csv(confusion: np.ndarray, class_names: Sequence[str]) -> str:
+    """A (C, C) confusion matrix of counts as CSV: the header names the predicted classes, the
+    first column the ground-truth classes."""
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(["truth \\ prediction", *class_names])
+    for name, row in zip(class_names, np.asarray(confusion, dtype=np.int64), strict=True):
+        writer.writerow([name, *(int(v) for v in row)])
+    return buffer.getvalue()
+
+
+@dataclass(frozen=True)
+class EvaluationFiles:
+    """The files ``write_evaluation`` wrote."""
+
+    markdown: Path
+    table: Path
+    json: Path
+    confusion_table: Path
+    confusion_plot: Path
+
+    def paths(self) -> tuple[Path, ...]:
+        """Every file, in the order of the fields."""
+        return (self.markdown, self.table, self.json, self.confusion_table, self.confusion_plot)
+
+
+def write_evaluation(results: Sequence[SceneEvaluation], out_dir: Path, class_names: Sequence[str], *,
+                     title: str = "") -> EvaluationFiles:
+    """Write ``evaluation.md``, ``evaluation.csv``, ``evaluation.json``, ``confusion.csv`` and
+    ``confusion.png`` (titled ``title``, default "Confusion, all points") into ``out_dir``
+    (created if missing)."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    markdown, table = out_dir / "evaluation.md", out_dir / "evaluation.csv"
-    write_atomic(markdown, format_markdown(results).encode("utf-8"))
-    write_atomic(table, format_csv(results, class_names).encode("utf-8"))
-    return markdown, table
+    files = EvaluationFiles(out_dir / "evaluation.md", out_dir / "evaluation.csv", out_dir / "evaluation.json",
+                            out_dir / "confusion.csv", out_dir / "confusion.png")
+    pooled = pool_confusion(results) if results else np.zeros((len(class_names),) * 2, np.int64)
+    write_atomic(files.markdown, format_markdown(results).encode("utf-8"))
+    write_atomic(files.table, format_csv(results, class_names).encode("utf-8"))
+    write_atomic(files.json, dump_json(evaluation_document(results, class_names)))
+    write_atomic(files.confusion_table, format_confusion_csv(pooled, class_names).encode("utf-8"))
+    plot_confusion(pooled, class_names, files.confusion_plot, title=title or "Confusion, all points")
+    return files

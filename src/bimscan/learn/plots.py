@@ -1,5 +1,6 @@
 """Training curves (the paper's Figs. 7 and 8): loss, OA, mIoU, mAcc, FWIoU and kappa per epoch,
-for the synthetic training set and the real validation set, as one PNG (matplotlib, Agg)."""
+for the synthetic training set and the real validation set, as one PNG; and a confusion matrix,
+row-normalised, as a PNG (matplotlib, Agg)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,8 @@ import io
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+
+import numpy as np
 
 from bimscan.files import atomic_output, write_atomic
 
@@ -60,6 +63,45 @@ def plot_training_curves(history: Sequence[Mapping[str, float]], path: Path, *, 
     axes.flat[0].legend(loc="best", fontsize="small")
     if title:
         figure.suptitle(title)
+    try:
+        with atomic_output(path) as temp:
+            figure.savefig(temp, format="png", dpi=110, metadata={"Software": None})
+    finally:
+        plt.close(figure)
+
+
+def plot_confusion(confusion: np.ndarray, class_names: Sequence[str], path: Path, *, title: str) -> None:
+    """Draw a (C, C) confusion matrix of counts (rows = ground truth, columns = prediction, in
+    ``class_names`` order) into a PNG at ``path``: each row normalised to its ground-truth points,
+    the share in percent in every cell; a row without ground truth stays blank."""
+    counts = np.asarray(confusion, dtype=np.float64)
+    if counts.ndim != 2 or counts.shape[0] != counts.shape[1] or counts.shape[0] != len(class_names):
+        raise ValueError(f"confusion matrix must be (C, C) with C = {len(class_names)} class names, "
+                         f"got shape {counts.shape}")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    support = counts.sum(axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        shares = np.where(support > 0, counts / np.where(support > 0, support, 1.0), np.nan)
+    size = len(class_names)
+    figure, axis = plt.subplots(figsize=(max(4.5, 0.9 * size + 2.8), max(3.8, 0.8 * size + 1.8)),
+                                constrained_layout=True)
+    image = axis.imshow(100.0 * shares, cmap="Blues", vmin=0.0, vmax=100.0)
+    figure.colorbar(image, ax=axis, label="share of the ground truth (%)")
+    for row in range(size):
+        for column in range(size):
+            share = shares[row, column]
+            if not math.isnan(share):
+                axis.text(column, row, f"{100.0 * share:.1f}%", ha="center", va="center", fontsize="small",
+                          color="white" if share > 0.6 else "black")
+    axis.set_xticks(range(size), labels=list(class_names), rotation=45, ha="right")
+    axis.set_yticks(range(size), labels=list(class_names))
+    axis.set_xlabel("prediction")
+    axis.set_ylabel("ground truth")
+    axis.set_title(title)
     try:
         with atomic_output(path) as temp:
             figure.savefig(temp, format="png", dpi=110, metadata={"Software": None})
