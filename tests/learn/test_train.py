@@ -196,6 +196,9 @@ def test_shipped_example_configs_load(name: str) -> None:
         assert (config.blocks.points, config.train.batch_size, config.train.accumulation_steps) == (8192, 2, 4)
         assert (config.train.max_lr, config.train.weight_decay, config.train.ema_alpha) == (2e-3, 5e-4, 0.99)
         assert config.train.amp == "float16" and len(config.data.class_names) == 5
+        # and none of bimscan's sim-to-real recipe, whose defaults are on
+        assert config.input.features == ("xyz",) and config.input.grid_m == 0.0
+        assert not config.augment.enabled and config.train.class_weights == "none"
 
 
 def test_a_validation_set_without_labels_is_refused_before_training(

@@ -273,7 +273,7 @@ def _build_datasets(experiment: Experiment, out: Path, emit: Callable[[str], Non
 
 def _run_variant(experiment: Experiment, variant: Variant, out: Path, emit: Callable[[str], None]) -> dict[str, Any]:
     from bimscan.learn.checkpoint import read_checkpoint
-    from bimscan.learn.evaluate import evaluate_checkpoint, write_evaluation
+    from bimscan.learn.evaluate import evaluate_checkpoint, pool_confusion, write_evaluation
     from bimscan.learn.mapping import load_label_mapping
     from bimscan.learn.train import train_model
 
@@ -298,15 +298,17 @@ def _run_variant(experiment: Experiment, variant: Variant, out: Path, emit: Call
         work_dir=folder,
     )
     class_names = list(config.data.class_names)
-    write_evaluation(evaluations, folder / "eval", class_names)
-    pooled = compute_metrics(np.sum([e.labels.confusion for e in evaluations], axis=0))
+    write_evaluation(evaluations, folder / "eval", class_names,
+                     title=f"{variant.name}: confusion on {len(evaluations)} real scene(s), all points")
+    confusion = pool_confusion(evaluations)
+    pooled = compute_metrics(confusion)
     history = read_checkpoint(last)["history"]
     result = {
         "variant": variant.name, "description": variant.description, "class_names": class_names,
         "pooled": _metrics_json(pooled, class_names),
         "scene_mean": {m: float(np.nanmean([e.metrics.scalars()[m] for e in evaluations])) for m in METRIC_NAMES},
         "scenes": {e.scene: _metrics_json(e.metrics, class_names) for e in evaluations},
-        "confusion": pooled_confusion(evaluations).tolist(),
+        "confusion": confusion.tolist(),
         "val_miou_per_epoch": [float(row.get("val_miou", math.nan)) for row in history],
         "train_miou_per_epoch": [float(row.get("train_miou", math.nan)) for row in history],
         "train_seconds": float(sum(row.get("seconds", 0.0) for row in history)),
@@ -316,11 +318,6 @@ def _run_variant(experiment: Experiment, variant: Variant, out: Path, emit: Call
     p = result["pooled"]
     emit(f"variant {variant.name}: mIoU {p['miou']:.3f} kappa {p['kappa']:.3f} OA {p['oa']:.3f} (all real points)")
     return result
-
-
-def pooled_confusion(evaluations: Sequence[Any]) -> np.ndarray:
-    """The (C, C) confusion matrix of all scenes' points together."""
-    return np.sum([e.labels.confusion for e in evaluations], axis=0).astype(np.int64)
 
 
 def _metrics_json(metrics: Any, class_names: Sequence[str]) -> dict[str, Any]:

@@ -1,0 +1,162 @@
+"""bimscan sim2real: the experiment file is checked before any work; a tiny experiment runs end
+to end (one generated building built, two variants trained, scored on a labelled room), writes
+every output and continues where it stopped."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from bimscan.cli.main import main
+from bimscan.errors import ConfigError, InputFileError
+from bimscan.io.text import write_text_cloud
+from bimscan.learn.experiment import load_experiment, run_experiment
+
+from .conftest import make_room
+
+SPEC = """\
+name = "tiny"
+seed = 0
+formats = ["npy"]
+
+[[scenes]]
+name = "b"
+generate = { seed = 3, storeys = 1 }
+
+[[configs]]
+name = "exp1"
+preset = "exp1"
+head_deg_per_s = 180.0
+"""
+
+EXPERIMENT = """\
+[experiment]
+name = "tiny"
+
+[real]
+scenes = ["real.txt"]
+
+[blocks]
+size_m = 3.0
+eval_stride_m = 1.5
+points = 128
+min_points = 32
+cache_points = 512
+
+[input]
+grid_m = 0.15
+
+[model]
+embed_dim = 8
+attention_layers = 1
+fuse_dim = 16
+head_dims = [16]
+dropout = 0.0
+
+[train]
+epochs = 2
+batch_size = 4
+accumulation_steps = 1
+max_lr = 0.01
+amp = "off"
+num_workers = 0
+device = "cpu"
+
+[[variants]]
+name = "baseline"
+data = "spec.toml"
+input = { grid_m = 0.0, features = ["xyz"] }
+augment = { enabled = false }
+train = { class_weights = "none" }
+
+[[variants]]
+name = "recipe"
+description = "all of it"
+data = "spec.toml"
+"""
+
+
+@pytest.fixture
+def experiment_dir(tmp_path: Path) -> Path:
+    (tmp_path / "spec.toml").write_text(SPEC, encoding="utf-8")
+    (tmp_path / "exp.toml").write_text(EXPERIMENT, encoding="utf-8")
+    write_text_cloud(tmp_path / "real.txt", make_room(100, size_m=(4.0, 4.0), points_per_m2=40))
+    return tmp_path
+
+
+def test_a_tiny_experiment_runs_end_to_end_and_resumes(experiment_dir: Path) -> None:
+    out = experiment_dir / "out"
+    summary = run_experiment(load_experiment(experiment_dir / "exp.toml"), out, log=lambda text: None)
+    assert [v["variant"] for v in summary["variants"]] == ["baseline", "recipe"]
+    for name in ("report.md", "results.csv", "results.json", "val_miou.png", "experiment.json"):
+        assert (out / name).stat().st_size > 0, name
+    for variant in ("baseline", "recipe"):
+        folder = out / "variants" / variant
+        for name in ("train/last.pt", "train/metrics.csv", "train/curves.png", "eval/confusion.png",
+                     "eval/evaluation.json", "eval/evaluation.md", "result.json"):
+            assert (folder / name).is_file(), f"{variant}/{name}"
+        result = json.loads((folder / "result.json").read_text())
+        assert len(result["val_miou_per_epoch"]) == 2
+        assert set(result["pooled"]["iou"]) == {"Wall&Column", "Beam", "Covering", "Slab", "Others"}
+        assert sum(map(sum, result["confusion"])) == result["pooled"]["points"] > 0
+    report = (out / "report.md").read_text()
+    assert "| baseline |" in report and "| recipe |" in report and "IoU Beam" in report
+    # the recipe's model sees 7 channels, the baseline's 3: both were really trained as configured
+    from bimscan.learn.checkpoint import load_trained_model
+
+    assert load_trained_model(out / "variants/recipe/train/last.pt").model.embed1.conv.in_channels == 7
+    assert load_trained_model(out / "variants/baseline/train/last.pt").model.embed1.conv.in_channels == 3
+
+    # a killed run continues: the second run rebuilds nothing and retrains nothing
+    (out / "variants" / "recipe" / "result.json").unlink()
+    messages: list[str] = []
+    again = run_experiment(load_experiment(experiment_dir / "exp.toml"), out, log=messages.append)
+    assert any("baseline: finished earlier" in m for m in messages)
+    assert not any("training" in m for m in messages)
+    assert again["variants"][1]["pooled"] == summary["variants"][1]["pooled"]
+    assert any("0 built, 1 already done" in m for m in messages)
+
+
+@pytest.mark.parametrize(("patch", "message"), [
+    (("[input]\ngrid_m = 0.15", "[input]\ngrid_m = 0.15\nspeed = 2"), "unknown key"),
+    (('scenes = ["real.txt"]', 'scenes = ["missing.txt"]'), "real scenes not found"),
+    (('name = "recipe"', 'name = "baseline"'), "used twice"),
+    (('data = "spec.toml"\ninput', 'data = "nothing.toml"\ninput'), "data not found"),
+    (("epochs = 2", "epochs = 0"), "epochs must be at least 1"),
+    (('augment = { enabled = false }', 'augment = { enabled = false, flips = 1 }'), "flips"),
+    (('name = "baseline"', 'name = "base line/x"'), "not a usable name"),
+])
+def test_bad_experiment_files_are_one_line_errors_before_any_work(
+    experiment_dir: Path, patch: tuple[str, str], message: str, capsys: pytest.CaptureFixture[str],
+) -> None:
+    text = EXPERIMENT.replace(*patch)
+    assert text != EXPERIMENT
+    (experiment_dir / "exp.toml").write_text(text, encoding="utf-8")
+    with pytest.raises((ConfigError, InputFileError), match=message):
+        load_experiment(experiment_dir / "exp.toml")
+    status = main(["sim2real", str(experiment_dir / "exp.toml"), str(experiment_dir / "out")])
+    err = capsys.readouterr().err
+    assert status == 1
+    assert err.startswith("error: ") and err.count("\n") == 1 and message in err, err
+    assert not (experiment_dir / "out").exists()
+
+
+def test_real_scenes_on_the_command_line_replace_those_of_the_file(experiment_dir: Path) -> None:
+    write_text_cloud(experiment_dir / "other.txt", make_room(7, size_m=(3.0, 3.0), points_per_m2=40))
+    parsed = load_experiment(experiment_dir / "exp.toml", real=[experiment_dir / "other.txt"], device="cpu")
+    assert parsed.real == ((experiment_dir / "other.txt").resolve(),)
+    assert parsed.variants[0].config.data.val == (str((experiment_dir / "other.txt").resolve()),)
+
+
+def test_the_shipped_experiments_are_valid() -> None:
+    configs = Path(__file__).resolve().parents[2] / "configs"
+    real = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "s3dis_area6"
+    if not real.is_dir():
+        pytest.skip(f"{real} absent: the shipped experiments score on the shared S3DIS rooms")
+    for name in ("sim2real_cpu.toml", "sim2real_table2.toml"):
+        parsed = load_experiment(configs / name)
+        assert [v.name for v in parsed.variants][0] == "paper-baseline"
+        baseline = parsed.variants[0].config
+        assert baseline.input.features == ("xyz",) and baseline.input.grid_m == 0
+        assert not baseline.augment.enabled and baseline.train.class_weights == "none"

@@ -1,0 +1,146 @@
+"""The sim-to-real recipe: density normalisation, augmentations, extra features, class weights."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+
+from bimscan.io.text import write_text_cloud
+from bimscan.learn.augment import augment_points
+from bimscan.learn.data import TileDataset, collect_scene_tiles, list_scenes
+from bimscan.learn.density import grid_representatives, grid_sample, voxel_index
+from bimscan.learn.features import estimate_normals, extra_features, floor_height
+from bimscan.learn.train import class_weights_from_labels, compute_loss
+from bimscan.learn.train_config import DEFAULT_CLASS_NAMES, AugmentConfig, BlockConfig, InputConfig
+from bimscan.types import PointCloud
+
+from .conftest import COVERING, SLAB, make_room
+
+
+def _as_set(xyz: np.ndarray) -> set[tuple[float, float, float]]:
+    return {tuple(p) for p in np.asarray(xyz).tolist()}
+
+
+def test_grid_sampling_keeps_one_point_per_voxel_whatever_the_order() -> None:
+    rng = np.random.default_rng(0)
+    xyz = rng.random((20_000, 3)) * [4.0, 3.0, 2.5]
+    picked = grid_sample(xyz, 0.2)
+    cells = voxel_index(xyz[picked], 0.2)
+    assert len(np.unique(cells, axis=0)) == len(picked)  # one per voxel
+    assert len(picked) == len(np.unique(voxel_index(xyz, 0.2), axis=0))  # every occupied voxel
+    for seed in (1, 2, 3):
+        order = np.random.default_rng(seed).permutation(len(xyz))
+        assert _as_set(xyz[order][grid_sample(xyz[order], 0.2)]) == _as_set(xyz[picked])
+
+
+def test_every_point_maps_to_a_representative_of_its_own_voxel() -> None:
+    xyz = np.random.default_rng(4).random((5000, 3)) * 2.0
+    reps, rep_of = grid_representatives(xyz, 0.25)
+    assert np.array_equal(np.unique(rep_of), reps)
+    assert np.array_equal(voxel_index(xyz[rep_of], 0.25), voxel_index(xyz, 0.25))
+    assert np.array_equal(rep_of[reps], reps)
+
+
+def test_grid_tiles_do_not_depend_on_point_order_or_chunking(tmp_path: Path) -> None:
+    room = make_room(3, size_m=(5.0, 4.0), points_per_m2=150)
+    order = np.random.default_rng(9).permutation(len(room))
+    write_text_cloud(tmp_path / "a.txt", room)
+    write_text_cloud(tmp_path / "a-shuffled.txt", PointCloud(xyz=room.xyz[order], label=room.label[order]))
+    blocks = BlockConfig(size_m=2.0, eval_stride_m=1.0, points=64, min_points=16, cache_points=200)
+    results = []
+    for name, chunk in (("a.txt", 1_000_000), ("a-shuffled.txt", 1_000_000), ("a-shuffled.txt", 3001)):
+        source = list_scenes([tmp_path / name])[0]
+        source = type(source)(source.path, source.kind, "room", None, None)  # same name: same seed
+        results.append(collect_scene_tiles(source, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=0,
+                                           chunk_points=chunk, grid_m=0.1))
+    first = results[0]
+    assert len(first) > 4 and (np.diff(first.offsets) == 200).any()  # some columns hit the cap
+    for other in results[1:]:
+        assert np.array_equal(first.key, other.key) and np.array_equal(first.offsets, other.offsets)
+        for t in range(len(first)):
+            a, b = first.tile_points(t), other.tile_points(t)
+            assert _as_set(a[0] + first.origin[t]) == _as_set(b[0] + other.origin[t])
+    absolute = np.concatenate([first.tile_points(t)[0] + first.origin[t] for t in range(len(first))])
+    assert len(np.unique(voxel_index(absolute + 1e-9, 0.1), axis=0)) >= len(absolute) * 0.99  # ~one per voxel
+
+
+def test_augmentation_is_seeded_and_keeps_labels_with_their_points() -> None:
+    room = make_room(1, size_m=(3.0, 3.0), points_per_m2=80)
+    config = AugmentConfig()
+    a, ka = augment_points(room.xyz, config=config, rng=np.random.default_rng(5))
+    b, kb = augment_points(room.xyz, config=config, rng=np.random.default_rng(5))
+    c, _ = augment_points(room.xyz, config=config, rng=np.random.default_rng(6))
+    assert np.array_equal(a, b) and np.array_equal(ka, kb)
+    assert len(c) != len(a) or not np.allclose(c, a)
+    label = room.label[ka]
+    # floor points stay below ceiling points, whatever rotation, flips, scaling and distortion
+    assert a[label == SLAB, 2].max() < a[label == COVERING, 2].min()
+    # rotation + flips + scaling only: distances between points scale by at most the scale range
+    rigid = AugmentConfig(jitter_sigma_m=0.0, dropout_max=0.0, elastic=(), anisotropic=False)
+    moved, kept = augment_points(room.xyz, config=rigid, rng=np.random.default_rng(7))
+    assert len(kept) == len(room)
+    ratio = np.linalg.norm(moved[1:] - moved[0], axis=1) / np.linalg.norm(room.xyz[1:] - room.xyz[0], axis=1)
+    assert np.allclose(ratio, ratio[0]) and 0.9 <= ratio[0] <= 1.1
+
+
+def test_augmented_blocks_are_identical_for_the_same_key_and_aligned(tmp_path: Path) -> None:
+    write_text_cloud(tmp_path / "r.txt", make_room(2, size_m=(4.0, 4.0), points_per_m2=60))
+    source = list_scenes([tmp_path / "r.txt"])[0]
+    blocks = BlockConfig(size_m=4.0, eval_stride_m=2.0, points=256, min_points=16, cache_points=2048)
+    tiles = collect_scene_tiles(source, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=0, grid_m=0.05)
+    dataset = TileDataset(tiles, points=256, seed=0, inputs=InputConfig(grid_m=0.05), augment=AugmentConfig())
+    one, two = dataset[(3, 0)], dataset[(3, 0)]
+    assert all(np.array_equal(one[k], two[k]) for k in one)
+    assert one["xyz"].shape == (256, 7)
+    other = dataset[(4, 0)]
+    assert not np.array_equal(one["xyz"], other["xyz"])
+    valid = one["mask"]
+    height = one["xyz"][valid, 3]
+    label = one["label"][valid]
+    # the height channel puts floor points near 0 and ceiling points near 1 (3 m / 3 m)
+    assert np.all(height[label == SLAB] < 0.2) and np.all(height[label == COVERING] > 0.8)
+
+
+def test_features_height_and_normals() -> None:
+    rng = np.random.default_rng(0)
+    floor = np.column_stack([rng.random(500) * 2, rng.random(500) * 2, np.full(500, 1.0)])
+    wall = np.column_stack([np.full(500, 3.0), rng.random(500) * 2, 1.0 + rng.random(500) * 2])
+    normals = estimate_normals(np.concatenate([floor, wall]), neighbours=12)
+    assert np.allclose(normals[:500], [0.0, 0.0, 1.0], atol=1e-6)
+    assert np.allclose(np.abs(normals[500:, 0]), 1.0, atol=1e-6)
+    extra = extra_features(floor, features=("xyz", "height", "normals"), floor_z=0.4, height_scale_m=3.0, neighbours=8)
+    assert extra.shape == (500, 4) and np.allclose(extra[:, 0], 0.2)
+    assert extra_features(floor, features=("xyz",), floor_z=0.0, height_scale_m=3.0, neighbours=8) is None
+    z = np.r_[np.full(10_000, 2.0), -50.0]  # one stray point far below the floor
+    assert floor_height(z) == pytest.approx(2.0)
+
+
+def test_class_weights_and_the_weighted_loss() -> None:
+    label = np.r_[np.zeros(800), np.ones(200), np.full(0, 2), np.full(100, 3)].astype(np.uint8)
+    inverse = class_weights_from_labels(label, classes=4, mode="inverse")
+    share = np.array([800, 200, 0, 100]) / 1100
+    assert inverse[2] == 0 and np.allclose(inverse[[0, 1, 3]] * share[[0, 1, 3]], inverse[0] * share[0])
+    assert np.isclose(inverse[[0, 1, 3]].mean(), 1.0)
+    root = class_weights_from_labels(label, classes=4, mode="inverse_sqrt")
+    assert np.isclose(root[1] / root[0], 2.0)
+    assert class_weights_from_labels(label, classes=4, mode="none") is None
+    logits = torch.randn(2, 50, 4)
+    target = torch.randint(0, 4, (2, 50))
+    target[0, :5] = 255
+    weight = torch.tensor([0.5, 1.0, 2.0, 3.0])
+    loss, count = compute_loss(logits, target, weight)
+    expected = F.cross_entropy(logits.reshape(-1, 4), target.reshape(-1), weight=weight, ignore_index=255)
+    assert torch.isclose(loss, expected) and int(count) == 95
+
+
+def test_input_config_rejects_bad_values() -> None:
+    with pytest.raises(ValueError, match="start with 'xyz'"):
+        InputConfig(features=("height",))
+    with pytest.raises(ValueError, match="at most once"):
+        InputConfig(features=("xyz", "colour"))
+    with pytest.raises(ValueError, match="scale_range"):
+        AugmentConfig(scale_range=(1.2, 0.8))
