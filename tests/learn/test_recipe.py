@@ -144,3 +144,25 @@ def test_input_config_rejects_bad_values() -> None:
         InputConfig(features=("xyz", "colour"))
     with pytest.raises(ValueError, match="scale_range"):
         AugmentConfig(scale_range=(1.2, 0.8))
+
+
+def test_per_station_columns_keep_each_tripod_apart(tmp_path: Path) -> None:
+    from bimscan.io import open_cloud_writer
+    from bimscan.semantics import DEFAULT_SCHEME, load_scheme
+    from bimscan.types import CloudHeader
+
+    room = make_room(5, size_m=(3.0, 3.0), origin=(0.5, 0.5), points_per_m2=60)  # inside one 4 m column
+    station = (room.xyz[:, 0] > 2.0).astype(np.uint16)  # two "stations", one per half of the room
+    header = CloudHeader(scheme=load_scheme(DEFAULT_SCHEME))
+    with open_cloud_writer(tmp_path / "scan", header=header) as writer:
+        writer.write(PointCloud(xyz=room.xyz, label=room.label, station=station,
+                                component=np.zeros(len(room), np.int32)))
+    source = list_scenes([tmp_path / "scan"])[0]
+    blocks = BlockConfig(size_m=4.0, eval_stride_m=2.0, points=64, min_points=16, cache_points=100_000)
+    merged = collect_scene_tiles(source, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=0)
+    apart = collect_scene_tiles(source, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=0, per_station=True)
+    assert len(merged) == 1 and len(apart) == 2
+    assert np.allclose(apart.origin[:, :2], merged.origin[0, :2])  # same place, one column per station
+    assert int(apart.offsets[-1]) == int(merged.offsets[-1]) == len(room)
+    halves = [apart.tile_points(t)[0][:, 0] + apart.origin[t, 0] for t in range(2)]
+    assert {bool((h > 2.0).all()) for h in halves} == {True, False}

@@ -289,7 +289,7 @@ def _scene_seed(seed: int, source: SceneSource) -> np.random.SeedSequence:
 
 def collect_scene_tiles(
     source: SceneSource, *, blocks: BlockConfig, class_names: Sequence[str], seed: int,
-    chunk_points: int = CHUNK_POINTS, grid_m: float = 0.0,
+    chunk_points: int = CHUNK_POINTS, grid_m: float = 0.0, per_station: bool = False,
 ) -> TileSet:
     """Stream one scene into its training columns, keeping <= ``blocks.cache_points`` each.
 
@@ -301,6 +301,10 @@ def collect_scene_tiles(
     of the point's voxel, the same for all its points, and of the points sharing a voxel only the
     one with the smallest coordinate hash is kept: each column keeps a uniform random subset of
     its occupied voxels, one point each, whatever the stream's order and chunking.
+
+    With ``per_station`` (and a scene that records its stations) every station's points make
+    their own columns: a column then holds what one tripod saw, one side of each wall, as a
+    scan of one room does, instead of both faces of a wall and the rooms behind it.
 
     Cost: a chunk's points that cannot enter their (full) column are dropped by one lookup;
     the rest wait until they are a quarter of the kept points, then are sorted and merged
@@ -321,6 +325,8 @@ def collect_scene_tiles(
     column_counts: list[np.ndarray] = []
     for chunk in iter_scene_chunks(source, class_names=class_names, chunk_points=chunk_points):
         ix, iy = locate_columns(chunk.xyz[:, :2], size_m=blocks.size_m)
+        if per_station and chunk.station is not None:
+            ix = ix + chunk.station.astype(np.int64) * _STATION_SHIFT
         key = encode_column_key(ix, iy)
         unique, unique_counts = np.unique(key, return_counts=True)
         column_keys.append(unique)
@@ -362,6 +368,15 @@ def collect_scene_tiles(
         counts = {}
     floor = floor_height(kept_xyz[:, 2])
     return _tiles_from_points(source, kept_key, kept_xyz, kept_label, counts, blocks=blocks, floor=floor)
+
+
+_STATION_SHIFT = 1 << 20  # per-station columns: column x index + station x this (|x index| < 2**19)
+
+
+def _column_x(ix: np.ndarray) -> np.ndarray:
+    """The column x index without a per-station shift (identity for unshifted indices)."""
+    half = _STATION_SHIFT // 2
+    return (ix + half) % _STATION_SHIFT - half
 
 
 def _keep_smallest(
@@ -451,6 +466,7 @@ def _tiles_from_points(
         if counts[column] < blocks.min_points or not (labels != IGNORE_LABEL).any():
             continue
         ix, iy = decode_column_key(np.array([column]))
+        ix = _column_x(ix)
         origin = np.array([ix[0] * blocks.size_m, iy[0] * blocks.size_m, float(xyz[start:end, 2].min())])
         parts_xyz.append((xyz[start:end] - origin).astype(np.float32))
         parts_label.append(labels)
@@ -485,12 +501,14 @@ def _fingerprint(path: Path) -> list[object]:
 
 def name_tile_cache(
     source: SceneSource, *, blocks: BlockConfig, class_names: Sequence[str], seed: int, grid_m: float = 0.0,
+    per_station: bool = False,
 ) -> str:
     """File name of a scene's cached tiles: a digest of everything the tiles depend on."""
     recipe = {
         "version": 2, "scene": _fingerprint(source.path), "name": source.name, "kind": source.kind,
         "label_field": source.label_field, "mapping": None if source.mapping is None else asdict(source.mapping),
         "blocks": asdict(blocks), "class_names": list(class_names), "seed": seed, "grid_m": grid_m,
+        "per_station": per_station,
     }
     digest = hashlib.sha256(json.dumps(recipe, sort_keys=True, default=str).encode()).hexdigest()[:24]
     return f"tiles-{digest}.npz"
@@ -498,15 +516,17 @@ def name_tile_cache(
 
 def load_or_collect_tiles(
     source: SceneSource, *, blocks: BlockConfig, class_names: Sequence[str], seed: int,
-    cache_dir: Path | None = None, build: bool = True, grid_m: float = 0.0,
+    cache_dir: Path | None = None, build: bool = True, grid_m: float = 0.0, per_station: bool = False,
 ) -> TileSet:
     """Tiles of one scene, from ``cache_dir`` when cached there, else collected (and cached).
 
     With ``build`` False a missing cache entry is an error (DDP ranks other than 0 only read).
     """
     if cache_dir is None:
-        return collect_scene_tiles(source, blocks=blocks, class_names=class_names, seed=seed, grid_m=grid_m)
-    path = cache_dir / name_tile_cache(source, blocks=blocks, class_names=class_names, seed=seed, grid_m=grid_m)
+        return collect_scene_tiles(source, blocks=blocks, class_names=class_names, seed=seed, grid_m=grid_m,
+                                   per_station=per_station)
+    path = cache_dir / name_tile_cache(source, blocks=blocks, class_names=class_names, seed=seed, grid_m=grid_m,
+                                       per_station=per_station)
     if path.is_file():
         with np.load(path) as data:
             return TileSet(
@@ -516,7 +536,8 @@ def load_or_collect_tiles(
             )
     if not build:
         raise LearnError(f"{path}: tile cache missing (rank 0 should have written it); rerun the training")
-    tiles = collect_scene_tiles(source, blocks=blocks, class_names=class_names, seed=seed, grid_m=grid_m)
+    tiles = collect_scene_tiles(source, blocks=blocks, class_names=class_names, seed=seed, grid_m=grid_m,
+                                per_station=per_station)
     cache_dir.mkdir(parents=True, exist_ok=True)
     with atomic_output(path) as temp, temp.open("wb") as out:
         np.savez(

@@ -281,6 +281,7 @@ def _resolve_sources(
 
 def _collect_tiles(
     sources: list[SceneSource], *, config: TrainRunConfig, cache_dir: Path, ctx: DistributedContext,
+    per_station: bool = False,
 ) -> TileSet:
     """Tiles of every scene. Under DDP each process reads every P-th scene into the on-disk
     tile cache, then all read the whole cache: one pass over the data, spread over processes."""
@@ -290,7 +291,7 @@ def _collect_tiles(
         for source in mine:
             built[source.path] = load_or_collect_tiles(
                 source, blocks=config.blocks, class_names=config.data.class_names, seed=config.train.seed,
-                cache_dir=cache_dir, grid_m=config.input.grid_m,
+                cache_dir=cache_dir, grid_m=config.input.grid_m, per_station=per_station,
             )
             bar.update(1)
     if ctx.world > 1:
@@ -298,7 +299,7 @@ def _collect_tiles(
     parts = [
         built[source.path] if source.path in built else load_or_collect_tiles(
             source, blocks=config.blocks, class_names=config.data.class_names, seed=config.train.seed,
-            cache_dir=cache_dir, build=False, grid_m=config.input.grid_m,
+            cache_dir=cache_dir, build=False, grid_m=config.input.grid_m, per_station=per_station,
         )
         for source in sources
     ]
@@ -402,7 +403,8 @@ def _train(
             f"[data] val: no column of its {len(val_sources)} scene(s) has ground truth and at least blocks.min_points "
             f"({config.blocks.min_points}) points; give the val scenes labels (val_label_field / val_mapping) or set val = []"
         )
-    train_tiles = _collect_tiles(train_sources, config=config, cache_dir=cache_dir, ctx=ctx)
+    train_tiles = _collect_tiles(train_sources, config=config, cache_dir=cache_dir, ctx=ctx,
+                                 per_station=config.blocks.train_columns == "station")
     train_set = TileDataset(train_tiles, points=config.blocks.points, seed=settings.seed, inputs=config.input,
                             augment=config.augment)
     val_set = None if val_tiles is None else TileDataset(
