@@ -19,6 +19,8 @@ from hypothesis import strategies as st
 
 from bimscan.errors import InputFileError, OutputError
 from bimscan.io import (
+    CLOUD_FORMATS,
+    WRITABLE_FORMATS,
     WRITERS,
     iter_cloud_chunks,
     open_cloud_writer,
@@ -29,7 +31,7 @@ from bimscan.io import (
 from bimscan.io._writer import BLOCK_POINTS, WatchedFile
 from bimscan.types import CloudHeader, PointCloud
 
-NAMES = {".las": "cloud.las", ".laz": "cloud.laz", ".ply": "cloud.ply", ".e57": "cloud.e57", "": "cloud"}
+NAMES = {name: "cloud" + CLOUD_FORMATS[name][0] for name in WRITABLE_FORMATS}
 FORMATS = sorted(WRITERS)
 
 
@@ -37,11 +39,11 @@ def xyz_tolerance(key: str, xyz: np.ndarray, origin: tuple[float, float, float])
     """How far a coordinate may move through the format: LAS 0.1 mm steps, float32 offsets,
     E57's 0.1 mm steps in a station frame turned back to world axes (per axis at most the
     length of the half-step diagonal)."""
-    if key in (".las", ".laz"):
+    if key in ("las", "laz"):
         return 0.5e-4 + 1e-9
-    if key == "":
+    if key == "npy":
         return float(np.abs(xyz - np.asarray(origin)).max()) * np.finfo(np.float32).eps
-    if key == ".e57":
+    if key == "e57":
         return 0.5e-4 * np.sqrt(3) + 1e-9
     return 0.0
 
@@ -189,7 +191,7 @@ def test_an_existing_output_is_kept_without_overwrite_and_replaced_with_it(key, 
 
 # libE57Format writes through its own C++ file handle, which no Python patch reaches: the E57
 # writer's disk-full path is tested with a real file-size limit in test_e57.py.
-@pytest.mark.parametrize("key", [k for k in FORMATS if k != ".e57"])
+@pytest.mark.parametrize("key", [k for k in FORMATS if k != "e57"])
 def test_disk_full_while_writing_is_an_output_error_and_removes_the_temporary(key, tmp_path, header, cloud_factory, monkeypatch):
     budget = {"bytes": 200_000}
     real_write = WatchedFile.write
@@ -266,10 +268,11 @@ def test_missing_parent_folder_is_an_output_error(tmp_path, header):
 
 
 def test_paths_without_suffix_or_with_a_trailing_slash_are_numpy_folders():
-    assert output_format("out/scan") == ""
-    assert output_format("out/scene.exp1/") == ""
-    assert output_format("out/scan.LAZ") == ".laz"
-    assert output_format("out/scene.exp1") == ".exp1"
+    assert output_format("out/scan") == "npy"
+    assert output_format("out/scene.exp1/") == "npy"
+    assert output_format("out/scan.LAZ") == "laz"
+    assert output_format("out/scene.exp1") is None
+    assert output_format("out/scan.txt") is None  # text is read, not written, through the registries
 
 
 def test_metadata_that_is_not_json_is_refused_before_any_point_is_written(tmp_path, header):
@@ -300,7 +303,7 @@ def test_reading_an_unknown_format_or_a_missing_path_is_an_input_error(tmp_path)
         read_cloud(tmp_path / "missing.laz")
 
 
-@pytest.mark.parametrize("key", [".las", ".ply", ".e57", ""])
+@pytest.mark.parametrize("key", ["las", "ply", "e57", "npy"])
 @settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(cuts=st.lists(st.integers(min_value=0, max_value=3_500), max_size=12))
 def test_any_chunking_gives_the_bytes_of_the_unchunked_stream(key, cuts, header, cloud_factory):

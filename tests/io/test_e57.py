@@ -348,7 +348,7 @@ def test_learning_reads_an_e57_as_a_scene(tmp_path, header, cloud_factory):
     with open_cloud_writer(path, header=header) as writer:
         writer.write(cloud)
     (source,) = list_scenes([path])
-    assert source.kind == "cloud"
+    assert source.kind == "e57"
     chunks = list(iter_scene_chunks(source, class_names=[c.name for c in header.scheme.classes]))
     assert np.array_equal(np.concatenate([c.label for c in chunks]), cloud.label)
 

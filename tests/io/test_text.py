@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from bimscan.errors import InputFileError, OutputError
-from bimscan.io.text import iter_text_chunks, read_text_cloud, write_text_cloud
+from bimscan.io import count_points, iter_cloud_chunks, read_cloud
+from bimscan.io.text import iter_text_chunks, write_text_cloud
 from bimscan.types import PointCloud
 
 
@@ -22,7 +23,7 @@ def test_text_cloud_round_trips_labels_and_coordinates(tmp_path: Path) -> None:
     cloud = _cloud(2000)
 
     write_text_cloud(tmp_path / "scan.txt", cloud)
-    back = read_text_cloud(tmp_path / "scan.txt")
+    back = read_cloud(tmp_path / "scan.txt")
 
     np.testing.assert_array_equal(back.label, cloud.label)
     np.testing.assert_allclose(back.xyz, cloud.xyz, atol=5.1e-7, rtol=0)
@@ -32,7 +33,7 @@ def test_text_cloud_without_labels_reads_back_without_labels(tmp_path: Path) -> 
     cloud = _cloud(10, labels=False)
 
     write_text_cloud(tmp_path / "scan.xyz", cloud)
-    back = read_text_cloud(tmp_path / "scan.xyz")
+    back = read_cloud(tmp_path / "scan.xyz")
 
     assert back.label is None and len(back) == 10
 
@@ -53,7 +54,7 @@ def test_every_documented_text_layout_reads(tmp_path: Path, text: str, labels: l
     path = tmp_path / "cloud.txt"
     path.write_text(text)
 
-    cloud = read_text_cloud(path)
+    cloud = read_cloud(path)
 
     np.testing.assert_array_equal(cloud.xyz, [[1, 2, 3], [4, 5, 6]])
     if labels is None:
@@ -70,7 +71,7 @@ def test_chunks_join_to_the_whole_cloud(tmp_path: Path) -> None:
 
     assert [len(c) for c in chunks] == [100] * 12 + [34]
     joined = PointCloud.concatenate(chunks)
-    np.testing.assert_array_equal(joined.label, read_text_cloud(tmp_path / "scan.txt").label)
+    np.testing.assert_array_equal(joined.label, read_cloud(tmp_path / "scan.txt").label)
 
 
 @pytest.mark.parametrize(
@@ -89,7 +90,7 @@ def test_bad_text_clouds_fail_with_a_one_line_error(tmp_path: Path, text: str, m
     path.write_text(text)
 
     with pytest.raises(InputFileError, match=message) as caught:
-        read_text_cloud(path)
+        read_cloud(path)
     assert "\n" not in str(caught.value)
 
 
@@ -124,7 +125,7 @@ def test_leica_pts_columns_after_xyz_are_intensity_and_colour_never_a_label(tmp_
     path = tmp_path / "scan.pts"
     path.write_text("2\n" + lines)
 
-    cloud = read_text_cloud(path)
+    cloud = read_cloud(path)
 
     np.testing.assert_array_equal(cloud.xyz, [[1, 2, 3], [4, 5, 6]])
     assert cloud.label is None
@@ -153,7 +154,7 @@ def test_labels_that_are_not_wanted_are_neither_read_nor_checked(tmp_path: Path)
 
     assert chunk.label is None and len(chunk) == 2
     with pytest.raises(InputFileError, match="not an integer in 0..255"):
-        read_text_cloud(path)
+        read_cloud(path)
 
 
 def test_writing_into_a_missing_folder_is_refused(tmp_path: Path) -> None:

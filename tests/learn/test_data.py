@@ -42,7 +42,7 @@ def test_dataset_folder_expands_to_its_done_units_preferring_the_numpy_folder(tm
     scenes = list_scenes([tmp_path])
 
     assert [(s.name, s.kind, s.path.relative_to(tmp_path).as_posix()) for s in scenes] == [
-        ("a", "npdir", "units/a/cloud"), ("c", "cloud", "units/c/cloud.laz"),
+        ("a", "npy", "units/a/cloud"), ("c", "laz", "units/c/cloud.laz"),
     ]
 
 

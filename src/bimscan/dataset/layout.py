@@ -38,6 +38,7 @@ import numpy as np
 
 from bimscan.errors import DatasetError, InputFileError
 from bimscan.files import atomic_output, dump_json, file_sha256, temp_path, write_atomic
+from bimscan.io import CLOUD_FORMATS, WRITABLE_FORMATS
 from bimscan.types import BimScene, ComponentSurfaces, ComponentTable, SceneMesh, SiteState, Station
 
 MANIFEST_NAME = "manifest.json"
@@ -59,8 +60,8 @@ _SITE_COLUMNS = ("global_id", "ifc_class", "predefined_type", "name", "storey", 
 STATUSES = ("done", "failed", "pending")
 UNIT_SEPARATOR = "__"
 
-# format key -> the unit's cloud file name (a folder for NumPy); one vocabulary with bimscan.io
-FORMAT_FILES: dict[str, str] = {"laz": "cloud.laz", "las": "cloud.las", "ply": "cloud.ply", "e57": "cloud.e57", "npy": "cloud"}
+# format name (bimscan.io's WRITABLE_FORMATS) -> the unit's cloud file name ("cloud": a NumPy folder)
+FORMAT_FILES: dict[str, str] = {name: "cloud" + CLOUD_FORMATS[name][0] for name in WRITABLE_FORMATS}
 # Which of a unit's files a reader takes: the fastest to decode first. All hold the same points
 # (the NumPy folder as float32 around the cloud's origin, LAS/LAZ and E57 in 0.1 mm steps, PLY as doubles).
 READ_ORDER = ("npy", "ply", "las", "laz", "e57")

@@ -6,7 +6,7 @@ A spec is one TOML file (paths inside it are relative to the file)::
     seed = 0                      # noise seed of every unit
     scheme = "spc5"               # built-in label scheme or a scheme TOML file
     scanner = "riegl_vz400"       # built-in scanner or a scanner TOML file
-    formats = ["laz", "npy"]      # one or several of laz, las, ply, npy per unit
+    formats = ["laz", "npy"]      # one or several of las, laz, ply, e57, npy per unit
     voxel_size_m = 0.02           # optional: voxel subsampling of every unit
     engine = "open3d"             # ray engine: open3d, embreex, warp or auto (warp on a CUDA GPU)
     strict = false                # settings outside the device's limits are errors

@@ -1,7 +1,10 @@
 """Cloud and mesh files: streamed, atomic, reproducible writers and readers.
 
-Clouds: LAS 1.4 / LAZ (``las``), binary PLY (``ply``), E57 with one scan per station
-(``e57``) and Pointcept-style NumPy folders (``npdir``), chosen by the path's suffix (no suffix, or a trailing ``/``: a NumPy folder). Every
+Clouds: LAS 1.4 (``las``), LAZ (``laz``), binary PLY (``ply``), E57 with one scan per station
+(``e57``) and Pointcept-style NumPy folders (``npy``), chosen by the path's suffix (no suffix, or a
+trailing ``/``: a NumPy folder); these are ``WRITABLE_FORMATS``. The readers also take plain-text
+clouds (``text``, :mod:`bimscan.io.text`) and S3DIS rooms (``s3dis``, :mod:`bimscan.io.s3dis`).
+``CLOUD_FORMATS`` is the one vocabulary of format names: every registry here is keyed by it. Every
 writer takes ``PointCloud`` chunks as they come, keeps its memory bounded whatever the point
 count, writes under a temporary name renamed at close, stores the ``CloudHeader`` (label scheme,
 component table, stations, metadata) with the points, and gives the same bytes for the same
@@ -32,63 +35,99 @@ from bimscan.io.las import count_las_points, iter_las_chunks, open_las_writer, o
 from bimscan.io.npdir import count_npdir_points, iter_npdir_chunks, open_npdir_writer, read_npdir_header
 from bimscan.io.obj import ObjExport, export_obj, read_obj
 from bimscan.io.ply import count_ply_points, iter_ply_chunks, open_ply_writer, read_ply_header
+from bimscan.io.s3dis import count_s3dis_points, is_s3dis_room, iter_s3dis_chunks
+from bimscan.io.text import TEXT_SUFFIXES, count_text_points, iter_text_chunks
 from bimscan.types import CloudHeader, PointCloud
 
-# Format key: the lower-case suffix; "" is a NumPy folder.
-WRITERS: dict[str, Callable[..., CloudWriter]] = {
-    ".las": open_las_writer,
-    ".laz": open_laz_writer,
-    ".ply": open_ply_writer,
-    ".e57": open_e57_writer,
-    "": open_npdir_writer,
+# One vocabulary of cloud formats, shared with the dataset layout (``bimscan.dataset.layout``):
+# format name -> the path suffixes that name it ("": a folder path, no suffix or a trailing "/").
+# An S3DIS room is a folder too, told by its ``Annotations/`` and never by its name.
+CLOUD_FORMATS: dict[str, tuple[str, ...]] = {
+    "las": (".las",),
+    "laz": (".laz",),
+    "ply": (".ply",),
+    "e57": (".e57",),
+    "npy": ("",),
+    "text": TEXT_SUFFIXES,
+    "s3dis": (),
 }
+WRITABLE_FORMATS: tuple[str, ...] = ("las", "laz", "ply", "e57", "npy")
+
+WRITERS: dict[str, Callable[..., CloudWriter]] = {
+    "las": open_las_writer,
+    "laz": open_laz_writer,
+    "ply": open_ply_writer,
+    "e57": open_e57_writer,
+    "npy": open_npdir_writer,
+}
+# Every chunk reader takes (path, *, chunk_points, label_field, labels); labels False: label None.
 CHUNK_READERS: dict[str, Callable[..., Iterator[PointCloud]]] = {
-    ".las": iter_las_chunks,
-    ".laz": iter_las_chunks,
-    ".ply": iter_ply_chunks,
-    ".e57": iter_e57_chunks,
-    "": iter_npdir_chunks,
+    "las": iter_las_chunks,
+    "laz": iter_las_chunks,
+    "ply": iter_ply_chunks,
+    "e57": iter_e57_chunks,
+    "npy": iter_npdir_chunks,
+    "text": iter_text_chunks,
+    "s3dis": iter_s3dis_chunks,
 }
 HEADER_READERS: dict[str, Callable[[str | Path], CloudHeader | None]] = {
-    ".las": read_las_header,
-    ".laz": read_las_header,
-    ".ply": read_ply_header,
-    ".e57": read_e57_header,
-    "": read_npdir_header,
+    "las": read_las_header,
+    "laz": read_las_header,
+    "ply": read_ply_header,
+    "e57": read_e57_header,
+    "npy": read_npdir_header,
+    "text": lambda path: None,  # plain text stores no header
+    "s3dis": lambda path: None,  # nor does an S3DIS room (its labels: indices in S3DIS_CLASSES)
 }
 POINT_COUNTERS: dict[str, Callable[[str | Path], int]] = {
-    ".las": count_las_points,
-    ".laz": count_las_points,
-    ".ply": count_ply_points,
-    ".e57": count_e57_points,
-    "": count_npdir_points,
+    "las": count_las_points,
+    "laz": count_las_points,
+    "ply": count_ply_points,
+    "e57": count_e57_points,
+    "npy": count_npdir_points,
+    "text": count_text_points,
+    "s3dis": count_s3dis_points,
 }
 # Bytes a point takes on disk at most, per format (LAZ: a bound on what scans compress to), for
 # the free-space check before a long scan.
-BYTES_PER_POINT: dict[str, int] = {".las": 36, ".laz": 12, ".ply": 41, ".e57": 40, "": 29}
-_SUPPORTED = ".las, .laz, .ply, .e57, or a folder path without suffix (NumPy)"
+BYTES_PER_POINT: dict[str, int] = {"las": 36, "laz": 12, "ply": 41, "e57": 40, "npy": 29}
+_WRITABLE = ", ".join(s for name in WRITABLE_FORMATS for s in CLOUD_FORMATS[name] if s) + \
+    ", or a folder path without suffix (NumPy)"
+_READABLE = ", ".join(s for suffixes in CLOUD_FORMATS.values() for s in suffixes if s) + \
+    ", a NumPy folder (coord.npy) or an S3DIS room folder (Annotations/)"
 
 
-def output_format(path: str | Path) -> str:
-    """The WRITERS key for an output path: its lower-case suffix, "" for a folder."""
+def output_format(path: str | Path) -> str | None:
+    """The ``WRITABLE_FORMATS`` name for an output path by its suffix ("npy" for a folder path:
+    no suffix, or a trailing ``/``), None when no writer takes it."""
     text = str(path)
-    if text.endswith("/"):
-        return ""
-    return Path(text).suffix.lower()
+    suffix = "" if text.endswith("/") else Path(text).suffix.lower()
+    return next((name for name in WRITABLE_FORMATS if suffix in CLOUD_FORMATS[name]), None)
+
+
+def input_format(path: str | Path) -> str:
+    """The ``CLOUD_FORMATS`` name of an existing cloud: folders by content (``coord.npy``: "npy",
+    ``Annotations/<class>_<n>.txt``: "s3dis"), files by suffix; InputFileError otherwise."""
+    path = check_input_path(path)
+    if path.is_dir():
+        if (path / "coord.npy").is_file():
+            return "npy"
+        if is_s3dis_room(path):
+            return "s3dis"
+        raise InputFileError(f"{path}: a folder that is neither a NumPy cloud (no coord.npy) nor an S3DIS room "
+                             f"(no Annotations/<class>_<n>.txt); bimscan reads {_READABLE}")
+    suffix = path.suffix.lower()
+    name = next((n for n, suffixes in CLOUD_FORMATS.items() if suffix and suffix in suffixes), None)
+    if name is None:
+        raise InputFileError(f"{path}: unknown cloud format {path.suffix!r}; bimscan reads {_READABLE}")
+    return name
 
 
 def _writer_key(path: str | Path) -> str:
-    key = output_format(path)
-    if key not in WRITERS:
-        raise OutputError(f"{path}: unknown cloud format {key!r}; write {_SUPPORTED}")
-    return key
-
-
-def _input_format(path: Path) -> str:
-    key = "" if path.is_dir() else path.suffix.lower()
-    if key not in CHUNK_READERS or (key == "" and not path.is_dir()):
-        raise InputFileError(f"{path}: unknown cloud format {path.suffix!r}; bimscan reads {_SUPPORTED}")
-    return key
+    name = output_format(path)
+    if name is None:
+        raise OutputError(f"{path}: unknown cloud format {Path(str(path)).suffix!r}; write {_WRITABLE}")
+    return name
 
 
 def open_cloud_writer(
@@ -121,24 +160,28 @@ def check_free_space(path: str | Path, *, points: int) -> None:
                           f"{free / 1e9:.1f} GB free; free space or choose another output")
 
 
-def read_cloud(path: str | Path, *, label_field: str | None = None) -> PointCloud:
-    """Read a whole cloud (bimscan's own or another tool's) as one ``PointCloud``.
+def read_cloud(path: str | Path, *, label_field: str | None = None, labels: bool = True) -> PointCloud:
+    """Read a whole cloud (bimscan's own or another tool's, any of ``CLOUD_FORMATS``) as one ``PointCloud``.
 
     ``label_field`` names the field holding labels; None: bimscan files -> their labels,
-    foreign files -> ``classification`` (LAS) or a label-like property (PLY) when present (E57:
-    only a named ``label_field``).
-    Columns a file lacks are None.
+    foreign files -> ``classification`` (LAS), a label-like property (PLY) or column (text) when
+    present (E57: only a named ``label_field``); S3DIS rooms -> the index of the class in
+    ``S3DIS_CLASSES`` (they take no ``label_field``). ``labels`` False: label None, the file's
+    labels neither decoded nor checked. Columns a file lacks are None.
     """
-    chunks = list(iter_cloud_chunks(path, chunk_points=1 << 62, label_field=label_field))
+    chunks = list(iter_cloud_chunks(path, chunk_points=1 << 62, label_field=label_field, labels=labels))
+    if not chunks:  # text files with a header line only
+        raise InputFileError(f"{path}: holds no points; pass a cloud with points")
     return chunks[0] if len(chunks) == 1 else PointCloud.concatenate(chunks)
 
 
 def iter_cloud_chunks(
-    path: str | Path, *, chunk_points: int = 2_000_000, label_field: str | None = None
+    path: str | Path, *, chunk_points: int = 2_000_000, label_field: str | None = None, labels: bool = True,
 ) -> Iterator[PointCloud]:
     """Stream a cloud as ``PointCloud`` chunks of at most ``chunk_points`` rows (see read_cloud)."""
     path = check_input_path(path)
-    chunks = CHUNK_READERS[_input_format(path)](path, chunk_points=chunk_points, label_field=label_field)
+    chunks = CHUNK_READERS[input_format(path)](path, chunk_points=chunk_points, label_field=label_field,
+                                               labels=labels)
     return _finite_points(chunks, path)
 
 
@@ -158,19 +201,19 @@ def _finite_points(chunks: Iterator[PointCloud], path: Path) -> Iterator[PointCl
 
 
 def count_points(path: str | Path) -> int:
-    """The number of points a cloud file says it holds (its header; bodies shorter than that are refused)."""
-    path = check_input_path(path)
-    return POINT_COUNTERS[_input_format(path)](path)
+    """The number of points a cloud holds: what its header says (bodies shorter than that are refused);
+    text clouds and S3DIS rooms, which have no header, by counting their data lines."""
+    return POINT_COUNTERS[input_format(path)](path)
 
 
 def read_cloud_header(path: str | Path) -> CloudHeader | None:
-    """The ``CloudHeader`` bimscan stored with a cloud, or None for a foreign file."""
-    path = check_input_path(path)
-    return HEADER_READERS[_input_format(path)](path)
+    """The ``CloudHeader`` bimscan stored with a cloud, or None for a foreign file (text and S3DIS: always)."""
+    return HEADER_READERS[input_format(path)](Path(path))
 
 
 __all__ = [
-    "CHUNK_READERS", "HEADER_READERS", "POINT_COUNTERS", "WRITERS", "CloudWriter", "ObjExport", "WrittenCloud",
-    "check_cloud_output", "check_free_space", "count_points", "export_obj", "iter_cloud_chunks", "open_cloud_writer", "output_format", "read_cloud",
+    "BYTES_PER_POINT", "CHUNK_READERS", "CLOUD_FORMATS", "HEADER_READERS", "POINT_COUNTERS", "WRITABLE_FORMATS",
+    "WRITERS", "CloudWriter", "ObjExport", "WrittenCloud", "check_cloud_output", "check_free_space", "count_points",
+    "export_obj", "input_format", "iter_cloud_chunks", "open_cloud_writer", "output_format", "read_cloud",
     "read_cloud_header", "read_obj",
 ]

@@ -569,7 +569,7 @@ class E57CloudWriter(StreamingCloudWriter):
 
 
 def open_e57_writer(path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True) -> E57CloudWriter:
-    """An E57 writer (registered as ``WRITERS[".e57"]``)."""
+    """An E57 writer (registered as ``WRITERS["e57"]``)."""
     return E57CloudWriter(path, header=header, overwrite=overwrite, checksum=checksum)
 
 
@@ -837,14 +837,15 @@ def _empty(columns: set[str]) -> PointCloud:
 
 
 def iter_e57_chunks(
-    path: str | Path, *, chunk_points: int = 2_000_000, label_field: str | None = None
+    path: str | Path, *, chunk_points: int = 2_000_000, label_field: str | None = None, labels: bool = True,
 ) -> Iterator[PointCloud]:
     """Stream an E57 file as world-coordinate ``PointCloud`` chunks of ``chunk_points`` rows.
 
     Scans follow each other in ``/data3D`` order; chunks run across scan boundaries. Files
     bimscan wrote give back the columns that were written; foreign files give xyz, station (the
     scan's index), intensity and time where every scan has them, and labels from
-    ``label_field`` (a point field, e.g. an extension ``prefix:name``) only.
+    ``label_field`` (a point field, e.g. an extension ``prefix:name``) only. ``labels`` False:
+    label None (not read).
     """
     path = check_input_path(path)
     if chunk_points < 1:
@@ -853,6 +854,8 @@ def iter_e57_chunks(
     try:
         scans = _scans(image)
         plan = _plan(image, scans, _stored_document(image, path), label_field, path)
+        if not labels:
+            plan = _Plan(columns=plan.columns - {"label"}, label_source=None, bimscan=plan.bimscan)
         block = min(chunk_points, READ_BLOCK_POINTS)
 
         def pieces() -> Iterator[PointCloud]:

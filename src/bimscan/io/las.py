@@ -229,12 +229,12 @@ class LasCloudWriter(StreamingCloudWriter):
 
 
 def open_las_writer(path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True) -> LasCloudWriter:
-    """An uncompressed LAS 1.4 writer (registered as ``WRITERS[".las"]``)."""
+    """An uncompressed LAS 1.4 writer (registered as ``WRITERS["las"]``)."""
     return LasCloudWriter(path, header=header, overwrite=overwrite, checksum=checksum, compress=False)
 
 
 def open_laz_writer(path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True) -> LasCloudWriter:
-    """A LAZ writer (registered as ``WRITERS[".laz"]``)."""
+    """A LAZ writer (registered as ``WRITERS["laz"]``)."""
     return LasCloudWriter(path, header=header, overwrite=overwrite, checksum=checksum, compress=True)
 
 
@@ -339,13 +339,14 @@ def _rgb8(raw: np.ndarray, *, ours: bool) -> np.ndarray:
 
 
 def iter_las_chunks(
-    path: str | Path, *, chunk_points: int = 2_000_000, label_field: str | None = None
+    path: str | Path, *, chunk_points: int = 2_000_000, label_field: str | None = None, labels: bool = True,
 ) -> Iterator[PointCloud]:
     """Stream a LAS/LAZ file as ``PointCloud`` chunks of at most ``chunk_points`` rows.
 
     Labels come from ``label_field`` (any dimension, e.g. an extra dimension ``"gt"``), else from
     ``classification``. Files bimscan wrote give back the columns that were written; foreign
     files give xyz, label, intensity and time (``gps_time`` when the point format has it).
+    ``labels`` False: label None (not decoded).
     """
     path = check_input_path(path)
     if chunk_points < 1:
@@ -366,6 +367,8 @@ def iter_las_chunks(
             columns |= ({"time"} if "gps_time" in names else set()) | ({"rgb"} if "red" in names else set())
         if label_field is not None:
             columns.add("label")
+        if not labels:
+            columns.discard("label")
         label_source = label_field or "classification"
         scales, offsets = las_header.scales, las_header.offsets
 

@@ -107,7 +107,7 @@ class NpdirCloudWriter(StreamingCloudWriter):
 
 
 def open_npdir_writer(path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True) -> NpdirCloudWriter:
-    """A NumPy folder writer (registered as ``WRITERS[""]``)."""
+    """A NumPy folder writer (registered as ``WRITERS["npy"]``)."""
     return NpdirCloudWriter(path, header=header, overwrite=overwrite, checksum=checksum)
 
 
@@ -142,12 +142,13 @@ def count_npdir_points(path: str | Path) -> int:
 
 
 def iter_npdir_chunks(
-    path: str | Path, *, chunk_points: int = 2_000_000, label_field: str | None = None
+    path: str | Path, *, chunk_points: int = 2_000_000, label_field: str | None = None, labels: bool = True,
 ) -> Iterator[PointCloud]:
     """Stream a NumPy folder as ``PointCloud`` chunks of at most ``chunk_points`` rows.
 
     ``label_field`` names the ``.npy`` file holding labels (e.g. ``"segment20"``); by default
     ``segment.npy``. Foreign Pointcept folders without ``origin.npy`` have their origin at 0.
+    ``labels`` False: label None (not read).
     """
     folder = check_input_path(path)
     if not folder.is_dir():
@@ -170,6 +171,8 @@ def iter_npdir_chunks(
     if label_field is not None and not (folder / f"{label_field}.npy").is_file():
         present = sorted(p.stem for p in folder.glob("*.npy"))
         raise InputFileError(f"{folder}: no {label_field}.npy to read labels from; the folder has {', '.join(present)}")
+    if not labels:
+        del stems["label"]
     arrays = {}
     for column, stem in stems.items():
         file = folder / f"{stem}.npy"

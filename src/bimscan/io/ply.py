@@ -145,7 +145,7 @@ class PlyCloudWriter(StreamingCloudWriter):
 
 
 def open_ply_writer(path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True) -> PlyCloudWriter:
-    """A PLY writer (registered as ``WRITERS[".ply"]``)."""
+    """A PLY writer (registered as ``WRITERS["ply"]``)."""
     return PlyCloudWriter(path, header=header, overwrite=overwrite, checksum=checksum)
 
 
@@ -346,13 +346,14 @@ def count_ply_points(path: str | Path) -> int:
 
 
 def iter_ply_chunks(
-    path: str | Path, *, chunk_points: int = 2_000_000, label_field: str | None = None
+    path: str | Path, *, chunk_points: int = 2_000_000, label_field: str | None = None, labels: bool = True,
 ) -> Iterator[PointCloud]:
     """Stream the vertices of a PLY file as ``PointCloud`` chunks of at most ``chunk_points`` rows.
 
     bimscan files give back the columns that were written. Foreign files (CloudCompare, Open3D,
     ...) give xyz, labels from ``label_field`` or the first of ``LABEL_CANDIDATES`` present
     (e.g. a float ``scalar_Classification``), integer intensity and time when present.
+    ``labels`` False: label None (not decoded).
     """
     path = check_input_path(path)
     where = str(path)
@@ -369,6 +370,8 @@ def iter_ply_chunks(
         if not {"x", "y", "z"} <= set(names):
             raise InputFileError(f"{where}: PLY vertices lack x, y or z (they have {', '.join(names)})")
         sources = _column_sources(layout, vertex, label_field, where)
+        if not labels:
+            sources.pop("label", None)
         order = "<" if layout.format == "binary_little_endian" else ">"
         dtype = np.dtype([(n, order + t) for n, t in vertex.properties])
         before = layout.elements[: layout.elements.index(vertex)]

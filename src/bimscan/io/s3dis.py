@@ -7,6 +7,10 @@ column window door table chair sofa bookcase board clutter). A room is read into
 order (the instance), xyz in metres. Colours are dropped. Files are read in sorted name order
 so the same folder always gives the same point order.
 
+Through :mod:`bimscan.io` a room is the cloud format ``s3dis`` (``read_cloud``,
+``iter_cloud_chunks``, ``count_points`` take the room folder); labels are then the indices in
+``S3DIS_CLASSES``.
+
 A few releases of S3DIS hold files of class ``stairs``; following common practice (the
 PointNet preparation scripts), they are read as ``clutter``.
 """
@@ -14,7 +18,8 @@ PointNet preparation scripts), they are read as ``clutter``.
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -63,6 +68,14 @@ def class_of_annotation(path: Path) -> str:
     return name
 
 
+def _annotation_files(path: Path) -> list[Path]:
+    if not is_s3dis_room(path):
+        raise InputFileError(
+            f"{path}: not an S3DIS room (no Annotations/<class>_<n>.txt inside); pass a room folder"
+        )
+    return sorted(p for p in (path / "Annotations").iterdir() if p.suffix == ".txt")
+
+
 def read_s3dis_room(path: str | Path, *, class_map: Mapping[str, int] | None = None) -> PointCloud:
     """Read one S3DIS room folder.
 
@@ -71,11 +84,7 @@ def read_s3dis_room(path: str | Path, *, class_map: Mapping[str, int] | None = N
     Returns xyz (N, 3) float64 metres, label (N,) uint8, component (N,) int32 instance index.
     """
     path = Path(path)
-    if not is_s3dis_room(path):
-        raise InputFileError(
-            f"{path}: not an S3DIS room (no Annotations/<class>_<n>.txt inside); pass a room folder"
-        )
-    files = sorted(p for p in (path / "Annotations").iterdir() if p.suffix == ".txt")
+    files = _annotation_files(path)
     table = {name: i for i, name in enumerate(S3DIS_CLASSES)} if class_map is None else dict(class_map)
     parts: list[PointCloud] = []
     for instance, file in enumerate(files):
@@ -100,3 +109,33 @@ def read_s3dis_room(path: str | Path, *, class_map: Mapping[str, int] | None = N
     if len(cloud) == 0:
         raise InputFileError(f"{path}: the room's annotation files hold no points; check the download")
     return cloud
+
+
+def iter_s3dis_chunks(
+    path: str | Path, *, chunk_points: int = 2_000_000, label_field: str | None = None, labels: bool = True,
+) -> Iterator[PointCloud]:
+    """Stream an S3DIS room as ``PointCloud`` chunks of at most ``chunk_points`` rows, in the order
+    of :func:`read_s3dis_room` (label: the class index in ``S3DIS_CLASSES``; ``labels`` False:
+    None). A room has no fields, so a ``label_field`` is refused. Rooms are small (about a million
+    points): the room is read whole, then cut.
+    """
+    if label_field is not None:
+        raise InputFileError(f"{path}: an S3DIS room takes no label field ({label_field!r}): its labels are "
+                             "the annotation file names; drop the label field")
+    if chunk_points < 1:
+        raise ValueError(f"chunk_points must be positive, got {chunk_points}")
+    room = read_s3dis_room(path)
+    if not labels:
+        room = replace(room, label=None)
+    for start in range(0, len(room), chunk_points):
+        yield room.take(slice(start, start + chunk_points))
+
+
+def count_s3dis_points(path: str | Path) -> int:
+    """The number of points of an S3DIS room: the data lines of its annotation files (counted, not
+    parsed)."""
+    count = 0
+    for file in _annotation_files(Path(path)):
+        with file.open("rb") as handle:
+            count += sum(1 for line in handle if line.strip() and not line.lstrip().startswith(b"#"))
+    return count

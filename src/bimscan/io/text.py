@@ -16,10 +16,11 @@ columns     meaning                     in Leica ``.pts`` files
 7           x y z r g b label           x y z intensity r g b
 ==========  ==========================  ==============================
 
-A first line holding one integer (the point count of ``.pts`` files) is skipped. Colours and
-intensities are read past and dropped: :class:`~bimscan.types.PointCloud` carries no colour,
-and ``.pts`` intensities (-2048..2047) are no LAS intensity. Labels must be integers in 0..255
-(uint8, as everywhere in bimscan).
+Read them through :mod:`bimscan.io` (format ``text``, suffixes ``TEXT_SUFFIXES``):
+``read_cloud``, ``iter_cloud_chunks``, ``count_points``. A first line holding one integer (the
+point count of ``.pts`` files) is skipped. Colours and intensities are read past and dropped:
+:class:`~bimscan.types.PointCloud` carries no colour, and ``.pts`` intensities (-2048..2047) are
+no LAS intensity. Labels must be integers in 0..255 (uint8, as everywhere in bimscan).
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ LABEL_NAMES = ("label", "labels", "class", "classification", "scalar_label", "sc
 LABEL_COLUMN = {3: None, 4: 3, 6: None, 7: 6}
 PTS_LABEL_COLUMN = {3: None, 4: None, 6: None, 7: None}  # Leica: intensity, not a label
 _COMMENT = ("#", "//")
+_COMMENT_BYTES = tuple(c.encode() for c in _COMMENT)
 _SPLIT = re.compile(r"[,\s]+")
 
 
@@ -178,12 +180,24 @@ def iter_text_chunks(
                 yield chunk
 
 
-def read_text_cloud(path: str | Path) -> PointCloud:
-    """Read a whole text cloud (see the module docstring for the accepted layouts)."""
-    chunks = list(iter_text_chunks(path))
-    if not chunks:
-        raise InputFileError(f"{path}: holds no points; pass a text file with one 'x y z [label]' per line")
-    return PointCloud.concatenate(chunks)
+def count_text_points(path: str | Path) -> int:
+    """The number of data lines of a text cloud (comment and blank lines not counted); the lines
+    are counted, not parsed, so a damaged line shows only on reading."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(f"{path}: no such file; check the path")
+    with path.open("r", encoding="utf-8", errors="strict") as handle:
+        try:
+            layout = _detect_layout(path, handle)
+        except UnicodeDecodeError as exc:
+            raise InputFileError(f"{path}: not a text file ({exc.reason}); pass 'x y z [label]' text") from exc
+    count = 0
+    with path.open("rb") as handle:
+        for line in itertools.islice(handle, layout.data_start, None):
+            stripped = line.strip()
+            if stripped and not stripped.startswith(_COMMENT_BYTES):
+                count += 1
+    return count
 
 
 def write_text_cloud(path: str | Path, cloud: PointCloud, *, overwrite: bool = False) -> Path:

@@ -1,10 +1,10 @@
 """Scenes for training and evaluation: discovery, label mapping, streamed reading, training tiles.
 
-A *scene* is one point cloud with (optional) labels: a bimscan cloud (LAS/LAZ/PLY/NumPy folder,
-read by :mod:`bimscan.io`), a real scan a user brings (the same formats, labels in
-``classification`` or a named dimension; or plain text, :mod:`bimscan.io.text`), or an S3DIS
-room (:mod:`bimscan.io.s3dis`). A bimscan dataset folder (``manifest.json``) stands for its
-finished units, an S3DIS area or root folder for its rooms.
+A *scene* is one point cloud with (optional) labels, in any format :mod:`bimscan.io` reads
+(``CLOUD_FORMATS``): a bimscan cloud (LAS/LAZ/PLY/E57/NumPy folder), a real scan a user brings
+(the same formats, labels in ``classification`` or a named dimension; or plain text), or an
+S3DIS room. A bimscan dataset folder (``manifest.json``) stands for its finished units, an S3DIS
+area or root folder for its rooms.
 
 Labels are mapped to training ids 0..C-1 on reading (255 = unlabelled, skipped by loss and
 metrics): by a mapping file when given, else by class name when the cloud stores its scheme
@@ -30,7 +30,8 @@ import numpy as np
 from bimscan.dataset.layout import DatasetFolder
 from bimscan.errors import InputFileError, LearnError
 from bimscan.files import atomic_output
-from bimscan.io.text import TEXT_SUFFIXES
+from bimscan.io import CLOUD_FORMATS, input_format, iter_cloud_chunks, read_cloud_header
+from bimscan.io.s3dis import S3DIS_CLASSES, list_s3dis_rooms
 from bimscan.learn.blocks import locate_columns, encode_column_key, pad_block, sample_block, decode_column_key
 from bimscan.learn.density import point_hash, voxel_hash
 from bimscan.learn.features import extra_features, floor_height
@@ -40,7 +41,6 @@ from bimscan.learn.mapping import (
 )
 from bimscan.types import CloudHeader, PointCloud
 
-CLOUD_SUFFIXES = (".las", ".laz", ".ply", ".e57")
 ASPRS_UNCLASSIFIED = (0, 1)  # LAS classification "created, never classified" and "unclassified"
 CHUNK_POINTS = 1_000_000
 
@@ -49,7 +49,8 @@ CHUNK_POINTS = 1_000_000
 class SceneSource:
     """One scene to read: where, what kind, how its labels map.
 
-    ``kind``: "cloud" (LAS/LAZ/PLY), "npdir" (bimscan NumPy folder), "text", "s3dis" (a room).
+    ``kind``: the scene's format name in ``bimscan.io.CLOUD_FORMATS`` ("las", "laz", "ply", "e57",
+    "npy", "text", or "s3dis" for an S3DIS room).
     """
 
     path: Path
@@ -59,8 +60,12 @@ class SceneSource:
     mapping: LabelMapping | None = None
 
 
-def _is_npdir(path: Path) -> bool:
-    return path.is_dir() and (path / "coord.npy").is_file()
+def _scene_format(path: Path) -> str | None:
+    """The ``bimscan.io`` format name of a path holding one cloud, None for anything else."""
+    try:
+        return input_format(path)
+    except InputFileError:
+        return None
 
 
 def _dataset_units(path: Path) -> list[tuple[str, Path]]:
@@ -82,33 +87,24 @@ def list_scenes(
     S3DIS rooms only with a ``label_field`` is refused. Raises InputFileError for paths that do
     not exist or hold no known kind of scene.
     """
-    from bimscan.io.s3dis import list_s3dis_rooms
-
     scenes: list[SceneSource] = []
     for raw in paths:
         path = Path(raw)
         if not path.exists():
             raise InputFileError(f"{path}: no such file or folder; check the path")
-        suffix = path.suffix.lower()
-        if path.is_file() and suffix in CLOUD_SUFFIXES:
-            scenes.append(SceneSource(path, "cloud", path.stem, label_field, mapping))
-        elif path.is_file() and suffix in TEXT_SUFFIXES:
-            scenes.append(SceneSource(path, "text", path.stem, label_field, mapping))
-        elif path.is_dir() and DatasetFolder(path).is_dataset():
+        if path.is_dir() and DatasetFolder(path).is_dataset():
             for unit_id, unit_path in _dataset_units(path):
-                kind = "npdir" if _is_npdir(unit_path) or unit_path.suffix == "" else "cloud"
-                scenes.append(SceneSource(unit_path, kind, unit_id, label_field, mapping))
-        elif _is_npdir(path):
-            scenes.append(SceneSource(path, "npdir", path.name, label_field, mapping))
+                scenes.append(SceneSource(unit_path, input_format(unit_path), unit_id, label_field, mapping))
+        elif (kind := _scene_format(path)) is not None:
+            name = path.name if path.is_dir() else path.stem
+            scenes.append(SceneSource(path, kind, name, None if kind == "s3dis" else label_field, mapping))
         elif path.is_dir() and (rooms := list_s3dis_rooms(path)):
-            for room in rooms:
-                name = room.name if room == path else f"{room.parent.name}/{room.name}"
-                scenes.append(SceneSource(room, "s3dis", name, None, mapping))
+            for room in rooms:  # an S3DIS area or root folder
+                scenes.append(SceneSource(room, "s3dis", f"{room.parent.name}/{room.name}", None, mapping))
         else:
-            raise InputFileError(
-                f"{path}: not a scene; pass a .las/.laz/.ply/.txt/.xyz/.pts/.csv cloud, a bimscan NumPy "
-                "cloud folder or dataset folder, or an S3DIS room/area folder"
-            )
+            suffixes = "/".join(suffix for suffixes in CLOUD_FORMATS.values() for suffix in suffixes if suffix)
+            raise InputFileError(f"{path}: not a scene; pass a {suffixes} cloud, a bimscan NumPy cloud folder or "
+                                 "dataset folder, or an S3DIS room/area folder")
     if label_field is not None and scenes and all(s.kind == "s3dis" for s in scenes):
         raise LearnError(
             f"label field {label_field!r} cannot apply to S3DIS rooms: their labels are the annotation file "
@@ -118,11 +114,7 @@ def list_scenes(
 
 
 def _stored_header(source: SceneSource) -> CloudHeader | None:
-    """The CloudHeader bimscan stored with a LAS/LAZ/PLY/NumPy scene, or None (foreign, text, S3DIS)."""
-    if source.kind not in ("cloud", "npdir"):
-        return None
-    from bimscan.io import read_cloud_header
-
+    """The CloudHeader bimscan stored with the scene, or None (foreign files, text, S3DIS)."""
     return read_cloud_header(source.path)
 
 
@@ -133,8 +125,6 @@ def build_scene_label_table(
 
     ``header``: the scene's stored header when the caller has read it already.
     """
-    from bimscan.io.s3dis import S3DIS_CLASSES
-
     if source.kind == "s3dis":
         mapping = source.mapping or load_s3dis_mapping()
         return build_label_table(
@@ -150,7 +140,7 @@ def build_scene_label_table(
 
 def _reads_asprs_classification(source: SceneSource, header: CloudHeader | None) -> bool:
     """True when the scene's labels are a foreign LAS/LAZ file's ASPRS ``classification`` taken as is."""
-    return (source.kind == "cloud" and source.path.suffix.lower() in (".las", ".laz") and header is None
+    return (source.kind in ("las", "laz") and header is None
             and source.label_field is None and source.mapping is None)
 
 
@@ -159,26 +149,11 @@ def iter_raw_chunks(
 ) -> Iterator[PointCloud]:
     """The scene's points as stored (labels unmapped), in a fixed order, chunk by chunk.
 
-    ``labels`` False: the labels are not needed (prediction); text clouds then skip reading
-    and checking their label column (``label`` is None).
+    ``labels`` False: the labels are not needed (prediction); they are then neither read nor
+    checked (``label`` is None).
     """
-    if source.kind in ("cloud", "npdir"):
-        from bimscan.io import iter_cloud_chunks
-
-        yield from iter_cloud_chunks(source.path, chunk_points=chunk_points, label_field=source.label_field)
-    elif source.kind == "text":
-        from bimscan.io.text import iter_text_chunks
-
-        yield from iter_text_chunks(source.path, chunk_points=chunk_points, label_field=source.label_field,
-                                    labels=labels)
-    elif source.kind == "s3dis":
-        from bimscan.io.s3dis import read_s3dis_room
-
-        room = read_s3dis_room(source.path)  # rooms are small (about 1M points); read whole
-        for start in range(0, len(room), chunk_points):
-            yield room.take(slice(start, start + chunk_points))
-    else:
-        raise LearnError(f"{source.path}: unknown scene kind {source.kind!r}")
+    yield from iter_cloud_chunks(source.path, chunk_points=chunk_points, label_field=source.label_field,
+                                 labels=labels)
 
 
 def iter_scene_chunks(

@@ -94,7 +94,7 @@ def predict_cloud(
             count = min(chunk_points, result.points - offset)
             index = np.fromfile(index_file, dtype=np.int64, count=count, offset=offset * 8)
             labels[index] = np.fromfile(label_file, dtype=np.uint8, count=count, offset=offset)
-        stored = read_cloud_header(source.path) if source.kind in ("cloud", "npdir") else None
+        stored = read_cloud_header(source.path)
         centre = np.round((result.lower + result.upper) / 2.0)
         header = CloudHeader(
             scheme=build_prediction_scheme(trained.class_names, None if stored is None else stored.scheme),
