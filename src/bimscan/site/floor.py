@@ -40,6 +40,12 @@ MAX_CELLS = 4_000_000  # per room grid; larger floors get coarser cells
 CIRCULATION = re.compile(r"corridor|hall|lobby|foyer|stair|landing|circulation|passage|flur|gang|treppe", re.I)
 
 
+_DIAGONAL = float(np.sqrt(0.5))
+INSIDE_PROBE_DIRECTIONS = (
+    (1.0, 0.0, 0.0), (-1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, -1.0, 0.0),
+    (_DIAGONAL, _DIAGONAL, 0.0), (-_DIAGONAL, _DIAGONAL, 0.0), (_DIAGONAL, -_DIAGONAL, 0.0), (-_DIAGONAL, -_DIAGONAL, 0.0),
+)
+
 class Prober:
     """Ray probes of one mesh through the scan engine interface (Open3D's Embree scene, whatever
     engine scans: a dressed scene must not depend on the scan engine): first hits, the component
@@ -66,14 +72,16 @@ class Prober:
         return np.where(hit, t, np.inf).astype(np.float64), component
 
     def inside_solid(self, points: np.ndarray) -> np.ndarray:
-        """(N,) bool: points (N, 3) world metres inside a closed solid: at least three of four
-        horizontal rays from the point meet a face from behind (faces wound outward, as IfcOpenShell
-        writes closed shells; a vote, so one odd face does not decide)."""
+        """(N,) bool: points (N, 3) world metres inside a closed solid: at least six of eight
+        horizontal rays from the point (the axes and the diagonals) meet a face from behind (faces
+        wound outward, as IfcOpenShell writes closed shells). A vote, because a ray along a wall
+        ends where walls abut, on two coincident faces, and which of them the BVH reports differs
+        between Embree builds; the diagonals leave a wall through its long faces."""
         if len(points) == 0:
             return np.zeros(0, dtype=bool)
         normals = self.mesh.face_normals()
         behind = np.zeros(len(points), dtype=int)
-        for direction in ((1.0, 0.0, 0.0), (-1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, -1.0, 0.0)):
+        for direction in INSIDE_PROBE_DIRECTIONS:
             rays = np.empty((len(points), 6), dtype=np.float32)
             rays[:, :3] = points - self.engine.centre
             rays[:, 3:] = direction
@@ -82,7 +90,7 @@ class Prober:
             facing = np.zeros(len(points))
             facing[hit] = normals[triangle[hit]] @ np.asarray(direction)
             behind += facing > 0
-        return behind >= 3
+        return behind >= 6
 
 
 @dataclass
