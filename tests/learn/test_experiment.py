@@ -69,6 +69,7 @@ data = "spec.toml"
 input = { grid_m = 0.0, features = ["xyz"] }
 augment = { enabled = false }
 train = { class_weights = "none" }
+blocks = { train_columns = "scene" }
 
 [[variants]]
 name = "recipe"
@@ -160,3 +161,5 @@ def test_the_shipped_experiments_are_valid() -> None:
         baseline = parsed.variants[0].config
         assert baseline.input.features == ("xyz",) and baseline.input.grid_m == 0
         assert not baseline.augment.enabled and baseline.train.class_weights == "none"
+        assert baseline.blocks.train_columns == "scene"
+        assert parsed.variants[-1].config.blocks.train_columns == "station"

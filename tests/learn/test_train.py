@@ -199,6 +199,7 @@ def test_shipped_example_configs_load(name: str) -> None:
         # and none of bimscan's sim-to-real recipe, whose defaults are on
         assert config.input.features == ("xyz",) and config.input.grid_m == 0.0
         assert not config.augment.enabled and config.train.class_weights == "none"
+        assert config.blocks.train_columns == "scene"
 
 
 def test_a_validation_set_without_labels_is_refused_before_training(

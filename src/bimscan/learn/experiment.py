@@ -46,7 +46,7 @@ VARIANT_KEYS = {"name", "data", "description", *TRAINING_SECTIONS}
 TOP_KEYS = {"experiment", "real", "variants", *TRAINING_SECTIONS}
 REAL_KEYS = {"scenes", "label_field", "mapping"}
 EXPERIMENT_KEYS = {"name", "class_names", "workers"}
-NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
+NAME_PATTERN = re.compile(r"^[A-Za-z0-9+][A-Za-z0-9._+-]{0,63}$")
 RESULT_VERSION = 1
 
 

@@ -72,10 +72,11 @@ class BlockConfig:
     points: int = 8192
     min_points: int = 1024
     cache_points: int = 16384
-    # training columns of scenes that record stations: "scene" (all stations merged) or "station"
-    # (each station's points apart: what one tripod saw, one face of each wall, like a real scan
-    # of one room, not both faces of a wall and the room behind it); evaluation reads whole scenes
-    train_columns: Literal["scene", "station"] = "scene"
+    # training columns of scenes that record stations: "station" (each station's points apart: what
+    # one tripod saw, one face of each wall, like a real scan of one room, not both faces of a wall
+    # and the room behind it; part of the sim-to-real recipe) or "scene" (all stations merged, the
+    # paper); evaluation always reads whole scenes
+    train_columns: Literal["scene", "station"] = "station"
 
     def __post_init__(self) -> None:
         if not self.size_m > 0 or not self.eval_stride_m > 0:
