@@ -399,23 +399,7 @@ def _write_report(experiment: Experiment, summary: dict[str, Any], out: Path) ->
 
 def _plot_val_curves(summary: dict[str, Any], path: Path) -> None:
     """Real-validation mIoU per epoch of every variant in one figure."""
-    import matplotlib
+    from bimscan.learn.plots import plot_variant_curves
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from bimscan.files import atomic_output
-
-    figure, axis = plt.subplots(figsize=(7, 4.5))
-    for v in summary["variants"]:
-        values = v["val_miou_per_epoch"]
-        axis.plot(range(1, len(values) + 1), values, marker="o", markersize=3, label=v["variant"])
-    axis.set_xlabel("epoch")
-    axis.set_ylabel("mIoU on real validation blocks")
-    axis.set_title(f"sim2real {summary['experiment']}: trained on synthetic only")
-    axis.grid(alpha=0.3)
-    axis.legend(fontsize=8)
-    figure.tight_layout()
-    with atomic_output(path) as temp:
-        figure.savefig(temp, dpi=110, format="png")
-    plt.close(figure)
+    plot_variant_curves({v["variant"]: v["val_miou_per_epoch"] for v in summary["variants"]}, path,
+                        title=f"sim2real {summary['experiment']}: trained on synthetic only")

@@ -63,11 +63,7 @@ def plot_training_curves(history: Sequence[Mapping[str, float]], path: Path, *, 
     axes.flat[0].legend(loc="best", fontsize="small")
     if title:
         figure.suptitle(title)
-    try:
-        with atomic_output(path) as temp:
-            figure.savefig(temp, format="png", dpi=110, metadata={"Software": None})
-    finally:
-        plt.close(figure)
+    save_figure(figure, path)
 
 
 def plot_confusion(confusion: np.ndarray, class_names: Sequence[str], path: Path, *, title: str) -> None:
@@ -102,8 +98,35 @@ def plot_confusion(confusion: np.ndarray, class_names: Sequence[str], path: Path
     axis.set_xlabel("prediction")
     axis.set_ylabel("ground truth")
     axis.set_title(title)
+    save_figure(figure, path)
+
+
+def plot_variant_curves(curves: Mapping[str, Sequence[float]], path: Path, *, title: str) -> None:
+    """Real-validation mIoU per epoch of several training runs (sim2real variants) in one PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axis = plt.subplots(figsize=(7, 4.5))
+    for name, values in curves.items():
+        axis.plot(range(1, len(values) + 1), values, marker="o", markersize=3, label=name)
+    axis.set_xlabel("epoch")
+    axis.set_ylabel("mIoU on real validation blocks")
+    axis.set_title(title)
+    axis.grid(alpha=0.3)
+    axis.legend(fontsize=8)
+    figure.tight_layout()
+    save_figure(figure, path)
+
+
+def save_figure(figure: object, path: Path) -> None:
+    """Write a matplotlib figure as PNG atomically (no software tag: same bytes for the same
+    figure) and close it, also when writing fails."""
+    import matplotlib.pyplot as plt
+
     try:
         with atomic_output(path) as temp:
-            figure.savefig(temp, format="png", dpi=110, metadata={"Software": None})
+            figure.savefig(temp, format="png", dpi=110, metadata={"Software": None})  # type: ignore[attr-defined]
     finally:
-        plt.close(figure)
+        plt.close(figure)  # type: ignore[arg-type]
