@@ -166,3 +166,61 @@ def test_per_station_columns_keep_each_tripod_apart(tmp_path: Path) -> None:
     assert int(apart.offsets[-1]) == int(merged.offsets[-1]) == len(room)
     halves = [apart.tile_points(t)[0][:, 0] + apart.origin[t, 0] for t in range(2)]
     assert {bool((h > 2.0).all()) for h in halves} == {True, False}
+
+
+def _write_station_scan(folder: Path, room: PointCloud, station: np.ndarray) -> None:
+    from bimscan.io import open_cloud_writer
+    from bimscan.semantics import DEFAULT_SCHEME, load_scheme
+    from bimscan.types import CloudHeader
+
+    with open_cloud_writer(folder, header=CloudHeader(scheme=load_scheme(DEFAULT_SCHEME))) as writer:
+        writer.write(PointCloud(xyz=room.xyz, label=room.label, station=station,
+                                component=np.zeros(len(room), np.int32)))
+
+
+def test_grid_station_tiles_do_not_depend_on_chunking(tmp_path: Path) -> None:
+    # two stations see the same voxels: each keeps its own point there, whatever the chunking
+    room = make_room(8, size_m=(5.0, 4.0), points_per_m2=150)
+    station = np.random.default_rng(8).integers(0, 2, len(room)).astype(np.uint16)
+    _write_station_scan(tmp_path / "scan", room, station)
+    source = list_scenes([tmp_path / "scan"])[0]
+    blocks = BlockConfig(size_m=2.0, eval_stride_m=1.0, points=64, min_points=16, cache_points=100_000)
+    results = [collect_scene_tiles(source, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=0, grid_m=0.2,
+                                   per_station=True, chunk_points=chunk) for chunk in (1_000_000, 997)]
+    first, other = results
+    assert np.array_equal(first.key, other.key) and np.array_equal(first.offsets, other.offsets)
+    for t in range(len(first)):
+        assert _as_set(first.tile_points(t)[0] + first.origin[t]) == _as_set(other.tile_points(t)[0] + other.origin[t])
+    # both stations' columns hold a point in most voxels of the room (each station saw them)
+    cells = [voxel_index(first.tile_points(t)[0] + first.origin[t] + 1e-9, 0.2) for t in range(len(first))]
+    assert sum(len(c) for c in cells) > 1.5 * len(np.unique(np.concatenate(cells), axis=0))
+
+
+def test_too_many_stations_for_station_columns_is_a_clear_error(tmp_path: Path) -> None:
+    from bimscan.errors import LearnError
+
+    room = make_room(9, size_m=(2.0, 2.0), points_per_m2=20)
+    _write_station_scan(tmp_path / "scan", room, np.full(len(room), 600, np.uint16))
+    source = list_scenes([tmp_path / "scan"])[0]
+    blocks = BlockConfig(size_m=2.0, eval_stride_m=1.0, points=64, min_points=16, cache_points=1000)
+    with pytest.raises(LearnError, match="train_columns = \"scene\""):
+        collect_scene_tiles(source, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=0, per_station=True)
+    assert len(collect_scene_tiles(source, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=0)) >= 1
+
+
+def test_a_config_stored_before_the_recipe_reads_back_as_the_paper_baseline() -> None:
+    from bimscan.learn.train_config import TrainRunConfig, dump_config, parse_config
+
+    from bimscan.learn.train_config import DataConfig
+
+    stored = dump_config(TrainRunConfig(data=DataConfig(train=("a",))))
+    for section in ("input", "augment"):
+        del stored[section]
+    del stored["blocks"]["train_columns"]
+    del stored["train"]["class_weights"]
+    old = parse_config(stored, where="old.pt")
+    assert old.input.grid_m == 0.0 and old.input.features == ("xyz",)
+    assert not old.augment.enabled
+    assert old.blocks.train_columns == "scene" and old.train.class_weights == "none"
+    today = parse_config(dump_config(TrainRunConfig(data=DataConfig(train=("a",)))), where="new.pt")
+    assert today.input.features == ("xyz", "height", "normals") and today.blocks.train_columns == "station"

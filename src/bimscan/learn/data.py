@@ -301,6 +301,11 @@ def collect_scene_tiles(
     for chunk in iter_scene_chunks(source, class_names=class_names, chunk_points=chunk_points):
         ix, iy = locate_columns(chunk.xyz[:, :2], size_m=blocks.size_m)
         if per_station and chunk.station is not None:
+            if len(chunk.station) and int(chunk.station.max()) >= _MAX_STATIONS:
+                raise LearnError(
+                    f"{source.path}: station id {int(chunk.station.max())}: per-station training columns take "
+                    f"station ids below {_MAX_STATIONS}; set [blocks] train_columns = \"scene\" for this data"
+                )
             ix = ix + chunk.station.astype(np.int64) * _STATION_SHIFT
         key = encode_column_key(ix, iy)
         unique, unique_counts = np.unique(key, return_counts=True)
@@ -309,9 +314,16 @@ def collect_scene_tiles(
         xyz, label = chunk.xyz, chunk.label
         if grid_m > 0:
             voxel = voxel_hash(xyz, grid_m, seed=seed)
-            # one point per voxel within the chunk (smallest coordinate hash); across chunks in _keep_smallest
-            order = np.lexsort((point_hash(xyz), voxel))
-            first = order[np.r_[True, voxel[order][1:] != voxel[order][:-1]]] if len(order) else order
+            # one point per (column, voxel) within the chunk (smallest coordinate hash), as
+            # _keep_smallest does across chunks: the same tiles whatever the chunking (a voxel
+            # seen by two stations stays in both stations' columns)
+            order = np.lexsort((point_hash(xyz), voxel, key))
+            if len(order):
+                sorted_voxel, sorted_key = voxel[order], key[order]
+                new_run = (sorted_voxel[1:] != sorted_voxel[:-1]) | (sorted_key[1:] != sorted_key[:-1])
+                first = order[np.r_[True, new_run]]
+            else:
+                first = order
             first.sort()
             key, xyz, label = key[first], xyz[first], label[first]
             prio = (voxel[first] >> np.uint64(11)).astype(np.float64) * 2.0**-53
@@ -346,6 +358,7 @@ def collect_scene_tiles(
 
 
 _STATION_SHIFT = 1 << 20  # per-station columns: column x index + station x this (|x index| < 2**19)
+_MAX_STATIONS = 1 << 9  # station x _STATION_SHIFT stays inside encode_column_key's |ix| < 2**30
 
 
 def _column_x(ix: np.ndarray) -> np.ndarray:
@@ -556,9 +569,9 @@ class TileDataset:
         from bimscan.learn.augment import augment_points
 
         m = len(xyz)
+        lower, upper = xyz.min(axis=0), xyz.max(axis=0)  # the whole block's box, as sample_block and inference use
         chosen = np.sort(rng.choice(m, size=self.points, replace=False)) if m > self.points else np.arange(m)
         xyz, label = xyz[chosen], label[chosen]
-        lower, upper = xyz.min(axis=0), xyz.max(axis=0)
         if self.augment is not None:
             xyz, kept = augment_points(xyz, config=self.augment, rng=rng)
             label, chosen = label[kept], chosen[kept]

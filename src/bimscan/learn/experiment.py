@@ -243,7 +243,8 @@ def _check_same_experiment(experiment: Experiment, out: Path) -> None:
             raise LearnError(f"{record}: unreadable ({exc}); delete it or use another OUT_DIR") from exc
         for name, digest in current["variants"].items():
             old = stored.get("variants", {}).get(name)
-            if old is not None and old != digest:
+            # a variant whose folder was deleted starts afresh (what the message below offers)
+            if old is not None and old != digest and (out / "variants" / name).exists():
                 raise LearnError(
                     f"{out}: variant {name!r} was run with another recipe; use another OUT_DIR or delete "
                     f"{out / 'variants' / name} to rerun it"

@@ -267,8 +267,24 @@ def dump_config(config: TrainRunConfig) -> dict[str, object]:
 
 
 def parse_config(data: dict[str, object], *, where: str) -> TrainRunConfig:
-    """Rebuild a config stored by :func:`dump_config` (tuples come back as lists)."""
+    """Rebuild a config stored by :func:`dump_config` (tuples come back as lists).
+
+    A config stored before the sim-to-real recipe existed (no ``input`` section) was trained
+    as the paper's baseline: it reads back as such, not with today's recipe defaults.
+    """
+    if "input" not in data:
+        data = _as_paper_baseline(data)
     try:
         return build_dataclass(TrainRunConfig, data, where=where)
     except ConfigError as exc:
         raise ConfigError(f"{where}: stored configuration is not readable by this version ({exc})") from exc
+
+
+def _as_paper_baseline(data: dict[str, object]) -> dict[str, object]:
+    """A pre-recipe stored config with the recipe switched off (what that run trained with)."""
+    upgraded: dict[str, object] = {**data, "input": {"grid_m": 0.0, "features": ["xyz"]}, "augment": {"enabled": False}}
+    for section, key, value in (("blocks", "train_columns", "scene"), ("train", "class_weights", "none")):
+        table = data.get(section)
+        if isinstance(table, dict) and key not in table:
+            upgraded[section] = {**table, key: value}
+    return upgraded
