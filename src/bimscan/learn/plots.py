@@ -9,10 +9,14 @@ import io
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bimscan.files import atomic_output, write_atomic
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 PANELS = (("loss", "Loss"), ("oa", "OA"), ("miou", "mIoU"), ("macc", "mAcc"), ("fwiou", "FWIoU"), ("kappa", "Cohen's kappa"))
 CSV_COLUMNS = (
@@ -41,13 +45,9 @@ def write_history_csv(history: Sequence[Mapping[str, float]], path: Path) -> Non
 
 def plot_training_curves(history: Sequence[Mapping[str, float]], path: Path, *, title: str = "") -> None:
     """Draw the six metric panels, train and validation lines, into a PNG at ``path``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     epochs = [int(row["epoch"]) for row in history]
-    figure, axes = plt.subplots(2, 3, figsize=(12, 6.5), constrained_layout=True)
+    figure = _figure((12, 6.5), layout="constrained")
+    axes = figure.subplots(2, 3)
     for axis, (name, label) in zip(axes.flat, PANELS, strict=True):
         for split, style in (("train", "-"), ("val", "--")):
             values = [float(row.get(f"{split}_{name}", math.nan)) for row in history]
@@ -74,17 +74,12 @@ def plot_confusion(confusion: np.ndarray, class_names: Sequence[str], path: Path
     if counts.ndim != 2 or counts.shape[0] != counts.shape[1] or counts.shape[0] != len(class_names):
         raise ValueError(f"confusion matrix must be (C, C) with C = {len(class_names)} class names, "
                          f"got shape {counts.shape}")
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     support = counts.sum(axis=1, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
         shares = np.where(support > 0, counts / np.where(support > 0, support, 1.0), np.nan)
     size = len(class_names)
-    figure, axis = plt.subplots(figsize=(max(4.5, 0.9 * size + 2.8), max(3.8, 0.8 * size + 1.8)),
-                                constrained_layout=True)
+    figure = _figure((max(4.5, 0.9 * size + 2.8), max(3.8, 0.8 * size + 1.8)), layout="constrained")
+    axis = figure.subplots()
     image = axis.imshow(100.0 * shares, cmap="Blues", vmin=0.0, vmax=100.0)
     figure.colorbar(image, ax=axis, label="share of the ground truth (%)")
     for row in range(size):
@@ -103,12 +98,8 @@ def plot_confusion(confusion: np.ndarray, class_names: Sequence[str], path: Path
 
 def plot_variant_curves(curves: Mapping[str, Sequence[float]], path: Path, *, title: str) -> None:
     """Real-validation mIoU per epoch of several training runs (sim2real variants) in one PNG."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    figure, axis = plt.subplots(figsize=(7, 4.5))
+    figure = _figure((7, 4.5), layout="tight")
+    axis = figure.subplots()
     for name, values in curves.items():
         axis.plot(range(1, len(values) + 1), values, marker="o", markersize=3, label=name)
     axis.set_xlabel("epoch")
@@ -116,17 +107,17 @@ def plot_variant_curves(curves: Mapping[str, Sequence[float]], path: Path, *, ti
     axis.set_title(title)
     axis.grid(alpha=0.3)
     axis.legend(fontsize=8)
-    figure.tight_layout()
     save_figure(figure, path)
 
 
-def save_figure(figure: object, path: Path) -> None:
-    """Write a matplotlib figure as PNG atomically (no software tag: same bytes for the same
-    figure) and close it, also when writing fails."""
-    import matplotlib.pyplot as plt
+def _figure(size_in: tuple[float, float], *, layout: str) -> Figure:
+    """A matplotlib Figure of its own (no pyplot state: nothing to close, safe in threads)."""
+    from matplotlib.figure import Figure
 
-    try:
-        with atomic_output(path) as temp:
-            figure.savefig(temp, format="png", dpi=110, metadata={"Software": None})  # type: ignore[attr-defined]
-    finally:
-        plt.close(figure)  # type: ignore[arg-type]
+    return Figure(figsize=size_in, layout=layout)
+
+
+def save_figure(figure: Figure, path: Path) -> None:
+    """Write a figure as PNG atomically (no software tag: same bytes for the same figure)."""
+    with atomic_output(path) as temp:
+        figure.savefig(temp, format="png", dpi=110, metadata={"Software": None})
