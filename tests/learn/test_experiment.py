@@ -173,7 +173,8 @@ def test_the_shipped_companion_experiments_match_the_ablation() -> None:
         pytest.skip(f"{real} absent: the shipped experiments score on the shared S3DIS rooms")
     ablation = load_experiment(configs / "sim2real_cpu.toml")
     recipe = ablation.variants[-1].config
-    for name in ("sim2real_cpu_data.toml", "sim2real_cpu_seeds.toml", "sim2real_cpu_scale.toml"):
+    for name in ("sim2real_cpu_data.toml", "sim2real_cpu_seeds.toml", "sim2real_cpu_scale.toml",
+                 "sim2real_cpu_without.toml"):
         parsed = load_experiment(configs / name)
         for variant in parsed.variants:
             config = variant.config
