@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from bimscan.errors import BimscanError
 from bimscan.io.s3dis import S3DIS_CLASSES, list_s3dis_rooms, read_s3dis_room
 from bimscan.learn.checkpoint import load_trained_model
 from bimscan.learn.data import list_scenes
@@ -47,4 +48,7 @@ def main(checkpoint: str, rooms_path: str) -> None:
 if __name__ == "__main__":
     if len(sys.argv) != 3:
         sys.exit(f"usage: {Path(sys.argv[0]).name} CHECKPOINT S3DIS_ROOMS")
-    main(sys.argv[1], sys.argv[2])
+    try:
+        main(sys.argv[1], sys.argv[2])
+    except BimscanError as exc:
+        sys.exit(f"error: {exc}")
