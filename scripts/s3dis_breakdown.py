@@ -31,13 +31,15 @@ def main(checkpoint: str, rooms_path: str) -> None:
         sys.exit(f"error: {rooms_path}: no S3DIS room folder (with Annotations/) found; pass a room or an area")
     for room in rooms:
         source_class = read_s3dis_room(room).label  # index into S3DIS_CLASSES, in the reader's point order
-        predicted = np.zeros(len(source_class), dtype=np.uint8)
+        predicted = np.full(len(source_class), 255, dtype=np.uint8)  # 255: not labelled (yet)
 
         def keep(index: np.ndarray, prediction: np.ndarray) -> None:
             predicted[index] = prediction
 
         label_scene(trained.model, list_scenes([room])[0], class_names=trained.class_names,
                     blocks=trained.config.blocks, inputs=trained.config.input, on_labels=keep)
+        if (predicted == 255).any():  # the reader and the labeller must agree on the points' order
+            sys.exit(f"error: {room}: {int((predicted == 255).sum())} points got no prediction; report this as a bug")
         np.add.at(counts, (source_class, predicted), 1)
     print(f"{'S3DIS class':12s}" + "".join(f"{name[:11]:>12s}" for name in trained.class_names) + f"{'points':>10s}")
     for name, row in zip(S3DIS_CLASSES, counts, strict=True):

@@ -184,3 +184,46 @@ def test_the_shipped_companion_experiments_match_the_ablation() -> None:
                 assert config.train.epochs == recipe.train.epochs, variant.name
     seeds = load_experiment(configs / "sim2real_cpu_seeds.toml")
     assert sorted({v.config.train.seed for v in seeds.variants}) == [1, 2]
+
+
+COMPANION = """\
+[experiment]
+name = "companion"
+base = "../exp.toml"
+
+[train]
+epochs = 3
+
+[[variants]]
+name = "more"
+data = "../spec.toml"
+model = { dropout = 0.1 }
+"""
+
+
+def test_a_companion_experiment_takes_its_base_files_sections_key_by_key(experiment_dir: Path) -> None:
+    (experiment_dir / "more").mkdir()
+    (experiment_dir / "more" / "exp.toml").write_text(COMPANION, encoding="utf-8")
+    base = load_experiment(experiment_dir / "exp.toml").variants[1].config
+    companion = load_experiment(experiment_dir / "more" / "exp.toml")
+    assert companion.name == "companion" and [v.name for v in companion.variants] == ["more"]
+    config = companion.variants[0].config
+    # the base's real scenes, relative to the base file, not to the companion
+    assert companion.real == ((experiment_dir / "real.txt").resolve(),)
+    assert config.blocks == base.blocks and config.input == base.input
+    assert config.train.epochs == 3 and config.train.max_lr == base.train.max_lr  # own key replaces, others kept
+    assert config.model.dropout == 0.1 and config.model.embed_dim == base.model.embed_dim
+
+
+@pytest.mark.parametrize(("base", "message"), [
+    ('"../nothing.toml"', "base not found"),
+    ('"exp.toml"', "names this file itself"),
+    ("3", "expected the path"),
+    ('"../chained.toml"', "has a base of its own"),
+])
+def test_a_bad_base_is_a_one_line_error(experiment_dir: Path, base: str, message: str) -> None:
+    (experiment_dir / "chained.toml").write_text(EXPERIMENT.replace('name = "tiny"', 'name = "c"\nbase = "exp.toml"', 1))
+    (experiment_dir / "more").mkdir()
+    (experiment_dir / "more" / "exp.toml").write_text(COMPANION.replace('"../exp.toml"', base), encoding="utf-8")
+    with pytest.raises((ConfigError, InputFileError), match=message):
+        load_experiment(experiment_dir / "more" / "exp.toml")

@@ -209,9 +209,7 @@ def test_too_many_stations_for_station_columns_is_a_clear_error(tmp_path: Path) 
 
 
 def test_a_config_stored_before_the_recipe_reads_back_as_the_paper_baseline() -> None:
-    from bimscan.learn.train_config import TrainRunConfig, dump_config, parse_config
-
-    from bimscan.learn.train_config import DataConfig
+    from bimscan.learn.train_config import DataConfig, TrainRunConfig, dump_config, parse_config
 
     stored = dump_config(TrainRunConfig(data=DataConfig(train=("a",))))
     for section in ("input", "augment"):

@@ -4,7 +4,8 @@ One TOML file names the synthetic *variants* (each a dataset spec that is built,
 dataset folders / clouds), the training sections shared by all variants (``[blocks]``,
 ``[input]``, ``[augment]``, ``[model]``, ``[train]``, as in a training TOML, see
 :mod:`bimscan.learn.train_config`), per-variant overrides of those sections, and the real
-scenes (``[real]``). :func:`run_experiment` builds what is missing (the dataset builder,
+scenes (``[real]``); ``[experiment] base`` takes those sections from another experiment file
+(see :func:`_with_base`). :func:`run_experiment` builds what is missing (the dataset builder,
 resumable), trains one model per variant with the same seed and schedule (the real scenes are
 the validation set, so ``curves.png`` shows synthetic train against real validation per epoch,
 as the paper's Figs. 7-8), evaluates each last checkpoint on every real scene and writes one
@@ -45,7 +46,7 @@ TRAINING_SECTIONS = ("blocks", "input", "augment", "model", "train")
 VARIANT_KEYS = {"name", "data", "description", *TRAINING_SECTIONS}
 TOP_KEYS = {"experiment", "real", "variants", *TRAINING_SECTIONS}
 REAL_KEYS = {"scenes", "label_field", "mapping"}
-EXPERIMENT_KEYS = {"name", "class_names", "workers"}
+EXPERIMENT_KEYS = {"name", "class_names", "workers", "base"}
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9+][A-Za-z0-9._+-]{0,63}$")
 RESULT_VERSION = 1
 
@@ -103,7 +104,7 @@ def load_experiment(
     ``real`` replaces the ``[real] scenes`` of the file; ``device`` its ``[train] device``.
     """
     path = Path(path)
-    data = _check_keys(load_toml(path), TOP_KEYS, where=str(path))
+    data = _with_base(_check_keys(load_toml(path), TOP_KEYS, where=str(path)), path)
     base = path.resolve().parent
     head = _check_keys(data.get("experiment", {}), EXPERIMENT_KEYS, where=f"{path} [experiment]")
     name = head.get("name", path.stem)
@@ -183,6 +184,40 @@ def load_experiment(
             raise ConfigError(f"{where} description: expected text")
         variants.append(Variant(vname, description, tuple(specs), tuple(folders), config))
     return Experiment(name, path.resolve(), real_paths, label_field, real_mapping, tuple(variants), workers)
+
+
+def _with_base(data: dict[str, Any], path: Path) -> dict[str, Any]:
+    """``data`` on top of its ``[experiment] base`` file: the base's ``[real]`` and training
+    sections are the defaults, this file's keys replace them key by key (its variants are not
+    taken). Companion experiments so share one model and schedule instead of copying it."""
+    head = data.get("experiment", {})
+    if not isinstance(head, dict) or "base" not in head:
+        return data
+    if not isinstance(head["base"], str) or not head["base"]:
+        raise ConfigError(f"{path} [experiment] base: expected the path of another experiment file")
+    base_path = resolve_path(path.resolve().parent, head["base"]).resolve()
+    if base_path == path.resolve():
+        raise ConfigError(f"{path} [experiment] base: names this file itself; name another experiment file")
+    if not base_path.is_file():
+        raise InputFileError(f"{base_path}: [experiment] base not found; fix the path in {path}")
+    base = _check_keys(load_toml(base_path), TOP_KEYS, where=str(base_path))
+    if "base" in base.get("experiment", {}):
+        raise ConfigError(f"{path} [experiment] base: {base_path.name} has a base of its own; name the file at the root")
+    merged = dict(data)
+    real = dict(_check_keys(base.get("real", {}), REAL_KEYS, where=f"{base_path} [real]"))
+
+    def from_base(value: Any) -> Any:  # the base's relative paths are relative to the base file
+        return str(resolve_path(base_path.parent, value).resolve()) if isinstance(value, str) else value
+
+    for key in ("scenes", "mapping"):
+        if key in real:
+            real[key] = [from_base(v) for v in real[key]] if isinstance(real[key], list) else from_base(real[key])
+    for section, defaults in (("real", real), *((s, base.get(s, {})) for s in TRAINING_SECTIONS)):
+        own = data.get(section, {})
+        if not isinstance(defaults, dict) or not isinstance(own, dict):
+            raise ConfigError(f"{path} [{section}] (or its base's): expected a table")
+        merged[section] = {**defaults, **own}
+    return merged
 
 
 def _dataset_dir(out: Path, spec: Path) -> Path:
