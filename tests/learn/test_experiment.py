@@ -5,6 +5,7 @@ every output and continues where it stopped."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -226,4 +227,13 @@ def test_a_bad_base_is_a_one_line_error(experiment_dir: Path, base: str, message
     (experiment_dir / "more").mkdir()
     (experiment_dir / "more" / "exp.toml").write_text(COMPANION.replace('"../exp.toml"', base), encoding="utf-8")
     with pytest.raises((ConfigError, InputFileError), match=message):
+        load_experiment(experiment_dir / "more" / "exp.toml")
+
+
+def test_missing_real_scenes_of_a_base_name_the_base_file(experiment_dir: Path) -> None:
+    (experiment_dir / "exp.toml").write_text(EXPERIMENT.replace('scenes = ["real.txt"]', 'scenes = ["gone.txt"]'))
+    (experiment_dir / "more").mkdir()
+    (experiment_dir / "more" / "exp.toml").write_text(COMPANION, encoding="utf-8")
+    base_file = re.escape(str((experiment_dir / "exp.toml").resolve()))
+    with pytest.raises(InputFileError, match=rf"fix \[real\] scenes in {base_file} or"):
         load_experiment(experiment_dir / "more" / "exp.toml")

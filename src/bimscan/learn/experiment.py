@@ -104,7 +104,10 @@ def load_experiment(
     ``real`` replaces the ``[real] scenes`` of the file; ``device`` its ``[train] device``.
     """
     path = Path(path)
-    data = _with_base(_check_keys(load_toml(path), TOP_KEYS, where=str(path)), path)
+    own = _check_keys(load_toml(path), TOP_KEYS, where=str(path))
+    data = _with_base(own, path)
+    # the file to fix when the real scenes are missing: the base's when they come from there
+    real_from = path if "scenes" in own.get("real", {}) or data is own else resolve_path(path.parent, own["experiment"]["base"]).resolve()
     base = path.resolve().parent
     head = _check_keys(data.get("experiment", {}), EXPERIMENT_KEYS, where=f"{path} [experiment]")
     name = head.get("name", path.stem)
@@ -122,7 +125,7 @@ def load_experiment(
         raise ConfigError(f"{path} [real] scenes: no real scenes named; add them or pass --real PATH")
     for scene in real_paths:
         if not scene.exists():
-            raise InputFileError(f"{scene}: real scenes not found; fix [real] scenes in {path} or pass --real PATH")
+            raise InputFileError(f"{scene}: real scenes not found; fix [real] scenes in {real_from} or pass --real PATH")
     mapping = real_table.get("mapping")
     real_mapping = None if mapping is None else resolve_path(base, str(mapping)).resolve()
     if real_mapping is not None and not real_mapping.is_file():
