@@ -39,6 +39,27 @@ def test_the_furnished_copy_holds_the_same_objects_as_the_dressed_scene(tmp_path
         assert copy.components.label[k] == next(c.id for c in copy.scheme.classes if c.name == "Others")
 
 
+@pytest.mark.parametrize("schema", ["IFC4", "IFC2X3"])
+def test_fixtures_are_written_as_the_schema_s_light_fixtures_and_air_terminals(tmp_path, schema):
+    from tests.conftest import build_box_room
+
+    source = build_box_room(tmp_path / "room.ifc", schema=schema)
+    for seed in range(4):  # a room goes without fixtures now and then (each kind in a share of the rooms)
+        out = tmp_path / f"lit-{seed}.ifc"
+        assert main(["furnish", str(source), str(out), "--clutter", "0.1", "--clutter-kinds", "ceiling",
+                     "--seed", str(seed)]) == 0
+        copy = load_scene(out, use_cache=False)
+        added = np.isin(copy.components.ifc_class, ["IfcLightFixture", "IfcAirTerminal", "IfcFlowTerminal"])
+        if added.any():
+            break
+    assert added.any()
+    classes = set(copy.components.ifc_class[added].tolist())
+    assert classes <= ({"IfcLightFixture", "IfcAirTerminal"} if schema == "IFC4" else {"IfcFlowTerminal"})
+    others = next(c.id for c in copy.scheme.classes if c.name == "Others")
+    assert (copy.components.label[added] == others).all()
+    assert not set(copy.unmapped_classes) & classes  # named by the scheme, not left to its default
+
+
 def _corners(scene, component: int) -> np.ndarray:
     """The distinct corners of a component's triangles, sorted (to 0.01 mm)."""
     faces = scene.mesh.faces[scene.mesh.face_component == component]

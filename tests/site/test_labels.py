@@ -99,7 +99,7 @@ def test_site_components_appear_in_the_obj_export(tmp_path, office_scene, dresse
     result = export_obj(dressed_office, tmp_path / "obj")
     rows = list(csv.DictReader(result.index_csv.open()))
     assert len(rows) == len(dressed_office.components)
-    site_rows = [r for r in rows if r["ifc_class"].startswith(("Clutter.", "Person."))]
+    site_rows = [r for r in rows if r["ifc_class"].startswith(("Clutter.", "Fixture.", "Person."))]
     assert len(site_rows) == len(added(dressed_office, office_scene))
     assert {r["label_name"] for r in site_rows} == {"Others"} and all(int(r["n_triangles"]) > 0 for r in site_rows)
     assert all((tmp_path / "obj" / r["obj_file"]).is_file() for r in site_rows)
@@ -112,7 +112,7 @@ def test_export_obj_takes_the_site_flags(box_room_ifc, tmp_path):
 
     assert main(["export-obj", str(box_room_ifc), str(tmp_path / "obj"), "--clutter", "0.3", "--seed", "2"]) == 0
     rows = list(csv.DictReader((tmp_path / "obj" / "index.csv").open()))
-    assert sum(r["ifc_class"].startswith(("Clutter.", "Person.", "Temporary.")) for r in rows) >= 5
+    assert sum(r["ifc_class"].startswith(("Clutter.", "Fixture.", "Person.", "Temporary.")) for r in rows) >= 5
 
 
 def test_added_components_get_valid_ifc_global_ids():

@@ -102,3 +102,47 @@ def test_kinds_and_groups_are_checked_and_expanded():
     assert {k.name for k in select_kinds(("people", "ladder"))} == {"person", "ladder"}
     with pytest.raises(ConfigError, match="unknown clutter kind 'chiar'"):
         check_kinds(("chiar",))
+
+
+CEILING_KINDS = [k for k in KINDS if CLUTTER_KINDS[k].mount == "ceiling"]
+
+
+@pytest.mark.parametrize("kind", CEILING_KINDS)
+def test_nothing_under_a_ceiling_hangs_lower_than_the_clear_height(kind):
+    from bimscan.site.library import MIN_CLEAR_UNDER_FIXTURE_M
+
+    made = 0
+    for seed in range(30):
+        for headroom in (2.2, 2.5, 2.7, 3.0, 4.5):
+            obj = CLUTTER_KINDS[kind].make(np.random.default_rng(seed), headroom, False)
+            if obj is not None:
+                made += 1
+                assert headroom - obj.size_m[2] >= MIN_CLEAR_UNDER_FIXTURE_M - 1e-9, (kind, headroom, obj.size_m)
+        assert CLUTTER_KINDS[kind].make(np.random.default_rng(seed), MIN_CLEAR_UNDER_FIXTURE_M, False) is None
+    assert made >= 100
+
+
+def test_ceiling_lights_are_grid_panels_or_pendants_that_hang_lower_under_higher_ceilings():
+    from bimscan.site.library import CEILING_MODULES_M
+
+    drops = {2.5: [], 3.5: []}
+    panels = 0
+    for seed in range(60):
+        for headroom in drops:
+            obj = CLUTTER_KINDS["ceiling_light"].make(np.random.default_rng(seed), headroom, False)
+            if obj.size_m[2] > 0.2:  # a pendant: cables above the body
+                drops[headroom].append(obj.size_m[2])
+            else:
+                panels += 1
+                assert tuple(np.round(obj.size_m[:2], 4)) in {tuple(m) for m in CEILING_MODULES_M}
+    assert panels > 30 and len(drops[3.5]) > 10
+    assert not drops[2.5] or max(drops[2.5]) <= 0.4 + 1e-9  # 2.5 m leaves 0.4 m above the clear height
+    assert np.mean(drops[3.5]) > 0.4
+
+
+def test_the_ceiling_group_holds_the_fixtures_and_is_laid_out_not_drawn():
+    assert {k.name for k in select_kinds(("ceiling",))} == {"ceiling_light", "downlight", "air_terminal"}
+    for kind in select_kinds(("ceiling",)):
+        low, high = kind.spacing_m
+        assert 0 < low < high and 0 < kind.room_probability <= 1 and kind.mount == "ceiling"
+    assert all(k.mount == "floor" for k in select_kinds(("office", "site", "people")))

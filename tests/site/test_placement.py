@@ -15,13 +15,20 @@ def added(dressed, original) -> np.ndarray:
     return np.arange(len(original.components), len(dressed.components))
 
 
+def fixtures(dressed, original) -> np.ndarray:
+    """Component ids of the objects dressing hung under the ceiling."""
+    new = added(dressed, original)
+    return new[np.char.startswith(dressed.components.ifc_class[new].astype(str), "Fixture.")]
+
+
 def test_clutter_is_added_as_new_components_at_about_the_density(office_scene, dressed_office):
     new = added(dressed_office, office_scene)
     state = dressed_office.site
     assert len(new) == sum(state.placed.values()) > 20
-    assert all(c.startswith(("Clutter.", "Person.")) for c in dressed_office.components.ifc_class[new])
+    assert all(c.startswith(("Clutter.", "Fixture.", "Person.")) for c in dressed_office.components.ifc_class[new])
+    on_floor = len(new) - len(fixtures(dressed_office, office_scene))
     # 0.3 objects per square metre of free floor, rounded per room, some rooms too full for all of them
-    assert 0.6 * 0.3 * state.free_floor_m2 <= len(new) <= 0.3 * state.free_floor_m2 + state.rooms + 1
+    assert 0.6 * 0.3 * state.free_floor_m2 <= on_floor <= 0.3 * state.free_floor_m2 + state.rooms + 1
     assert len(set(dressed_office.components.global_id.tolist())) == len(dressed_office.components)
     assert all(len(g) == 22 for g in dressed_office.components.global_id[new])
 
@@ -63,7 +70,10 @@ def test_objects_stand_on_the_floor_inside_a_room(office_scene, dressed_office):
 
     scanner = place_scanner(office_scene, ScanRecipe())
     hung = 0
+    on_ceiling = set(fixtures(dressed_office, office_scene).tolist())
     for c, (v, _) in component_meshes(dressed_office, added(dressed_office, office_scene)).items():
+        if c in on_ceiling:
+            continue
         bottom = v[v[:, 2] < v[:, 2].min() + 1e-6]
         t, hit = scanner.cast(bottom[0] + [0.0, 0.0, 0.5], np.array([[0.0, 0.0, -1.0]], np.float32))
         if dressed_office.components.ifc_class[c] == "Clutter.Whiteboard" and t[0] > 1.0:
@@ -76,10 +86,38 @@ def test_objects_stand_on_the_floor_inside_a_room(office_scene, dressed_office):
         assert any(space.contains(footprint).all() for space in office_scene.spaces), dressed_office.components.name[c]
 
 
+def test_fixtures_hang_just_under_a_soffit_in_a_grid_and_clear_of_heads(office_scene, dressed_office):
+    from bimscan.scan.recipe import ScanRecipe
+    from bimscan.site.library import MIN_CLEAR_UNDER_FIXTURE_M
+    from bimscan.survey.survey import place_scanner
+
+    scanner = place_scanner(office_scene, ScanRecipe())
+    hung = fixtures(dressed_office, office_scene)
+    assert len(hung) >= 2 * dressed_office.site.rooms  # lights and air terminals in most rooms
+    level = min(s.elevation_m for s in office_scene.storeys)
+    centres = []
+    for c, (v, _) in component_meshes(dressed_office, hung).items():
+        top = v[v[:, 2] > v[:, 2].max() - 1e-6][0]
+        t, hit = scanner.cast(top - [0.0, 0.0, 0.001], np.array([[0.0, 0.0, 1.0]], np.float32))
+        assert 0.002 <= t[0] <= 0.003 + 0.02, dressed_office.components.name[c]  # 2 mm under the soffit
+        assert office_scene.components.ifc_class[hit[0]] in ("IfcSlab", "IfcCovering", "IfcRoof")
+        floor_t, _ = scanner.cast(v[v[:, 2].argmin()] - [0.0, 0.0, 0.001], np.array([[0.0, 0.0, -1.0]], np.float32))
+        assert floor_t[0] >= MIN_CLEAR_UNDER_FIXTURE_M - 0.05, dressed_office.components.name[c]
+        assert v[:, 2].min() >= level + MIN_CLEAR_UNDER_FIXTURE_M - 1e-6
+        if dressed_office.components.predefined_type[c] == "CEILING_LIGHT":
+            centres.append((v.min(axis=0) + v.max(axis=0))[:2] / 2)
+    # a grid, not a scatter: the lights of a room stand at a spacing of 1.8-2.7 m (0.3 m nudges aside)
+    centres = np.array(centres)
+    gaps = np.linalg.norm(centres[:, None] - centres[None], axis=2) + np.eye(len(centres)) * 99
+    assert gaps.min() > 0.5 and np.median(gaps.min(axis=1)) < 2.7 + 0.6
+
+
 def test_doorways_stay_clear(office_scene, dressed_office):
     doors = np.flatnonzero(office_scene.components.ifc_class == "IfcDoor")
     assert len(doors)
-    objects = component_meshes(dressed_office, added(dressed_office, office_scene))
+    on_ceiling = set(fixtures(dressed_office, office_scene).tolist())  # above the way through, 2.1 m up
+    objects = {c: m for c, m in component_meshes(dressed_office, added(dressed_office, office_scene)).items()
+               if c not in on_ceiling}
     for d in doors:
         v = office_scene.mesh.vertices[np.unique(office_scene.mesh.faces[office_scene.mesh.face_component == d])]
         lo, hi = v[:, :2].min(axis=0), v[:, :2].max(axis=0)
@@ -116,6 +154,8 @@ def test_the_same_seed_gives_the_same_bytes_and_another_seed_other_clutter(offic
 def test_kinds_select_what_is_placed_and_density_how_much(office_scene):
     chairs = dress_scene(office_scene, SiteModel(clutter=ClutterSettings(density=0.1, kinds=("chair",))), seed=1)
     assert set(chairs.site.placed) == {"Clutter.Chair"}
+    lights = dress_scene(office_scene, SiteModel(clutter=ClutterSettings(density=0.1, kinds=("ceiling",))), seed=1)
+    assert set(lights.site.placed) == {"Fixture.Luminaire", "Fixture.AirTerminal"}
     sparse = dress_scene(office_scene, SiteModel(clutter=ClutterSettings(density=0.05, kinds=("site",))), seed=1)
     dense = dress_scene(office_scene, SiteModel(clutter=ClutterSettings(density=0.25, kinds=("site",))), seed=1)
     assert set(sparse.site.placed) | set(dense.site.placed) <= {

@@ -1,10 +1,12 @@
 """bimscan's own class vocabulary for what a site adds to a model (no IFC model holds these objects).
 
 Every added object is a component whose ``ifc_class`` column holds one of ``SITE_CLASSES``:
-``Clutter.<Kind>`` (furniture and site materials), ``Temporary.<Kind>`` (temporary works and
-equipment) or ``Person.<Pose>``. A class's ancestry is itself, its group (``Clutter``,
-``Temporary``, ``Person``) and then the IFC class the object would be in a model (``IfcFurniture``
-or ``IfcBuildingElementProxy``, with their supertypes), so a label-scheme rule can name the exact
+``Clutter.<Kind>`` (furniture and site materials), ``Fixture.<Kind>`` (luminaires and air
+terminals under the ceiling), ``Temporary.<Kind>`` (temporary works and equipment) or
+``Person.<Pose>``. A class's ancestry is itself, its group (``Clutter``, ``Fixture``,
+``Temporary``, ``Person``) and then the IFC class the object would be in a model
+(``IfcFurniture``, ``IfcLightFixture``, ``IfcAirTerminal`` or ``IfcBuildingElementProxy``, with
+their supertypes), so a label-scheme rule can name the exact
 class, the group, or the IFC class::
 
     [[rules]]
@@ -20,13 +22,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-GROUPS = ("Clutter", "Temporary", "Person")
+GROUPS = ("Clutter", "Fixture", "Temporary", "Person")
 
 
 @dataclass(frozen=True)
 class SiteClass:
     """One added object class: its group and the IFC classes it would be in a model, first known first
-    (IFC2X3 has no IfcFurniture: its furniture is IfcFurnishingElement)."""
+    (IFC2X3 has no IfcFurniture, IfcLightFixture or IfcAirTerminal: its furniture is
+    IfcFurnishingElement, its light fixtures and air terminals IfcFlowTerminal)."""
 
     name: str
     group: str
@@ -35,6 +38,8 @@ class SiteClass:
 
 _FURNITURE = ("IfcFurniture", "IfcFurnishingElement")
 _PROXY = ("IfcBuildingElementProxy",)
+_LIGHT = ("IfcLightFixture", "IfcFlowTerminal")
+_AIR = ("IfcAirTerminal", "IfcFlowTerminal")
 
 SITE_CLASSES: dict[str, SiteClass] = {
     c.name: c for c in (
@@ -44,6 +49,8 @@ SITE_CLASSES: dict[str, SiteClass] = {
         SiteClass("Clutter.Shelf", "Clutter", _FURNITURE),
         SiteClass("Clutter.Cabinet", "Clutter", _FURNITURE),
         SiteClass("Clutter.Whiteboard", "Clutter", _FURNITURE),
+        SiteClass("Fixture.Luminaire", "Fixture", _LIGHT),
+        SiteClass("Fixture.AirTerminal", "Fixture", _AIR),
         SiteClass("Clutter.MaterialStack", "Clutter", _PROXY),
         SiteClass("Clutter.Pallet", "Clutter", _PROXY),
         SiteClass("Clutter.Box", "Clutter", _PROXY),

@@ -2,7 +2,8 @@
 
 Order: the construction stage first (components not built are dropped; ceilings opened), then
 props under the slabs of a fraction of the rooms (``props_fraction``), then clutter at the
-requested density in every room, each object a new component (own GlobalId, a class of
+requested density in every room, then the ceiling kinds (luminaires, air terminals) on a grid in
+their share of the rooms, each object a new component (own GlobalId, a class of
 ``site.classes``, labelled by the scene's scheme). Stations are planned afterwards, on the
 dressed scene, so they see the clutter (a tripod spot is kept clear in every room, and doors and
 stairs stay clear).
@@ -51,7 +52,7 @@ def default_kinds(site: SiteModel) -> tuple[str, ...]:
     """The clutter kinds used when none are named: by the construction stage."""
     if site.clutter.kinds:
         return site.clutter.kinds
-    return ("office", "people") if site.stage.name == "finished" else ("site", "people")
+    return ("office", "ceiling", "people") if site.stage.name == "finished" else ("site", "people")
 
 
 def dress_scene(scene: BimScene, site: SiteModel, *, seed: int, schedule: Mapping[str, BuildDates] | None = None,
@@ -95,6 +96,9 @@ def dress_scene_timed(scene: BimScene, site: SiteModel, *, seed: int,
         floor_s = time.perf_counter() - t0
         t0 = time.perf_counter()
         slabs = component_mask(staged, ("IfcSlab", "IfcRoof"))
+        soffits = component_mask(staged, ("IfcSlab", "IfcRoof", "IfcCovering"))
+        on_floor = tuple(k for k in kinds if k.mount == "floor")
+        on_ceiling = tuple(k for k in kinds if k.mount == "ceiling")
         rooms_count = len(rooms)
         for room in rooms:
             free_floor += room.free_area_m2()
@@ -103,8 +107,11 @@ def dress_scene_timed(scene: BimScene, site: SiteModel, *, seed: int,
             placer = RoomPlacer(room, prober, rng)
             if wants_props and rng.random() < stage.props_fraction:
                 placer.place_prop_grid(CLUTTER_KINDS["prop"], slabs)
-            if kinds:
-                _place_clutter(placer, kinds, site.clutter.density * room.free_area_m2(), rng)
+            if on_floor:
+                _place_clutter(placer, on_floor, site.clutter.density * room.free_area_m2(), rng)
+            for kind in on_ceiling:
+                if rng.random() < kind.room_probability:
+                    placer.place_ceiling_grid(kind, soffits)
             placed += placer.placed
         placement_s = time.perf_counter() - t0
     state = SiteState(settings=site_settings(site, seed), removed=dict(sorted(removed.items())),

@@ -1,12 +1,15 @@
 """The clutter library: parametric objects made in code, sized after standards and body data.
 
 ``CLUTTER_KINDS`` maps a kind name to a ``ClutterKind``: its class (``site.classes``), group
-(``office``, ``site``, ``people``), how often it is drawn, whether it stands against a wall, the
-size ranges its objects keep to and where they come from. ``ClutterKind.make(rng, headroom_m,
+(``office``, ``ceiling``, ``site``, ``people``), how often it is drawn, whether it stands against a
+wall, the size ranges its objects keep to and where they come from. Kinds of the ``ceiling`` group
+(luminaires, air terminals) are mounted under the ceiling: they are not drawn by weight but laid out
+in an even grid over a room (``spacing_m``), in a share of the rooms (``room_probability``). ``ClutterKind.make(rng, headroom_m,
 against_wall)`` draws one object: a closed triangle mesh in its own frame (width along x, depth
 along y with the back at +y, z up from the floor at 0, the footprint's box centred on the origin;
-objects stand on the floor, but for boards hung on a wall) or None when it cannot stand under
-``headroom_m``. Every dimension is drawn from a range, so
+objects stand on the floor, but for boards hung on a wall; a ceiling object's top, z = its height,
+goes against the ceiling) or None when it cannot stand under ``headroom_m`` (for a ceiling object:
+when it would hang lower than ``MIN_CLEAR_UNDER_FIXTURE_M`` above the floor). Every dimension is drawn from a range, so
 objects vary in size and proportions with the seed.
 
 Sources of the ranges (typical products within what the standards say; the standards' own texts
@@ -35,6 +38,19 @@ were read in public summaries):
   guardrail about 1.0 m above the platform, toe boards at least 0.15 m, castors with brakes).
 - props: EN 1065 adjustable telescopic steel props (1.04 m to 5.5 m extended; outer tube about
   60 mm, inner 48 mm, end plates 150 x 150 mm).
+- ceiling luminaires: laid out for EN 12464-1:2021 office lighting (500 lx on the task area) with
+  office luminaires' spacing-to-height ratio of about 1.0-1.5 (CIBSE SLL *Lighting Guide 7: Offices*)
+  over the 0.75 m work plane: spacing 1.8-2.7 m under 2.6-3.0 m ceilings. Panels take a ceiling
+  grid module (EN 13964 suspended ceilings: 600 x 600, 625 x 625, 1200 x 300, 1250 x 312.5,
+  1500 x 300, 1200 x 600 mm) and show 12 mm (a recessed troffer's trim) to 100 mm (a surface-mounted
+  box) below the ceiling; linear pendants are sized for T5 lamps (IEC 60081: 1149 and 1449 mm
+  tubes): 1.15-1.6 m long, 60-300 mm wide, 40-100 mm deep, on two cables 0.3-0.9 m long.
+  Downlights: trims 120-250 mm across, 5-30 mm proud, spacing 1.2-1.8 m.
+- air terminals: square ceiling diffusers of the usual face sizes (300-625 mm, sized to the
+  ceiling module), 20-60 mm of stepped cones below the ceiling; one per 10-20 m2 of office
+  (spacing 3.0-4.5 m).
+- nothing mounted under a ceiling hangs lower than 2.1 m above the floor (the clear height kept
+  for a tripod and a person; stair and door headroom in building codes is 2.0 m).
 - people: statures 1.49-1.91 m (EN 527-1's European 5th percentile female to 95th percentile
   male); body segments as fractions of stature after Drillis & Contini (1966), as tabulated in
   Winter, *Biomechanics and Motor Control of Human Movement* (4th ed., 2009), Fig. 4.1.
@@ -51,8 +67,13 @@ import numpy as np
 from bimscan.errors import ConfigError
 from bimscan.site.shapes import MeshBuilder
 
-GROUPS = ("office", "site", "people")
+GROUPS = ("office", "ceiling", "site", "people")
+MOUNTS = ("floor", "ceiling")
 FOLDER_HEIGHT_M = 0.375  # one "OH": the height of a row of lever-arch files with its shelf
+MIN_CLEAR_UNDER_FIXTURE_M = 2.1  # nothing under a ceiling hangs lower (see the module docs)
+CABLE_M = 0.004  # a pendant's suspension cable (drawn square)
+# ceiling grid modules (EN 13964), width x depth in metres
+CEILING_MODULES_M = ((0.6, 0.6), (0.625, 0.625), (1.2, 0.3), (1.25, 0.3125), (1.5, 0.3), (1.2, 0.6))
 
 
 @dataclass(frozen=True)
@@ -80,7 +101,9 @@ class ClutterKind:
     weight: relative frequency among the kinds drawn together. wall_probability: how often it is
     put with its back against a wall (else free-standing). free_yaw: free-standing objects turn
     any way (else they follow the room's axes). size_ranges_m: (min, max) of the bounding box's
-    width, depth and height, in metres, that every object keeps to.
+    width, depth and height, in metres, that every object keeps to. mount: ``floor`` (stands on the
+    floor, or hangs on a wall) or ``ceiling`` (laid out in a grid of ``spacing_m``, min and max
+    in metres, in ``room_probability`` of the rooms; weight, wall_probability and free_yaw unused).
     """
 
     name: str
@@ -91,6 +114,9 @@ class ClutterKind:
     free_yaw: bool
     size_ranges_m: tuple[tuple[float, float], tuple[float, float], tuple[float, float]]
     make: MakeObject
+    mount: str = "floor"
+    spacing_m: tuple[float, float] = (0.0, 0.0)
+    room_probability: float = 1.0
 
 
 def _finish(builder: MeshBuilder, class_name: str, *, on_floor: bool = True) -> ClutterObject:
@@ -258,6 +284,54 @@ def make_whiteboard(rng: np.random.Generator, headroom_m: float, against_wall: b
         for sy in (-1, 1):
             b.prism((x, sy * (foot - 0.03), 0.0), (x, sy * (foot - 0.03), 0.04), 0.025, sides=8)
     return _finish(b, "Clutter.Whiteboard")
+
+
+# ------------------------------------------------------------------------- under the ceiling
+
+def make_ceiling_light(rng: np.random.Generator, headroom_m: float, against_wall: bool) -> ClutterObject | None:
+    b = MeshBuilder()
+    if rng.random() < 0.35:  # a linear pendant on two cables
+        length, width, body = rng.uniform(1.15, 1.6), rng.uniform(0.06, 0.3), rng.uniform(0.04, 0.1)
+        drop = min(rng.uniform(0.3, 0.9), headroom_m - MIN_CLEAR_UNDER_FIXTURE_M - body)
+        if drop >= 0.2:  # else the ceiling is too low for a pendant: a panel
+            b.box((-length / 2, -width / 2, 0.0), (length / 2, width / 2, body))
+            for side in (-1, 1):
+                x = side * (length / 2 - 0.1)
+                b.box((x - CABLE_M / 2, -CABLE_M / 2, body), (x + CABLE_M / 2, CABLE_M / 2, body + drop))
+            return _finish(b, "Fixture.Luminaire")
+    width, depth = CEILING_MODULES_M[int(rng.integers(len(CEILING_MODULES_M)))]
+    height = rng.uniform(0.012, 0.1)  # a recessed troffer's trim to a surface-mounted box
+    diffuser = 0.008 if height > 0.04 else 0.0  # a surface-mounted box's diffuser stands proud of it
+    if headroom_m - height - diffuser < MIN_CLEAR_UNDER_FIXTURE_M:
+        return None
+    b.box((-width / 2, -depth / 2, 0.0), (width / 2, depth / 2, height))
+    if diffuser:
+        b.box((-width / 2 + 0.03, -depth / 2 + 0.03, -diffuser), (width / 2 - 0.03, depth / 2 - 0.03, 0.0))
+    return _finish(b, "Fixture.Luminaire")
+
+
+def make_downlight(rng: np.random.Generator, headroom_m: float, against_wall: bool) -> ClutterObject | None:
+    diameter, proud = rng.uniform(0.12, 0.25), rng.uniform(0.005, 0.03)
+    if headroom_m - proud < MIN_CLEAR_UNDER_FIXTURE_M:
+        return None
+    b = MeshBuilder()
+    b.prism((0.0, 0.0, 0.0), (0.0, 0.0, proud), diameter / 2, sides=16)
+    return _finish(b, "Fixture.Luminaire")
+
+
+def make_air_terminal(rng: np.random.Generator, headroom_m: float, against_wall: bool) -> ClutterObject | None:
+    face, below = rng.uniform(0.3, 0.625), rng.uniform(0.02, 0.06)
+    if headroom_m - below < MIN_CLEAR_UNDER_FIXTURE_M:
+        return None
+    b = MeshBuilder()
+    flange = 0.008
+    b.box((-face / 2, -face / 2, below - flange), (face / 2, face / 2, below))  # the face plate
+    steps = int(rng.integers(2, 4))  # stepped cones, each smaller and lower
+    for k in range(steps):
+        half = face / 2 * (1.0 - 0.6 * (k + 1) / steps) + 0.02
+        z1 = below - flange - k * (below - flange) / steps
+        b.box((-half, -half, z1 - (below - flange) / steps), (half, half, z1))
+    return _finish(b, "Fixture.AirTerminal")
 
 
 # ------------------------------------------------------------------------------ site materials
@@ -521,6 +595,15 @@ CLUTTER_KINDS: dict[str, ClutterKind] = {k.name: k for k in (
                 make_cabinet),
     ClutterKind("whiteboard", "office", ("Clutter.Whiteboard",), 0.8, 0.8, False,
                 ((1.2, 2.4), (0.08, 0.6), (1.75, 2.2)), make_whiteboard),
+    ClutterKind("ceiling_light", "ceiling", ("Fixture.Luminaire",), 0.0, 0.0, False,
+                ((0.3, 1.6), (0.06, 0.625), (0.012, 1.0)), make_ceiling_light,
+                mount="ceiling", spacing_m=(1.8, 2.7), room_probability=0.9),
+    ClutterKind("downlight", "ceiling", ("Fixture.Luminaire",), 0.0, 0.0, False,
+                ((0.11, 0.25), (0.11, 0.25), (0.005, 0.03)), make_downlight,
+                mount="ceiling", spacing_m=(1.2, 1.8), room_probability=0.25),
+    ClutterKind("air_terminal", "ceiling", ("Fixture.AirTerminal",), 0.0, 0.0, False,
+                ((0.3, 0.625), (0.3, 0.625), (0.02, 0.06)), make_air_terminal,
+                mount="ceiling", spacing_m=(3.0, 4.5), room_probability=0.6),
     ClutterKind("material_stack", "site", ("Clutter.MaterialStack",), 2.0, 0.5, False,
                 ((1.2, 3.0), (0.8, 1.2), (0.2, 1.15)), make_material_stack),
     ClutterKind("pallet", "site", ("Clutter.Pallet",), 1.0, 0.5, False, ((1.2, 1.22), (0.8, 0.82), (0.144, 0.864)),

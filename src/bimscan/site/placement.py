@@ -9,8 +9,17 @@ its top to the floor, through the box grown by ``CLEARANCE_M`` (a ray that start
 wall or a column meets it at once). Objects go
 against a wall (their back ``GAP_M`` from the face a horizontal ray finds) or stand free,
 aligned with the room or turned any way; in corridors and halls (by the room's name) only against
-a wall, so the way through stays clear. All draws come from the room's own generator, so a
-room's objects do not depend on the other rooms.
+a wall, so the way through stays clear.
+
+Ceiling kinds (luminaires, air terminals) are laid out as a designer lays them out: one object
+drawn per room, repeated on an even grid over the room's footprint (``n = round(extent /
+spacing)`` per axis, the outer ones half a pitch from the walls). A grid point is kept when rays
+up from ``MIN_CLEAR_UNDER_FIXTURE_M`` above the floor, at its centre and its corners, meet the
+same ceiling, covering, slab or roof soffit level within ``LEVEL_M`` (not a beam, a wall top or
+the sky); the object then hangs ``MOUNT_GAP_M`` under the lowest of them, clears every object on
+the floor under it, crosses no other ceiling object and no ray through its box meets the model.
+A point that fails is tried a little aside (``NUDGES_M``). All draws come from the room's own
+generator, so a room's objects do not depend on the other rooms.
 """
 
 from __future__ import annotations
@@ -21,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bimscan.site.floor import Prober, RoomFloor
-from bimscan.site.library import ClutterKind, ClutterObject
+from bimscan.site.library import MIN_CLEAR_UNDER_FIXTURE_M, ClutterKind, ClutterObject
 from bimscan.site.shapes import yaw_matrix
 
 GAP_M = 0.03  # between objects, and between an object's back and the wall it stands against
@@ -33,6 +42,9 @@ ATTEMPTS = 16  # candidate poses tried per object
 DRAWS = 3  # objects drawn (sizes) per placement before giving up
 COMPANION_CHAIR = 0.8  # chance that a desk gets a chair in front of it
 PROP_SPACING_M = 1.5  # back-propping grid under slabs (typically 1.2-1.8 m)
+MOUNT_GAP_M = 0.002  # between a ceiling object's top and the ceiling
+MAX_CEILING_M = 12.0  # a soffit further above the floor is no room's ceiling (an atrium, the sky)
+NUDGES_M = ((0.0, 0.0), (0.3, 0.0), (-0.3, 0.0), (0.0, 0.3), (0.0, -0.3))  # tries aside of a grid point
 
 
 @dataclass(frozen=True)
@@ -51,7 +63,7 @@ class PlacedObject:
     vertices: np.ndarray
     faces: np.ndarray
     footprint: np.ndarray
-    base_z: float
+    base_z: float  # for a ceiling object: the height of its lowest point
 
 
 @dataclass
@@ -67,8 +79,10 @@ class RoomPlacer:
         self.room = room
         self.prober = prober
         self.rng = rng
-        self.rects: list[np.ndarray] = []  # (4, 2) room-frame corners of every placed footprint
+        self.rects: list[np.ndarray] = []  # (4, 2) room-frame corners of every footprint on the floor
         self._boxes = np.zeros((0, 4))  # their axis-aligned boxes (x0, y0, x1, y1), to test few exactly
+        self._tops: list[float] = []  # the world height of each floor object's top
+        self._ceiling_rects: list[np.ndarray] = []  # footprints of the objects under the ceiling
         self.placed: list[PlacedObject] = []
         centres = room.cell_centres()
         self._centres = centres
@@ -151,6 +165,68 @@ class RoomPlacer:
                     self._commit(kind, obj, pose, base)
                     count += 1
         return count
+
+    def place_ceiling_grid(self, kind: ClutterKind, soffits: np.ndarray) -> int:
+        """Objects of a ceiling kind on an even grid over the room (see the module docs); returns how
+        many. soffits: (components,) bool, what a fixture may hang from (coverings, slabs, roofs)."""
+        room = self.room
+        inside = self._centres[room.inside]
+        if len(inside) == 0:
+            return 0
+        lo, hi = inside.min(axis=0) - room.cell_m / 2, inside.max(axis=0) + room.cell_m / 2
+        spacing = self.rng.uniform(*kind.spacing_m)
+        counts = np.maximum(1, np.round((hi - lo) / spacing)).astype(int)
+        xs = lo[0] + (np.arange(counts[0]) + 0.5) * (hi[0] - lo[0]) / counts[0]
+        ys = lo[1] + (np.arange(counts[1]) + 0.5) * (hi[1] - lo[1]) / counts[1]
+        nodes = np.array([(x, y) for x in xs for y in ys])
+        ceiling = self._ceiling_above(nodes, soffits)
+        found = np.isfinite(ceiling)
+        if not found.any():
+            return 0
+        clear = float(np.percentile(ceiling[found] - room.level_z, 25))
+        obj = kind.make(self.rng, clear, False)
+        if obj is None:
+            return 0
+        yaw = math.pi / 2 * int(self.rng.integers(2))  # long luminaires along or across the room
+        count = 0
+        for node in nodes[found]:
+            for nudge in NUDGES_M:
+                pose = _Pose(node + np.asarray(nudge), yaw)
+                top = self._ceiling_fits(obj, pose, soffits)
+                if top is not None:
+                    self._commit(kind, obj, pose, top - obj.size_m[2], on_ceiling=True)
+                    count += 1
+                    break
+        return count
+
+    def _ceiling_above(self, xy_room: np.ndarray, soffits: np.ndarray) -> np.ndarray:
+        """The height of the soffit over each room-frame point (N, 2), NaN where there is none: outside
+        the room, inside a solid, under a beam or open to the sky."""
+        room = self.room
+        cells = [self._cell_of(c) for c in xy_room]
+        origins = np.column_stack([room.to_world(xy_room), np.full(len(xy_room), room.level_z + MIN_CLEAR_UNDER_FIXTURE_M)])
+        t, component = self.prober.cast(origins, np.tile([0.0, 0.0, 1.0], (len(origins), 1)))
+        ok = np.array([j >= 0 and room.inside[j, i] for j, i in cells], dtype=bool)
+        ok &= (component >= 0) & (t < MAX_CEILING_M - MIN_CLEAR_UNDER_FIXTURE_M)
+        ok[ok] = soffits[component[ok]] & ~self.prober.inside_solid(origins[ok])
+        return np.where(ok, origins[:, 2] + np.where(ok, t, 0.0), np.nan)
+
+    def _ceiling_fits(self, obj: ClutterObject, pose: _Pose, soffits: np.ndarray) -> float | None:
+        """The height of the object's top under the ceiling, or None when the pose collides."""
+        corners = self._footprint(obj, pose)
+        ceiling = self._ceiling_above(np.vstack([pose.centre[None], corners]), soffits)
+        if not np.isfinite(ceiling).all() or ceiling.max() - ceiling.min() > LEVEL_M:
+            return None
+        top = float(ceiling.min()) - MOUNT_GAP_M
+        bottom = top - obj.size_m[2]
+        if bottom < self.room.level_z + MIN_CLEAR_UNDER_FIXTURE_M:
+            return None
+        grown = self._footprint(obj, pose, GAP_M)
+        if any(_overlap(grown, other) for other in self._ceiling_rects):
+            return None
+        if any(t > bottom - GAP_M and _overlap(grown, rect) for rect, t in zip(self.rects, self._tops)):
+            return None  # something on the floor reaches up to it
+        return None if self._box_hits(obj, pose, bottom, spanning=True) else top
 
     def _place_prop(self, kind: ClutterKind) -> PlacedObject | None:
         for _ in range(ATTEMPTS):
@@ -256,8 +332,9 @@ class RoomPlacer:
     def _box_hits(self, obj: ClutterObject, pose: _Pose, base: float, *, spanning: bool) -> bool:
         m = CLEARANCE_M
         w, d, h = obj.size_m[0] + 2 * m, obj.size_m[1] + 2 * m, obj.size_m[2]
-        top = h + (0.001 if spanning else m)  # a prop stops short of the soffit it is wedged under
-        heights = np.unique(np.concatenate([[0.02], np.arange(0.3, top, 0.4), [top]]))
+        top = h + (0.001 if spanning else m)  # a prop or a fixture stops short of the soffit it is under
+        low = min(0.02, h / 2)  # a thin fixture's box is a few millimetres deep
+        heights = np.unique(np.concatenate([[low], np.arange(0.3, top, 0.4), [top]]))
         xs = np.linspace(-w / 2, w / 2, max(2, int(math.ceil(w / SWEEP_M)) + 1))
         ys = np.linspace(-d / 2, d / 2, max(2, int(math.ceil(d / SWEEP_M)) + 1))
         origins, directions, lengths = [], [], []
@@ -271,7 +348,7 @@ class RoomPlacer:
         gx, gy = (a.ravel() for a in np.meshgrid(xs, ys, indexing="xy"))
         origins.append(np.column_stack([gx, gy, np.full(len(gx), top)]))
         directions.append(np.tile([0.0, 0.0, -1.0], (len(gx), 1)))
-        lengths.append(np.full(len(gx), top - 0.02))
+        lengths.append(np.full(len(gx), top - low))
         local_o, local_d, length = np.concatenate(origins), np.concatenate(directions), np.concatenate(lengths)
         rotation = self._rotation(pose)
         world_o = local_o @ rotation.T
@@ -290,7 +367,8 @@ class RoomPlacer:
     def _rotation(self, pose: _Pose) -> np.ndarray:
         return yaw_matrix(self.room.angle_rad + pose.yaw)
 
-    def _commit(self, kind: ClutterKind, obj: ClutterObject, pose: _Pose, base: float) -> PlacedObject:
+    def _commit(self, kind: ClutterKind, obj: ClutterObject, pose: _Pose, base: float, *,
+                on_ceiling: bool = False) -> PlacedObject:
         room = self.room
         rect = self._footprint(obj, pose)
         vertices = obj.vertices @ self._rotation(pose).T
@@ -299,8 +377,12 @@ class RoomPlacer:
         placed = PlacedObject(kind=kind.name, class_name=obj.class_name, room=room.name, room_key=room.key,
                               storey=room.storey, vertices=vertices, faces=obj.faces, footprint=room.to_world(rect),
                               base_z=base)
-        self.rects.append(rect)
-        self._boxes = np.vstack([self._boxes, np.concatenate([rect.min(axis=0), rect.max(axis=0)])[None]])
+        if on_ceiling:
+            self._ceiling_rects.append(rect)
+        else:
+            self.rects.append(rect)
+            self._tops.append(base + obj.size_m[2])
+            self._boxes = np.vstack([self._boxes, np.concatenate([rect.min(axis=0), rect.max(axis=0)])[None]])
         self.placed.append(placed)
         return placed
 
