@@ -101,8 +101,6 @@ def test_fixtures_hang_just_under_a_soffit_in_a_grid_and_clear_of_heads(office_s
         t, hit = scanner.cast(top - [0.0, 0.0, 0.001], np.array([[0.0, 0.0, 1.0]], np.float32))
         assert 0.002 <= t[0] <= 0.003 + 0.02, dressed_office.components.name[c]  # 2 mm under the soffit
         assert office_scene.components.ifc_class[hit[0]] in ("IfcSlab", "IfcCovering", "IfcRoof")
-        floor_t, _ = scanner.cast(v[v[:, 2].argmin()] - [0.0, 0.0, 0.001], np.array([[0.0, 0.0, -1.0]], np.float32))
-        assert floor_t[0] >= MIN_CLEAR_UNDER_FIXTURE_M - 0.05, dressed_office.components.name[c]
         assert v[:, 2].min() >= level + MIN_CLEAR_UNDER_FIXTURE_M - 1e-6
         if dressed_office.components.predefined_type[c] == "CEILING_LIGHT":
             centres.append((v.min(axis=0) + v.max(axis=0))[:2] / 2)
@@ -213,3 +211,48 @@ def test_a_survey_refuses_a_scene_not_dressed_for_its_recipe(office_scene):
 
     with pytest.raises(ValueError, match="not dressed with this recipe's site model"):
         prepare_survey(office_scene, ScanRecipe(site=SiteModel(clutter=ClutterSettings(density=0.1))))
+
+
+@pytest.fixture(scope="module")
+def suspended_office(tmp_path_factory):
+    """A generated office with a suspended ceiling (tiles under a service void) and its lit version."""
+    from bimscan.ifc.generate import make_building
+    from bimscan.pipeline import load_scene
+
+    built = make_building(tmp_path_factory.mktemp("suspended") / "office.ifc", seed=203, storeys=1, style="office")
+    scene = load_scene(built.path, use_cache=False)
+    return scene, dress_scene(scene, SiteModel(clutter=ClutterSettings(density=0.1, kinds=("ceiling",))), seed=0)
+
+
+def test_lay_in_lights_are_set_into_cut_tiles_and_seen_through_them(suspended_office):
+    import open3d as o3d
+
+    from bimscan.site.library import TROFFER_RECESS_M
+
+    scene, lit = suspended_office
+    n = len(scene.components)
+    model = raycasting_scene(lit.mesh.vertices, lit.mesh.faces[lit.mesh.face_component < n])  # the cut model
+    original = raycasting_scene(scene.mesh.vertices, scene.mesh.faces)
+    coverings = scene.components.ifc_class == "IfcCovering"
+    set_in = 0
+    for c, (v, f) in component_meshes(lit, fixtures(lit, scene)).items():
+        centre = (v.min(axis=0) + v.max(axis=0)) / 2
+        ray = np.array([[centre[0], centre[1], v[:, 2].min() - 0.3, 0.0, 0.0, 1.0]], np.float32)
+        before = original.cast_rays(o3d.core.Tensor(ray))
+        if not coverings[_component_at(scene, before)]:
+            continue
+        underside = ray[0, 2] + float(before["t_hit"].numpy()[0])
+        if v[:, 2].min() < underside - 1e-4:
+            continue  # mounted under the tiles, not set into them
+        set_in += 1
+        inset = v.copy()  # 2 mm inside its outline: it touches the opening's edges, as a trim does
+        inset[:, :2] -= 0.002 * np.sign(v[:, :2] - centre[:2])
+        assert not edges_cross(inset, f, model), lit.components.name[c]  # the tiles are cut where it sits
+        seen = raycasting_scene(lit.mesh.vertices, lit.mesh.faces).cast_rays(o3d.core.Tensor(ray))
+        depth = ray[0, 2] + float(seen["t_hit"].numpy()[0]) - underside
+        assert TROFFER_RECESS_M[0] - 1e-4 <= depth <= TROFFER_RECESS_M[1] + 1e-4  # its louvre, up in the opening
+    assert set_in >= 10
+
+
+def _component_at(scene, hit) -> int:
+    return int(scene.mesh.face_component[int(hit["primitive_ids"].numpy()[0])])

@@ -146,3 +146,39 @@ def test_a_stage_where_nothing_stands_is_refused(office_scene):
 def test_impossible_stage_settings_are_refused(stage, message):
     with pytest.raises(ConfigError, match=message):
         StageSettings(**stage)
+
+
+@pytest.mark.parametrize("angle", [0.0, 0.5])
+def test_an_opening_is_cut_through_a_board_and_nothing_else(angle):
+    from bimscan.site.shapes import MeshBuilder
+    from bimscan.site.stage import cut_openings
+    from bimscan.types import SceneMesh
+
+    b = MeshBuilder()
+    b.box((0.0, 0.0, 2.7), (4.0, 3.0, 2.72))  # a ceiling board
+    b.box((0.0, 0.0, 0.0), (4.0, 3.0, 0.2))  # a slab under it, not to be cut
+    vertices, faces = b.build()
+    component = np.repeat(np.arange(2, dtype=np.int32), 12)
+    mesh = SceneMesh(vertices=vertices, faces=faces, face_component=component)
+    c, s = np.cos(angle), np.sin(angle)
+    local = np.array([[-0.6, -0.3], [0.6, -0.3], [0.6, 0.3], [-0.6, 0.3]])
+    hole = np.array([2.0, 1.5]) + local @ np.array([[c, s], [-s, c]])
+    cut = cut_openings(mesh, np.array([True, False]), [hole])
+
+    def area(m: SceneMesh, which: int, normal_z: float) -> float:
+        tri = m.vertices[m.faces[m.face_component == which]]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]) / 2
+        return float(n[np.sign(n[:, 2]) == normal_z, 2].sum() * normal_z)
+
+    for side in (-1.0, 1.0):  # underside and top: 12 m2 less the 0.72 m2 opening
+        assert area(cut, 0, side) == pytest.approx(12.0 - 0.72, abs=1e-9)
+        assert area(cut, 1, side) == pytest.approx(12.0)
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(cut.vertices.astype(np.float32)), o3d.core.Tensor(cut.faces.astype(np.uint32)))
+    rays = np.array([[2.0, 1.5, 2.5, 0, 0, 1], [0.5, 0.5, 2.5, 0, 0, 1]], dtype=np.float32)
+    t = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+    assert np.isinf(t[0]) and t[1] == pytest.approx(0.2, abs=1e-5)  # through the opening; the board beside it
+    again = cut_openings(mesh, np.array([True, False]), [hole])
+    assert again.vertices.tobytes() == cut.vertices.tobytes() and again.faces.tobytes() == cut.faces.tobytes()

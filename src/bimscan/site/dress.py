@@ -31,7 +31,7 @@ from bimscan.site.floor import Prober, component_mask, find_room_floors, keep_ou
 from bimscan.site.library import CLUTTER_KINDS, ClutterKind, select_kinds
 from bimscan.site.model import SiteModel, site_settings
 from bimscan.site.placement import PlacedObject, RoomPlacer
-from bimscan.site.stage import built_components, open_ceilings
+from bimscan.site.stage import built_components, ceiling_coverings, cut_openings, open_ceilings
 from bimscan.types import BimScene, BuildDates, ComponentSurfaces, ComponentTable, SceneMesh, SiteState
 
 FULL_AFTER_MISSES = 8
@@ -97,6 +97,7 @@ def dress_scene_timed(scene: BimScene, site: SiteModel, *, seed: int,
         t0 = time.perf_counter()
         slabs = component_mask(staged, ("IfcSlab", "IfcRoof"))
         soffits = component_mask(staged, ("IfcSlab", "IfcRoof", "IfcCovering"))
+        coverings = ceiling_coverings(staged)
         on_floor = tuple(k for k in kinds if k.mount == "floor")
         on_ceiling = tuple(k for k in kinds if k.mount == "ceiling")
         rooms_count = len(rooms)
@@ -111,12 +112,15 @@ def dress_scene_timed(scene: BimScene, site: SiteModel, *, seed: int,
                 _place_clutter(placer, on_floor, site.clutter.density * room.free_area_m2(), rng)
             for kind in on_ceiling:
                 if rng.random() < kind.room_probability:
-                    placer.place_ceiling_grid(kind, soffits)
+                    placer.place_ceiling_grid(kind, soffits, coverings)
             placed += placer.placed
         placement_s = time.perf_counter() - t0
     state = SiteState(settings=site_settings(site, seed), removed=dict(sorted(removed.items())),
                       placed=dict(sorted(Counter(p.class_name for p in placed).items())), rooms=rooms_count,
                       free_floor_m2=free_floor)
+    openings = [p.footprint for p in placed if p.opening]
+    if openings:  # lay-in fittings: the ceiling tiles are cut where they sit
+        staged = dataclasses.replace(staged, mesh=cut_openings(staged.mesh, ceiling_coverings(staged), openings))
     dressed = _append(staged, placed, seed=seed)
     return dataclasses.replace(dressed, site=state), DressTimings(stage_s, floor_s, placement_s, rooms_count)
 

@@ -45,6 +45,10 @@ were read in public summaries):
   1500 x 300, 1200 x 600 mm) and show 12 mm (a recessed troffer's trim) to 100 mm (a surface-mounted
   box) below the ceiling; linear pendants are sized for T5 lamps (IEC 60081: 1149 and 1449 mm
   tubes): 1.15-1.6 m long, 60-300 mm wide, 40-100 mm deep, on two cables 0.3-0.9 m long.
+  Under a suspended ceiling most panels are lay-in troffers (``TROFFER_FRACTION`` of those rooms):
+  set into the tiles, their louvre 30-120 mm above the tiles' underside (parabolic louvres are
+  50-80 mm deep; the ceiling lights of the 12 shared S3DIS rooms lie 3-14 cm above their ceiling
+  plane), housings 60-100 mm deep above that, the opening lined by a 5 mm trim.
   Downlights: trims 120-250 mm across, 5-30 mm proud, spacing 1.2-1.8 m.
 - air terminals: square ceiling diffusers of the usual face sizes (300-625 mm, sized to the
   ceiling module), 20-60 mm of stepped cones below the ceiling; one per 10-20 m2 of office
@@ -72,6 +76,13 @@ MOUNTS = ("floor", "ceiling")
 FOLDER_HEIGHT_M = 0.375  # one "OH": the height of a row of lever-arch files with its shelf
 MIN_CLEAR_UNDER_FIXTURE_M = 2.1  # nothing under a ceiling hangs lower (see the module docs)
 CABLE_M = 0.004  # a pendant's suspension cable (drawn square)
+# a lay-in troffer in a suspended ceiling: its louvre above the tiles' underside (parabolic louvres
+# 50-80 mm deep; the ceiling lights of the shared S3DIS rooms lie 3-14 cm above their ceiling
+# plane), its housing above that, a trim lining the opening
+TROFFER_RECESS_M = (0.03, 0.12)
+TROFFER_HOUSING_M = (0.06, 0.1)
+TROFFER_FRACTION = 0.8  # of the rooms with panel lights under a suspended ceiling: lay-in, not surface
+TRIM_M = 0.005
 # ceiling grid modules (EN 13964), width x depth in metres
 CEILING_MODULES_M = ((0.6, 0.6), (0.625, 0.625), (1.2, 0.3), (1.25, 0.3125), (1.5, 0.3), (1.2, 0.6))
 
@@ -307,6 +318,24 @@ def make_ceiling_light(rng: np.random.Generator, headroom_m: float, against_wall
     b.box((-width / 2, -depth / 2, 0.0), (width / 2, depth / 2, height))
     if diffuser:
         b.box((-width / 2 + 0.03, -depth / 2 + 0.03, -diffuser), (width / 2 - 0.03, depth / 2 - 0.03, 0.0))
+    return _finish(b, "Fixture.Luminaire")
+
+
+def recessed_troffer(rng: np.random.Generator, panel: ClutterObject) -> ClutterObject:
+    """``panel`` (a ceiling light's panel) as a lay-in troffer set into a suspended ceiling: its
+    louvre or diffuser ``TROFFER_RECESS_M`` above the ceiling's underside (z = 0 here), the
+    opening lined by a trim, the housing above. The ceiling is cut where it stands (placement)."""
+    width, depth = panel.size_m[0], panel.size_m[1]
+    recess, housing = rng.uniform(*TROFFER_RECESS_M), rng.uniform(*TROFFER_HOUSING_M)
+    b = MeshBuilder()
+    b.box((-width / 2, -depth / 2, recess), (width / 2, depth / 2, recess + housing))
+    t = TRIM_M
+    for sx in (-1, 1):  # the trim lines the opening, from the ceiling's underside up to the louvre
+        b.box((sx * width / 2 - (t if sx > 0 else 0.0), -depth / 2, 0.0),
+              (sx * width / 2 + (t if sx < 0 else 0.0), depth / 2, recess))
+    for sy in (-1, 1):
+        b.box((-width / 2 + t, sy * depth / 2 - (t if sy > 0 else 0.0), 0.0),
+              (width / 2 - t, sy * depth / 2 + (t if sy < 0 else 0.0), recess))
     return _finish(b, "Fixture.Luminaire")
 
 

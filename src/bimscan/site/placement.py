@@ -24,13 +24,20 @@ generator, so a room's objects do not depend on the other rooms.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from bimscan.site.floor import Prober, RoomFloor
-from bimscan.site.library import MIN_CLEAR_UNDER_FIXTURE_M, ClutterKind, ClutterObject
+from bimscan.site.library import (
+    MIN_CLEAR_UNDER_FIXTURE_M,
+    TROFFER_FRACTION,
+    ClutterKind,
+    ClutterObject,
+    recessed_troffer,
+)
 from bimscan.site.shapes import yaw_matrix
 
 GAP_M = 0.03  # between objects, and between an object's back and the wall it stands against
@@ -44,7 +51,11 @@ COMPANION_CHAIR = 0.8  # chance that a desk gets a chair in front of it
 PROP_SPACING_M = 1.5  # back-propping grid under slabs (typically 1.2-1.8 m)
 MOUNT_GAP_M = 0.002  # between a ceiling object's top and the ceiling
 MAX_CEILING_M = 12.0  # a soffit further above the floor is no room's ceiling (an atrium, the sky)
-NUDGES_M = ((0.0, 0.0), (0.3, 0.0), (-0.3, 0.0), (0.0, 0.3), (0.0, -0.3))  # tries aside of a grid point
+MAX_COVERING_M = 0.1  # a ceiling board thicker than this is no suspended ceiling to set a troffer in
+LAY_IN_MAX_M = 0.2  # a ceiling light this deep is a pendant, not a panel
+# tries aside of a grid point (past a beam, or past a fixture of another kind at the same point)
+NUDGES_M = ((0.0, 0.0), (0.45, 0.0), (-0.45, 0.0), (0.0, 0.45), (0.0, -0.45),
+            (0.9, 0.0), (-0.9, 0.0), (0.0, 0.9), (0.0, -0.9))
 
 
 @dataclass(frozen=True)
@@ -64,6 +75,7 @@ class PlacedObject:
     faces: np.ndarray
     footprint: np.ndarray
     base_z: float  # for a ceiling object: the height of its lowest point
+    opening: bool = False  # set into a suspended ceiling: the ceiling is cut at its footprint
 
 
 @dataclass
@@ -166,9 +178,10 @@ class RoomPlacer:
                     count += 1
         return count
 
-    def place_ceiling_grid(self, kind: ClutterKind, soffits: np.ndarray) -> int:
+    def place_ceiling_grid(self, kind: ClutterKind, soffits: np.ndarray, coverings: np.ndarray) -> int:
         """Objects of a ceiling kind on an even grid over the room (see the module docs); returns how
-        many. soffits: (components,) bool, what a fixture may hang from (coverings, slabs, roofs)."""
+        many. soffits: (components,) bool, what a fixture may hang from (coverings, slabs, roofs);
+        coverings: the ceiling coverings, where panel lights are mostly set in (lay-in troffers)."""
         room = self.room
         inside = self._centres[room.inside]
         if len(inside) == 0:
@@ -179,29 +192,44 @@ class RoomPlacer:
         xs = lo[0] + (np.arange(counts[0]) + 0.5) * (hi[0] - lo[0]) / counts[0]
         ys = lo[1] + (np.arange(counts[1]) + 0.5) * (hi[1] - lo[1]) / counts[1]
         nodes = np.array([(x, y) for x in xs for y in ys])
-        ceiling = self._ceiling_above(nodes, soffits)
+        ceiling, component = self._ceiling_above(nodes, soffits)
         found = np.isfinite(ceiling)
         if not found.any():
             return 0
         clear = float(np.percentile(ceiling[found] - room.level_z, 25))
-        obj = kind.make(self.rng, clear, False)
+        obj = kind.make(self.rng, clear - LEVEL_M - MOUNT_GAP_M, False)  # the soffit varies by LEVEL_M
         if obj is None:
             return 0
         yaw = math.pi / 2 * int(self.rng.integers(2))  # long luminaires along or across the room
+        set_in = (kind.name == "ceiling_light" and obj.size_m[2] < LAY_IN_MAX_M
+                  and coverings[component[found]].mean() > 0.5 and self.rng.random() < TROFFER_FRACTION)
+        if set_in:
+            count = self._ceiling_grid(kind, recessed_troffer(self.rng, obj), nodes[found], yaw, coverings, True)
+            if count:
+                return count
+            # no void above the tiles for a housing (a ceiling fixed to the soffit): mounted on it
+        return self._ceiling_grid(kind, obj, nodes[found], yaw, soffits, False)
+
+    def _ceiling_grid(self, kind: ClutterKind, obj: ClutterObject, nodes: np.ndarray, yaw: float,
+                      soffits: np.ndarray, set_in: bool) -> int:
         count = 0
-        for node in nodes[found]:
+        for node in nodes:
             for nudge in NUDGES_M:
                 pose = _Pose(node + np.asarray(nudge), yaw)
-                top = self._ceiling_fits(obj, pose, soffits)
-                if top is not None:
-                    self._commit(kind, obj, pose, top - obj.size_m[2], on_ceiling=True)
+                if set_in:
+                    base = self._lay_in_fits(obj, pose, soffits)
+                else:
+                    top = self._ceiling_fits(obj, pose, soffits)
+                    base = None if top is None else top - obj.size_m[2]
+                if base is not None:
+                    self._commit(kind, obj, pose, base, on_ceiling=True, opening=set_in)
                     count += 1
                     break
         return count
 
-    def _ceiling_above(self, xy_room: np.ndarray, soffits: np.ndarray) -> np.ndarray:
-        """The height of the soffit over each room-frame point (N, 2), NaN where there is none: outside
-        the room, inside a solid, under a beam or open to the sky."""
+    def _ceiling_above(self, xy_room: np.ndarray, soffits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The height of the soffit over each room-frame point (N, 2), NaN where there is none (outside
+        the room, inside a solid, under a beam or open to the sky), and its component (-1: none)."""
         room = self.room
         cells = [self._cell_of(c) for c in xy_room]
         origins = np.column_stack([room.to_world(xy_room), np.full(len(xy_room), room.level_z + MIN_CLEAR_UNDER_FIXTURE_M)])
@@ -209,20 +237,48 @@ class RoomPlacer:
         ok = np.array([j >= 0 and room.inside[j, i] for j, i in cells], dtype=bool)
         ok &= (component >= 0) & (t < MAX_CEILING_M - MIN_CLEAR_UNDER_FIXTURE_M)
         ok[ok] = soffits[component[ok]] & ~self.prober.inside_solid(origins[ok])
-        return np.where(ok, origins[:, 2] + np.where(ok, t, 0.0), np.nan)
+        return np.where(ok, origins[:, 2] + np.where(ok, t, 0.0), np.nan), np.where(ok, component, -1)
+
+    def _lay_in_fits(self, obj: ClutterObject, pose: _Pose, coverings: np.ndarray) -> float | None:
+        """The height of the ceiling's underside where a lay-in troffer goes (its z = 0), or None when
+        the ceiling there is not one level covering, too thin a void above it holds the housing, or
+        the housing would meet the model or another fixture."""
+        if any(_overlap(self._footprint(obj, pose, GAP_M), other) for other in self._ceiling_rects):
+            return None
+        points = np.vstack([pose.centre[None], self._footprint(obj, pose)])
+        ceiling, component = self._ceiling_above(points, coverings)
+        if not np.isfinite(ceiling).all() or ceiling.max() - ceiling.min() > LEVEL_M:
+            return None
+        underside = float(ceiling.min())
+        world = np.column_stack([self.room.to_world(points), ceiling + 0.001])
+        up = np.tile([0.0, 0.0, 1.0], (len(points), 1))
+        thickness, inside = self.prober.cast(world, up)  # the covering's top face, met from inside
+        if not (inside == component).all() or thickness.max() > MAX_COVERING_M:
+            return None
+        above = world.copy()
+        above[:, 2] += thickness + 0.002
+        void, _ = self.prober.cast(above, up)
+        top_of_covering = float((ceiling + 0.001 + thickness).max())
+        if underside + obj.size_m[2] > float((above[:, 2] + void).min()) - MOUNT_GAP_M:
+            return None  # the housing does not fit under the slab
+        housing = dataclasses.replace(obj, size_m=(obj.size_m[0], obj.size_m[1],
+                                                   underside + obj.size_m[2] - top_of_covering - 0.002))
+        if housing.size_m[2] > 0 and self._box_hits(housing, pose, top_of_covering + 0.002, spanning=True):
+            return None
+        return underside
 
     def _ceiling_fits(self, obj: ClutterObject, pose: _Pose, soffits: np.ndarray) -> float | None:
         """The height of the object's top under the ceiling, or None when the pose collides."""
+        grown = self._footprint(obj, pose, GAP_M)
+        if any(_overlap(grown, other) for other in self._ceiling_rects):
+            return None
         corners = self._footprint(obj, pose)
-        ceiling = self._ceiling_above(np.vstack([pose.centre[None], corners]), soffits)
+        ceiling, _ = self._ceiling_above(np.vstack([pose.centre[None], corners]), soffits)
         if not np.isfinite(ceiling).all() or ceiling.max() - ceiling.min() > LEVEL_M:
             return None
         top = float(ceiling.min()) - MOUNT_GAP_M
         bottom = top - obj.size_m[2]
         if bottom < self.room.level_z + MIN_CLEAR_UNDER_FIXTURE_M:
-            return None
-        grown = self._footprint(obj, pose, GAP_M)
-        if any(_overlap(grown, other) for other in self._ceiling_rects):
             return None
         if any(t > bottom - GAP_M and _overlap(grown, rect) for rect, t in zip(self.rects, self._tops)):
             return None  # something on the floor reaches up to it
@@ -368,7 +424,7 @@ class RoomPlacer:
         return yaw_matrix(self.room.angle_rad + pose.yaw)
 
     def _commit(self, kind: ClutterKind, obj: ClutterObject, pose: _Pose, base: float, *,
-                on_ceiling: bool = False) -> PlacedObject:
+                on_ceiling: bool = False, opening: bool = False) -> PlacedObject:
         room = self.room
         rect = self._footprint(obj, pose)
         vertices = obj.vertices @ self._rotation(pose).T
@@ -376,7 +432,7 @@ class RoomPlacer:
         vertices[:, 2] += base
         placed = PlacedObject(kind=kind.name, class_name=obj.class_name, room=room.name, room_key=room.key,
                               storey=room.storey, vertices=vertices, faces=obj.faces, footprint=room.to_world(rect),
-                              base_z=base)
+                              base_z=base, opening=opening)
         if on_ceiling:
             self._ceiling_rects.append(rect)
         else:

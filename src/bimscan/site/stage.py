@@ -102,8 +102,7 @@ def _missing_walls(scene: BimScene, keep: np.ndarray, fraction: float, seed: int
 def open_ceilings(scene: BimScene, keep: np.ndarray, fraction: float, seed: int) -> SceneMesh:
     """The scene's mesh with the ceilings cut along the grid and a fraction of their bays removed."""
     components = scene.components
-    ceilings = component_mask(scene, ("IfcCovering",)) & keep & np.array(
-        [t.upper() == "CEILING" for t in components.predefined_type.tolist()], dtype=bool)
+    ceilings = ceiling_coverings(scene) & keep
     mesh = scene.mesh
     if fraction <= 0 or not ceilings.any():
         return mesh
@@ -134,6 +133,68 @@ def open_ceilings(scene: BimScene, keep: np.ndarray, fraction: float, seed: int)
         vertices=np.concatenate([mesh.vertices] + new_vertices) if new_vertices else mesh.vertices,
         faces=faces.astype(np.int32),
         face_component=np.concatenate([mesh.face_component[kept], np.array(new_component, dtype=np.int32)]),
+    )
+
+
+def ceiling_coverings(scene: BimScene) -> np.ndarray:
+    """(C,) bool: the ceiling coverings (IfcCovering, PredefinedType CEILING)."""
+    return component_mask(scene, ("IfcCovering",)) & np.array(
+        [t.upper() == "CEILING" for t in scene.components.predefined_type.tolist()], dtype=bool)
+
+
+def cut_openings(mesh: SceneMesh, cut: np.ndarray, openings: list[np.ndarray]) -> SceneMesh:
+    """The mesh with vertical rectangular openings cut through the components in ``cut`` ((C,) bool):
+    every opening is a rectangle of 4 world xy corners (in order, any orientation), and each of
+    those components' triangles that it meets is replaced by the parts of it outside the opening
+    (a ceiling tile's underside and top alike, so a fitting set into it is seen through it)."""
+    if not openings or not cut.any():
+        return mesh
+    rects = []
+    for corners in openings:
+        edge = corners[1] - corners[0]
+        angle = float(np.arctan2(edge[1], edge[0]))
+        c, s = np.cos(angle), np.sin(angle)
+        to_local = np.array([[c, s], [-s, c]])  # world xy -> the rectangle's axes
+        local = corners @ to_local.T
+        rects.append((to_local, local.min(axis=0), local.max(axis=0), corners.min(axis=0), corners.max(axis=0)))
+    corners3 = mesh.vertices[mesh.faces]
+    lo, hi = corners3[:, :, :2].min(axis=1), corners3[:, :, :2].max(axis=1)
+    touched = np.zeros(len(mesh.faces), dtype=bool)
+    candidates = np.flatnonzero(cut[mesh.face_component])
+    for _, _, _, rlo, rhi in rects:
+        touched[candidates] |= ((lo[candidates] < rhi) & (hi[candidates] > rlo)).all(axis=1)
+    new_vertices: list[np.ndarray] = []
+    new_faces: list[np.ndarray] = []
+    new_component: list[int] = []
+    count = len(mesh.vertices)
+    for f in np.flatnonzero(touched):
+        pieces = [corners3[f]]
+        for to_local, (x0, y0), (x1, y1), rlo, rhi in rects:
+            if (lo[f] >= rhi).any() or (hi[f] <= rlo).any():
+                continue
+            kept = []
+            for piece in pieces:
+                local = piece.copy()
+                local[:, :2] = piece[:, :2] @ to_local.T
+                for bounds in ((-np.inf, x0, -np.inf, np.inf), (x1, np.inf, -np.inf, np.inf),
+                               (x0, x1, -np.inf, y0), (x0, x1, y1, np.inf)):
+                    part = _clip(local, *bounds)
+                    if len(part) >= 3:
+                        part[:, :2] = part[:, :2] @ to_local  # back to world xy
+                        kept.append(part)
+            pieces = kept
+        for piece in pieces:
+            new_vertices.append(piece)
+            for k in range(1, len(piece) - 1):
+                new_faces.append(np.array([count, count + k, count + k + 1]))
+                new_component.append(int(mesh.face_component[f]))
+            count += len(piece)
+    kept_faces = ~touched
+    return SceneMesh(
+        vertices=np.concatenate([mesh.vertices] + new_vertices) if new_vertices else mesh.vertices,
+        faces=np.concatenate([mesh.faces[kept_faces]] + ([np.array(new_faces, dtype=np.int32)] if new_faces else []))
+        .astype(np.int32),
+        face_component=np.concatenate([mesh.face_component[kept_faces], np.array(new_component, dtype=np.int32)]),
     )
 
 
