@@ -18,8 +18,13 @@ up from ``MIN_CLEAR_UNDER_FIXTURE_M`` above the floor, at its centre and its cor
 same ceiling, covering, slab or roof soffit level within ``LEVEL_M`` (not a beam, a wall top or
 the sky); the object then hangs ``MOUNT_GAP_M`` under the lowest of them, clears every object on
 the floor under it, crosses no other ceiling object and no ray through its box meets the model.
-A point that fails is tried a little aside (``NUDGES_M``). All draws come from the room's own
-generator, so a room's objects do not depend on the other rooms.
+Panel lights under a suspended ceiling are mostly set into it (lay-in troffers): the point must
+then lie under one level ceiling covering no thicker than ``MAX_COVERING_M`` with a void above it
+deep enough for the housing (rays up through the tile and on), and the covering is cut at the
+footprint (``stage.cut_openings``); where no point has such a void (a ceiling fixed to the
+soffit), the room's panels are mounted on it instead. A point that fails is tried aside
+(``NUDGES_M``). All draws come from the room's own generator, so a room's objects do not depend
+on the other rooms.
 """
 
 from __future__ import annotations
