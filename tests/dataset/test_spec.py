@@ -172,3 +172,46 @@ def test_the_shipped_example_specs_load(tmp_path: Path) -> None:
         pytest.skip("the SPC-scale example uses the shared sample models, absent here")
     spec = load_spec(spc)
     assert len(spec.scenes) == 22 and len(spec.unit_ids()) == 132
+
+
+def test_a_spec_takes_what_it_does_not_set_from_its_base_with_the_base_s_paths(spec_folder: Path) -> None:
+    base = _write(spec_folder, GOOD.replace('formats = ["laz", "ply"]', 'formats = ["laz", "ply"]\nclutter = { density = 0.3 }'))
+    other = spec_folder / "companions"
+    other.mkdir()
+    (other / "empty.toml").write_text('base = "../spec.toml"\nname = "empty"\nclutter = { density = 0.0 }\n')
+    parent, child = load_spec(base), load_spec(other / "empty.toml")
+    assert child.name == "empty" and child.seed == 7 and child.formats == ("laz", "ply")
+    assert child.scenes == parent.scenes  # the base's IFC and station files, relative to the base
+    assert child.scenes[0].ifc == str((spec_folder / "models" / "room.ifc").resolve())
+    assert parent.site(parent.configs[0]).clutter.density == 0.3
+    assert child.site(child.configs[0]).clutter.density == 0.0  # a key set here replaces the base's
+    (other / "one.toml").write_text('base = "../spec.toml"\n[[scenes]]\nname = "g"\ngenerate = { seed = 1 }\n')
+    assert [s.name for s in load_spec(other / "one.toml").scenes] == ["g"]
+
+
+@pytest.mark.parametrize("text, error, message", [
+    ('base = "spec.toml"\n', ConfigError, "names this file itself"),
+    ('base = "nowhere.toml"\n', InputFileError, "base spec not found"),
+    ('base = 3\n', ConfigError, "expected the path of another dataset spec"),
+    ('base = "middle.toml"\n', ConfigError, "has a base of its own"),
+])
+def test_a_bad_base_is_one_clear_error(spec_folder: Path, text: str, error: type, message: str) -> None:
+    (spec_folder / "root.toml").write_text(GOOD)
+    (spec_folder / "middle.toml").write_text('base = "root.toml"\n')
+    with pytest.raises(error, match=message):
+        load_spec(_write(spec_folder, text))
+
+
+def test_the_companion_sim2real_specs_scan_the_same_units_as_their_base() -> None:
+    root = Path(__file__).resolve().parents[2] / "configs"
+    base = load_spec(root / "sim2real_cpu_dataset.toml")
+    for name, change in (("empty", {"clutter": 0.0}), ("full", {"realism": "full"})):
+        companion = load_spec(root / f"sim2real_cpu_dataset_{name}.toml")
+        assert companion.scenes == base.scenes and companion.configs == base.configs
+        assert companion.name != base.name
+        recipe = companion.recipe(companion.scenes[0], companion.configs[0])
+        original = base.recipe(base.scenes[0], base.configs[0])
+        if "clutter" in change:
+            assert recipe.site.is_bare and not original.site.is_bare and recipe.sensor == original.sensor
+        else:
+            assert companion.realism == "full" and recipe.sensor != original.sensor and recipe.site == original.site

@@ -43,6 +43,13 @@ A spec is one TOML file (paths inside it are relative to the file)::
     stage = "enclosed"            # optional: the construction stage (bimscan.site), a name or a table
     clutter = { density = 0.2, kinds = ["site", "people"] }   # optional: clutter on the floors
 
+A spec can start from another: ``base = "other.toml"`` (relative to this file) takes every
+top-level key of that spec (its scenes and configurations too) that this file does not set; a
+key this file sets replaces the base's whole (``clutter = { density = 0.0 }`` takes clutter out,
+``[[scenes]]`` here replace the base's scenes). Paths the base holds stay relative to the base
+file. A base cannot have a base of its own. Companion datasets (the same buildings without
+clutter, or scanned with other sensor settings) so name their scenes once.
+
 A top-level ``stage`` and ``clutter`` are the defaults of every configuration. A top-level
 ``stages = ["structure", "enclosed", "finished"]`` (names or tables) sweeps the stages: every
 configuration becomes one per stage, named ``<config>.<stage>`` (unit ``<scene>__<config>.<stage>``).
@@ -177,8 +184,55 @@ def load_spec(path: str | Path) -> DatasetSpec:
     InputFileError (the spec, an IFC or a station file is missing), naming the place in the file.
     """
     path = Path(path)
-    data = load_toml(path)
+    data = _with_base(load_toml(path), path)
     return parse_spec(data, base=path.resolve().parent, where=str(path))
+
+
+def _with_base(data: dict[str, Any], path: Path) -> dict[str, Any]:
+    """``data`` over its ``base`` spec (see the module docs), the base's relative paths made absolute."""
+    if "base" not in data:
+        return data
+    if not isinstance(data["base"], str) or not data["base"]:
+        raise ConfigError(f"{path} base: expected the path of another dataset spec (.toml)")
+    base_path = (path.resolve().parent / data["base"]).resolve()
+    if base_path == path.resolve():
+        raise ConfigError(f"{path} base: names this file itself; name another dataset spec")
+    if not base_path.is_file():
+        raise InputFileError(f"{base_path}: base spec not found; fix the path in {path}")
+    base = load_toml(base_path)
+    if "base" in base:
+        raise ConfigError(f"{path} base: {base_path.name} has a base of its own; name the spec at the root")
+    folder = base_path.parent
+
+    def local(value: Any) -> Any:  # a file next to the base (a registry name stays as it is)
+        return _local_path(value, folder) if isinstance(value, str) else value
+
+    inherited = {k: v for k, v in base.items() if k not in data}
+    for key in ("scheme", "scanner"):
+        if key in inherited:
+            inherited[key] = local(inherited[key])
+    if isinstance(inherited.get("sensor"), dict):
+        inherited["sensor"] = _local_sensor(inherited["sensor"], folder)
+    if isinstance(inherited.get("scenes"), list):
+        inherited["scenes"] = [_scene_paths(raw, folder) for raw in inherited["scenes"]]
+    if isinstance(inherited.get("configs"), list):
+        inherited["configs"] = [
+            {**raw, **({"preset": local(raw["preset"])} if "preset" in raw else {}),
+             **({"sensor": _local_sensor(raw["sensor"], folder)} if isinstance(raw.get("sensor"), dict) else {})}
+            if isinstance(raw, dict) else raw for raw in inherited["configs"]]
+    return inherited | {k: v for k, v in data.items() if k != "base"}
+
+
+def _scene_paths(raw: Any, folder: Path) -> Any:
+    """A base's ``[[scenes]]`` table with its IFC and station files absolute (relative to ``folder``)."""
+    if not isinstance(raw, dict):
+        return raw
+    out = dict(raw)
+    if isinstance(out.get("ifc"), str):
+        out["ifc"] = str((folder / out["ifc"]).resolve())
+    if isinstance(out.get("stations"), str) and out["stations"] != AUTO_STATIONS:
+        out["stations"] = str((folder / out["stations"]).resolve())
+    return out
 
 
 def parse_spec(data: dict[str, Any], *, base: Path, where: str) -> DatasetSpec:
