@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 from bimscan.cli.main import main
-from bimscan.errors import ConfigError, InputFileError
+from bimscan.errors import ConfigError, InputFileError, LearnError
 from bimscan.io.text import write_text_cloud
 from bimscan.learn.experiment import load_experiment, run_experiment
 
@@ -118,6 +118,11 @@ def test_a_tiny_experiment_runs_end_to_end_and_resumes(experiment_dir: Path) -> 
     assert not any("training" in m for m in messages)
     assert again["variants"][1]["pooled"] == summary["variants"][1]["pooled"]
     assert any("0 built, 1 already done" in m for m in messages)
+
+    # once the data changes, the finished variants no longer stand for it: refused before training
+    (experiment_dir / "spec.toml").write_text(SPEC.replace("head_deg_per_s = 180.0", "head_deg_per_s = 170.0"))
+    with pytest.raises(LearnError, match="trained on other synthetic data"):
+        run_experiment(load_experiment(experiment_dir / "exp.toml"), out, log=lambda text: None)
 
 
 @pytest.mark.parametrize(("patch", "message"), [

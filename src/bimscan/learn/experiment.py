@@ -24,6 +24,7 @@ Layout of ``OUT_DIR``::
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import json
 import math
@@ -45,6 +46,7 @@ from bimscan.toml_files import build_dataclass, load_toml
 TRAINING_SECTIONS = ("blocks", "input", "augment", "model", "train")
 VARIANT_KEYS = {"name", "data", "description", *TRAINING_SECTIONS}
 TOP_KEYS = {"experiment", "real", "variants", *TRAINING_SECTIONS}
+DATA_RECORD = "synthetic_data.digest"  # in a variant's folder: the data its model was trained on
 REAL_KEYS = {"scenes", "label_field", "mapping"}
 EXPERIMENT_KEYS = {"name", "class_names", "workers", "base"}
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9+][A-Za-z0-9._+-]{0,63}$")
@@ -240,8 +242,6 @@ def _fingerprint(variant: Variant, out: Path) -> str:
 
     config = dump_config(training_config(variant, out))
     config["train"] = {k: v for k, v in config["train"].items() if k not in ("device", "num_workers", "out_dir")}
-    import hashlib
-
     return hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
@@ -257,6 +257,7 @@ def run_experiment(
     out.mkdir(parents=True, exist_ok=True)
     _check_same_experiment(experiment, out)
     _build_datasets(experiment, out, emit)
+    _check_same_data(experiment, out)
     results = []
     for variant in experiment.variants:
         results.append(_run_variant(experiment, variant, out, emit))
@@ -289,6 +290,37 @@ def _check_same_experiment(experiment: Experiment, out: Path) -> None:
                 )
         current["variants"] = {**stored.get("variants", {}), **current["variants"]}
     write_atomic(record, (json.dumps(current, indent=2) + "\n").encode("utf-8"))
+
+
+def _data_digest(variant: Variant, out: Path) -> str:
+    """What a variant trains on: every finished unit of its datasets with its fingerprint (the
+    recipe, scene, scheme and software its bytes came from)."""
+    from bimscan.dataset.layout import DatasetFolder
+
+    digest = hashlib.sha256()
+    for root in training_config(variant, out).data.train:
+        folder = DatasetFolder(root)
+        digest.update(f"{root}\n".encode())
+        if folder.is_dataset():
+            for unit in folder.read_manifest().done():
+                digest.update(f"{unit.id}:{folder.read_unit(unit.id).fingerprint}\n".encode())
+    return digest.hexdigest()[:16]
+
+
+def _check_same_data(experiment: Experiment, out: Path) -> None:
+    """A variant's model and scores stand for the data it was trained on: once its datasets change
+    (another spec, scheme or software), its folder must go before it is run again."""
+    for variant in experiment.variants:
+        folder = out / "variants" / variant.name
+        record = folder / DATA_RECORD
+        digest = _data_digest(variant, out)
+        if record.is_file():
+            if record.read_text(encoding="utf-8").strip() != digest:
+                raise LearnError(f"{folder}: variant {variant.name!r} was trained on other synthetic data (its dataset "
+                                 f"changed since); delete {folder} to rerun it, or use another OUT_DIR")
+        else:  # a new variant, or one run before this record existed
+            folder.mkdir(parents=True, exist_ok=True)
+            write_atomic(record, (digest + "\n").encode("utf-8"))
 
 
 def _build_datasets(experiment: Experiment, out: Path, emit: Callable[[str], None]) -> None:
