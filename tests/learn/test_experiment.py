@@ -186,6 +186,7 @@ def test_the_shipped_companion_experiments_match_the_ablation() -> None:
             config = variant.config
             assert config.model == recipe.model and config.blocks.size_m == recipe.blocks.size_m, variant.name
             assert config.train.max_lr == recipe.train.max_lr, variant.name
+            assert config.train.cpu_threads == recipe.train.cpu_threads == 2, variant.name  # comparable sums
             if name != "sim2real_cpu_scale.toml":  # the scale rows set their epochs to equal steps
                 assert config.train.epochs == recipe.train.epochs, variant.name
     seeds = load_experiment(configs / "sim2real_cpu_seeds.toml")
@@ -242,3 +243,21 @@ def test_missing_real_scenes_of_a_base_name_the_base_file(experiment_dir: Path) 
     base_file = re.escape(str((experiment_dir / "exp.toml").resolve()))
     with pytest.raises(InputFileError, match=rf"fix \[real\] scenes in {base_file} or"):
         load_experiment(experiment_dir / "more" / "exp.toml")
+
+
+def test_cpu_threads_are_set_for_training_and_checked() -> None:
+    import torch
+
+    from bimscan.learn.train import use_cpu_threads
+    from bimscan.learn.train_config import TrainConfig
+
+    before = torch.get_num_threads()
+    try:
+        use_cpu_threads(1)
+        assert torch.get_num_threads() == 1
+        use_cpu_threads(0)  # 0 leaves PyTorch's count as it is
+        assert torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(before)
+    with pytest.raises(ValueError, match="cpu_threads must be >= 0"):
+        TrainConfig(cpu_threads=-1)

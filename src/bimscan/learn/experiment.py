@@ -346,7 +346,7 @@ def _run_variant(experiment: Experiment, variant: Variant, out: Path, emit: Call
     from bimscan.learn.checkpoint import read_checkpoint
     from bimscan.learn.evaluate import evaluate_checkpoint, pool_confusion, write_evaluation
     from bimscan.learn.mapping import load_label_mapping
-    from bimscan.learn.train import train_model
+    from bimscan.learn.train import train_model, use_cpu_threads
 
     folder = out / "variants" / variant.name
     result_path = folder / "result.json"
@@ -362,6 +362,7 @@ def _run_variant(experiment: Experiment, variant: Variant, out: Path, emit: Call
         emit(f"variant {variant.name}: training{' (resuming after epoch ' + str(done) + ')' if done else ''}")
         train_model(config, base_dir=experiment.path.parent, out_dir=train_dir, resume=last.is_file(), log=emit)
     emit(f"variant {variant.name}: evaluating on {len(experiment.real)} real path(s)")
+    use_cpu_threads(config.train.cpu_threads)  # the scores, too, are sums in thread order
     mapping = None if experiment.real_mapping is None else load_label_mapping(experiment.real_mapping)
     evaluations = evaluate_checkpoint(
         last, experiment.real, label_field=experiment.real_label_field, mapping=mapping,

@@ -353,6 +353,12 @@ def _metric_row(prefix: str, confusion: torch.Tensor | None, loss_sum: float, po
     return row
 
 
+def use_cpu_threads(threads: int) -> None:
+    """PyTorch's intra-op threads (0: leave its default); see ``TrainConfig.cpu_threads``."""
+    if threads > 0:
+        torch.set_num_threads(threads)
+
+
 def train_model(
     config: TrainRunConfig, *, base_dir: Path, out_dir: Path | None = None, resume: bool = False,
     on_step_end: Callable[[int, int], None] | None = None, log: Callable[[str], None] | None = None,
@@ -365,6 +371,7 @@ def train_model(
     Run under ``torchrun`` for DDP; every process calls this function.
     """
     settings = config.train
+    use_cpu_threads(settings.cpu_threads)
     ctx = init_distributed(settings.device)
     try:
         with flush_denormals():

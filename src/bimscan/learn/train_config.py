@@ -196,7 +196,10 @@ class TrainConfig:
     ``amp``: "float16" (Table 2's AMP with GradScaler; the default), "bfloat16" (no scaler
     needed: bf16 has float32's range) or "off". AMP applies on CUDA only; CPU runs use float32.
     ``device``: "auto" (CUDA when present), "cpu", "cuda". ``out_dir`` holds the checkpoints,
-    ``metrics.csv`` and ``curves.png``.
+    ``metrics.csv`` and ``curves.png``. ``cpu_threads``: PyTorch's threads for the CPU's work
+    (0: PyTorch's default, one per core). A CPU run's float sums are ordered by its thread count, so
+    the same seed gives the same model only at the same count (and PyTorch build): set it where
+    results are to be compared across machines.
     """
 
     epochs: int = 100
@@ -214,6 +217,7 @@ class TrainConfig:
     eval_batch_size: int = 8
     seed: int = 0
     device: Literal["auto", "cpu", "cuda"] = "auto"
+    cpu_threads: int = 0
     out_dir: str = "runs/train"
     # class-balanced loss: per-class weights from the training points' class frequencies f_c,
     # "inverse" 1/f_c, "inverse_sqrt" 1/sqrt(f_c) (milder), normalised to mean 1; "none": the paper
@@ -223,8 +227,8 @@ class TrainConfig:
         for name in ("epochs", "batch_size", "accumulation_steps", "eval_batch_size"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
-        if self.num_workers < 0:
-            raise ValueError(f"num_workers must be >= 0, got {self.num_workers}")
+        if self.num_workers < 0 or self.cpu_threads < 0:
+            raise ValueError(f"num_workers and cpu_threads must be >= 0, got {self.num_workers}, {self.cpu_threads}")
         if not self.max_lr > 0 or self.weight_decay < 0:
             raise ValueError(f"max_lr must be > 0 and weight_decay >= 0, got {self.max_lr}, {self.weight_decay}")
         if not 0.0 < self.pct_start < 1.0:
