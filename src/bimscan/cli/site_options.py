@@ -24,7 +24,7 @@ def site_options(command: Callable[..., Any]) -> Callable[..., Any]:
                           "an office holds as much furniture as the real S3DIS rooms at about 0.75)."),
         click.option("--clutter-kinds", default=None,
                      help=f"Comma-separated kinds ({', '.join(CLUTTER_KINDS)}) or groups ({', '.join(GROUPS)}). "
-                          "Default: by stage (finished: office,people; earlier: site,people)."),
+                          "Default: by stage (finished: office,ceiling,people; earlier: site,people)."),
         click.option("--stage", default="finished", show_default=True, type=click.Choice(list(STAGES)),
                      help="Construction stage: structure (slabs, walls, columns, beams, stairs), enclosed "
                           "(+ windows, doors), finished (everything)."),

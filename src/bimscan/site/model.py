@@ -95,9 +95,11 @@ class ClutterSettings:
     """Clutter and temporary works on the floors.
 
     density: objects per square metre of free floor (0 = none). kinds: kind names of the clutter
-    library (``chair``, ``scaffold_tower``, ...) or groups (``office``, ``site``, ``people``);
-    empty: chosen by the stage (``finished``: office furniture and people; earlier stages:
-    site items, temporary works and people).
+    library (``chair``, ``ceiling_light``, ``scaffold_tower``, ...) or groups (``office``,
+    ``ceiling``, ``site``, ``people``); empty: chosen by the stage (``finished``: office furniture,
+    fixtures under the ceilings and people; earlier stages: site items, temporary works and
+    people). Ceiling kinds are laid out on a grid per room when the density is above 0, and not
+    counted in it.
     """
 
     density: float = 0.0
