@@ -128,6 +128,7 @@ class ClutterKind:
     mount: str = "floor"
     spacing_m: tuple[float, float] = (0.0, 0.0)
     room_probability: float = 1.0
+    lay_in: bool = False  # its panels are set into suspended ceilings (``recessed_troffer``) where they can
 
 
 def _finish(builder: MeshBuilder, class_name: str, *, on_floor: bool = True) -> ClutterObject:
@@ -626,7 +627,7 @@ CLUTTER_KINDS: dict[str, ClutterKind] = {k.name: k for k in (
                 ((1.2, 2.4), (0.08, 0.6), (1.75, 2.2)), make_whiteboard),
     ClutterKind("ceiling_light", "ceiling", ("Fixture.Luminaire",), 0.0, 0.0, False,
                 ((0.3, 1.6), (0.06, 0.625), (0.012, 1.0)), make_ceiling_light,
-                mount="ceiling", spacing_m=(1.8, 2.7), room_probability=0.9),
+                mount="ceiling", spacing_m=(1.8, 2.7), room_probability=0.9, lay_in=True),
     ClutterKind("downlight", "ceiling", ("Fixture.Luminaire",), 0.0, 0.0, False,
                 ((0.11, 0.25), (0.11, 0.25), (0.005, 0.03)), make_downlight,
                 mount="ceiling", spacing_m=(1.2, 1.8), room_probability=0.25),

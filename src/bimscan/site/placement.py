@@ -206,7 +206,7 @@ class RoomPlacer:
         if obj is None:
             return 0
         yaw = math.pi / 2 * int(self.rng.integers(2))  # long luminaires along or across the room
-        set_in = (kind.name == "ceiling_light" and obj.size_m[2] < LAY_IN_MAX_M
+        set_in = (kind.lay_in and obj.size_m[2] < LAY_IN_MAX_M
                   and coverings[component[found]].mean() > 0.5 and self.rng.random() < TROFFER_FRACTION)
         if set_in:
             count = self._ceiling_grid(kind, recessed_troffer(self.rng, obj), nodes[found], yaw, coverings, True)
