@@ -15,7 +15,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
-from bimscan.errors import ConfigError
+from bimscan.errors import ConfigError, InputFileError
 from bimscan.files import check_input_file
 
 T = TypeVar("T")
@@ -115,3 +115,18 @@ def _coerce(value: Any, hint: Any, *, where: str) -> Any:
             raise ConfigError(f"{where}: expected a table, got {value!r}")
         return dict(value)
     return value
+
+
+def base_file(value: Any, path: Path, *, where: str, kind: str) -> Path:
+    """The file that the ``base`` key (at ``where`` in ``path``) names, relative to ``path``'s folder
+    (``~`` expanded), checked: text, not ``path`` itself, present. ``kind``: what the file must be
+    (for the messages). Experiment files and dataset specs both start from a base this way."""
+    if not isinstance(value, str) or not value:
+        raise ConfigError(f"{path} {where}: expected the path of another {kind}")
+    candidate = Path(value).expanduser()
+    resolved = (candidate if candidate.is_absolute() else path.resolve().parent / candidate).resolve()
+    if resolved == path.resolve():
+        raise ConfigError(f"{path} {where}: names this file itself; name another {kind}")
+    if not resolved.is_file():
+        raise InputFileError(f"{resolved}: {where} not found; fix the path in {path}")
+    return resolved

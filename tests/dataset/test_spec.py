@@ -191,7 +191,7 @@ def test_a_spec_takes_what_it_does_not_set_from_its_base_with_the_base_s_paths(s
 
 @pytest.mark.parametrize("text, error, message", [
     ('base = "spec.toml"\n', ConfigError, "names this file itself"),
-    ('base = "nowhere.toml"\n', InputFileError, "base spec not found"),
+    ('base = "nowhere.toml"\n', InputFileError, "base not found"),
     ('base = 3\n', ConfigError, "expected the path of another dataset spec"),
     ('base = "middle.toml"\n', ConfigError, "has a base of its own"),
 ])

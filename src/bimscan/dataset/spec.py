@@ -78,7 +78,7 @@ from bimscan.scan.noise import NoiseModel
 from bimscan.scan.recipe import AUTO_STATIONS, DEFAULT_MAX_STATION_PULSES, ScanRecipe
 from bimscan.scan.sensor import merge_sensor_tables
 from bimscan.site.model import ClutterSettings, SiteModel, StageSettings, stage_table
-from bimscan.toml_files import build_dataclass, load_toml
+from bimscan.toml_files import base_file, build_dataclass, load_toml
 from bimscan.types import LabelScheme
 
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
@@ -192,13 +192,7 @@ def _with_base(data: dict[str, Any], path: Path) -> dict[str, Any]:
     """``data`` over its ``base`` spec (see the module docs), the base's relative paths made absolute."""
     if "base" not in data:
         return data
-    if not isinstance(data["base"], str) or not data["base"]:
-        raise ConfigError(f"{path} base: expected the path of another dataset spec (.toml)")
-    base_path = (path.resolve().parent / data["base"]).resolve()
-    if base_path == path.resolve():
-        raise ConfigError(f"{path} base: names this file itself; name another dataset spec")
-    if not base_path.is_file():
-        raise InputFileError(f"{base_path}: base spec not found; fix the path in {path}")
+    base_path = base_file(data["base"], path, where="base", kind="dataset spec (.toml)")
     base = load_toml(base_path)
     if "base" in base:
         raise ConfigError(f"{path} base: {base_path.name} has a base of its own; name the spec at the root")
@@ -216,11 +210,20 @@ def _with_base(data: dict[str, Any], path: Path) -> dict[str, Any]:
     if isinstance(inherited.get("scenes"), list):
         inherited["scenes"] = [_scene_paths(raw, folder) for raw in inherited["scenes"]]
     if isinstance(inherited.get("configs"), list):
-        inherited["configs"] = [
-            {**raw, **({"preset": local(raw["preset"])} if "preset" in raw else {}),
-             **({"sensor": _local_sensor(raw["sensor"], folder)} if isinstance(raw.get("sensor"), dict) else {})}
-            if isinstance(raw, dict) else raw for raw in inherited["configs"]]
+        inherited["configs"] = [_config_paths(raw, folder) for raw in inherited["configs"]]
     return inherited | {k: v for k, v in data.items() if k != "base"}
+
+
+def _config_paths(raw: Any, folder: Path) -> Any:
+    """A base's ``[[configs]]`` table with its preset and material table files absolute."""
+    if not isinstance(raw, dict):
+        return raw
+    out = dict(raw)
+    if isinstance(out.get("preset"), str):
+        out["preset"] = _local_path(out["preset"], folder)
+    if isinstance(out.get("sensor"), dict):
+        out["sensor"] = _local_sensor(out["sensor"], folder)
+    return out
 
 
 def _scene_paths(raw: Any, folder: Path) -> Any:

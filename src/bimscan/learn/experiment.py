@@ -41,7 +41,7 @@ from bimscan.errors import ConfigError, InputFileError, LearnError
 from bimscan.files import write_atomic
 from bimscan.learn.metrics import METRIC_NAMES, compute_metrics
 from bimscan.learn.train_config import TrainRunConfig, resolve_path
-from bimscan.toml_files import build_dataclass, load_toml
+from bimscan.toml_files import base_file, build_dataclass, load_toml
 
 TRAINING_SECTIONS = ("blocks", "input", "augment", "model", "train")
 VARIANT_KEYS = {"name", "data", "description", *TRAINING_SECTIONS}
@@ -198,13 +198,7 @@ def _with_base(data: dict[str, Any], path: Path) -> dict[str, Any]:
     head = data.get("experiment", {})
     if not isinstance(head, dict) or "base" not in head:
         return data
-    if not isinstance(head["base"], str) or not head["base"]:
-        raise ConfigError(f"{path} [experiment] base: expected the path of another experiment file")
-    base_path = resolve_path(path.resolve().parent, head["base"]).resolve()
-    if base_path == path.resolve():
-        raise ConfigError(f"{path} [experiment] base: names this file itself; name another experiment file")
-    if not base_path.is_file():
-        raise InputFileError(f"{base_path}: [experiment] base not found; fix the path in {path}")
+    base_path = base_file(head["base"], path, where="[experiment] base", kind="experiment file")
     base = _check_keys(load_toml(base_path), TOP_KEYS, where=str(base_path))
     if "base" in base.get("experiment", {}):
         raise ConfigError(f"{path} [experiment] base: {base_path.name} has a base of its own; name the file at the root")

@@ -114,13 +114,13 @@ def dress_scene_timed(scene: BimScene, site: SiteModel, *, seed: int,
                 if rng.random() < kind.room_probability:
                     placer.place_ceiling_grid(kind, soffits, coverings)
             placed += placer.placed
+        openings = [p.footprint for p in placed if p.opening]
+        if openings:  # lay-in fittings: the ceiling tiles are cut where they sit
+            staged = dataclasses.replace(staged, mesh=cut_openings(staged.mesh, coverings, openings))
         placement_s = time.perf_counter() - t0
     state = SiteState(settings=site_settings(site, seed), removed=dict(sorted(removed.items())),
                       placed=dict(sorted(Counter(p.class_name for p in placed).items())), rooms=rooms_count,
                       free_floor_m2=free_floor)
-    openings = [p.footprint for p in placed if p.opening]
-    if openings:  # lay-in fittings: the ceiling tiles are cut where they sit
-        staged = dataclasses.replace(staged, mesh=cut_openings(staged.mesh, ceiling_coverings(staged), openings))
     dressed = _append(staged, placed, seed=seed)
     return dataclasses.replace(dressed, site=state), DressTimings(stage_s, floor_s, placement_s, rooms_count)
 

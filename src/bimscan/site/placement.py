@@ -244,16 +244,26 @@ class RoomPlacer:
         ok[ok] = soffits[component[ok]] & ~self.prober.inside_solid(origins[ok])
         return np.where(ok, origins[:, 2] + np.where(ok, t, 0.0), np.nan), np.where(ok, component, -1)
 
+    def _level_soffit(self, obj: ClutterObject, pose: _Pose, points: np.ndarray,
+                      soffits: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """The soffit's height and component over ``points`` (the pose's centre and corners), or None
+        when the pose meets another ceiling object or the soffit there is missing or not level."""
+        if any(_overlap(self._footprint(obj, pose, GAP_M), other) for other in self._ceiling_rects):
+            return None
+        ceiling, component = self._ceiling_above(points, soffits)
+        if not np.isfinite(ceiling).all() or ceiling.max() - ceiling.min() > LEVEL_M:
+            return None
+        return ceiling, component
+
     def _lay_in_fits(self, obj: ClutterObject, pose: _Pose, coverings: np.ndarray) -> float | None:
         """The height of the ceiling's underside where a lay-in troffer goes (its z = 0), or None when
         the ceiling there is not one level covering, too thin a void above it holds the housing, or
         the housing would meet the model or another fixture."""
-        if any(_overlap(self._footprint(obj, pose, GAP_M), other) for other in self._ceiling_rects):
-            return None
         points = np.vstack([pose.centre[None], self._footprint(obj, pose)])
-        ceiling, component = self._ceiling_above(points, coverings)
-        if not np.isfinite(ceiling).all() or ceiling.max() - ceiling.min() > LEVEL_M:
+        found = self._level_soffit(obj, pose, points, coverings)
+        if found is None:
             return None
+        ceiling, component = found
         underside = float(ceiling.min())
         world = np.column_stack([self.room.to_world(points), ceiling + 0.001])
         up = np.tile([0.0, 0.0, 1.0], (len(points), 1))
@@ -274,17 +284,14 @@ class RoomPlacer:
 
     def _ceiling_fits(self, obj: ClutterObject, pose: _Pose, soffits: np.ndarray) -> float | None:
         """The height of the object's top under the ceiling, or None when the pose collides."""
-        grown = self._footprint(obj, pose, GAP_M)
-        if any(_overlap(grown, other) for other in self._ceiling_rects):
+        found = self._level_soffit(obj, pose, np.vstack([pose.centre[None], self._footprint(obj, pose)]), soffits)
+        if found is None:
             return None
-        corners = self._footprint(obj, pose)
-        ceiling, _ = self._ceiling_above(np.vstack([pose.centre[None], corners]), soffits)
-        if not np.isfinite(ceiling).all() or ceiling.max() - ceiling.min() > LEVEL_M:
-            return None
-        top = float(ceiling.min()) - MOUNT_GAP_M
+        top = float(found[0].min()) - MOUNT_GAP_M
         bottom = top - obj.size_m[2]
         if bottom < self.room.level_z + MIN_CLEAR_UNDER_FIXTURE_M:
             return None
+        grown = self._footprint(obj, pose, GAP_M)
         if any(t > bottom - GAP_M and _overlap(grown, rect) for rect, t in zip(self.rects, self._tops)):
             return None  # something on the floor reaches up to it
         return None if self._box_hits(obj, pose, bottom, spanning=True) else top

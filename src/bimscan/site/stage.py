@@ -108,10 +108,7 @@ def open_ceilings(scene: BimScene, keep: np.ndarray, fraction: float, seed: int)
         return mesh
     xs, ys = _grid_lines(scene, keep, ceilings)
     is_ceiling = ceilings[mesh.face_component]
-    new_vertices: list[np.ndarray] = []
-    new_faces: list[np.ndarray] = []
-    new_component: list[int] = []
-    count = len(mesh.vertices)
+    pieces: list[tuple[np.ndarray, int]] = []
     for f in np.flatnonzero(is_ceiling):
         component = int(mesh.face_component[f])
         triangle = mesh.vertices[mesh.faces[f]]
@@ -120,17 +117,26 @@ def open_ceilings(scene: BimScene, keep: np.ndarray, fraction: float, seed: int)
                 if unit_draw(seed, "bay", components.global_id[component], ix, iy) < fraction:
                     continue  # an open bay: no panel here
                 polygon = _clip(triangle, bx0, bx1, by0, by1)
-                if len(polygon) < 3:
-                    continue
-                new_vertices.append(polygon)
-                for k in range(1, len(polygon) - 1):
-                    new_faces.append(np.array([count, count + k, count + k + 1]))
-                    new_component.append(component)
-                count += len(polygon)
-    kept = ~is_ceiling
+                if len(polygon) >= 3:
+                    pieces.append((polygon, component))
+    return _replace_faces(mesh, is_ceiling, pieces)
+
+
+def _replace_faces(mesh: SceneMesh, removed: np.ndarray, pieces: list[tuple[np.ndarray, int]]) -> SceneMesh:
+    """The mesh less the ``removed`` faces ((F,) bool), plus each piece (a convex polygon (k, 3) of
+    its component) as a fan of triangles, in order."""
+    new_faces: list[np.ndarray] = []
+    new_component: list[int] = []
+    count = len(mesh.vertices)
+    for polygon, component in pieces:
+        for k in range(1, len(polygon) - 1):
+            new_faces.append(np.array([count, count + k, count + k + 1]))
+            new_component.append(component)
+        count += len(polygon)
+    kept = ~removed
     faces = np.concatenate([mesh.faces[kept]] + ([np.array(new_faces, dtype=np.int32)] if new_faces else []))
     return SceneMesh(
-        vertices=np.concatenate([mesh.vertices] + new_vertices) if new_vertices else mesh.vertices,
+        vertices=np.concatenate([mesh.vertices] + [p for p, _ in pieces]) if pieces else mesh.vertices,
         faces=faces.astype(np.int32),
         face_component=np.concatenate([mesh.face_component[kept], np.array(new_component, dtype=np.int32)]),
     )
@@ -157,45 +163,34 @@ def cut_openings(mesh: SceneMesh, cut: np.ndarray, openings: list[np.ndarray]) -
         to_local = np.array([[c, s], [-s, c]])  # world xy -> the rectangle's axes
         local = corners @ to_local.T
         rects.append((to_local, local.min(axis=0), local.max(axis=0), corners.min(axis=0), corners.max(axis=0)))
-    corners3 = mesh.vertices[mesh.faces]
-    lo, hi = corners3[:, :, :2].min(axis=1), corners3[:, :, :2].max(axis=1)
-    touched = np.zeros(len(mesh.faces), dtype=bool)
     candidates = np.flatnonzero(cut[mesh.face_component])
+    corners3 = mesh.vertices[mesh.faces[candidates]]
+    lo, hi = corners3[:, :, :2].min(axis=1), corners3[:, :, :2].max(axis=1)
+    meets = np.zeros(len(candidates), dtype=bool)
     for _, _, _, rlo, rhi in rects:
-        touched[candidates] |= ((lo[candidates] < rhi) & (hi[candidates] > rlo)).all(axis=1)
-    new_vertices: list[np.ndarray] = []
-    new_faces: list[np.ndarray] = []
-    new_component: list[int] = []
-    count = len(mesh.vertices)
-    for f in np.flatnonzero(touched):
-        pieces = [corners3[f]]
+        meets |= ((lo < rhi) & (hi > rlo)).all(axis=1)
+    pieces: list[tuple[np.ndarray, int]] = []
+    for j in np.flatnonzero(meets):
+        parts = [corners3[j]]
         for to_local, (x0, y0), (x1, y1), rlo, rhi in rects:
-            if (lo[f] >= rhi).any() or (hi[f] <= rlo).any():
+            if (lo[j] >= rhi).any() or (hi[j] <= rlo).any():
                 continue
-            kept = []
-            for piece in pieces:
-                local = piece.copy()
-                local[:, :2] = piece[:, :2] @ to_local.T
+            outside = []
+            for part in parts:
+                local = part.copy()
+                local[:, :2] = part[:, :2] @ to_local.T
                 for bounds in ((-np.inf, x0, -np.inf, np.inf), (x1, np.inf, -np.inf, np.inf),
                                (x0, x1, -np.inf, y0), (x0, x1, y1, np.inf)):
-                    part = _clip(local, *bounds)
-                    if len(part) >= 3:
-                        part[:, :2] = part[:, :2] @ to_local  # back to world xy
-                        kept.append(part)
-            pieces = kept
-        for piece in pieces:
-            new_vertices.append(piece)
-            for k in range(1, len(piece) - 1):
-                new_faces.append(np.array([count, count + k, count + k + 1]))
-                new_component.append(int(mesh.face_component[f]))
-            count += len(piece)
-    kept_faces = ~touched
-    return SceneMesh(
-        vertices=np.concatenate([mesh.vertices] + new_vertices) if new_vertices else mesh.vertices,
-        faces=np.concatenate([mesh.faces[kept_faces]] + ([np.array(new_faces, dtype=np.int32)] if new_faces else []))
-        .astype(np.int32),
-        face_component=np.concatenate([mesh.face_component[kept_faces], np.array(new_component, dtype=np.int32)]),
-    )
+                    piece = _clip(local, *bounds)
+                    if len(piece) >= 3:
+                        piece[:, :2] = piece[:, :2] @ to_local  # back to world xy
+                        outside.append(piece)
+            parts = outside
+        component = int(mesh.face_component[candidates[j]])
+        pieces += [(part, component) for part in parts]
+    removed = np.zeros(len(mesh.faces), dtype=bool)
+    removed[candidates[meets]] = True
+    return _replace_faces(mesh, removed, pieces)
 
 
 def _grid_lines(scene: BimScene, keep: np.ndarray, ceilings: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
