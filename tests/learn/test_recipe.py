@@ -13,7 +13,7 @@ from bimscan.io.text import write_text_cloud
 from bimscan.learn.augment import augment_points
 from bimscan.learn.data import TileDataset, collect_scene_tiles, list_scenes
 from bimscan.learn.density import grid_representatives, grid_sample, voxel_index
-from bimscan.learn.features import estimate_normals, extra_features, floor_height
+from bimscan.learn.features import estimate_normals, extra_features, floor_height, local_geometry
 from bimscan.learn.train import class_weights_from_labels, compute_loss
 from bimscan.learn.train_config import DEFAULT_CLASS_NAMES, AugmentConfig, BlockConfig, InputConfig
 from bimscan.types import PointCloud
@@ -117,6 +117,27 @@ def test_features_height_and_normals() -> None:
     assert extra_features(floor, features=("xyz",), floor_z=0.0, height_scale_m=3.0, neighbours=8) is None
     z = np.r_[np.full(10_000, 2.0), -50.0]  # one stray point far below the floor
     assert floor_height(z) == pytest.approx(2.0)
+
+
+def test_shape_features_tell_planes_lines_and_scatter_apart() -> None:
+    rng = np.random.default_rng(1)
+    plane = np.column_stack([rng.random(400) * 2, rng.random(400) * 2, np.full(400, 1.0)])
+    line = np.column_stack([10.0 + rng.random(400) * 2, np.zeros(400), np.full(400, 1.0)])
+    blob = 20.0 + rng.normal(0.0, 0.1, (400, 3))  # an isotropic heap
+    points = np.concatenate([plane, line, blob])
+    normals, shape = local_geometry(points, neighbours=16)
+    assert np.allclose(shape.sum(axis=1), 1.0, atol=1e-5)
+    assert np.allclose(normals, estimate_normals(points, neighbours=16))
+    linearity, planarity, scattering = shape.T
+    assert np.all(scattering[:400] < 1e-6) and np.median(planarity[:400]) > np.median(linearity[:400])
+    assert np.all(linearity[400:800] > 0.999)
+    assert np.median(scattering[800:]) > 0.3 and np.median(scattering[800:]) > 5 * np.median(scattering[:400] + 1e-9)
+    # the same points in another order: the same features, point for point
+    order = rng.permutation(len(points))
+    assert np.allclose(local_geometry(points[order], neighbours=16)[1], shape[order], atol=1e-6)
+    extra = extra_features(points, features=("xyz", "normals", "shape"), floor_z=0.0, height_scale_m=3.0, neighbours=16)
+    assert extra.shape == (1200, 6) and np.allclose(extra[:, 3:], shape)
+    assert local_geometry(points[:2], neighbours=16)[1].shape == (2, 3)
 
 
 def test_class_weights_and_the_weighted_loss() -> None:

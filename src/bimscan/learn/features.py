@@ -11,13 +11,19 @@
   neighbourhood covariance), sign chosen with n_z >= 0 (a scan's normals have no reliable
   sign). Estimated after augmentation from the very points the network sees, identically for
   synthetic and real blocks.
+- ``shape``: the dimensionality features of the same neighbourhood (Demantke et al. 2011;
+  Weinmann et al. 2015, "Semantic point cloud interpretation based on optimal neighborhoods"):
+  with the covariance's eigenvalues l1 >= l2 >= l3, linearity (l1 - l2) / l1, planarity
+  (l2 - l3) / l1 and scattering l3 / l1 (they sum to 1). A wall or a slab is planar, a chair
+  leg or a cable linear, a plant or a heap of clutter scattered: what a normal alone does not
+  say. Computed with the normals from one neighbour search.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-FEATURE_CHANNELS = {"xyz": 3, "height": 1, "normals": 3}
+FEATURE_CHANNELS = {"xyz": 3, "height": 1, "normals": 3, "shape": 3}
 FLOOR_PERCENTILE = 0.1
 
 
@@ -33,11 +39,15 @@ def floor_height(z: np.ndarray) -> float:
     return float(np.percentile(np.asarray(z, dtype=np.float64), FLOOR_PERCENTILE))
 
 
-def estimate_normals(xyz: np.ndarray, *, neighbours: int) -> np.ndarray:
-    """(M, 3) float32 unit normals of (M, 3) points, n_z >= 0; zeros when M < 3."""
+def local_geometry(xyz: np.ndarray, *, neighbours: int) -> tuple[np.ndarray, np.ndarray]:
+    """Normals and dimensionality features of (M, 3) points from their ``neighbours`` nearest.
+
+    Returns (M, 3) float32 unit normals (n_z >= 0) and (M, 3) float32 linearity, planarity,
+    scattering; zeros for both when M < 3 (and shape zeros where a neighbourhood is one point).
+    """
     m = len(xyz)
     if m < 3:
-        return np.zeros((m, 3), dtype=np.float32)
+        return np.zeros((m, 3), dtype=np.float32), np.zeros((m, 3), dtype=np.float32)
     from scipy.spatial import cKDTree
 
     k = min(neighbours, m)
@@ -45,10 +55,19 @@ def estimate_normals(xyz: np.ndarray, *, neighbours: int) -> np.ndarray:
     patch = xyz[index]  # (M, k, 3)
     patch = patch - patch.mean(axis=1, keepdims=True)
     covariance = np.einsum("mki,mkj->mij", patch, patch)
-    _, vectors = np.linalg.eigh(covariance)  # ascending eigenvalues
+    values, vectors = np.linalg.eigh(covariance)  # ascending eigenvalues
     normals = vectors[:, :, 0]
     normals *= np.where(normals[:, 2:3] < 0, -1.0, 1.0)
-    return normals.astype(np.float32)
+    smallest, middle, largest = (np.clip(values[:, i], 0.0, None) for i in range(3))
+    scale = np.where(largest > 0, largest, 1.0)
+    shape = np.stack([(largest - middle) / scale, (middle - smallest) / scale, smallest / scale], axis=1)
+    shape[largest <= 0] = 0.0
+    return normals.astype(np.float32), shape.astype(np.float32)
+
+
+def estimate_normals(xyz: np.ndarray, *, neighbours: int) -> np.ndarray:
+    """(M, 3) float32 unit normals of (M, 3) points, n_z >= 0; zeros when M < 3."""
+    return local_geometry(xyz, neighbours=neighbours)[0]
 
 
 def extra_features(
@@ -59,9 +78,12 @@ def extra_features(
     ``xyz`` must hold absolute z (x and y may be relative: only their differences matter).
     """
     parts = []
+    geometry = None
     for name in features[1:]:
         if name == "height":
             parts.append(((xyz[:, 2:3] - floor_z) / height_scale_m).astype(np.float32))
-        elif name == "normals":
-            parts.append(estimate_normals(xyz, neighbours=neighbours))
+        elif name in ("normals", "shape"):
+            if geometry is None:
+                geometry = local_geometry(xyz, neighbours=neighbours)
+            parts.append(geometry[0] if name == "normals" else geometry[1])
     return np.concatenate(parts, axis=1) if parts else None

@@ -100,7 +100,7 @@ class BlockConfig:
         return int(round(self.size_m / self.eval_stride_m))
 
 
-FEATURE_NAMES = ("xyz", "height", "normals")  # see bimscan.learn.features
+FEATURE_NAMES = ("xyz", "height", "normals", "shape")  # see bimscan.learn.features
 
 
 @dataclass(frozen=True)
@@ -109,8 +109,9 @@ class InputConfig:
 
     ``grid_m``: density normalisation, one point per voxel of this size before blocking
     (:mod:`bimscan.learn.density`); 0 = off (the paper: raw points). ``features``: ``xyz``
-    first, optionally ``height`` (above the scene's floor, / ``height_scale_m``) and
-    ``normals`` (PCA of ``normal_neighbours`` neighbours among the block's points)
+    first, optionally ``height`` (above the scene's floor, / ``height_scale_m``),
+    ``normals`` (PCA of ``normal_neighbours`` neighbours among the block's points) and
+    ``shape`` (linearity, planarity, scattering of the same neighbourhood)
     (:mod:`bimscan.learn.features`). Defaults: the sim-to-real recipe measured in the README;
     the paper's baseline is ``grid_m = 0.0``, ``features = ["xyz"]``.
     """
