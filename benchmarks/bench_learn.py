@@ -11,7 +11,8 @@ Rows, measured side by side in one run:
   2 cores (PERFORMANCE.md), so off by default.
 - CUDA, full model, when a GPU is visible: AMP float16 with GradScaler as in training, and
   bfloat16; the same functions the training loop and the block runner call.
-- Block sampling (TileDataset, data side) in blocks/s, to show the loader is not the limit.
+- Block sampling (TileDataset, data side) in blocks/s of one loader process, XYZ only and with the
+  recipe's augmentations and features: what a GPU waits for unless enough workers feed it.
 
 Throughput is the best of the timed repetitions after one warm-up (first calls allocate and
 pick kernels). Peak memory: CUDA max allocated, or the process's peak RSS on CPU.
@@ -117,15 +118,21 @@ def measure(name: str, config: ModelConfig, device: torch.device, amp: str, repe
     }
 
 
-def sampling_rate(repeats: int = 200) -> float:
+def sampling_rate(repeats: int = 200, *, recipe: bool = False) -> float:
+    """Blocks/s of one loader process: the paper's block (XYZ), or the recipe's (augmentations,
+    then height, normals and shape from the block's points: what the GPU run waits for)."""
+    from bimscan.learn.train_config import AugmentConfig, InputConfig
+
     rng = np.random.default_rng(0)
     points = 16384
     tiles = TileSet(
         xyz=(rng.random((points * 8, 3)) * 4).astype(np.float32), label=rng.integers(0, 5, points * 8).astype(np.uint8),
         offsets=np.arange(9, dtype=np.int64) * points, origin=np.zeros((8, 3)), key=np.arange(8, dtype=np.int64),
         count=np.full(8, points, dtype=np.int64), scene=np.zeros(8, dtype=np.int32), scene_names=("bench",),
+        floor=np.zeros(8),
     )
-    dataset = TileDataset(tiles, points=N, seed=0)
+    dataset = (TileDataset(tiles, points=N, seed=0, inputs=InputConfig(), augment=AugmentConfig()) if recipe
+               else TileDataset(tiles, points=N, seed=0))
     start = time.perf_counter()
     for i in range(repeats):
         dataset[(i, i % 8)]
@@ -157,7 +164,9 @@ def main() -> None:
         for r in rows[1:]:
             print(f"{r['row']} on {r['device']} ({r['amp']}) / tiny on cpu: training {r['train_bps'] / base['train_bps']:.1f}x, "
                   f"inference {r['infer_bps'] / base['infer_bps']:.1f}x")
-    print(f"\nblock sampling (TileDataset, 8192 of 16384 cached points): {sampling_rate():.0f} blocks/s")
+    print(f"\nblock sampling, one loader process (TileDataset, 8192 of 16384 cached points): "
+          f"{sampling_rate():.0f} blocks/s XYZ only, {sampling_rate(20, recipe=True):.1f} blocks/s with the recipe's "
+          f"augmentations and features (each DataLoader worker adds one such process)")
 
 
 if __name__ == "__main__":
