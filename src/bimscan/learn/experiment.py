@@ -318,10 +318,12 @@ def _check_same_data(experiment: Experiment, out: Path) -> None:
 
 
 def _build_datasets(experiment: Experiment, out: Path, emit: Callable[[str], None]) -> None:
+    specs = sorted({s for v in experiment.variants for s in v.specs})
+    if not specs:  # dataset folders only: the IFC and scanning stack is not needed (nor imported)
+        return
     from bimscan.dataset.build import build_dataset
     from bimscan.dataset.spec import load_spec
 
-    specs = sorted({s for v in experiment.variants for s in v.specs})
     stems = [s.stem for s in specs]
     if len(set(stems)) != len(stems):
         raise ConfigError(f"{experiment.path}: two variant specs share a file name ({stems}); rename one")
