@@ -104,10 +104,10 @@ def test_a_tiny_experiment_runs_end_to_end_and_resumes(experiment_dir: Path) -> 
         assert sum(map(sum, result["confusion"])) == result["pooled"]["points"] > 0
     report = (out / "report.md").read_text()
     assert "| baseline |" in report and "| recipe |" in report and "IoU Beam" in report
-    # the recipe's model sees 7 channels, the baseline's 3: both were really trained as configured
+    # the recipe's model sees 10 channels (xyz, height, normals, shape), the baseline's 3: both were really trained as configured
     from bimscan.learn.checkpoint import load_trained_model
 
-    assert load_trained_model(out / "variants/recipe/train/last.pt").model.embed1.conv.in_channels == 7
+    assert load_trained_model(out / "variants/recipe/train/last.pt").model.embed1.conv.in_channels == 10
     assert load_trained_model(out / "variants/baseline/train/last.pt").model.embed1.conv.in_channels == 3
 
     # a killed run continues: the second run rebuilds nothing and retrains nothing

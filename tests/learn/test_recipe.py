@@ -95,7 +95,7 @@ def test_augmented_blocks_are_identical_for_the_same_key_and_aligned(tmp_path: P
     dataset = TileDataset(tiles, points=256, seed=0, inputs=InputConfig(grid_m=0.05), augment=AugmentConfig())
     one, two = dataset[(3, 0)], dataset[(3, 0)]
     assert all(np.array_equal(one[k], two[k]) for k in one)
-    assert one["xyz"].shape == (256, 7)
+    assert one["xyz"].shape == (256, 10)  # xyz, height, normals, shape
     other = dataset[(4, 0)]
     assert not np.array_equal(one["xyz"], other["xyz"])
     valid = one["mask"]
@@ -242,4 +242,4 @@ def test_a_config_stored_before_the_recipe_reads_back_as_the_paper_baseline() ->
     assert not old.augment.enabled
     assert old.blocks.train_columns == "scene" and old.train.class_weights == "none"
     today = parse_config(dump_config(TrainRunConfig(data=DataConfig(train=("a",)))), where="new.pt")
-    assert today.input.features == ("xyz", "height", "normals") and today.blocks.train_columns == "station"
+    assert today.input.features == ("xyz", "height", "normals", "shape") and today.blocks.train_columns == "station"

@@ -117,9 +117,9 @@ class InputConfig:
     """
 
     grid_m: float = 0.05
-    features: tuple[str, ...] = ("xyz", "height", "normals")
+    features: tuple[str, ...] = ("xyz", "height", "normals", "shape")
     height_scale_m: float = 3.0
-    normal_neighbours: int = 16
+    normal_neighbours: int = 32
 
     def __post_init__(self) -> None:
         if not self.grid_m >= 0 or self.grid_m > 1.0:
