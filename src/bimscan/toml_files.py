@@ -117,14 +117,19 @@ def _coerce(value: Any, hint: Any, *, where: str) -> Any:
     return value
 
 
+def resolve_path(base: Path, value: str) -> Path:
+    """``value`` as a path, relative to ``base`` unless absolute (``~`` expanded)."""
+    candidate = Path(value).expanduser()
+    return candidate if candidate.is_absolute() else base / candidate
+
+
 def base_file(value: Any, path: Path, *, where: str, kind: str) -> Path:
     """The file that the ``base`` key (at ``where`` in ``path``) names, relative to ``path``'s folder
     (``~`` expanded), checked: text, not ``path`` itself, present. ``kind``: what the file must be
     (for the messages). Experiment files and dataset specs both start from a base this way."""
     if not isinstance(value, str) or not value:
         raise ConfigError(f"{path} {where}: expected the path of another {kind}")
-    candidate = Path(value).expanduser()
-    resolved = (candidate if candidate.is_absolute() else path.resolve().parent / candidate).resolve()
+    resolved = resolve_path(path.resolve().parent, value).resolve()
     if resolved == path.resolve():
         raise ConfigError(f"{path} {where}: names this file itself; name another {kind}")
     if not resolved.is_file():

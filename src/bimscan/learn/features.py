@@ -59,9 +59,8 @@ def local_geometry(xyz: np.ndarray, *, neighbours: int) -> tuple[np.ndarray, np.
     normals = vectors[:, :, 0]
     normals *= np.where(normals[:, 2:3] < 0, -1.0, 1.0)
     smallest, middle, largest = (np.clip(values[:, i], 0.0, None) for i in range(3))
-    scale = np.where(largest > 0, largest, 1.0)
+    scale = np.where(largest > 0, largest, 1.0)  # a one-point neighbourhood: all three are 0, and so its shape
     shape = np.stack([(largest - middle) / scale, (middle - smallest) / scale, smallest / scale], axis=1)
-    shape[largest <= 0] = 0.0
     return normals.astype(np.float32), shape.astype(np.float32)
 
 

@@ -16,7 +16,7 @@ from typing import Literal
 
 from bimscan.errors import ConfigError
 from bimscan.semantics import DEFAULT_SCHEME, load_scheme
-from bimscan.toml_files import build_dataclass, load_toml
+from bimscan.toml_files import build_dataclass, load_toml, resolve_path
 from bimscan.types import UNLABELLED
 
 # The default classes are the default label scheme's (spc5: the paper's five), in id order.
@@ -256,12 +256,6 @@ def load_train_config(path: str | Path) -> tuple[TrainRunConfig, Path]:
     data = load_toml(path)
     config = build_dataclass(TrainRunConfig, data, where=str(path))
     return config, path.resolve().parent
-
-
-def resolve_path(base: Path, value: str) -> Path:
-    """``value`` as a path, relative to ``base`` unless absolute (``~`` expanded)."""
-    candidate = Path(value).expanduser()
-    return candidate if candidate.is_absolute() else base / candidate
 
 
 def dump_config(config: TrainRunConfig) -> dict[str, object]:
