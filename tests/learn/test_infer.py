@@ -133,3 +133,46 @@ def test_labelling_memory_does_not_grow_with_the_scene_length(tmp_path: Path, mo
     # only the stripes under the current column are in memory, not the scene (reading the
     # whole 160 m scene in one chunk instead peaks at about 4x the 40 m one)
     assert peaks[160.0] < 1.3 * peaks[40.0], peaks
+
+
+def _denormals_kept() -> bool:
+    """False while this thread flushes denormal floats to zero (NumPy sees the same CPU flag)."""
+    return bool((np.array([1e-310]) * 1.0)[0] != 0.0)
+
+
+def test_denormals_are_flushed_for_the_network_only(
+    scene: tuple[Path, PointCloud], monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Flush-to-zero speeds the network up but crashed SciPy's cKDTree (a segmentation fault on
+    some blocks): the features' neighbour search must run with it off, the forward with it on."""
+    import bimscan.learn.features as features
+    from bimscan.learn.train_config import InputConfig
+
+    torch.manual_seed(0)
+    model = build_model(5, ModelConfig(embed_dim=8, attention_layers=1, fuse_dim=16, head_dims=(16,), dropout=0.0),
+                        in_dim=6).eval()  # xyz and normals
+    seen: dict[str, list[bool]] = {"features": [], "network": []}
+    geometry, forward = features.local_geometry, model.forward
+
+    def spy_geometry(xyz: np.ndarray, *, neighbours: int) -> tuple[np.ndarray, np.ndarray]:
+        seen["features"].append(_denormals_kept())
+        return geometry(xyz, neighbours=neighbours)
+
+    def spy_forward(xyz: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+        seen["network"].append(_denormals_kept())
+        return forward(xyz, mask)
+
+    monkeypatch.setattr(features, "local_geometry", spy_geometry)
+    monkeypatch.setattr(model, "forward", spy_forward)
+    label_scene(model, list_scenes([scene[0]])[0], class_names=DEFAULT_CLASS_NAMES, blocks=BLOCKS,
+                inputs=InputConfig(grid_m=0.0, features=("xyz", "normals")))
+    assert seen["features"] and all(seen["features"])
+    assert seen["network"] and not any(seen["network"])
+    assert _denormals_kept()  # and never left on
+    from bimscan.learn.model import flush_denormals
+
+    with flush_denormals():  # nested (a benchmark timing a runner): the outer scope keeps flushing
+        with flush_denormals():
+            pass
+        assert not _denormals_kept()
+    assert _denormals_kept()

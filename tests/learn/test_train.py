@@ -261,3 +261,33 @@ def test_cycling_adam_beta1_with_the_learning_rate_is_a_setting(
 
     assert _load(cycled)["optimizer"]["param_groups"][0]["betas"][0] != 0.9  # PyTorch's default: cycled
     assert _load(fixed)["optimizer"]["param_groups"][0]["betas"][0] == 0.9
+
+
+def test_training_flushes_denormals_for_the_network_only(
+    tmp_path: Path, room_files: dict[str, list[str]], tiny_config: Callable[..., Path], monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The loader's features (SciPy's cKDTree, which crashed under flush-to-zero) run with
+    denormals kept; the network's forward with them flushed (its CPU speed)."""
+    import numpy as np
+
+    import bimscan.learn.features as features
+    from bimscan.learn.model import PCTSegmentation
+
+    kept = lambda: bool((np.array([1e-310]) * 1.0)[0] != 0.0)  # noqa: E731 - False while flushing
+    seen: dict[str, list[bool]] = {"features": [], "network": []}
+    geometry, forward = features.local_geometry, PCTSegmentation.forward
+
+    def spy_geometry(xyz: np.ndarray, *, neighbours: int) -> tuple[np.ndarray, np.ndarray]:
+        seen["features"].append(kept())
+        return geometry(xyz, neighbours=neighbours)
+
+    def spy_forward(self: PCTSegmentation, xyz: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+        seen["network"].append(kept())
+        return forward(self, xyz, mask)
+
+    monkeypatch.setattr(features, "local_geometry", spy_geometry)
+    monkeypatch.setattr(PCTSegmentation, "forward", spy_forward)
+    _run(tiny_config(tmp_path, **room_files, epochs=1))
+    assert seen["features"] and all(seen["features"])  # the recipe's normals and shape, training and validation
+    assert seen["network"] and not any(seen["network"])
+    assert kept()

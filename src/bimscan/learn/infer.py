@@ -103,7 +103,7 @@ class BlockRunner:
             raise RuntimeError("BlockRunner.votes must be set before blocks are added")
         xyz = torch.from_numpy(np.stack([b.xyz for b in self.queue])).to(self.device)
         mask = torch.from_numpy(np.stack([b.mask for b in self.queue])).to(self.device)
-        with autocast_context(self.device, self.amp):
+        with autocast_context(self.device, self.amp), flush_denormals():  # the network only (see flush_denormals)
             logits = self.model(xyz, mask)
         probs = torch.softmax(logits.float(), dim=-1).cpu().numpy()
         for block, prob in zip(self.queue, probs, strict=True):
@@ -128,13 +128,12 @@ def label_scene(
     files go to ``work_dir`` (default: the system's temporary folder). ``inputs``: what the
     network was trained on (default: the paper's raw XYZ).
     """
-    with flush_denormals():
-        return _label_scene(
-            model, source, class_names=class_names, blocks=blocks, device=torch.device(device),
-            batch_size=batch_size, amp=amp, seed=seed, max_passes=max_passes, use_labels=use_labels,
-            work_dir=work_dir, on_labels=on_labels, chunk_points=chunk_points,
-            inputs=inputs or InputConfig(grid_m=0.0, features=("xyz",)),
-        )
+    return _label_scene(
+        model, source, class_names=class_names, blocks=blocks, device=torch.device(device),
+        batch_size=batch_size, amp=amp, seed=seed, max_passes=max_passes, use_labels=use_labels,
+        work_dir=work_dir, on_labels=on_labels, chunk_points=chunk_points,
+        inputs=inputs or InputConfig(grid_m=0.0, features=("xyz",)),
+    )
 
 
 def _label_scene(

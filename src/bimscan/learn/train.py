@@ -334,7 +334,7 @@ def _validate(
         xyz = torch.from_numpy(np.stack([it["xyz"] for it in items])).to(ctx.device)
         label = torch.from_numpy(np.stack([it["label"] for it in items])).to(ctx.device)
         mask = torch.from_numpy(np.stack([it["mask"] for it in items])).to(ctx.device)
-        with autocast_context(ctx.device, amp):
+        with autocast_context(ctx.device, amp), flush_denormals():
             logits = model(xyz, mask)
         loss, count = compute_loss(logits, label)
         sums += torch.stack([loss.double() * count, count.double()])
@@ -374,9 +374,8 @@ def train_model(
     use_cpu_threads(settings.cpu_threads)
     ctx = init_distributed(settings.device)
     try:
-        with flush_denormals():
-            return _train(config, settings=settings, ctx=ctx, base_dir=base_dir, out_dir=out_dir, resume=resume,
-                          on_step_end=on_step_end, log=log)
+        return _train(config, settings=settings, ctx=ctx, base_dir=base_dir, out_dir=out_dir, resume=resume,
+                      on_step_end=on_step_end, log=log)
     finally:
         if ctx.owns_group and dist.is_initialized():
             dist.destroy_process_group()
@@ -509,7 +508,7 @@ def _train(
                 mask = batch["mask"].to(ctx.device, non_blocking=True)
                 last_micro = k == accumulation - 1
                 sync = contextlib.nullcontext() if (last_micro or ctx.world == 1) else ddp_model.no_sync()
-                with sync:
+                with sync, flush_denormals():  # the network only: the loader's features run outside (see flush_denormals)
                     logits, loss, count = run_micro_batch(
                         ddp_model, xyz, label, mask, scaler=scaler, amp=settings.amp, accumulation=accumulation,
                         weight=weight,
@@ -520,7 +519,8 @@ def _train(
                 if not last_micro:
                     continue
                 last_lr = optimizer.param_groups[0]["lr"]  # the LR this step applies; finish_step moves on
-                finish_step(model, optimizer=optimizer, scaler=scaler, scheduler=scheduler, ema=ema)
+                with flush_denormals():
+                    finish_step(model, optimizer=optimizer, scaler=scaler, scheduler=scheduler, ema=ema)
                 bar.update(1)
                 if on_step_end is not None:
                     on_step_end(epoch, step)
