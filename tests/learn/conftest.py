@@ -41,6 +41,11 @@ def _box(rng: np.random.Generator, n: int, lower: tuple[float, float, float],
     return np.concatenate(parts)
 
 
+def denormals_kept() -> bool:
+    """False while this thread flushes denormal floats to zero (NumPy sees the same CPU flag as PyTorch)."""
+    return bool((np.array([1e-310]) * 1.0)[0] != 0.0)
+
+
 def make_room(seed: int, *, size_m: tuple[float, float] = (6.0, 4.0), height_m: float = 3.0,
               points_per_m2: float = 120.0, origin: tuple[float, float] = (0.0, 0.0)) -> PointCloud:
     """A labelled room point cloud (xyz float64 metres, label uint8 in the 5 default classes)."""

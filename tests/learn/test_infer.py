@@ -18,6 +18,8 @@ from bimscan.learn.metrics import compute_confusion
 from bimscan.learn.model import build_model
 from bimscan.types import PointCloud
 
+from .conftest import denormals_kept
+
 BLOCKS = BlockConfig(size_m=2.0, eval_stride_m=1.0, points=64, min_points=8, cache_points=128)
 
 
@@ -135,11 +137,6 @@ def test_labelling_memory_does_not_grow_with_the_scene_length(tmp_path: Path, mo
     assert peaks[160.0] < 1.3 * peaks[40.0], peaks
 
 
-def _denormals_kept() -> bool:
-    """False while this thread flushes denormal floats to zero (NumPy sees the same CPU flag)."""
-    return bool((np.array([1e-310]) * 1.0)[0] != 0.0)
-
-
 def test_denormals_are_flushed_for_the_network_only(
     scene: tuple[Path, PointCloud], monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -155,11 +152,11 @@ def test_denormals_are_flushed_for_the_network_only(
     geometry, forward = features.local_geometry, model.forward
 
     def spy_geometry(xyz: np.ndarray, *, neighbours: int) -> tuple[np.ndarray, np.ndarray]:
-        seen["features"].append(_denormals_kept())
+        seen["features"].append(denormals_kept())
         return geometry(xyz, neighbours=neighbours)
 
     def spy_forward(xyz: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
-        seen["network"].append(_denormals_kept())
+        seen["network"].append(denormals_kept())
         return forward(xyz, mask)
 
     monkeypatch.setattr(features, "local_geometry", spy_geometry)
@@ -168,11 +165,11 @@ def test_denormals_are_flushed_for_the_network_only(
                 inputs=InputConfig(grid_m=0.0, features=("xyz", "normals")))
     assert seen["features"] and all(seen["features"])
     assert seen["network"] and not any(seen["network"])
-    assert _denormals_kept()  # and never left on
+    assert denormals_kept()  # and never left on
     from bimscan.learn.model import flush_denormals
 
     with flush_denormals():  # nested (a benchmark timing a runner): the outer scope keeps flushing
         with flush_denormals():
             pass
-        assert not _denormals_kept()
-    assert _denormals_kept()
+        assert not denormals_kept()
+    assert denormals_kept()

@@ -23,6 +23,8 @@ from bimscan.learn.train import GlobalBatchSampler, train_model
 from bimscan.io.text import write_text_cloud
 from bimscan.types import PointCloud
 
+from .conftest import denormals_kept
+
 
 def _run(config_path: Path, **options: object) -> Path:
     config, base = load_train_config(config_path)
@@ -273,16 +275,15 @@ def test_training_flushes_denormals_for_the_network_only(
     import bimscan.learn.features as features
     from bimscan.learn.model import PCTSegmentation
 
-    kept = lambda: bool((np.array([1e-310]) * 1.0)[0] != 0.0)  # noqa: E731 - False while flushing
     seen: dict[str, list[bool]] = {"features": [], "network": []}
     geometry, forward = features.local_geometry, PCTSegmentation.forward
 
     def spy_geometry(xyz: np.ndarray, *, neighbours: int) -> tuple[np.ndarray, np.ndarray]:
-        seen["features"].append(kept())
+        seen["features"].append(denormals_kept())
         return geometry(xyz, neighbours=neighbours)
 
     def spy_forward(self: PCTSegmentation, xyz: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
-        seen["network"].append(kept())
+        seen["network"].append(denormals_kept())
         return forward(self, xyz, mask)
 
     monkeypatch.setattr(features, "local_geometry", spy_geometry)
@@ -290,4 +291,4 @@ def test_training_flushes_denormals_for_the_network_only(
     _run(tiny_config(tmp_path, **room_files, epochs=1))
     assert seen["features"] and all(seen["features"])  # the recipe's normals and shape, training and validation
     assert seen["network"] and not any(seen["network"])
-    assert kept()
+    assert denormals_kept()
