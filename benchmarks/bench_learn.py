@@ -33,7 +33,7 @@ from bimscan.learn.blocks import pad_block
 from bimscan.learn.train_config import ModelConfig, load_train_config
 from bimscan.learn.data import TileDataset, TileSet
 from bimscan.learn.infer import BlockRunner
-from bimscan.learn.model import build_model, count_parameters, flush_denormals
+from bimscan.learn.model import build_model, count_parameters
 from bimscan.learn.train import WeightEMA, finish_step, run_micro_batch
 
 N = 8192
@@ -107,9 +107,9 @@ def measure(name: str, config: ModelConfig, device: torch.device, amp: str, repe
             runner.add(block)
         runner.flush()
 
-    with flush_denormals():
-        train_s = timed(train_step, repeats=repeats, device=device)
-        infer_s = timed(infer_pass, repeats=repeats, device=device)
+    # run_micro_batch, finish_step and the runner flush denormals themselves, as in training
+    train_s = timed(train_step, repeats=repeats, device=device)
+    infer_s = timed(infer_pass, repeats=repeats, device=device)
     peak = (torch.cuda.max_memory_allocated(device) / 2**30 if device.type == "cuda"
             else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20)
     return {

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 
 from bimscan.errors import BimscanError
 from bimscan.io.s3dis import S3DIS_CLASSES, list_s3dis_rooms, read_s3dis_room
@@ -60,8 +61,6 @@ def main(checkpoint: str, rooms_path: str) -> None:
         np.add.at(counts, (source_class, predicted), 1)
         is_wall, is_near = source_class == wall, np.isin(source_class, nearby)
         if is_wall.any() and is_near.any():
-            from scipy.spatial import cKDTree
-
             distance, _ = cKDTree(cloud.xyz[is_near]).query(cloud.xyz[is_wall])
             np.add.at(context, (np.digitize(distance, CONTEXT_BINS_M) - 1, predicted[is_wall]), 1)
     print(f"{'S3DIS class':12s}" + "".join(f"{name[:11]:>12s}" for name in trained.class_names) + f"{'points':>10s}")

@@ -40,8 +40,8 @@ import numpy as np
 from bimscan.errors import ConfigError, InputFileError, LearnError
 from bimscan.files import write_atomic
 from bimscan.learn.metrics import METRIC_NAMES, compute_metrics
-from bimscan.learn.train_config import TrainRunConfig, resolve_path
-from bimscan.toml_files import base_file, build_dataclass, load_toml
+from bimscan.learn.train_config import TrainRunConfig
+from bimscan.toml_files import base_file, build_dataclass, load_toml, resolve_path
 
 TRAINING_SECTIONS = ("blocks", "input", "augment", "model", "train")
 VARIANT_KEYS = {"name", "data", "description", *TRAINING_SECTIONS}

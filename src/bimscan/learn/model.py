@@ -20,7 +20,6 @@ in training as in evaluation. Their own outputs are meaningless and must be igno
 from __future__ import annotations
 
 import contextlib
-import threading
 from collections.abc import Iterator
 from typing import Any
 
@@ -262,29 +261,23 @@ def pick_device(setting: str) -> torch.device:
     return torch.device(setting)
 
 
-_FLUSHING = threading.local()  # the CPU flag is per thread, and so is the nesting depth
-
-
 @contextlib.contextmanager
 def flush_denormals() -> Iterator[None]:
     """Flush denormal floats to zero on the CPU while the block runs, then turn it off again.
 
     Attention weights near zero produce denormals that slow CPU kernels about tenfold; flushing
     them changes no result measurably. The setting holds for all code of the thread (NumPy and
-    SciPy too), so it is scoped to the network's forward, backward and optimizer step, never
-    left on and never around other numeric code: SciPy's cKDTree (the normals' and shape
+    SciPy too), so it is scoped to the network's forward, backward and optimizer step (the
+    functions that run them use it: ``run_micro_batch``, ``finish_step``, ``BlockRunner.flush``),
+    never left on and never around other numeric code: SciPy's cKDTree (the normals' and shape
     features' neighbour search) crashed the process with a segmentation fault on some blocks
     while it was on.
     """
-    depth = getattr(_FLUSHING, "depth", 0)
-    _FLUSHING.depth = depth + 1
     torch.set_flush_denormal(True)
     try:
         yield
     finally:
-        _FLUSHING.depth = depth
-        if depth == 0:  # nested scopes (a benchmark around a runner) leave it on for the outer one
-            torch.set_flush_denormal(False)
+        torch.set_flush_denormal(False)
 
 
 def autocast_context(device: torch.device, amp: str) -> contextlib.AbstractContextManager[Any]:

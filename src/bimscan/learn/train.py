@@ -41,7 +41,8 @@ from bimscan.errors import LearnError
 from bimscan.learn.checkpoint import (
     MODEL_KEYS, capture_rng_state, load_state, read_checkpoint, restore_rng_state, save_checkpoint,
 )
-from bimscan.learn.train_config import IGNORE_LABEL, TrainConfig, TrainRunConfig, dump_config, parse_config, resolve_path
+from bimscan.learn.train_config import IGNORE_LABEL, TrainConfig, TrainRunConfig, dump_config, parse_config
+from bimscan.toml_files import resolve_path
 from bimscan.learn.data import SceneSource, TileDataset, TileSet, list_scenes, load_or_collect_tiles
 from bimscan.learn.features import input_channels
 from bimscan.learn.mapping import load_label_mapping
@@ -223,11 +224,14 @@ def run_micro_batch(
 
     xyz (B, N, 3) float32, label (B, N) int64, mask (B, N) bool on the model's device.
     Returns (logits (B, N, C), mean loss, labelled points). The benchmark times this too.
+    Runs with denormals flushed (:func:`bimscan.learn.model.flush_denormals`): the network only,
+    never the loader's features.
     """
-    with autocast_context(xyz.device, amp):
-        logits = model(xyz, mask)
-    loss, count = compute_loss(logits, label, weight)
-    scaler.scale(loss / accumulation).backward()
+    with flush_denormals():
+        with autocast_context(xyz.device, amp):
+            logits = model(xyz, mask)
+        loss, count = compute_loss(logits, label, weight)
+        scaler.scale(loss / accumulation).backward()
     return logits, loss, count
 
 
@@ -235,15 +239,17 @@ def finish_step(
     model: nn.Module, *, optimizer: torch.optim.Optimizer, scaler: torch.amp.GradScaler,
     scheduler: torch.optim.lr_scheduler.LRScheduler | None, ema: WeightEMA | None,
 ) -> None:
-    """The optimizer step after the last micro-batch of a global batch."""
-    scaler.step(optimizer)
-    scaler.update()
-    optimizer.zero_grad(set_to_none=True)
-    if scheduler is not None:
-        scheduler.step()
-    commit_batch_statistics(model)
-    if ema is not None:
-        ema.update(model)
+    """The optimizer step after the last micro-batch of a global batch (denormals flushed, as
+    :func:`run_micro_batch`)."""
+    with flush_denormals():
+        scaler.step(optimizer)
+        scaler.update()
+        optimizer.zero_grad(set_to_none=True)
+        if scheduler is not None:
+            scheduler.step()
+        commit_batch_statistics(model)
+        if ema is not None:
+            ema.update(model)
 
 
 def _update_confusion(confusion: torch.Tensor, logits: torch.Tensor, label: torch.Tensor) -> None:
@@ -508,7 +514,7 @@ def _train(
                 mask = batch["mask"].to(ctx.device, non_blocking=True)
                 last_micro = k == accumulation - 1
                 sync = contextlib.nullcontext() if (last_micro or ctx.world == 1) else ddp_model.no_sync()
-                with sync, flush_denormals():  # the network only: the loader's features run outside (see flush_denormals)
+                with sync:
                     logits, loss, count = run_micro_batch(
                         ddp_model, xyz, label, mask, scaler=scaler, amp=settings.amp, accumulation=accumulation,
                         weight=weight,
@@ -519,8 +525,7 @@ def _train(
                 if not last_micro:
                     continue
                 last_lr = optimizer.param_groups[0]["lr"]  # the LR this step applies; finish_step moves on
-                with flush_denormals():
-                    finish_step(model, optimizer=optimizer, scaler=scaler, scheduler=scheduler, ema=ema)
+                finish_step(model, optimizer=optimizer, scaler=scaler, scheduler=scheduler, ema=ema)
                 bar.update(1)
                 if on_step_end is not None:
                     on_step_end(epoch, step)

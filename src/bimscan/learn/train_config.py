@@ -16,7 +16,7 @@ from typing import Literal
 
 from bimscan.errors import ConfigError
 from bimscan.semantics import DEFAULT_SCHEME, load_scheme
-from bimscan.toml_files import build_dataclass, load_toml, resolve_path
+from bimscan.toml_files import build_dataclass, load_toml
 from bimscan.types import UNLABELLED
 
 # The default classes are the default label scheme's (spc5: the paper's five), in id order.
