@@ -11,9 +11,10 @@ import pytest
 import torch
 
 from bimscan.io.text import write_text_cloud
-from bimscan.learn.train_config import DEFAULT_CLASS_NAMES, BlockConfig, ModelConfig
-from bimscan.learn.data import list_scenes
-from bimscan.learn.infer import label_scene
+from bimscan.learn.train_config import DEFAULT_CLASS_NAMES, BlockConfig, InputConfig, ModelConfig
+from bimscan.learn.data import iter_raw_chunks, list_scenes
+from bimscan.learn.density import grid_representatives
+from bimscan.learn.infer import _spread_votes, label_scene
 from bimscan.learn.metrics import compute_confusion
 from bimscan.learn.model import build_model
 from bimscan.types import PointCloud
@@ -66,13 +67,15 @@ def test_every_point_of_the_scene_gets_exactly_one_label(
     np.testing.assert_array_equal(result.confusion, compute_confusion(cloud.label, ordered, num_classes=5))
 
 
+@pytest.mark.parametrize("grid_m", [0.0, 0.25])
 def test_labels_do_not_depend_on_how_the_scene_is_streamed(
-    scene: tuple[Path, PointCloud], model: torch.nn.Module,
+    scene: tuple[Path, PointCloud], model: torch.nn.Module, grid_m: float,
 ) -> None:
     path, _ = scene
+    inputs = InputConfig(grid_m=grid_m, features=("xyz",))
 
-    index_a, prediction_a, _ = _label(model, path, chunk_points=777)
-    index_b, prediction_b, _ = _label(model, path, chunk_points=10**6)
+    index_a, prediction_a, _ = _label(model, path, chunk_points=777, inputs=inputs)
+    index_b, prediction_b, _ = _label(model, path, chunk_points=10**6, inputs=inputs)
 
     np.testing.assert_array_equal(prediction_a[np.argsort(index_a)], prediction_b[np.argsort(index_b)])
 
@@ -86,6 +89,51 @@ def test_a_pass_cap_labels_the_unseen_points_from_their_nearest_neighbours(
 
     assert result.nearest_filled > 0
     assert np.array_equal(np.sort(index), np.arange(len(cloud)))
+
+
+def test_points_off_the_grid_take_the_distance_weighted_votes_of_the_nearest_representatives() -> None:
+    rng = np.random.default_rng(5)
+    xyz = rng.random((3000, 3)) * [2.0, 1.5, 1.0]
+    representatives, rep_of = grid_representatives(xyz, 0.2)
+    votes = np.zeros((len(xyz), 5), np.float32)
+    votes[representatives] = rng.random((len(representatives), 5))
+    votes[representatives[::7]] = 0.0  # representatives no pass saw lend no votes
+
+    spread = _spread_votes(votes, xyz, representatives, rep_of, 3)
+
+    np.testing.assert_array_equal(spread[representatives], votes[representatives])
+    voted = representatives[votes[representatives].sum(axis=1) > 0]
+    others = np.setdiff1d(np.arange(len(xyz)), representatives)
+    distance = np.linalg.norm(xyz[others, None, :] - xyz[None, voted, :], axis=2)  # brute force
+    nearest = np.argsort(distance, axis=1)[:, :3]
+    weight = 1.0 / np.take_along_axis(distance, nearest, axis=1) ** 2
+    expected = (weight[..., None] * votes[voted][nearest]).sum(axis=1) / weight.sum(axis=1, keepdims=True)
+    np.testing.assert_allclose(spread[others], expected, rtol=1e-5)
+    # 0 neighbours: the votes of the voxel's own representative, as before
+    np.testing.assert_array_equal(_spread_votes(votes, xyz, representatives, rep_of, 0), votes[rep_of])
+
+
+def test_interpolated_labels_keep_the_representatives_and_change_only_other_points(
+    scene: tuple[Path, PointCloud],
+) -> None:
+    path, _ = scene
+    results = {}
+
+    class ByPosition(torch.nn.Module):  # a class per part of the block: labels that vary in space
+        def forward(self, xyz: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+            return torch.cat([4.0 * xyz[..., :3], torch.zeros_like(xyz[..., :2])], dim=-1)
+
+    for neighbours in (0, 3):
+        inputs = InputConfig(grid_m=0.5, features=("xyz",), label_neighbours=neighbours)
+        index, prediction, _ = _label(ByPosition(), path, inputs=inputs)
+        results[neighbours] = prediction[np.argsort(index)]
+    xyz = np.concatenate([c.xyz for c in iter_raw_chunks(list_scenes([path])[0], labels=False)])  # as read
+    representatives, rep_of = grid_representatives(xyz, 0.5)
+
+    # 0.5 m voxels fall inside the 1 m stripes: one representative per voxel in every window
+    np.testing.assert_array_equal(results[3][representatives], results[0][representatives])
+    np.testing.assert_array_equal(results[0], results[0][rep_of])  # a voxel shares one label
+    assert (results[3] != results[0]).any()  # points near other voxels' representatives move
 
 
 def test_blocks_overlap_as_configured(scene: tuple[Path, PointCloud], model: torch.nn.Module) -> None:

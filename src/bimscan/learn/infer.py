@@ -17,8 +17,9 @@ Bounded memory for scenes of tens of millions of points:
    class of their nearest voted neighbour.
 
 With density normalisation (``inputs.grid_m`` > 0, :mod:`bimscan.learn.density`) blocks are
-made of one representative point per voxel, as in training; every other point takes the
-votes of its voxel's representative, which is the same point in every block holding it.
+made of one representative point per voxel, as in training (the same point in every block
+holding the voxel); every other point takes the distance-weighted votes of its nearest
+representatives (``inputs.label_neighbours``; 0: its own voxel's representative's).
 Extra input features (height, normals) are computed per block group exactly as in training.
 
 Results reach the caller per finished stripe (``on_labels(index, prediction)``), so a
@@ -204,7 +205,7 @@ def _label_scene(
                     block_count += 1
                 runner.flush()
                 if inputs.grid_m > 0:
-                    runner.votes = runner.votes[rep_of]  # every point votes as its voxel's representative
+                    runner.votes = _spread_votes(runner.votes, xyz, representatives, rep_of, inputs.label_neighbours)
                 for s, a, b in zip(window, offsets[:-1], offsets[1:], strict=True):
                     loaded[s][1][:] += runner.votes[a:b]
                 next_column = columns[position + 1] if position + 1 < len(columns) else None
@@ -272,6 +273,39 @@ def _bucket_points(
     if total == 0 or cy_min is None or cy_max is None:
         raise LearnError(f"{source.path}: the scene holds no points; pass a non-empty cloud")
     return counts, lower, upper, (cy_min, cy_max), floor_height(z_sample)
+
+
+def _spread_votes(
+    votes: np.ndarray, xyz: np.ndarray, representatives: np.ndarray, rep_of: np.ndarray, neighbours: int,
+) -> np.ndarray:
+    """Votes for every point from the votes of the voxel representatives (see InputConfig).
+
+    votes (N, C) hold the network's votes at the representatives (zero elsewhere and at
+    representatives no pass saw). With ``neighbours`` 0 every point takes its voxel
+    representative's votes. Otherwise a representative keeps its own and every other point
+    takes sum_i w_i v_i / sum_i w_i over its ``neighbours`` nearest voted representatives,
+    w_i = 1 / max(d_i, 1 mm)^2 (Qi et al. 2017, PointNet++'s feature propagation): a point near a
+    voxel's face is labelled by the representatives around it, not only by the one point its
+    voxel kept (at 0.1 m voxels, 3.6 % of the real S3DIS points differ in class from their
+    voxel's representative, 2.9 % from their nearest one).
+    """
+    if neighbours == 0:
+        return votes[rep_of]
+    voted = representatives[votes[representatives].sum(axis=1) > 0]
+    others = np.flatnonzero(rep_of != np.arange(len(xyz)))
+    spread = np.zeros_like(votes)
+    spread[representatives] = votes[representatives]
+    if len(voted) == 0 or len(others) == 0:
+        return spread
+    from scipy.spatial import cKDTree
+
+    k = min(neighbours, len(voted))
+    distance, nearest = cKDTree(xyz[voted]).query(xyz[others], k=k)
+    distance, nearest = distance.reshape(len(others), k), nearest.reshape(len(others), k)
+    weight = 1.0 / np.maximum(distance, 1e-3) ** 2
+    weight /= weight.sum(axis=1, keepdims=True)
+    spread[others] = np.einsum("nk,nkc->nc", weight, votes[voted][nearest]).astype(votes.dtype)
+    return spread
 
 
 def _decide(

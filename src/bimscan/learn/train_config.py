@@ -113,13 +113,18 @@ class InputConfig:
     ``normals`` (PCA of ``normal_neighbours`` neighbours among the block's points) and
     ``shape`` (linearity, planarity, scattering of the same neighbourhood)
     (:mod:`bimscan.learn.features`). Defaults: the sim-to-real recipe measured in the README;
-    the paper's baseline is ``grid_m = 0.0``, ``features = ["xyz"]``.
+    the paper's baseline is ``grid_m = 0.0``, ``features = ["xyz"]``. ``label_neighbours``
+    (labelling only, with ``grid_m`` > 0): a point that is not its voxel's representative takes
+    the inverse-square-distance mean of the votes of its ``label_neighbours`` nearest
+    representatives (PointNet++'s interpolation, Qi et al. 2017); 0 = the votes of its own
+    voxel's representative.
     """
 
     grid_m: float = 0.05
     features: tuple[str, ...] = ("xyz", "height", "normals", "shape")
     height_scale_m: float = 3.0
     normal_neighbours: int = 32
+    label_neighbours: int = 3
 
     def __post_init__(self) -> None:
         if not self.grid_m >= 0 or self.grid_m > 1.0:
@@ -133,6 +138,8 @@ class InputConfig:
             raise ValueError(f"height_scale_m must be positive, got {self.height_scale_m}")
         if not 3 <= self.normal_neighbours <= 128:
             raise ValueError(f"normal_neighbours must be in 3..128, got {self.normal_neighbours}")
+        if not 0 <= self.label_neighbours <= 64:
+            raise ValueError(f"label_neighbours must be in 0..64 (0 = the voxel's representative), got {self.label_neighbours}")
 
 
 @dataclass(frozen=True)
