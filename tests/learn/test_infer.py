@@ -14,6 +14,7 @@ from bimscan.io.text import write_text_cloud
 from bimscan.learn.train_config import DEFAULT_CLASS_NAMES, BlockConfig, InputConfig, ModelConfig
 from bimscan.learn.data import iter_raw_chunks, list_scenes
 from bimscan.learn.density import grid_representatives
+from bimscan.learn import infer
 from bimscan.learn.infer import _spread_votes, label_scene
 from bimscan.learn.metrics import compute_confusion
 from bimscan.learn.model import build_model
@@ -91,7 +92,11 @@ def test_a_pass_cap_labels_the_unseen_points_from_their_nearest_neighbours(
     assert np.array_equal(np.sort(index), np.arange(len(cloud)))
 
 
-def test_points_off_the_grid_take_the_distance_weighted_votes_of_the_nearest_representatives() -> None:
+@pytest.mark.parametrize("chunk", [100, 10**6])
+def test_points_off_the_grid_take_the_distance_weighted_votes_of_the_nearest_representatives(
+    chunk: int, monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(infer, "SPREAD_CHUNK", chunk)
     rng = np.random.default_rng(5)
     xyz = rng.random((3000, 3)) * [2.0, 1.5, 1.0]
     representatives, rep_of = grid_representatives(xyz, 0.2)

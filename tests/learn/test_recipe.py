@@ -163,6 +163,8 @@ def test_input_config_rejects_bad_values() -> None:
         InputConfig(features=("height",))
     with pytest.raises(ValueError, match="at most once"):
         InputConfig(features=("xyz", "colour"))
+    with pytest.raises(ValueError, match="label_neighbours must be in 0..64"):
+        InputConfig(label_neighbours=-1)
     with pytest.raises(ValueError, match="scale_range"):
         AugmentConfig(scale_range=(1.2, 0.8))
 

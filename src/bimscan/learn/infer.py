@@ -50,6 +50,7 @@ from bimscan.progress import progress_bar
 from bimscan.types import PointCloud
 
 FLOOR_SAMPLE = 10_000  # heights kept to find the floor: memory bounded whatever the scene size
+SPREAD_CHUNK = 262_144  # points interpolated at a time (see _spread_votes)
 RECORD = np.dtype([("xyz", "<f8", (3,)), ("label", "u1"), ("index", "<i8")])
 
 
@@ -300,11 +301,17 @@ def _spread_votes(
     from scipy.spatial import cKDTree
 
     k = min(neighbours, len(voted))
-    distance, nearest = cKDTree(xyz[voted]).query(xyz[others], k=k)
-    distance, nearest = distance.reshape(len(others), k), nearest.reshape(len(others), k)
-    weight = 1.0 / np.maximum(distance, 1e-3) ** 2
-    weight /= weight.sum(axis=1, keepdims=True)
-    spread[others] = np.einsum("nk,nkc->nc", weight, votes[voted][nearest]).astype(votes.dtype)
+    tree, voted_votes = cKDTree(xyz[voted]), votes[voted]
+    for start in range(0, len(others), SPREAD_CHUNK):  # bounded memory on dense scans
+        part = others[start:start + SPREAD_CHUNK]
+        distance, nearest = tree.query(xyz[part], k=k)
+        distance, nearest = distance.reshape(len(part), k), nearest.reshape(len(part), k)
+        weight = 1.0 / np.maximum(distance, 1e-3) ** 2
+        weight /= weight.sum(axis=1, keepdims=True)
+        mean = np.zeros((len(part), votes.shape[1]))
+        for j in range(k):
+            mean += weight[:, j, None] * voted_votes[nearest[:, j]]
+        spread[part] = mean
     return spread
 
 
