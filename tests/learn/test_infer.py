@@ -3,6 +3,7 @@ nearest-neighbour filling, and results independent of how the scene is streamed.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from pathlib import Path
 
@@ -139,6 +140,24 @@ def test_interpolated_labels_keep_the_representatives_and_change_only_other_poin
     np.testing.assert_array_equal(results[3][representatives], results[0][representatives])
     np.testing.assert_array_equal(results[0], results[0][rep_of])  # a voxel shares one label
     assert (results[3] != results[0]).any()  # points near other voxels' representatives move
+
+
+def test_eval_votes_shuffle_every_column_again(scene: tuple[Path, PointCloud], model: torch.nn.Module) -> None:
+    path, cloud = scene
+    _, _, once = _label(model, path)
+    labelled = []
+
+    def keep(index: np.ndarray, prediction: np.ndarray) -> None:
+        labelled.append(index)
+
+    thrice = label_scene(model, list_scenes([path])[0], class_names=DEFAULT_CLASS_NAMES, on_labels=keep,
+                         blocks=dataclasses.replace(BLOCKS, eval_votes=3))
+
+    assert thrice.blocks == once.blocks
+    assert thrice.passes == 3 * once.passes  # every block cut into groups three times
+    assert np.array_equal(np.sort(np.concatenate(labelled)), np.arange(len(cloud)))  # each point once
+    with pytest.raises(ValueError, match="eval_votes must be in 1..64"):
+        dataclasses.replace(BLOCKS, eval_votes=0)
 
 
 def test_blocks_overlap_as_configured(scene: tuple[Path, PointCloud], model: torch.nn.Module) -> None:

@@ -13,8 +13,8 @@ Bounded memory for scenes of tens of millions of points:
    memory holds k stripes, not the scene.
 3. Within a block, the points are shuffled and cut into groups of N (the last topped up with
    other points of the block), so every point is seen once per block at the training
-   density; ``max_passes`` can cap the groups per block, and points no group saw take the
-   class of their nearest voted neighbour.
+   density, ``eval_votes`` times over with new shuffles; ``max_passes`` can cap the groups per
+   shuffle, and points no group saw take the class of their nearest voted neighbour.
 
 With density normalisation (``inputs.grid_m`` > 0, :mod:`bimscan.learn.density`) blocks are
 made of one representative point per voxel, as in training (the same point in every block
@@ -194,7 +194,9 @@ def _label_scene(
                     points = xyz[members]
                     box_lower, box_upper = points.min(axis=0), points.max(axis=0)
                     rng = np.random.default_rng(_seed(seed, column, row))
-                    for group in plan_passes(len(members), points=blocks.points, rng=rng, max_passes=max_passes):
+                    groups = [group for _ in range(blocks.eval_votes)
+                              for group in plan_passes(len(members), points=blocks.points, rng=rng, max_passes=max_passes)]
+                    for group in groups:
                         extra = extra_features(
                             points[group], features=inputs.features, floor_z=floor_z,
                             height_scale_m=inputs.height_scale_m, neighbours=inputs.normal_neighbours,

@@ -64,12 +64,16 @@ class BlockConfig:
     every epoch draws ``points`` without replacement (zero padding with a validity mask when
     the tile has fewer). Tiles with fewer than ``min_points`` points are skipped for training
     and validation. Evaluation and prediction slide the same column with ``eval_stride_m``
-    (``size_m`` must be a whole multiple of it) and vote with the summed softmax.
+    (``size_m`` must be a whole multiple of it) and vote with the summed softmax; each column's
+    points are shuffled and cut into groups of ``points`` ``eval_votes`` times, so every point is
+    voted on that many times per column, each time among another random sample of the column
+    (test-time voting over random subsamples, as RandLA-Net and KPConv vote; 1 = one pass).
     """
 
     size_m: float = 4.0
     eval_stride_m: float = 2.0
     points: int = 8192
+    eval_votes: int = 1
     min_points: int = 1024
     cache_points: int = 16384
     # training columns of scenes that record stations: "station" (each station's points apart: what
@@ -87,6 +91,8 @@ class BlockConfig:
                 f"size_m ({self.size_m}) must be a whole multiple of eval_stride_m ({self.eval_stride_m}); "
                 "e.g. 4.0 and 2.0"
             )
+        if not 1 <= self.eval_votes <= 64:
+            raise ValueError(f"eval_votes must be in 1..64, got {self.eval_votes}")
         if self.points < 16:
             raise ValueError(f"points must be at least 16, got {self.points}")
         if self.cache_points < self.points:
