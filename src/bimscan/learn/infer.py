@@ -296,8 +296,7 @@ def _spread_votes(
         return votes[rep_of]
     voted = representatives[votes[representatives].sum(axis=1) > 0]
     others = np.flatnonzero(rep_of != np.arange(len(xyz)))
-    spread = np.zeros_like(votes)
-    spread[representatives] = votes[representatives]
+    spread = votes.copy()  # the representatives keep theirs; the others' zeros are replaced below
     if len(voted) == 0 or len(others) == 0:
         return spread
     from scipy.spatial import cKDTree
