@@ -46,8 +46,9 @@ from bimscan.types import ParsedModel
 
 # Bumped whenever what the parse produces changes, so stale cache entries are never used.
 # 2: repairs and load report, STEP ids of components, failure causes, length-unit handling;
-# 3: component surface styles and materials (ifc/materials.py).
-LOADER_VERSION = 3
+# 3: component surface styles and materials (ifc/materials.py); 4: bodies in "Design" and
+# upper-case "MODEL" contexts (ArchiCAD, AutoCAD exports).
+LOADER_VERSION = 4
 
 
 def load_ifc(path: str | Path, *, use_cache: bool = True, threads: int | None = None, strict: bool = False,

@@ -56,6 +56,9 @@ _NON_BODY_IDENTIFIERS = {
     "axis", "footprint", "box", "annotation", "reference", "profile", "clearance", "lighting", "cog",
     "survey", "plan",
 }
+# Context types of 3D bodies, as IfcOpenShell's iterator reads them (ArchiCAD writes "Design",
+# AutoCAD Architecture "MODEL"); plans, outlines and sketches are 2D.
+_BODY_CONTEXT_TYPES = {"", "model", "design", "model view", "detail view"}
 _NON_BODY_TYPES = ("Curve2D", "GeometricCurveSet", "Annotation2D", "Point", "PointCloud")
 # IfcOpenShell log messages that bimscan's own reading of the text reports better (with lines).
 _COVERED = re.compile(r"Instance reference #\d+ used by|not found in schema|Expected \d+ attribute values|^\[SYN|"
@@ -145,8 +148,11 @@ def _readable_text(data: bytes, request: ParseRequest) -> Iterator[tuple[Any, st
     IfcOpenShell read the file without complaint), the file's problems and the repairs made."""
     name = request.name
     schema = step.header_schema(data) or ""
+    renamed = step.schema_edit(data)  # an older or newer schema read as its closest one
+    if renamed is not None:
+        schema = renamed.text.decode("ascii")
     known = schema in SUPPORTED_SCHEMAS or schema == "IFC4X3"
-    edits = step.quick_repairs(data, _schema_name(schema)) if known else []
+    edits = ([renamed] if renamed is not None else []) + (step.quick_repairs(data, _schema_name(schema)) if known else [])
     text = step.apply_edits(data, edits, file_sha256=request.file_sha256) if edits or data.startswith(step.BOM) else data
     with _staged(text, data, request.path) as source:
         try:
@@ -163,12 +169,13 @@ def _readable_text(data: bytes, request: ParseRequest) -> Iterator[tuple[Any, st
     # IfcOpenShell complained or lost instances: read every statement to learn what and where.
     schema = model.schema_identifier if model is not None else _schema_name(schema)
     scan = step.scan_step(data, schema)
-    repaired = step.apply_edits(data, scan.edits, file_sha256=request.file_sha256)
+    all_edits = ([renamed] if renamed is not None else []) + scan.edits
+    repaired = step.apply_edits(data, all_edits, file_sha256=request.file_sha256)
     with _staged(repaired, data, request.path) as source:
         model, messages = _open(source, name)
         _check_schema(model, name)
         problems = scan.problems + _log_problems(messages, repaired, scan)
-        yield model, scan, problems, _repairs(scan.edits)
+        yield model, scan, problems, _repairs(all_edits)
 
 
 def _check_schema(model: Any, name: str) -> None:
@@ -506,7 +513,7 @@ def _has_body(element: Any) -> bool:
         for rep in representations:
             context = _entity(rep, "ContextOfItems")
             context_type = _attribute(context, "ContextType") or _attribute(_entity(context, "ParentContext"), "ContextType")
-            if context_type not in (None, "Model"):
+            if str(context_type or "").lower() not in _BODY_CONTEXT_TYPES:
                 continue
             if (_attribute(rep, "RepresentationIdentifier", "") or "").lower() in _NON_BODY_IDENTIFIERS:
                 continue

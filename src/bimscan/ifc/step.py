@@ -170,6 +170,34 @@ def header_schema(data: bytes) -> str | None:
     return match.group(1).decode("ascii", "replace").strip().upper() if match else None
 
 
+# Schemas IfcOpenShell does not read, and the one it reads that each is closest to: IFC2x and
+# IFC2x2 grew into IFC2X3 (the same entities for buildings, a few attributes added), IFC4 Addendum
+# releases, IFC4X1/IFC4X2 and the IFC4X3 candidates into IFC4X3_ADD2.
+NEAREST_SCHEMA = {
+    "IFC2X": "IFC2X3", "IFC2X_FINAL": "IFC2X3", "IFC2X2": "IFC2X3", "IFC2X2_FINAL": "IFC2X3",
+    "IFC2X3_TC1": "IFC2X3", "IFC4_ADD1": "IFC4", "IFC4_ADD2": "IFC4", "IFC4_ADD2_TC1": "IFC4",
+    "IFC4X1": "IFC4X3_ADD2", "IFC4X2": "IFC4X3_ADD2", "IFC4X3_RC1": "IFC4X3_ADD2", "IFC4X3_RC2": "IFC4X3_ADD2",
+    "IFC4X3_RC3": "IFC4X3_ADD2", "IFC4X3_RC4": "IFC4X3_ADD2", "IFC4X3_TC1": "IFC4X3_ADD2",
+    "IFC4X3_ADD1": "IFC4X3_ADD2",
+}
+
+
+def schema_edit(data: bytes) -> Edit | None:
+    """The edit that names a schema IfcOpenShell reads in FILE_SCHEMA, when the file names one it
+    does not but that has a close successor (``NEAREST_SCHEMA``); None otherwise. Its entity is
+    the schema the file named."""
+    match = _SCHEMA.search(data, 0, 1 << 16)
+    if match is None:
+        return None
+    written = match.group(1).decode("ascii", "replace").strip().upper()
+    nearest = NEAREST_SCHEMA.get(written)
+    if nearest is None:
+        return None
+    line = data.count(b"\n", 0, match.start(1)) + 1
+    return Edit(start=match.start(1), end=match.end(1), text=nearest.encode("ascii"), kind="schema",
+                entity=f"{written} as {nearest}", line=line)
+
+
 def count_statements(data: bytes) -> int:
     """Instance definitions that start a line (what a well-formed export holds)."""
     return len(_INSTANCE_START.findall(data))
@@ -615,7 +643,7 @@ def summarize_repairs(edits: list[Edit]) -> dict[str, tuple[Counter, list[int]]]
 
 
 __all__ = [
-    "BOM", "Edit", "LineIndex", "Problem", "StepScan", "Statement", "apply_edits", "count_statements",
-    "data_section", "derived_global_id", "header_schema", "is_a", "is_scannable_class", "quick_repairs",
-    "scan_step", "summarize_repairs",
+    "BOM", "Edit", "LineIndex", "NEAREST_SCHEMA", "Problem", "StepScan", "Statement", "apply_edits",
+    "count_statements", "data_section", "derived_global_id", "header_schema", "is_a", "is_scannable_class",
+    "quick_repairs", "scan_step", "schema_edit", "summarize_repairs",
 ]

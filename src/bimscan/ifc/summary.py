@@ -20,6 +20,7 @@ ISSUE_WORDS = {
     "length-unit": ("length unit assumed", "length units assumed"),
 }
 REPAIR_WORDS = {
+    "schema": "FILE_SCHEMA naming a schema IfcOpenShell does not read, read as its closest successor",
     "derived-attribute": "'*' (derived) in attributes the schema does not derive, read as unset",
     "globalid": "GlobalIds missing or not a string ('$', '*', a number), given one made from the file's hash",
 }
