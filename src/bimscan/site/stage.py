@@ -25,6 +25,7 @@ import numpy as np
 
 from bimscan.site.floor import component_bounds, component_mask
 from bimscan.site.model import StageSettings
+from bimscan.site.polygons import Polygons
 from bimscan.types import BimScene, BuildDates, SceneMesh
 
 CEILING_MODULE_M = 0.6  # suspended ceiling tiles, 600 x 600 mm (EN 13964)
@@ -108,38 +109,48 @@ def open_ceilings(scene: BimScene, keep: np.ndarray, fraction: float, seed: int)
         return mesh
     xs, ys = _grid_lines(scene, keep, ceilings)
     is_ceiling = ceilings[mesh.face_component]
-    pieces: list[tuple[np.ndarray, int]] = []
-    for f in np.flatnonzero(is_ceiling):
-        component = int(mesh.face_component[f])
-        triangle = mesh.vertices[mesh.faces[f]]
-        for bx0, bx1, ix in _bays(xs, triangle[:, 0]):
-            for by0, by1, iy in _bays(ys, triangle[:, 1]):
-                if unit_draw(seed, "bay", components.global_id[component], ix, iy) < fraction:
-                    continue  # an open bay: no panel here
-                polygon = _clip(triangle, bx0, bx1, by0, by1)
-                if len(polygon) >= 3:
-                    pieces.append((polygon, component))
-    return _replace_faces(mesh, is_ceiling, pieces)
+    faces = np.flatnonzero(is_ceiling)
+    triangles = mesh.vertices[mesh.faces[faces]]
+    # every (triangle, bay) pair the triangle's span meets, triangle by triangle, x bays outer
+    x_first, x_count = _bay_spans(xs, triangles[:, :, 0])
+    y_first, y_count = _bay_spans(ys, triangles[:, :, 1])
+    pair_face = np.repeat(np.arange(len(faces)), x_count * y_count)
+    rank = np.arange(len(pair_face)) - np.repeat(np.cumsum(x_count * y_count) - x_count * y_count, x_count * y_count)
+    ix = x_first[pair_face] + rank // y_count[pair_face]
+    iy = y_first[pair_face] + rank % y_count[pair_face]
+    component = mesh.face_component[faces[pair_face]]
+    draws: dict[tuple[int, int, int], bool] = {}
+    closed = np.ones(len(pair_face), dtype=bool)
+    for k, key in enumerate(zip(component.tolist(), ix.tolist(), iy.tolist())):
+        if key not in draws:  # an open bay: no panel here
+            draws[key] = unit_draw(seed, "bay", components.global_id[key[0]], key[1], key[2]) >= fraction
+        closed[k] = draws[key]
+    x_edges, y_edges = np.concatenate([[-np.inf], xs, [np.inf]]), np.concatenate([[-np.inf], ys, [np.inf]])
+    pair_face, ix, iy, component = pair_face[closed], ix[closed], iy[closed], component[closed]
+    pieces = Polygons.of_triangles(triangles[pair_face]).clip_to_box(x_edges[ix], x_edges[ix + 1], y_edges[iy],
+                                                                      y_edges[iy + 1])
+    whole = pieces.count >= 3
+    return _replace_faces(mesh, is_ceiling, pieces.take(whole), component[whole])
 
 
-def _replace_faces(mesh: SceneMesh, removed: np.ndarray, pieces: list[tuple[np.ndarray, int]]) -> SceneMesh:
-    """The mesh less the ``removed`` faces ((F,) bool), plus each piece (a convex polygon (k, 3) of
-    its component) as a fan of triangles, in order."""
-    new_faces: list[np.ndarray] = []
-    new_component: list[int] = []
-    count = len(mesh.vertices)
-    for polygon, component in pieces:
-        for k in range(1, len(polygon) - 1):
-            new_faces.append(np.array([count, count + k, count + k + 1]))
-            new_component.append(component)
-        count += len(polygon)
+def _bay_spans(lines: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per row of ``values`` (N, k), the first bay between grid lines its span meets and how many
+    (bays are numbered from 0, the one below the first line)."""
+    edges = np.concatenate([[-np.inf], lines, [np.inf]])
+    first = np.maximum(np.searchsorted(edges, values.min(axis=1), side="right") - 1, 0)
+    last = np.minimum(np.searchsorted(edges, values.max(axis=1), side="left") - 1, len(edges) - 2)
+    return first, np.maximum(last - first + 1, 0)
+
+
+def _replace_faces(mesh: SceneMesh, removed: np.ndarray, pieces: Polygons, component: np.ndarray) -> SceneMesh:
+    """The mesh less the ``removed`` faces ((F,) bool), plus each piece (a convex polygon of at least
+    3 vertices, of ``component`` (P,)) as a fan of triangles, in order."""
+    vertices, faces, polygon = pieces.fan_triangles(len(mesh.vertices))
     kept = ~removed
-    faces = np.concatenate([mesh.faces[kept]] + ([np.array(new_faces, dtype=np.int32)] if new_faces else []))
-    return SceneMesh(
-        vertices=np.concatenate([mesh.vertices] + [p for p, _ in pieces]) if pieces else mesh.vertices,
-        faces=faces.astype(np.int32),
-        face_component=np.concatenate([mesh.face_component[kept], np.array(new_component, dtype=np.int32)]),
-    )
+    return SceneMesh(vertices=np.concatenate([mesh.vertices, vertices]) if len(pieces) else mesh.vertices,
+                     faces=np.concatenate([mesh.faces[kept], faces]).astype(np.int32),
+                     face_component=np.concatenate([mesh.face_component[kept],
+                                                    component[polygon].astype(np.int32)]))
 
 
 def ceiling_coverings(scene: BimScene) -> np.ndarray:
@@ -152,45 +163,56 @@ def cut_openings(mesh: SceneMesh, cut: np.ndarray, openings: list[np.ndarray]) -
     """The mesh with vertical rectangular openings cut through the components in ``cut`` ((C,) bool):
     every opening is a rectangle of 4 world xy corners (in order, any orientation), and each of
     those components' triangles that it meets is replaced by the parts of it outside the opening
-    (a ceiling tile's underside and top alike, so a fitting set into it is seen through it)."""
+    (a ceiling tile's underside and top alike, so a fitting set into it is seen through it).
+    Openings are cut one after another, each through every triangle it meets at once."""
     if not openings or not cut.any():
         return mesh
-    rects = []
-    for corners in openings:
-        edge = corners[1] - corners[0]
-        angle = float(np.arctan2(edge[1], edge[0]))
-        c, s = np.cos(angle), np.sin(angle)
-        to_local = np.array([[c, s], [-s, c]])  # world xy -> the rectangle's axes
-        local = corners @ to_local.T
-        rects.append((to_local, local.min(axis=0), local.max(axis=0), corners.min(axis=0), corners.max(axis=0)))
     candidates = np.flatnonzero(cut[mesh.face_component])
     corners3 = mesh.vertices[mesh.faces[candidates]]
     lo, hi = corners3[:, :, :2].min(axis=1), corners3[:, :, :2].max(axis=1)
+    rects = [_rectangle(corners) for corners in openings]
     meets = np.zeros(len(candidates), dtype=bool)
     for _, _, _, rlo, rhi in rects:
         meets |= ((lo < rhi) & (hi > rlo)).all(axis=1)
-    pieces: list[tuple[np.ndarray, int]] = []
-    for j in np.flatnonzero(meets):
-        parts = [corners3[j]]
-        for to_local, (x0, y0), (x1, y1), rlo, rhi in rects:
-            if (lo[j] >= rhi).any() or (hi[j] <= rlo).any():
-                continue
-            outside = []
-            for part in parts:
-                local = part.copy()
-                local[:, :2] = part[:, :2] @ to_local.T
-                for bounds in ((-np.inf, x0, -np.inf, np.inf), (x1, np.inf, -np.inf, np.inf),
-                               (x0, x1, -np.inf, y0), (x0, x1, y1, np.inf)):
-                    piece = _clip(local, *bounds)
-                    if len(piece) >= 3:
-                        piece[:, :2] = piece[:, :2] @ to_local  # back to world xy
-                        outside.append(piece)
-            parts = outside
-        component = int(mesh.face_component[candidates[j]])
-        pieces += [(part, component) for part in parts]
+    triangles = np.flatnonzero(meets)
+    parts = Polygons.of_triangles(corners3[triangles])
+    owner = np.arange(len(triangles))  # each part's triangle (index into ``triangles``), parts in order
+    for to_local, (x0, y0), (x1, y1), rlo, rhi in rects:
+        t_lo, t_hi = lo[triangles[owner]], hi[triangles[owner]]
+        affected = ~((t_lo >= rhi).any(axis=1) | (t_hi <= rlo).any(axis=1))
+        if not affected.any():
+            continue
+        local = parts.take(affected).rotated_xy(to_local.T)
+        inf = np.inf
+        regions = [local.clip_to_box(*bounds) for bounds in
+                   ((-inf, x0, -inf, inf), (x1, inf, -inf, inf), (x0, x1, -inf, y0), (x0, x1, y1, inf))]
+        # the parts outside the opening replace each affected part in place, region by region
+        position = np.flatnonzero(affected)
+        keys = [4 * np.flatnonzero(~affected)]
+        pieces = [parts.take(~affected)]
+        owners = [owner[~affected]]
+        for r, region in enumerate(regions):
+            whole = region.count >= 3
+            keys.append(4 * position[whole] + r)
+            pieces.append(region.take(whole).rotated_xy(to_local))
+            owners.append(owner[affected][whole])
+        order = np.argsort(np.concatenate(keys), kind="stable")
+        parts = Polygons.concatenate(pieces).take(order)
+        owner = np.concatenate(owners)[order]
     removed = np.zeros(len(mesh.faces), dtype=bool)
     removed[candidates[meets]] = True
-    return _replace_faces(mesh, removed, pieces)
+    return _replace_faces(mesh, removed, parts, mesh.face_component[candidates[triangles[owner]]])
+
+
+def _rectangle(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """An opening's rectangle of 4 world xy corners as (world -> its axes (2, 2), its low and high
+    corners in its axes, its world bounding box low and high)."""
+    edge = corners[1] - corners[0]
+    angle = float(np.arctan2(edge[1], edge[0]))
+    c, s = np.cos(angle), np.sin(angle)
+    to_local = np.array([[c, s], [-s, c]])  # world xy -> the rectangle's axes
+    local = corners @ to_local.T
+    return to_local, local.min(axis=0), local.max(axis=0), corners.min(axis=0), corners.max(axis=0)
 
 
 def _grid_lines(scene: BimScene, keep: np.ndarray, ceilings: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -209,30 +231,3 @@ def _grid_lines(scene: BimScene, keep: np.ndarray, ceilings: np.ndarray) -> tupl
             merged = list(np.arange(start, float(hi[ceilings, axis].max()) + CEILING_MODULE_M, CEILING_MODULE_M))
         lines.append(np.array(merged))
     return lines[0], lines[1]
-
-
-def _bays(lines: np.ndarray, values: np.ndarray) -> list[tuple[float, float, int]]:
-    """The bays (low, high, index) between grid lines that the span of ``values`` meets."""
-    edges = np.concatenate([[-np.inf], lines, [np.inf]])
-    first = int(np.searchsorted(edges, values.min(), side="right")) - 1
-    last = int(np.searchsorted(edges, values.max(), side="left")) - 1
-    return [(float(edges[k]), float(edges[k + 1]), k) for k in range(max(first, 0), min(last, len(edges) - 2) + 1)]
-
-
-def _clip(polygon: np.ndarray, x0: float, x1: float, y0: float, y1: float) -> np.ndarray:
-    """Sutherland-Hodgman clip of a 3-D polygon (k, 3) to the vertical prism x0..x1, y0..y1."""
-    for axis, bound, keep_below in ((0, x0, False), (0, x1, True), (1, y0, False), (1, y1, True)):
-        if not np.isfinite(bound) or len(polygon) == 0:
-            continue
-        out = []
-        for k in range(len(polygon)):
-            a, b = polygon[k], polygon[(k + 1) % len(polygon)]
-            a_in = a[axis] <= bound if keep_below else a[axis] >= bound
-            b_in = b[axis] <= bound if keep_below else b[axis] >= bound
-            if a_in:
-                out.append(a)
-            if a_in != b_in:
-                t = (bound - a[axis]) / (b[axis] - a[axis])
-                out.append(a + t * (b - a))
-        polygon = np.array(out) if out else np.zeros((0, 3))
-    return polygon
