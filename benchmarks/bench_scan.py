@@ -87,6 +87,7 @@ def main() -> None:
     from bimscan.scan.device import SCANNERS, ScanSettings
     from bimscan.scan.recipe import ScanRecipe
     from bimscan.scan.virtual_scanner import VirtualScanner
+    from bimscan.scan.probe import Prober
     from bimscan.survey.stations import plan_stations
 
     work = Path(tempfile.mkdtemp(prefix="bimscan-bench-scan-"))
@@ -95,12 +96,13 @@ def main() -> None:
     vz400 = SCANNERS["riegl_vz400"]
     scanner = VirtualScanner(scene.mesh, scene.components.label, scanner=vz400, components=scene.components,
                              surfaces=scene.surfaces)
-    stations, _ = plan_stations(scene, scanner)
+    prober = Prober(scene.mesh)
+    stations, _ = plan_stations(scene, prober, vz400)
     # the station whose rays most often give a point (a room, not a narrow corridor where the
     # 1.5 m minimum range drops most returns): "labelled points/s" then means most of the rays
     from bimscan.survey.stations import useful_return_fraction
 
-    useful = useful_return_fraction(scanner, np.array([s.position for s in stations]))
+    useful = useful_return_fraction(prober, vz400, np.array([s.position for s in stations]))
     station = stations[int(np.argmax(useful))]
     settings = ScanSettings(pulse_freq_hz=300000, scan_freq_hz=120, head_deg_per_s=30)  # 1.5M pulses
     pattern = PulsePattern.of(settings, vz400)

@@ -72,9 +72,25 @@ class TinyModel:
         self.storey = run("root.create_entity", self.file, ifc_class="IfcBuildingStorey", name="L0")
         run("aggregate.assign_object", self.file, relating_object=building, products=[self.storey])
 
+    def add_storey(self, name: str, elevation: float):
+        """Another building storey at ``elevation`` metres (the first, "L0", stands at 0)."""
+        import numpy as np
+
+        run = self.api.run
+        building = self.file.by_type("IfcBuilding")[0]
+        storey = run("root.create_entity", self.file, ifc_class="IfcBuildingStorey", name=name)
+        storey.Elevation = float(elevation)
+        run("aggregate.assign_object", self.file, relating_object=building, products=[storey])
+        matrix = np.eye(4)
+        matrix[2, 3] = elevation
+        run("geometry.edit_object_placement", self.file, product=storey, matrix=matrix)
+        return storey
+
     def add_box(self, ifc_class: str, *, origin=(0.0, 0.0, 0.0), size=(1.0, 1.0, 1.0), predefined_type: str | None = None,
-                name: str | None = None, contain: bool = True):
-        """An element with an extruded rectangle body of ``size`` (metres) at ``origin``."""
+                name: str | None = None, contain: bool = True, storey=None, tilt_deg: float = 0.0):
+        """An element with an extruded rectangle body of ``size`` (metres) at ``origin`` (world),
+        tilted by ``tilt_deg`` about the y axis through ``origin`` (a pitched roof), contained in
+        ``storey`` (default: the first); an IfcSpace is aggregated into it instead."""
         import numpy as np
 
         run = self.api.run
@@ -88,9 +104,14 @@ class TinyModel:
         run("geometry.assign_representation", f, product=element, representation=rep)
         matrix = np.eye(4)
         matrix[:3, 3] = origin
+        if tilt_deg:
+            c, s = np.cos(np.radians(tilt_deg)), np.sin(np.radians(tilt_deg))
+            matrix[:3, :3] = [[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]
         run("geometry.edit_object_placement", f, product=element, matrix=matrix)
-        if contain:
-            run("spatial.assign_container", f, relating_structure=self.storey, products=[element])
+        if contain and element.is_a("IfcSpace"):
+            run("aggregate.assign_object", f, relating_object=storey or self.storey, products=[element])
+        elif contain:
+            run("spatial.assign_container", f, relating_structure=storey or self.storey, products=[element])
         return element
 
     def add_broken(self, ifc_class: str = "IfcColumn"):

@@ -9,33 +9,37 @@ usable alone (``load_ifc``, ``label_model``, ``dress_scene``, ``VirtualScanner``
 
 from __future__ import annotations
 
+import dataclasses
 import time
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from bimscan.errors import StationError
+from bimscan.errors import ConfigError, StationError
 from bimscan.process.checks import check_semantics, filter_invalid
 from bimscan.process.summary import CloudSummary
-from bimscan.progress import progress_bar
+from bimscan.progress import progress_bar, step_line
 from bimscan.scan.recipe import AUTO_STATIONS, ScanRecipe
 from bimscan.site import DressTimings, dress_scene_timed
+from bimscan.survey.stations import PlanReport
 from bimscan.survey.survey import Survey, cloud_header, prepare_survey, run_survey
-from bimscan.types import BimScene, LabelScheme, PointCloud
+from bimscan.types import BimScene, BuildDates, LabelScheme, PointCloud, Station
 
 
 @dataclass(frozen=True)
 class ScanResult:
-    """What ``scan_survey`` wrote: the file, its point count, the survey, running totals, time."""
+    """What ``scan_survey`` wrote: the file, its point count, the survey, running totals, time
+    (``seconds``: scanning and writing; ``steps``: seconds per step of ``scan_model``)."""
 
     path: Path
     points: int
     survey: Survey
     summary: CloudSummary
     seconds: float
+    steps: Mapping[str, float] = field(default_factory=dict)
 
 
 def load_label_scheme(source: str | Path | LabelScheme | None = None) -> LabelScheme:
@@ -66,41 +70,79 @@ def load_scene(path: str | Path, *, scheme: str | Path | LabelScheme | None = No
     return label_model(model, label_scheme)
 
 
-def build_site(scene: BimScene, recipe: ScanRecipe) -> BimScene:
+def build_site(scene: BimScene, recipe: ScanRecipe, *, keep_clear: Sequence[Station] = ()) -> BimScene:
     """The scene as the recipe's site model has it when scanned (stage, clutter; ``bimscan.site``).
 
     With ``stage.at`` the model's work schedule is read (ConfigError when it links no element to
-    a dated task). With stations from a file, their spots are kept clear of clutter. A bare site
-    model returns ``scene``.
+    a dated task). ``keep_clear``: stations whose spots clutter keeps clear of (stations given in a
+    file). A bare site model returns ``scene``.
     """
-    return build_site_timed(scene, recipe)[0]
+    return build_site_timed(scene, recipe, keep_clear=keep_clear)[0]
 
 
-def build_site_timed(scene: BimScene, recipe: ScanRecipe) -> tuple[BimScene, DressTimings]:
-    """``build_site`` and its ``site.DressTimings``."""
-    from bimscan.errors import ConfigError
-
+def build_site_timed(scene: BimScene, recipe: ScanRecipe, *, keep_clear: Sequence[Station] = (),
+                     progress: bool = False) -> tuple[BimScene, DressTimings]:
+    """``build_site`` and its ``site.DressTimings`` (with a progress bar over the rooms when ``progress``)."""
     site = recipe.site
     if site.is_bare:
         return scene, DressTimings()
-    schedule = None
-    if site.stage.at is not None:
-        from bimscan.ifc.schedule import read_schedule
+    spots = tuple((s.position[0], s.position[1], s.floor_z if s.floor_z is not None else
+                   s.position[2] - recipe.scanner.instrument_height_m) for s in keep_clear)
+    return dress_scene_timed(scene, site, seed=recipe.seed, schedule=read_site_schedule(scene, recipe),
+                             keep_clear=spots, threads=recipe.threads, progress=progress)
 
-        schedule = read_schedule(scene.source)
-        if not schedule:
-            raise ConfigError(f"{scene.source}: --at {site.stage.at}: the model links no element to a dated task "
-                              "(IfcTask with task times, through IfcRelAssignsToProcess or IfcRelAssignsToProduct); "
-                              "leave --at out or add a work schedule to the model")
-    keep_clear: tuple[tuple[float, float, float], ...] = ()
-    if recipe.stations_from != AUTO_STATIONS:
-        from bimscan.survey.survey import choose_stations, place_scanner
 
-        given, _ = choose_stations(scene, place_scanner(scene, recipe), recipe.stations_from)
-        keep_clear = tuple((s.position[0], s.position[1], s.floor_z if s.floor_z is not None else
-                            s.position[2] - recipe.scanner.instrument_height_m) for s in given)
-    return dress_scene_timed(scene, site, seed=recipe.seed, schedule=schedule, keep_clear=keep_clear,
-                             threads=recipe.threads)
+def read_site_schedule(scene: BimScene, recipe: ScanRecipe) -> dict[str, BuildDates] | None:
+    """The model's work schedule when the recipe's stage names a date (``--at``), else None.
+    ConfigError when the model links no element to a dated task."""
+    at = recipe.site.stage.at
+    if at is None:
+        return None
+    from bimscan.ifc.schedule import read_schedule
+
+    schedule = read_schedule(scene.source)
+    if not schedule:
+        raise ConfigError(f"{scene.source}: --at {at}: the model links no element to a dated task "
+                          "(IfcTask with task times, through IfcRelAssignsToProcess or IfcRelAssignsToProduct); "
+                          "leave --at out or add a work schedule to the model")
+    return schedule
+
+
+@dataclass(frozen=True)
+class SiteAndStations:
+    """A scene dressed as its recipe's site, with the stations chosen on it (``site_and_stations``)."""
+
+    scene: BimScene
+    stations: tuple[Station, ...]
+    plan: PlanReport | None
+    timings: DressTimings
+
+
+def site_and_stations(scene: BimScene, recipe: ScanRecipe, *, progress: bool = False) -> SiteAndStations:
+    """The scene dressed as the recipe's site model has it, and its stations, every check first.
+
+    The stations are chosen on the scene as loaded (a file read and checked, or, before a
+    dressing, the check that a tripod can stand somewhere: a model where none can fails here, in
+    seconds), and the work schedule is read before any dressing. Then the scene is dressed, a file's stations kept clear of clutter, and the stations
+    are chosen again on the dressed scene: planned anew (the plan sees the clutter; dressing keeps a
+    tripod spot clear in every room) or the file's checked once more. A bare site model dresses
+    nothing and chooses once.
+    """
+    from bimscan.survey.survey import choose_stations, require_tripod_spots
+
+    from_file = recipe.stations_from != AUTO_STATIONS
+    stations: tuple[Station, ...] = ()
+    if recipe.site.is_bare or from_file:
+        with step_line("checking stations" if from_file else "planning stations", enabled=progress):
+            stations, plan = choose_stations(scene, recipe)
+        if recipe.site.is_bare:
+            return SiteAndStations(scene=scene, stations=stations, plan=plan, timings=DressTimings())
+    else:
+        require_tripod_spots(scene, recipe)  # a model where no tripod can stand fails before the dressing
+    dressed, timings = build_site_timed(scene, recipe, keep_clear=stations, progress=progress)
+    with step_line("checking stations" if from_file else "planning stations", enabled=progress):
+        stations, plan = choose_stations(dressed, recipe)
+    return SiteAndStations(scene=dressed, stations=stations, plan=plan, timings=timings)
 
 
 def furnish_model(model: str | Path, out: str | Path, recipe: ScanRecipe, *,
@@ -195,16 +237,30 @@ def scan_model(model: str | Path, out: str | Path, recipe: ScanRecipe, *,
 
     check_cloud_output(out, overwrite=overwrite)
     say = warn or (lambda line: None)
-    for warning in recipe.warnings:
+    for warning in recipe.warnings + recipe.site.warnings:
         say(warning)
+    start = time.perf_counter()
     scene = load_scene(model, scheme=scheme, threads=recipe.threads or None, strict=recipe.strict,
                        length_unit=length_unit)
     for line in report_lines(scene):
         say(line)
-    scene = build_site(scene, recipe)
-    survey = prepare_survey(scene, recipe)
+    loaded = time.perf_counter()
+    chosen = site_and_stations(scene, recipe, progress=progress)
+    survey = prepare_survey(chosen.scene, recipe, stations=chosen.stations, plan=chosen.plan)
+    prepared = time.perf_counter()
     if survey.plan is not None and survey.plan.rooms_without_station:
-        say("rooms without a station (too small for a tripod or no floor): "
-            + ", ".join(survey.plan.rooms_without_station))
+        say(rooms_without_station_line(survey.plan))
     check_free_space(out, points=survey.pulses())
-    return scan_survey(survey, out, overwrite=overwrite, progress=progress)
+    result = scan_survey(survey, out, overwrite=overwrite, progress=progress)
+    dressing = chosen.timings.total_s
+    steps = {"load": loaded - start, "dressing": dressing, "stations": prepared - loaded - dressing,
+             "scan and write": result.seconds}
+    return dataclasses.replace(result, steps=steps)
+
+
+def rooms_without_station_line(plan: PlanReport) -> str:
+    """The one warning line naming the rooms the plan left without a station."""
+    rooms = plan.rooms_without_station
+    shown = ", ".join(rooms[:20]) + (f" and {len(rooms) - 20} more" if len(rooms) > 20 else "")
+    return (f"{len(rooms)} rooms without a station (no level floor with headroom and a clear tripod spot in them): "
+            f"{shown}")

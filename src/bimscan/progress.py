@@ -1,15 +1,26 @@
-"""Progress bars for long work, on stderr, quiet when stderr is not a terminal.
+"""Progress bars and step lines for long work, on stderr, quiet when stderr is not a terminal.
 
-Set ``BIMSCAN_PROGRESS=1`` to force bars on (e.g. in CI logs) or ``0`` to force them off.
+Set ``BIMSCAN_PROGRESS=1`` to force them on (e.g. in CI logs) or ``0`` to force them off.
 """
 
 from __future__ import annotations
 
 import os
 import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 from tqdm import tqdm
+
+
+def progress_shown(enabled: bool = True) -> bool:
+    """Whether progress is shown: ``BIMSCAN_PROGRESS`` when set, else when stderr is a terminal."""
+    setting = os.environ.get("BIMSCAN_PROGRESS", "")
+    if not enabled or setting == "0":
+        return False
+    return setting != "" or sys.stderr.isatty()
 
 
 def progress_bar(*, total: float | None, desc: str, unit: str = "it", enabled: bool = True, **kwargs: Any) -> tqdm:
@@ -20,5 +31,20 @@ def progress_bar(*, total: float | None, desc: str, unit: str = "it", enabled: b
         disable = True
     return tqdm(
         total=total, desc=desc, unit=unit, file=sys.stderr, disable=disable, dynamic_ncols=True,
-        unit_scale=unit not in ("it", "unit", "scene", "station", "epoch"), leave=False, **kwargs,
+        unit_scale=unit not in ("it", "unit", "scene", "station", "epoch", "room", "level"), leave=False, **kwargs,
     )
+
+
+@contextmanager
+def step_line(text: str, *, enabled: bool = True) -> Iterator[None]:
+    """One line on stderr for a step without a count (``text ...``, then its time when done),
+    shown as progress bars are."""
+    shown = progress_shown(enabled)
+    start = time.perf_counter()
+    if shown:
+        print(f"{text} ...", file=sys.stderr, end="", flush=True)
+    try:
+        yield
+    finally:
+        if shown:
+            print(f" {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)

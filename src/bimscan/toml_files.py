@@ -8,6 +8,7 @@ dataclass, checking keys and simple types (``int``, ``float``, ``str``, ``bool``
 from __future__ import annotations
 
 import dataclasses
+import datetime
 import tomllib
 import types
 import typing
@@ -102,6 +103,8 @@ def _coerce(value: Any, hint: Any, *, where: str) -> Any:
             raise ConfigError(f"{where}: expected true or false, got {value!r}")
         return value
     if hint is str:
+        if isinstance(value, datetime.date | datetime.time):  # a TOML date (at = 2024-05-01) where text is read
+            return value.isoformat()
         if not isinstance(value, str):
             raise ConfigError(f"{where}: expected a string, got {value!r}")
         return value

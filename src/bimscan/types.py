@@ -8,7 +8,7 @@ Pointcept names in ``io/npdir.py``).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -62,7 +62,12 @@ class SceneMesh:
 
     @cached_property
     def _bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        used = self.vertices[np.unique(self.faces)] if len(self.faces) else self.vertices
+        if len(self.faces):
+            used_mask = np.zeros(len(self.vertices), dtype=bool)
+            used_mask[self.faces.ravel()] = True
+            used = self.vertices[used_mask]
+        else:
+            used = self.vertices
         if len(used) == 0:
             return np.zeros(3), np.zeros(3)
         return used.min(axis=0), used.max(axis=0)
@@ -115,6 +120,22 @@ class ComponentTable:
 
     def __len__(self) -> int:
         return int(len(self.global_id))
+
+    def descends_from(self, classes: Sequence[str], *, parents: bool = False) -> np.ndarray:
+        """(C,) bool: components whose class (or, with ``parents``, whose aggregate's class) is one
+        of ``classes`` or a subclass of one (by ``class_ancestry``; names compared case-insensitively)."""
+        wanted = {c.lower() for c in classes}
+        cache: dict[str, bool] = {}
+
+        def hits(cls: str) -> bool:
+            if cls not in cache:
+                cache[cls] = bool(cls) and any(a.lower() in wanted for a in self.class_ancestry.get(cls, (cls,)))
+            return cache[cls]
+
+        own = np.array([hits(c) for c in self.ifc_class.tolist()], dtype=bool)
+        if not parents:
+            return own
+        return own | np.array([hits(c) for c in self.parent_class.tolist()], dtype=bool)
 
     def rows(self) -> list[dict[str, object]]:
         """The table as a list of plain dicts (for JSON, CSV and index files)."""
@@ -280,7 +301,7 @@ class FailedElement:
 ISSUE_KINDS = ("syntax", "unknown-entity", "duplicate-id", "dangling-reference", "attribute-count",
                "invalid-attribute", "length-unit")
 # Kinds of repairs made to content viewers accept (``IfcRepair.kind``).
-REPAIR_KINDS = ("derived-attribute", "globalid")
+REPAIR_KINDS = ("schema", "derived-attribute", "globalid")
 
 
 @dataclass(frozen=True)

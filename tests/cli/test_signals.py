@@ -41,6 +41,7 @@ def test_sigterm_during_a_scan_removes_the_temporary_output_and_exits_143(box_ro
     _, err = process.communicate(timeout=120)
     assert process.returncode == 143, err
     assert err.splitlines()[-1].startswith("error: terminated") and "Traceback" not in err
+    assert "resume" not in err  # a scan does not resume: it promises nothing of the kind
     assert sorted(p.name for p in tmp_path.iterdir()) == []  # no output, no temporary
 
 
@@ -71,3 +72,16 @@ def test_library_warnings_and_log_records_print_as_warning_lines(monkeypatch, ca
     assert main(["info", "model.ifc"]) == 1
     assert capsys.readouterr().err.splitlines() == [
         "warning: a library warning", "warning: a library log record", "error: model.ifc: stop here"]
+
+
+@pytest.mark.parametrize("command, promise", [("build", "run the same command to resume"),
+                                              ("train", "add --resume"), ("predict", "no partial output")])
+def test_a_stopped_command_says_what_it_keeps_as_that_command_does(command, promise, monkeypatch, capsys):
+    import bimscan.cli.main as cli_main
+
+    def stop(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli_main.cli, "invoke", stop)
+    assert main([command, "x"]) == 130
+    assert promise in capsys.readouterr().err.splitlines()[-1]

@@ -19,7 +19,8 @@ from bimscan.scan.device import SCANNERS, ScanSettings
 from bimscan.scan.engine import MISS, EmbreexEngine, Open3DEngine, RayEngine, make_engine, resolve_engine
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.recipe import ScanRecipe
-from bimscan.scan.virtual_scanner import VirtualScanner, sphere_directions
+from bimscan.scan.probe import sphere_directions
+from bimscan.scan.virtual_scanner import VirtualScanner
 from bimscan.types import PointCloud, SceneMesh, Station
 
 VZ400 = SCANNERS["riegl_vz400"]

@@ -34,11 +34,10 @@ def test_clutter_is_added_as_new_components_at_about_the_density(office_scene, d
 
 
 def test_no_object_crosses_the_model_or_stands_inside_a_solid(office_scene, dressed_office):
-    from bimscan.scan.recipe import ScanRecipe
-    from bimscan.survey.survey import place_scanner
+    from bimscan.scan.probe import Prober
 
     model = raycasting_scene(office_scene.mesh.vertices, office_scene.mesh.faces)
-    scanner = place_scanner(office_scene, ScanRecipe())
+    scanner = Prober(office_scene.mesh)
     lifted = np.array([0.0, 0.0, 0.001])  # standing on the floor, not in it
     for c, (v, f) in component_meshes(dressed_office, added(dressed_office, office_scene)).items():
         assert not edges_cross(v + lifted, f, model), dressed_office.components.name[c]
@@ -65,10 +64,9 @@ def test_no_two_objects_cross_each_other(office_scene, dressed_office):
 
 
 def test_objects_stand_on_the_floor_inside_a_room(office_scene, dressed_office):
-    from bimscan.scan.recipe import ScanRecipe
-    from bimscan.survey.survey import place_scanner
+    from bimscan.scan.probe import Prober
 
-    scanner = place_scanner(office_scene, ScanRecipe())
+    scanner = Prober(office_scene.mesh)
     hung = 0
     on_ceiling = set(fixtures(dressed_office, office_scene).tolist())
     for c, (v, _) in component_meshes(dressed_office, added(dressed_office, office_scene)).items():
@@ -87,11 +85,10 @@ def test_objects_stand_on_the_floor_inside_a_room(office_scene, dressed_office):
 
 
 def test_fixtures_hang_just_under_a_soffit_in_a_grid_and_clear_of_heads(office_scene, dressed_office):
-    from bimscan.scan.recipe import ScanRecipe
+    from bimscan.scan.probe import Prober
     from bimscan.site.library import MIN_CLEAR_UNDER_FIXTURE_M
-    from bimscan.survey.survey import place_scanner
 
-    scanner = place_scanner(office_scene, ScanRecipe())
+    scanner = Prober(office_scene.mesh)
     hung = fixtures(dressed_office, office_scene)
     assert len(hung) >= 2 * dressed_office.site.rooms  # lights and air terminals in most rooms
     level = min(s.elevation_m for s in office_scene.storeys)
@@ -130,11 +127,11 @@ def test_doorways_stay_clear(office_scene, dressed_office):
 
 def test_every_room_that_had_a_station_still_gets_one(office_scene, dressed_office):
     from bimscan.scan.recipe import ScanRecipe
-    from bimscan.survey.survey import choose_stations, place_scanner
+    from bimscan.survey.survey import choose_stations
 
     recipe = ScanRecipe()
-    _, before = choose_stations(office_scene, place_scanner(office_scene, recipe), "auto")
-    stations, after = choose_stations(dressed_office, place_scanner(dressed_office, recipe), "auto")
+    _, before = choose_stations(office_scene, recipe)
+    stations, after = choose_stations(dressed_office, recipe)
     assert set(after.rooms_without_station) <= set(before.rooms_without_station)
     rooms_with = {s.room for s in stations}
     assert {s.name for s in office_scene.spaces} - set(before.rooms_without_station) <= rooms_with
@@ -180,7 +177,7 @@ def test_a_model_without_rooms_is_dressed_on_its_free_floor(box_room_ifc, seed):
 
 def test_points_inside_walls_are_told_from_points_in_the_room(box_room_ifc):
     from bimscan.pipeline import load_scene
-    from bimscan.site.floor import Prober
+    from bimscan.scan.probe import Prober
 
     prober = Prober(load_scene(box_room_ifc).mesh)
     points = np.array([[4.0, 6.1, 1.0], [-0.1, 3.0, 1.0], [4.0, -0.2, 0.0], [4.0, 3.0, 1.0], [0.3, 5.7, 1.0]])
@@ -188,7 +185,7 @@ def test_points_inside_walls_are_told_from_points_in_the_room(box_room_ifc):
 
 
 def test_stations_given_in_a_file_keep_their_spots_clear(box_room_ifc, tmp_path):
-    from bimscan.pipeline import build_site, load_scene
+    from bimscan.pipeline import load_scene, site_and_stations
     from bimscan.scan.recipe import ScanRecipe
     from bimscan.survey.survey import prepare_survey
 
@@ -196,7 +193,7 @@ def test_stations_given_in_a_file_keep_their_spots_clear(box_room_ifc, tmp_path)
     stations.write_text("x,y,height\n4,3,1.7\n2,2,1.7\n")
     site = SiteModel(clutter=ClutterSettings(density=0.8, kinds=("site", "office")))
     recipe = ScanRecipe(stations_from=str(stations), site=site, seed=1)
-    scene = build_site(load_scene(box_room_ifc), recipe)
+    scene = site_and_stations(load_scene(box_room_ifc), recipe).scene
     new = np.arange(len(scene.components) - sum(scene.site.placed.values()), len(scene.components))
     v = scene.mesh.vertices[np.unique(scene.mesh.faces[np.isin(scene.mesh.face_component, new)])]
     assert len(new) >= 10

@@ -99,14 +99,13 @@ def test_open_ceilings_leave_bays_without_panels(office_scene):
 
 
 def test_props_stand_under_the_slab_on_a_grid_in_structure(office_scene):
-    from bimscan.scan.recipe import ScanRecipe
-    from bimscan.survey.survey import place_scanner
+    from bimscan.scan.probe import Prober
 
     propped = dress_scene(office_scene, SiteModel(stage=StageSettings(name="structure", props_fraction=1.0)), seed=2)
     props = np.flatnonzero(propped.components.ifc_class == "Temporary.Prop")
     assert len(props) > 20 and propped.site.placed == {"Temporary.Prop": len(props)}
     structure = dress_scene(office_scene, SiteModel(stage=StageSettings(name="structure")), seed=2)
-    scanner = place_scanner(structure, ScanRecipe())
+    scanner = Prober(structure.mesh)
     for c in props:
         v = propped.mesh.vertices[np.unique(propped.mesh.faces[propped.mesh.face_component == c])]
         t, hit = scanner.cast(v.mean(axis=0), np.array([[0.0, 0.0, 1.0]], np.float32))

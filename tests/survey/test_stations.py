@@ -7,7 +7,7 @@ import pytest
 from bimscan.errors import InputFileError, StationError
 from bimscan.pipeline import load_scene
 from bimscan.scan.device import SCANNERS
-from bimscan.scan.virtual_scanner import VirtualScanner
+from bimscan.scan.probe import Prober
 from bimscan.survey.stations import check_station, plan_stations, read_stations
 from bimscan.types import Station
 
@@ -17,12 +17,12 @@ VZ400 = SCANNERS["riegl_vz400"]
 @pytest.fixture(scope="module")
 def box(box_room_ifc):
     scene = load_scene(box_room_ifc)
-    return scene, VirtualScanner(scene.mesh, scene.components.label, scanner=VZ400)
+    return scene, Prober(scene.mesh)
 
 
 def test_a_single_room_gets_one_station_on_the_floor_at_instrument_height(box):
     scene, scanner = box
-    stations, report = plan_stations(scene, scanner)
+    stations, report = plan_stations(scene, scanner, VZ400)
     assert len(stations) == 1
     x, y, z = stations[0].position
     assert 0.4 <= x <= 7.6 and 0.4 <= y <= 5.6
@@ -32,8 +32,8 @@ def test_a_single_room_gets_one_station_on_the_floor_at_instrument_height(box):
 
 def test_planned_stations_on_a_real_house_reach_every_room_with_a_floor(shared_ifc):
     scene = load_scene(shared_ifc("duplex.ifc"))
-    scanner = VirtualScanner(scene.mesh, scene.components.label, scanner=VZ400)
-    stations, report = plan_stations(scene, scanner)
+    scanner = Prober(scene.mesh)
+    stations, report = plan_stations(scene, scanner, VZ400)
     rooms = {s.name for s in scene.spaces}
     with_station = {s.room for s in stations if s.room}
     # every room is either scanned from inside or reported (utility closets are too small for a tripod)
@@ -61,7 +61,7 @@ def test_a_station_file_with_absolute_and_floor_relative_rows(box, tmp_path):
     scene, scanner = box
     path = tmp_path / "stations.csv"
     path.write_text("# tripods\nx,y,z,height,heading_deg\n2,2,1.8,,0\n6,4,,1.7,90\n")
-    stations = read_stations(path, scene, scanner)
+    stations = read_stations(path, scene, scanner, VZ400)
     assert [s.position for s in stations] == [(2.0, 2.0, 1.8), (6.0, 4.0, pytest.approx(1.7, abs=1e-4))]
     assert stations[1].heading_deg == 90.0 and stations[1].floor_z == pytest.approx(0.0, abs=1e-4)
 
@@ -70,7 +70,7 @@ def test_stations_without_heights_stand_on_a_standard_tripod(box, tmp_path):
     scene, scanner = box
     path = tmp_path / "xy.csv"
     path.write_text("x,y\n3,3\n")
-    (station,) = read_stations(path, scene, scanner)
+    (station,) = read_stations(path, scene, scanner, VZ400)
     assert station.position[2] == pytest.approx(VZ400.instrument_height_m, abs=1e-4)
 
 
@@ -78,7 +78,7 @@ def test_whitespace_separated_station_files_are_read(box, tmp_path):
     scene, scanner = box
     path = tmp_path / "stations.txt"
     path.write_text("x y z\n3 3 1.7\n5 3 1.7\n")
-    assert len(read_stations(path, scene, scanner)) == 2
+    assert len(read_stations(path, scene, scanner, VZ400)) == 2
 
 
 @pytest.mark.parametrize("text, message", [
@@ -95,22 +95,22 @@ def test_bad_station_files_give_clear_errors(box, tmp_path, text, message):
     path = tmp_path / "bad.csv"
     path.write_text(text)
     with pytest.raises(StationError, match=message):
-        read_stations(path, scene, scanner)
+        read_stations(path, scene, scanner, VZ400)
 
 
 def test_a_missing_station_file_is_an_input_error(box, tmp_path):
     scene, scanner = box
     with pytest.raises(InputFileError):
-        read_stations(tmp_path / "none.csv", scene, scanner)
+        read_stations(tmp_path / "none.csv", scene, scanner, VZ400)
 
 
 def test_a_model_with_no_room_for_a_tripod_is_refused(tiny_model, tmp_path):
     model = tiny_model("IFC4")
     model.add_box("IfcSlab", origin=(0, 0, -0.3), size=(1.0, 1.0, 0.3))  # a 1 m table of floor, no roof
     scene = load_scene(model.write(tmp_path / "tiny.ifc"))
-    scanner = VirtualScanner(scene.mesh, scene.components.label, scanner=VZ400)
+    scanner = Prober(scene.mesh)
     with pytest.raises(StationError, match="no place for a station"):
-        plan_stations(scene, scanner)
+        plan_stations(scene, scanner, VZ400)
 
 
 @pytest.mark.parametrize("content, message", [
@@ -127,5 +127,5 @@ def test_nonsense_station_files_are_refused_with_one_line(box, tmp_path, content
     path = tmp_path / "stations.csv"
     path.write_bytes(content)
     with pytest.raises(StationError, match=message) as caught:
-        read_stations(path, scene, scanner)
+        read_stations(path, scene, scanner, VZ400)
     assert "\n" not in str(caught.value)

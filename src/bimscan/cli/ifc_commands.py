@@ -87,7 +87,7 @@ def export_obj_command(model: Path, out_dir: Path, helios: bool, stations: str |
 
     prestart_worker()  # IfcOpenShell loads in the geometry worker while this process goes on
     from bimscan.io import export_obj
-    from bimscan.pipeline import build_site, load_scene
+    from bimscan.pipeline import build_site, load_scene, rooms_without_station_line, site_and_stations
     from bimscan.scan.recipe import ScanRecipe
 
     survey_options = {"--stations": stations, "--preset": preset, "--scanner": scanner, "--head-speed": head_deg_per_s}
@@ -105,20 +105,20 @@ def export_obj_command(model: Path, out_dir: Path, helios: bool, stations: str |
             click.echo(f"warning: {warning}", err=True)
     scene = load_scene(model, scheme=scheme, strict=strict, length_unit=length_unit)
     echo_load_report(scene)
-    scene = build_site(scene, recipe)
     survey_xml = None
     n_legs = 0
     if helios:
         from bimscan.io.helios import helios_scene_id, helios_survey_xml
-        from bimscan.survey.survey import prepare_survey
 
-        survey = prepare_survey(scene, recipe)
-        if survey.plan is not None and survey.plan.rooms_without_station:
-            click.echo("warning: rooms without a station (too small for a tripod or no floor): "
-                       + ", ".join(survey.plan.rooms_without_station), err=True)
-        survey_xml = helios_survey_xml(survey.stations, recipe.settings, recipe.scanner,
+        chosen = site_and_stations(scene, recipe)
+        scene = chosen.scene
+        if chosen.plan is not None and chosen.plan.rooms_without_station:
+            click.echo(f"warning: {rooms_without_station_line(chosen.plan)}", err=True)
+        survey_xml = helios_survey_xml(chosen.stations, recipe.settings, recipe.scanner,
                                        scene_id=helios_scene_id(scene.source), name=Path(scene.source).stem)
-        n_legs = len(survey.stations)
+        n_legs = len(chosen.stations)
+    else:
+        scene = build_site(scene, recipe)
     result = export_obj(scene, out_dir, helios=helios, helios_survey=survey_xml, overwrite=overwrite)
     click.echo(f"{result.out_dir}: {len(result.component_files)} component files, {result.n_triangles:,} triangles; "
                f"index {result.index_csv.name}" + (f"; HELIOS++ scene {result.helios_scene}" if result.helios_scene else ""))

@@ -89,13 +89,20 @@ class _WarningLines(logging.Handler):
         click.echo(f"warning: {' '.join(record.getMessage().split())}", err=True)
 
 
-def _stopped() -> int:
-    """Print the one line for a stopped run; its exit status (130 Ctrl-C, 143 SIGTERM)."""
-    if _STOPPING["signal"] == signal.SIGTERM:
-        click.echo("error: terminated; finished work is kept, run the same command to resume", err=True)
-        return 128 + signal.SIGTERM
-    click.echo("error: interrupted; finished work is kept, run the same command to resume", err=True)
-    return 130
+# What a stopped command leaves, by command: those that keep finished work and resume from it,
+# and training, which continues from its last checkpoint with --resume; the others leave nothing
+# (their outputs are written under temporary names and removed).
+RESUMES = {"build": "run the same command to resume", "sim2real": "run the same command to resume",
+           "demo": "run the same command to resume", "train": "add --resume to continue from the last epoch"}
+
+
+def _stopped(command: str | None = None) -> int:
+    """Print the one line for a stopped run of ``command``; its exit status (130 Ctrl-C, 143 SIGTERM)."""
+    what = "terminated" if _STOPPING["signal"] == signal.SIGTERM else "interrupted"
+    then = (f"finished work is kept, {RESUMES[command]}" if command in RESUMES
+            else "no partial output was left behind")
+    click.echo(f"error: {what}; {then}", err=True)
+    return 128 + signal.SIGTERM if _STOPPING["signal"] == signal.SIGTERM else 130
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -122,14 +129,16 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(argv: list[str] | None) -> int:
+    args = list(sys.argv[1:] if argv is None else argv)
+    command = next((a for a in args if not a.startswith("-")), None)  # the subcommand (the group takes no values)
     try:
         # click's own main() would print a blank line on Ctrl-C: the context is made and invoked here.
-        with cli.make_context("bimscan", list(sys.argv[1:] if argv is None else argv)) as context:
+        with cli.make_context("bimscan", args) as context:
             status = cli.invoke(context)
     except click.exceptions.Exit as exc:  # --help, --version
         return exc.exit_code
     except click.exceptions.Abort:
-        return _stopped()
+        return _stopped(command)
     except click.UsageError as exc:  # a bad option or argument: one line, like every other error
         command = f"bimscan {exc.ctx.command_path.split(' ', 1)[1]} " if exc.ctx and " " in exc.ctx.command_path else "bimscan "
         _error(f"{exc.format_message()} (see '{command}--help')")
@@ -141,10 +150,10 @@ def _run(argv: list[str] | None) -> int:
         _error(str(exc))
         return exc.exit_code
     except KeyboardInterrupt:
-        return _stopped()
+        return _stopped(command)
     except OSError as exc:
         if _STOPPING["signal"]:
-            return _stopped()
+            return _stopped(command)
         if exc.errno == errno.ENOSPC:
             _error(f"disk full while writing {exc.filename or 'output'}; free space and run again")
         else:
@@ -152,7 +161,7 @@ def _run(argv: list[str] | None) -> int:
         return 1
     except Exception:
         if _STOPPING["signal"]:  # e.g. Open3D's "initialization failed" ImportError after a Ctrl-C in its import
-            return _stopped()
+            return _stopped(command)
         raise
     return status if isinstance(status, int) else 0
 

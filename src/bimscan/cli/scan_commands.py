@@ -116,6 +116,7 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
     line = describe_site(result.survey.scene.site)
     if line:
         click.echo(line)
+    click.echo("  seconds: " + ", ".join(f"{step} {seconds:.1f}" for step, seconds in result.steps.items()))
 
 
 @click.command("furnish")

@@ -26,6 +26,7 @@ from concurrent.futures import wait as wait_futures
 from typing import Any, Protocol
 
 from bimscan.errors import ConfigError, DatasetError
+from bimscan.processes import die_with_parent
 
 TaskFunction = Callable[[Any], Any]
 
@@ -50,6 +51,7 @@ def _init_worker(channel: Any, parent: int, environment: dict[str, str]) -> None
     # Ctrl-C reaches the whole process group: the driver handles it (one line, and it ends the
     # workers), so a worker does not print a traceback of its own
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    die_with_parent()
     _WORKER_STATE["queue"] = channel
     _WORKER_STATE["parent"] = parent
     os.environ.update(environment)

@@ -33,6 +33,7 @@ from bimscan.dataset.layout import (
 from bimscan.dataset.plan import SceneJob, UnitJob
 from bimscan.errors import BimscanError, DatasetError
 from bimscan.files import replace_path
+from bimscan.scan.recipe import AUTO_STATIONS
 
 if TYPE_CHECKING:
     from bimscan.io import CloudWriter, WrittenCloud
@@ -83,8 +84,7 @@ def _one_line(error: BaseException) -> str:
 def run_scene_job(job: SceneJob) -> SceneOutcome:
     """Parse the scene (filling the geometry cache), dress it, and plan or read its stations once."""
     from bimscan.ifc.summary import report_lines
-    from bimscan.pipeline import build_site_timed, load_scene
-    from bimscan.survey.survey import choose_stations, place_scanner
+    from bimscan.pipeline import load_scene, rooms_without_station_line, site_and_stations
 
     try:
         start = time.perf_counter()
@@ -104,14 +104,14 @@ def run_scene_job(job: SceneJob) -> SceneOutcome:
             except (DatasetError, KeyError, TypeError):
                 pass  # damaged: plan again
         site_start = time.perf_counter()
-        scene, timings = build_site_timed(scene, job.recipe)
+        chosen = site_and_stations(scene, job.recipe)
+        scene, stations, plan, timings = chosen.scene, chosen.stations, chosen.plan, chosen.timings
         if site_path is not None:
             write_site_scene(site_path, scene, job.stations_key)
         site_s = time.perf_counter() - site_start
-        stations, plan = choose_stations(scene, place_scanner(scene, job.recipe), job.recipe.stations_from)
         notes: list[str] = []
         if plan is not None and plan.rooms_without_station:
-            notes.append("rooms without a station: " + ", ".join(plan.rooms_without_station))
+            notes.append(rooms_without_station_line(plan))
         write_json(path, {"format": STATIONS_FORMAT, "version": STATIONS_VERSION, "key": job.stations_key,
                           "scene": job.scene, "site": job.site_tag,
                           "stations": [dataclasses.asdict(s) for s in stations], "notes": notes})
@@ -140,11 +140,12 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
         scene = load_scene(job.ifc, scheme=job.scheme, threads=job.recipe.threads, strict=job.recipe.strict,
                            length_unit=job.length_unit)
         load_s = time.perf_counter() - start
+        stations = folder.read_stations(job.scene, job.site_tag)
         if job.site_tag:  # the scene task's dressed scene, else dressed again (the same bytes)
             stored = read_site_scene(folder.site_scene_path(job.scene, job.site_tag), scene, job.site_key)
-            scene = stored if stored is not None else build_site(scene, job.recipe)
+            keep_clear = stations if job.recipe.stations_from != AUTO_STATIONS else ()
+            scene = stored if stored is not None else build_site(scene, job.recipe, keep_clear=keep_clear)
         site_s = time.perf_counter() - start - load_s
-        stations = folder.read_stations(job.scene, job.site_tag)
         survey = prepare_survey(scene, job.recipe, stations=stations)
         header = cloud_header(survey, extra_metadata={
             "unit": {"id": job.unit, "scene": job.scene, "config": job.config, "voxel_size_m": job.voxel_size_m,

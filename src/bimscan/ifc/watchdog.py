@@ -40,6 +40,7 @@ from multiprocessing.connection import Connection
 from typing import Any
 
 from bimscan.errors import BimscanError, ConfigError, IfcError
+from bimscan.processes import die_with_parent
 from bimscan.progress import progress_bar
 from bimscan.types import FailedElement, ParsedModel
 
@@ -269,7 +270,7 @@ def serve(fd: int) -> None:
     """The worker's loop: parse each request received on ``fd``, report progress and the outcome."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     warnings.simplefilter("ignore")  # NumPy noise from degenerate placements; what matters is reported
-    _die_with_parent()
+    die_with_parent()
     connection = Connection(fd)
     # Everything the parse needs, imported once per worker (while it waits, when started early).
     import ifcopenshell.geom  # noqa: F401
@@ -300,21 +301,6 @@ def serve(fd: int) -> None:
                 emit("result", model)
         except (OSError, EOFError):
             return  # the parent is gone
-
-
-def _die_with_parent() -> None:
-    """Ask Linux to kill this worker when its parent dies (kill -9 included); best effort elsewhere."""
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        return
-    if os.getppid() == 1:  # the parent died before prctl took effect
-        os._exit(1)
 
 
 __all__ = ["ELEMENT_TIMEOUT_S", "element_timeout", "prestart_worker", "run_parse", "serve", "shutdown_workers"]

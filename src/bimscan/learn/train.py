@@ -38,6 +38,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from bimscan.errors import LearnError
+from bimscan.processes import die_with_parent
 from bimscan.learn.checkpoint import (
     MODEL_KEYS, capture_rng_state, load_state, read_checkpoint, restore_rng_state, save_checkpoint,
 )
@@ -494,6 +495,7 @@ def _train(
     loader = torch.utils.data.DataLoader(
         train_set, batch_sampler=sampler, num_workers=settings.num_workers,
         pin_memory=ctx.device.type == "cuda", persistent_workers=settings.num_workers > 0,
+        worker_init_fn=die_with_parent if settings.num_workers > 0 else None,
     )
     accumulation = settings.accumulation_steps
 

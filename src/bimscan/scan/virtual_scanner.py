@@ -24,15 +24,6 @@ _POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.int64)
 INTENSITY_REFERENCE_M = 5.0  # intensity falls with (5 m / range)^2 beyond 5 m
 
 
-def sphere_directions(n: int) -> np.ndarray:
-    """(n, 3) float32 unit vectors spread evenly over the sphere (Fibonacci lattice)."""
-    i = np.arange(n) + 0.5
-    z = 1 - 2 * i / n
-    r = np.sqrt(1 - z * z)
-    phi = math.pi * (1 + 5**0.5) * i
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1).astype(np.float32)
-
-
 def registration_error(noise: NoiseModel, key: np.uint64) -> tuple[np.ndarray, np.ndarray]:
     """The station's rigid registration error: rotation (3, 3) about the vertical and shift (3,) metres."""
     draws = station_normals(key)
@@ -84,7 +75,6 @@ class VirtualScanner:
         self._ray_buffer = np.empty((0, 6), dtype=np.float32)
         self._pulse_buffer = np.empty(0, dtype=np.int64)
         self._output_buffers: tuple[np.ndarray, ...] = (np.empty((0, 3)),)
-        self._probe: RayEngine | None = None
 
     def _set_threads(self) -> None:
         if self.threads:
@@ -380,58 +370,3 @@ class VirtualScanner:
         if reuse:
             self._output_buffers = columns
         return columns
-
-    def cast(self, origins_world: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """First hits of rays: origins (3,) or (N, 3) world metres, unit directions (N, 3).
-
-        Returns the distance (N,) float64 (inf where nothing is hit) and the hit component
-        (N,) int32 (-1 for a miss). For probing the scene (station planning and checks).
-        """
-        rays = np.empty((len(directions), 6), dtype=np.float32)
-        rays[:, :3] = np.asarray(origins_world, dtype=np.float64) - self.engine.centre
-        rays[:, 3:] = directions
-        t_hit, triangle = self.engine.cast(rays)
-        n_faces = len(self.face_component)
-        component = np.where(triangle < n_faces, self.face_component[np.minimum(triangle, n_faces - 1)], -1)
-        return t_hit.astype(np.float64), component.astype(np.int32)
-
-    def solid_containing(self, point_world: np.ndarray, *, n_rays: int = 96) -> int | None:
-        """The component whose closed surface encloses ``point_world``, or None.
-
-        Counts the crossings of each component along rays in all directions: from inside a
-        closed solid nearly every ray crosses it an odd number of times. Unlike a test on
-        triangle normals this does not trust the winding of the model's triangles.
-        """
-        from bimscan.scan.engine import Open3DEngine
-
-        count_crossings = getattr(self.engine, "count_crossings", None)
-        if count_crossings is not None:  # crossings per component counted by the engine itself (Warp)
-            rays = np.empty((n_rays, 6), dtype=np.float32)
-            rays[:, :3] = np.asarray(point_world, dtype=np.float64) - self.engine.centre
-            rays[:, 3:] = sphere_directions(n_rays)
-            rays_odd = (count_crossings(rays) % 2 == 1).sum(axis=0)
-            if not rays_odd.any():
-                return None
-            best = int(np.argmax(rays_odd))
-            return best if rays_odd[best] >= 0.8 * n_rays else None
-        if hasattr(self.engine, "list_intersections"):
-            probe = self.engine
-        else:  # engines without it (embreex): an Open3D scene for these rare probes
-            if self._probe is None:
-                self._probe = Open3DEngine(self.mesh, threads=self.threads)
-            probe = self._probe
-        rays = np.empty((n_rays, 6), dtype=np.float32)
-        rays[:, :3] = np.asarray(point_world, dtype=np.float64) - probe.centre
-        rays[:, 3:] = sphere_directions(n_rays)
-        ray_ids, triangle = probe.list_intersections(rays)
-        valid = triangle < len(self.face_component)
-        if not valid.any():
-            return None
-        component = self.face_component[triangle[valid]].astype(np.int64)
-        pairs, counts = np.unique(ray_ids[valid] * len(self.component_label) + component, return_counts=True)
-        odd = pairs[counts % 2 == 1] % len(self.component_label)
-        if len(odd) == 0:
-            return None
-        candidates, rays_odd = np.unique(odd, return_counts=True)
-        best = int(np.argmax(rays_odd))
-        return int(candidates[best]) if rays_odd[best] >= 0.8 * n_rays else None

@@ -41,6 +41,44 @@ wp.config.log_level = wp.LOG_WARNING  # no banner and no "module loaded" lines: 
 # forward kernels only: no adjoints to generate and compile (about half the compile time)
 wp.set_module_options({"enable_backward": False})
 
+
+def _init_warp() -> None:
+    """Start Warp with what its native library prints (``Warp CUDA warning: ...`` on stdout or
+    stderr, past Python's streams) caught at the file descriptors and passed on as Python
+    warnings, which the CLI prints as ``warning:`` lines like every other."""
+    import ctypes
+    import os
+    import sys
+    import tempfile
+    import warnings
+
+    sys.stdout.flush()
+    sys.stderr.flush()
+    with tempfile.TemporaryFile() as capture:
+        saved = (os.dup(1), os.dup(2))
+        os.dup2(capture.fileno(), 1)
+        os.dup2(capture.fileno(), 2)
+        try:
+            wp.init()
+        finally:
+            try:
+                ctypes.CDLL(None).fflush(None)  # C streams buffer when not a terminal
+            except (OSError, AttributeError):
+                pass
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            os.close(saved[0])
+            os.close(saved[1])
+        capture.seek(0)
+        printed = capture.read().decode("utf-8", "replace")
+    for line in printed.splitlines():
+        line = line.strip()
+        if line:
+            warnings.warn(line.replace("Warp CUDA warning:", "Warp:", 1), stacklevel=2)
+
+
+_init_warp()
+
 # The generator's constants (kernels.py): SplitMix64 and the key mixing.
 _GOLDEN = wp.constant(wp.uint64(0x9E3779B97F4A7C15))
 _STREAM = wp.constant(wp.uint64(0xD1B54A32D192ED03))
@@ -240,19 +278,6 @@ def _finish(kept: wp.array(dtype=wp.int32), row: wp.array(dtype=wp.int32), t_hit
     time[out] = time0_s + wp.float64(p) * pulse_period_s
 
 
-@wp.kernel
-def _count_crossings(mesh: wp.uint64, rays: wp.array2d(dtype=wp.float32), has_faces: wp.array(dtype=wp.int32),
-                     counts: wp.array2d(dtype=wp.int32)):
-    """Crossings of ray r with the triangles of component c (a mesh grouped by component)."""
-    r, c = wp.tid()
-    n = wp.int32(0)
-    if has_faces[c] != 0:  # an absent group's root is -1, the whole mesh
-        origin = wp.vec3(rays[r, 0], rays[r, 1], rays[r, 2])
-        direction = wp.vec3(rays[r, 3], rays[r, 4], rays[r, 5])
-        n = wp.mesh_query_ray_count_intersections(mesh, origin, direction, wp.mesh_get_group_root(mesh, c))
-    counts[r, c] = n
-
-
 def cuda_available() -> bool:
     """Whether Warp sees a CUDA device (initialises Warp)."""
     return wp.is_cuda_available()
@@ -295,8 +320,6 @@ class WarpEngine:
         self._grid = wp.array(_QUANTILE_GRID, dtype=wp.float64, device=self.device)
         self._small = wp.array(_QUANTILE_SMALL, dtype=wp.float64, device=self.device)
         self._face_component = np.ascontiguousarray(mesh.face_component, dtype=np.int32)
-        self._grouped: wp.Mesh | None = None  # the mesh grouped by component, built on first use
-        self._has_faces: wp.array | None = None  # (C,) int32: 1 where a component has triangles
         self._faces: FaceTables | None = None
         self._face_arrays: tuple[wp.array, wp.array, wp.array] | None = None
         self._buffers: dict[str, wp.array] = {}
@@ -330,23 +353,6 @@ class WarpEngine:
         face (N,) uint32 (asynchronous on CUDA; for benchmarks of the raw query)."""
         wp.launch(_cast, dim=rays.shape[0], inputs=[self._mesh.id, rays, max_t], outputs=[t_hit, face],
                   device=self.device)
-
-    def count_crossings(self, rays: np.ndarray) -> np.ndarray:
-        """How often each ray crosses each component's triangles: rays (R, 6) float32 local ->
-        (R, C) int32, C = the mesh's components (the inside/outside probes of station checks)."""
-        n_components = int(self._face_component.max(initial=-1)) + 1
-        if self._grouped is None:
-            groups = wp.array(self._face_component, dtype=wp.int32, device=self.device)
-            self._grouped = wp.Mesh(points=self._points, indices=self._indices, groups=groups, bvh_constructor="sah")
-            self._has_faces = wp.array((np.bincount(self._face_component, minlength=n_components) > 0).astype(np.int32),
-                                       dtype=wp.int32, device=self.device)
-        rays = np.ascontiguousarray(rays, dtype=np.float32)
-        counts = wp.zeros((len(rays), n_components), dtype=wp.int32, device=self.device)
-        if len(rays) and n_components:
-            wp.launch(_count_crossings, dim=(len(rays), n_components), device=self.device,
-                      inputs=[self._grouped.id, wp.array(rays, dtype=wp.float32, device=self.device), self._has_faces],
-                      outputs=[counts])
-        return counts.numpy()
 
     def empty_outputs(self, n: int) -> tuple[np.ndarray, ...]:
         """Output columns for n rays (as ``cast_and_finish`` takes them) that the scanner keeps

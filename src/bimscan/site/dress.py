@@ -26,8 +26,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from bimscan.errors import ConfigError
+from bimscan.progress import progress_bar
 from bimscan.site.classes import SITE_CLASSES, site_class_ancestry
-from bimscan.site.floor import Prober, component_mask, find_room_floors, keep_out_zones
+from bimscan.scan.probe import Prober
+from bimscan.site.floor import component_mask, find_room_floors, keep_out_zones
 from bimscan.site.library import CLUTTER_KINDS, ClutterKind, select_kinds
 from bimscan.site.model import SiteModel, site_settings
 from bimscan.site.placement import PlacedObject, RoomPlacer
@@ -46,6 +48,10 @@ class DressTimings:
     floor_s: float = 0.0  # probing the free floor of every room
     placement_s: float = 0.0  # placing the objects
     rooms: int = 0
+
+    @property
+    def total_s(self) -> float:
+        return self.stage_s + self.floor_s + self.placement_s
 
 
 def default_kinds(site: SiteModel) -> tuple[str, ...]:
@@ -69,8 +75,8 @@ def dress_scene(scene: BimScene, site: SiteModel, *, seed: int, schedule: Mappin
 def dress_scene_timed(scene: BimScene, site: SiteModel, *, seed: int,
                       schedule: Mapping[str, BuildDates] | None = None,
                       keep_clear: Sequence[tuple[float, float, float]] = (),
-                      threads: int = 0) -> tuple[BimScene, DressTimings]:
-    """``dress_scene`` and how long its parts took."""
+                      threads: int = 0, progress: bool = False) -> tuple[BimScene, DressTimings]:
+    """``dress_scene`` and how long its parts took (``progress``: a bar over the rooms on a terminal)."""
     if site.is_bare:
         return scene, DressTimings()
     start = time.perf_counter()
@@ -101,7 +107,9 @@ def dress_scene_timed(scene: BimScene, site: SiteModel, *, seed: int,
         on_floor = tuple(k for k in kinds if k.mount == "floor")
         on_ceiling = tuple(k for k in kinds if k.mount == "ceiling")
         rooms_count = len(rooms)
+        bar = progress_bar(total=len(rooms), desc="dressing rooms", unit="room", enabled=progress)
         for room in rooms:
+            bar.update(1)
             free_floor += room.free_area_m2()
             rng = np.random.default_rng(np.random.SeedSequence(
                 [seed, zlib.crc32(scene.file_sha256.encode()), zlib.crc32(room.key.encode())]))
@@ -114,6 +122,7 @@ def dress_scene_timed(scene: BimScene, site: SiteModel, *, seed: int,
                 if rng.random() < kind.room_probability:
                     placer.place_ceiling_grid(kind, soffits, coverings)
             placed += placer.placed
+        bar.close()
         openings = [p.footprint for p in placed if p.opening]
         if openings:  # lay-in fittings: the ceiling tiles are cut where they sit
             staged = dataclasses.replace(staged, mesh=cut_openings(staged.mesh, coverings, openings))

@@ -3,7 +3,9 @@
 Every room (an IfcSpace at least 1 m tall; without them, every connected free floor area of a
 storey) gets a grid of ``CELL_M`` cells in the room's own axes (the direction of its longest
 floor edge). A cell is *free* when a ray cast down from ``PROBE_M`` above the floor meets a floor
-element (slab, covering, ramp, plate, footing) near the room's floor level: nothing stands on it up to that height and
+element (slab, covering, ramp, plate, footing) near the room's floor level (in a room the model
+has no floor element in at all, a storey exported without its slabs, when it meets nothing down
+to the room's own floor): nothing stands on it up to that height and
 the probe did not start inside a solid (a probe inside a wall or a cabinet meets that element
 first, or, where a wall's bottom face lies on the slab's top face, its horizontal rays meet the
 wall's faces from behind). A ray up from the same point gives the *headroom* (clear height above the floor) and the
@@ -20,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bimscan.scan.engine import Open3DEngine, make_engine
+from bimscan.scan.probe import Prober
 from bimscan.types import BimScene, SceneMesh, Space
 
 CELL_M = 0.1
@@ -38,59 +40,6 @@ MAX_CELLS = 4_000_000  # per room grid; larger floors get coarser cells
 # Rooms whose name says they are for passing through: objects there stand against the walls (the
 # way through stays clear, as escape routes must).
 CIRCULATION = re.compile(r"corridor|hall|lobby|foyer|stair|landing|circulation|passage|flur|gang|treppe", re.I)
-
-
-_DIAGONAL = float(np.sqrt(0.5))
-INSIDE_PROBE_DIRECTIONS = (
-    (1.0, 0.0, 0.0), (-1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, -1.0, 0.0),
-    (_DIAGONAL, _DIAGONAL, 0.0), (-_DIAGONAL, _DIAGONAL, 0.0), (_DIAGONAL, -_DIAGONAL, 0.0), (-_DIAGONAL, -_DIAGONAL, 0.0),
-)
-
-class Prober:
-    """Ray probes of one mesh through the scan engine interface (Open3D's Embree scene, whatever
-    engine scans: a dressed scene must not depend on the scan engine): first hits, the component
-    hit, and whether points lie inside a solid."""
-
-    def __init__(self, mesh: SceneMesh, *, threads: int = 0) -> None:
-        self.mesh = mesh
-        self.engine: Open3DEngine = make_engine(mesh, name="open3d", threads=threads)  # type: ignore[assignment]
-        self.face_component = mesh.face_component
-        self.n_components = int(mesh.face_component.max()) + 1 if len(mesh.face_component) else 0
-
-    def cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """origins (N, 3) world metres, unit directions (N, 3) -> distance (N,) float64 (inf: no hit),
-        component (N,) int64 (-1: no hit)."""
-        n = len(origins)
-        if n == 0:
-            return np.zeros(0), np.zeros(0, dtype=np.int64)
-        rays = np.empty((n, 6), dtype=np.float32)
-        rays[:, :3] = origins - self.engine.centre
-        rays[:, 3:] = directions
-        t, triangle = self.engine.cast(rays)
-        hit = np.isfinite(t) & (triangle < len(self.face_component))
-        component = np.where(hit, self.face_component[np.where(hit, triangle, 0)], -1).astype(np.int64)
-        return np.where(hit, t, np.inf).astype(np.float64), component
-
-    def inside_solid(self, points: np.ndarray) -> np.ndarray:
-        """(N,) bool: points (N, 3) world metres inside a closed solid: at least six of eight
-        horizontal rays from the point (the axes and the diagonals) meet a face from behind (faces
-        wound outward, as IfcOpenShell writes closed shells). A vote, because a ray along a wall
-        ends where walls abut, on two coincident faces, and which of them the BVH reports differs
-        between Embree builds; the diagonals leave a wall through its long faces."""
-        if len(points) == 0:
-            return np.zeros(0, dtype=bool)
-        normals = self.mesh.face_normals()
-        behind = np.zeros(len(points), dtype=int)
-        for direction in INSIDE_PROBE_DIRECTIONS:
-            rays = np.empty((len(points), 6), dtype=np.float32)
-            rays[:, :3] = points - self.engine.centre
-            rays[:, 3:] = direction
-            t, triangle = self.engine.cast(rays)
-            hit = np.isfinite(t) & (triangle < len(normals))
-            facing = np.zeros(len(points))
-            facing[hit] = normals[triangle[hit]] @ np.asarray(direction)
-            behind += facing > 0
-        return behind >= 6
 
 
 @dataclass
@@ -156,19 +105,7 @@ class RoomFloor:
 def component_mask(scene: BimScene, classes: Sequence[str], *, parents: bool = False) -> np.ndarray:
     """(C,) bool: components whose class (or, with ``parents``, whose aggregate's class) descends
     from one of ``classes``."""
-    wanted = {c.lower() for c in classes}
-    ancestry = scene.components.class_ancestry
-    cache: dict[str, bool] = {}
-
-    def hits(cls: str) -> bool:
-        if cls not in cache:
-            cache[cls] = bool(cls) and any(a.lower() in wanted for a in ancestry.get(cls, (cls,)))
-        return cache[cls]
-
-    own = np.array([hits(c) for c in scene.components.ifc_class.tolist()], dtype=bool)
-    if not parents:
-        return own
-    return own | np.array([hits(c) for c in scene.components.parent_class.tolist()], dtype=bool)
+    return scene.components.descends_from(classes, parents=parents)
 
 
 def component_bounds(mesh: SceneMesh, n_components: int) -> tuple[np.ndarray, np.ndarray]:
@@ -176,9 +113,12 @@ def component_bounds(mesh: SceneMesh, n_components: int) -> tuple[np.ndarray, np
     lo = np.full((n_components, 3), np.inf)
     hi = np.full((n_components, 3), -np.inf)
     if len(mesh.faces):
-        corners = mesh.vertices[mesh.faces]  # (F, 3, 3)
-        np.minimum.at(lo, mesh.face_component, corners.min(axis=1))
-        np.maximum.at(hi, mesh.face_component, corners.max(axis=1))
+        order = np.argsort(mesh.face_component, kind="stable")
+        component = mesh.face_component[order]
+        corners = mesh.vertices[mesh.faces[order]]  # (F, 3, 3), grouped by component
+        starts = np.flatnonzero(np.concatenate([[True], component[1:] != component[:-1]]))
+        lo[component[starts]] = np.minimum.reduceat(corners.min(axis=1), starts)
+        hi[component[starts]] = np.maximum.reduceat(corners.max(axis=1), starts)
     return lo, hi
 
 
@@ -215,13 +155,19 @@ def _levels(scene: BimScene) -> list[tuple[str, float, float]]:
 
 
 def _probe(prober: Prober, xy: np.ndarray, level_z: float, height_m: float,
-           floor_components: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Probe cells at world xy (N, 2): (free, floor_z, headroom, overhead component)."""
+           floor_components: np.ndarray, *, own_floor: bool = False) -> tuple[np.ndarray, ...]:
+    """Probe cells at world xy (N, 2): (free, floor_z, headroom, overhead component). With
+    ``own_floor`` (a room the model has no floor element in) a cell with nothing on it down to the
+    level stands on the level itself."""
     start = level_z + min(PROBE_M, 0.5 * height_m)
     origins = np.column_stack([xy, np.full(len(xy), start)])
     t_down, below = prober.cast(origins, np.broadcast_to(np.array([0.0, 0.0, -1.0]), origins.shape))
     floor_z = start - t_down
-    free = (below >= 0) & floor_components[np.maximum(below, 0)] & (np.abs(floor_z - level_z) < FLOOR_TOLERANCE_M)
+    if own_floor:
+        free = floor_z < level_z - FLOOR_TOLERANCE_M  # nothing down to the level (inf: nothing at all)
+        floor_z = np.full(len(xy), level_z)
+    else:
+        free = (below >= 0) & floor_components[np.maximum(below, 0)] & (np.abs(floor_z - level_z) < FLOOR_TOLERANCE_M)
     free[free] = ~prober.inside_solid(origins[free])
     t_up, above = prober.cast(origins, np.broadcast_to(np.array([0.0, 0.0, 1.0]), origins.shape))
     headroom = np.where(free, start - floor_z + np.minimum(t_up, 50.0), 0.0)
@@ -261,7 +207,7 @@ def find_room_floors(scene: BimScene, prober: Prober, *, zones: Sequence[tuple[n
             room = _empty_room(space.name, space.storey, space.global_id, z0, angle, origin, cell, ny, nx)
             centres = room.to_world(room.cell_centres().reshape(-1, 2))
             inside = space.contains(np.column_stack([centres, np.full(len(centres), z0 + 0.5)]))
-            _fill(room, prober, centres, inside, z1 - z0, floor_components)
+            _fill(room, prober, centres, inside, z1 - z0, floor_components, own_floor=True)
             rooms.append(room)
     else:
         lo, hi = scene.mesh.bounds()
@@ -288,11 +234,14 @@ def _empty_room(name: str, storey: str, key: str, level_z: float, angle: float, 
 
 
 def _fill(room: RoomFloor, prober: Prober, centres: np.ndarray, inside: np.ndarray, height: float,
-          floor_components: np.ndarray) -> None:
+          floor_components: np.ndarray, *, own_floor: bool = False) -> None:
     shape = room.shape
     room.inside[:] = inside.reshape(shape)
     index = np.flatnonzero(inside)
     free, floor_z, headroom, overhead = _probe(prober, centres[index], room.level_z, height, floor_components)
+    if own_floor and len(index) and not free.any():  # no floor element in the room: it stands on its own floor
+        free, floor_z, headroom, overhead = _probe(prober, centres[index], room.level_z, height, floor_components,
+                                                   own_floor=True)
     for target, values in ((room.free, free), (room.floor_z, floor_z), (room.headroom_m, headroom),
                            (room.overhead, overhead)):
         target.reshape(-1)[index] = values

@@ -75,10 +75,14 @@ class StageSettings:
                     raise ConfigError(f"stage {what} entry {name!r} is not an IFC class name; "
                                       "give names like 'IfcWall'")
         if self.at is not None:
-            try:
-                datetime.date.fromisoformat(self.at)
-            except (TypeError, ValueError) as exc:
-                raise ConfigError(f"at = {self.at!r} is not a date; give one as YYYY-MM-DD") from exc
+            object.__setattr__(self, "at", iso_date(self.at))
+        if self.ceilings_open_fraction > 0 and not self._builds("IfcCovering"):
+            raise ConfigError(f"ceilings_open_fraction = {self.ceilings_open_fraction:g} does nothing at stage "
+                              f"{self.name!r}: no ceiling is built yet; leave it out or use stage 'finished'")
+
+    def _builds(self, ifc_class: str) -> bool:
+        classes = self.kept_classes()
+        return (classes is None or ifc_class in classes) and ifc_class not in self.exclude
 
     @property
     def is_bare(self) -> bool:
@@ -123,16 +127,48 @@ class SiteModel:
     stage: StageSettings = field(default_factory=StageSettings)
     clutter: ClutterSettings = field(default_factory=ClutterSettings)
 
+    def __post_init__(self) -> None:
+        if self.clutter.kinds and self.clutter.density == 0.0:
+            raise ConfigError(f"clutter kinds {', '.join(self.clutter.kinds)} are given with a clutter density of 0, "
+                              "which places nothing; give a density (--clutter 0.3) or leave the kinds out")
+
     @property
     def is_bare(self) -> bool:
         """True when dressing changes nothing: the finished model, no clutter."""
         return self.stage.is_bare and self.clutter.density == 0.0
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        """Settings that do less than they seem to, one line each."""
+        if self.stage.props_fraction > 0 and self.stage._builds("IfcCovering"):
+            return (f"props_fraction = {self.stage.props_fraction:g} at stage {self.stage.name!r}: props stand only "
+                    "where no ceiling hides the slab (rooms with exposed soffits); use stage 'structure' or "
+                    "'enclosed' for propped slabs",)
+        return ()
 
     def to_json(self) -> dict[str, Any]:
         """JSON-able (what clouds and units record; part of the recipe's fingerprint)."""
         stage = dataclasses.asdict(self.stage)
         stage["include"], stage["exclude"] = list(self.stage.include), list(self.stage.exclude)
         return {"stage": stage, "clutter": {"density": self.clutter.density, "kinds": list(self.clutter.kinds)}}
+
+
+def iso_date(value: Any) -> str:
+    """A date as ISO ``YYYY-MM-DD`` (compared as text with the schedule's dates): from that text,
+    ISO 8601's basic ``YYYYMMDD``, a TOML date or a datetime (its day). ConfigError otherwise."""
+    if isinstance(value, datetime.datetime):
+        return value.date().isoformat()
+    if isinstance(value, datetime.date):
+        return value.isoformat()
+    text = value.strip() if isinstance(value, str) else None
+    try:
+        extended = text is not None and len(text) == 10 and text[4] == "-" and text[7] == "-"
+        basic = text is not None and len(text) == 8 and text.isdigit()  # ISO 8601's basic form, 20240310
+        if not (extended or basic):
+            raise ValueError(text)
+        return datetime.date.fromisoformat(text).isoformat()
+    except ValueError as exc:
+        raise ConfigError(f"at = {value!r} is not a date; give one as YYYY-MM-DD (e.g. 2024-03-10)") from exc
 
 
 def site_settings(site: SiteModel, seed: int) -> dict[str, Any]:

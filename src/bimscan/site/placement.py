@@ -35,7 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bimscan.site.floor import Prober, RoomFloor
+from bimscan.scan.probe import Prober
+from bimscan.site.floor import RoomFloor
 from bimscan.site.library import (
     MIN_CLEAR_UNDER_FIXTURE_M,
     TROFFER_FRACTION,

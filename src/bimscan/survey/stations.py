@@ -8,11 +8,12 @@ origin above the floor below; without z and height the scanner's tripod + beam o
 ``storey`` naming the storey of floor-relative stations when the building has more than one;
 ``heading_deg`` is optional. Lines starting with ``#`` are comments.
 
-``plan_stations`` places stations per storey: a grid of candidate tripod spots on floors
-(slab or floor covering under the spot, headroom, a clear circle around the tripod, not inside
-any solid), one station in every room (IfcSpace) that has a usable spot, then a greedy visibility
-cover so that every usable spot is seen from a station within ``max_spacing_m``. Rooms with a
-floor but no usable spot are reported.
+``plan_stations`` places stations on the floors the geometry has (``survey.spots``: level
+surfaces a tripod can stand on, with headroom and a clear circle), level by level (floor heights
+more than ``LEVEL_GAP_M`` apart): one station in every room (IfcSpace) that has a tripod spot,
+then a greedy visibility cover so that every spot of the level is seen from a station within
+``max_spacing_m``. Every station it returns passes ``check_station``. Rooms without a tripod
+spot are reported; a model without any is a ``StationError``.
 """
 
 from __future__ import annotations
@@ -26,11 +27,16 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.errors import InputFileError, StationError
-from bimscan.scan.virtual_scanner import VirtualScanner, sphere_directions
-from bimscan.types import BimScene, Station
+from bimscan.scan.device import ScannerModel
+from bimscan.scan.probe import Prober, sphere_directions
+from bimscan.survey.spots import (
+    DOWN_CONE_Z, STATION_CHECK_RAYS, TripodSpots, find_tripod_spots, grid_columns, in_room, on_room_floor, rooms_of,
+)
+from bimscan.types import BimScene, Space, Station
 
-FLOOR_CLASSES = ("IfcSlab", "IfcCovering", "IfcRamp", "IfcRampFlight", "IfcPlate")
 HEAD_CLEARANCE_M = 0.1  # a TLS head is about 20-30 cm across: its beam origin needs this much free space around it
+LEVEL_GAP_M = 1.2  # floor heights further apart than this are separate levels (a storey is at least 2 m)
+FINE_GRID_M = 0.25  # rooms the planner's grid misses are searched on this grid
 
 
 @dataclass(frozen=True)
@@ -38,11 +44,12 @@ class PlanReport:
     """What the planner did: stations per storey and the rooms it could not place a station in."""
 
     stations_per_storey: dict[str, int] = field(default_factory=dict)
-    rooms_without_station: tuple[str, ...] = ()
+    rooms_without_station: tuple[str, ...] = ()  # rooms (IfcSpace) with no spot a tripod can stand on
 
 
-def read_stations(path: str | Path, scene: BimScene, scanner: VirtualScanner) -> tuple[Station, ...]:
-    """Stations from a CSV file (see module docs); floor-relative rows are placed on the floor."""
+def read_stations(path: str | Path, scene: BimScene, prober: Prober, scanner: ScannerModel) -> tuple[Station, ...]:
+    """Stations from a CSV file (see module docs); floor-relative rows are placed on the floor,
+    the tripod's height being ``scanner``'s. Each is checked (``check_station``)."""
     path = Path(path)
     if not path.is_file():
         raise InputFileError(f"{path}: no such station file; check the path")
@@ -64,7 +71,7 @@ def read_stations(path: str | Path, scene: BimScene, scanner: VirtualScanner) ->
                            f"storey, heading_deg); unknown: {', '.join(unknown) or 'none'}")
     storeys = {s.name: s.elevation_m for s in scene.storeys}
     stations = []
-    instrument = scanner.scanner.instrument_height_m
+    instrument = scanner.instrument_height_m
     for number, row in enumerate(rows[1:], start=1):
         if len(row) != len(header):
             raise StationError(f"{path}: station {number} has {len(row)} values for {len(header)} columns; fix the row")
@@ -91,7 +98,10 @@ def read_stations(path: str | Path, scene: BimScene, scanner: VirtualScanner) ->
                 storey_name = next(iter(storeys), "")
             if storey_name not in storeys:
                 raise StationError(f"{path}: station {number}: unknown storey {storey_name!r}; use one of {', '.join(storeys)}")
-            floor_z = _floor_below(scanner, x, y, storeys[storey_name] + 1.0)
+            floor_z = _floor_below(prober, x, y, storeys[storey_name] + 1.0)
+            if floor_z is None:  # a room of the storey without a floor element: its own floor
+                floor_z = next((float(r.vertices[:, 2].min()) for r in rooms_of(scene)
+                                if r.storey == storey_name and r.contains(np.array([[x, y, float(r.vertices[:, 2].min()) + 0.05]]))[0]), None)
             if floor_z is None:
                 raise StationError(f"{path}: station {number} at ({x:g}, {y:g}) has no floor under it on storey "
                                    f"{storey_name!r}; move it inside the building")
@@ -99,194 +109,193 @@ def read_stations(path: str | Path, scene: BimScene, scanner: VirtualScanner) ->
         stations.append(Station(id=number - 1, position=(x, y, z), heading_deg=heading, floor_z=floor_z,
                                 storey=storey_name))
     for station in stations:
-        check_station(station, scene, scanner)
+        check_station(station, scene, prober)
     return tuple(stations)
 
 
-def check_station(station: Station, scene: BimScene, scanner: VirtualScanner) -> None:
-    """Raise StationError when a station is unusable: inside a solid, outside the building, with
-    nothing under it to stand on, or with a surface closer than a scanner head's size."""
+def station_problem(station: Station, scene: BimScene, prober: Prober) -> str | None:
+    """Why a station is unusable (one line: inside a solid, outside the building, nothing under it
+    to stand on, a surface closer than a scanner head's size), or None. A station whose floor is
+    a room's (``floor_z`` at the bottom of an IfcSpace it stands in) stands on that floor even
+    where the model has no slab."""
     where = f"station {station.id} at ({', '.join(f'{c:.2f}' for c in station.position)})"
-    inside = scanner.solid_containing(np.asarray(station.position))
+    inside = prober.solid_containing(np.asarray(station.position))
     if inside is not None:
-        raise StationError(f"{where} is inside a solid ({scene.components.ifc_class[inside]} "
-                           f"{scene.components.global_id[inside]}); move it into a room")
-    directions = sphere_directions(2048)
-    t_hit, component = scanner.cast(np.asarray(station.position), directions)
+        return (f"{where} is inside a solid ({scene.components.ifc_class[inside]} "
+                f"{scene.components.global_id[inside]}); move it into a room")
+    directions = sphere_directions(STATION_CHECK_RAYS)
+    t_hit, component = prober.cast(np.asarray(station.position), directions)
     hit = np.isfinite(t_hit)
-    down, up = directions[:, 2] < -0.85, directions[:, 2] > 0.85
-    if (~hit[down]).mean() > 0.5 and (~hit[up]).mean() > 0.5:
-        raise StationError(f"{where} is outside the building (nothing above or below it); move it inside")
-    if (~hit[down]).mean() > 0.5:
-        raise StationError(f"{where} has nothing under it to stand on (under the building?); give its z as the beam "
-                           "height above a floor, or use a height column")
+    down, up = directions[:, 2] < DOWN_CONE_Z, directions[:, 2] > -DOWN_CONE_Z
+    on_room = station.floor_z is not None and bool(
+        on_room_floor(scene, np.array([[station.position[0], station.position[1], station.floor_z]]))[0])
+    if (~hit[down]).mean() > 0.5 and (~hit[up]).mean() > 0.5 and not on_room:
+        return f"{where} is outside the building (nothing above or below it); move it inside"
+    if (~hit[down]).mean() > 0.5 and not on_room:
+        return (f"{where} has nothing under it to stand on (under the building?); give its z as the beam "
+                "height above a floor, or use a height column")
     nearest = int(np.argmin(t_hit))
     if t_hit[nearest] < HEAD_CLEARANCE_M:
         c = int(component[nearest])
-        raise StationError(f"{where} is {100 * t_hit[nearest]:.0f} cm from {scene.components.ifc_class[c]} "
-                           f"{scene.components.global_id[c]}, closer than a scanner head allows "
-                           f"({100 * HEAD_CLEARANCE_M:.0f} cm); move it into free space")
+        return (f"{where} is {100 * t_hit[nearest]:.0f} cm from {scene.components.ifc_class[c]} "
+                f"{scene.components.global_id[c]}, closer than a scanner head allows "
+                f"({100 * HEAD_CLEARANCE_M:.0f} cm); move it into free space")
+    return None
 
 
-def _floor_below(scanner: VirtualScanner, x: float, y: float, z_from: float) -> float | None:
-    t, _ = scanner.cast(np.array([x, y, z_from]), np.array([[0.0, 0.0, -1.0]], dtype=np.float32))
+def check_station(station: Station, scene: BimScene, prober: Prober) -> None:
+    """Raise StationError when a station is unusable (see ``station_problem``)."""
+    problem = station_problem(station, scene, prober)
+    if problem is not None:
+        raise StationError(problem)
+
+
+def _floor_below(prober: Prober, x: float, y: float, z_from: float) -> float | None:
+    t, _ = prober.cast(np.array([x, y, z_from]), np.array([[0.0, 0.0, -1.0]], dtype=np.float32))
     return None if not np.isfinite(t[0]) else z_from - float(t[0])
 
 
-def plan_stations(scene: BimScene, scanner: VirtualScanner, *, grid_m: float = 1.0, clearance_m: float = 0.4,
-                  max_spacing_m: float = 12.0, max_candidates: int = 3000) -> tuple[tuple[Station, ...], PlanReport]:
-    """Place stations on every storey (see module docs). Raises StationError if none can be placed."""
-    instrument = scanner.scanner.instrument_height_m
-    lo, hi = scene.mesh.bounds()
-    area = max((hi[0] - lo[0]) * (hi[1] - lo[1]), 1e-6)
-    grid = max(grid_m, math.sqrt(area / max_candidates))
-    xs = np.arange(lo[0] + grid / 2, hi[0], grid)
-    ys = np.arange(lo[1] + grid / 2, hi[1], grid)
-    gx, gy = (a.ravel() for a in np.meshgrid(xs, ys, indexing="xy"))
-    floor_components = _components_of(scene, FLOOR_CLASSES)
-    levels = _levels(scene, lo[2], hi[2])
+def plan_stations(scene: BimScene, prober: Prober, scanner: ScannerModel, *, grid_m: float = 1.0,
+                  clearance_m: float = 0.4, max_spacing_m: float = 12.0,
+                  max_columns: int = 4000) -> tuple[tuple[Station, ...], PlanReport]:
+    """Place stations on every level (see the module docs): ``grid_m`` apart (coarser on models over
+    ``max_columns`` square grid cells), ``clearance_m`` clear around the tripod, every spot seen from a
+    station within ``max_spacing_m``. Raises StationError when no tripod can stand anywhere."""
+    instrument = scanner.instrument_height_m
+    rooms = rooms_of(scene)
+    spots = station_spots(scene, prober, scanner, grid_m=grid_m, clearance_m=clearance_m, max_columns=max_columns)
+    levels = floor_levels(spots.floor[:, 2])
+    room_spots = [in_room(room, spots.floor) for room in rooms]
+    refused = np.zeros(len(spots), dtype=bool)
     stations: list[Station] = []
     per_storey: dict[str, int] = {}
-    rooms_without: list[str] = []
-    for index, (name, elevation, next_elevation) in enumerate(levels):
-        spots = _tripod_spots(scanner, gx, gy, elevation, next_elevation, floor_components, instrument, clearance_m)
-        rooms = [s for s in scene.spaces if s.storey == name] if name else list(scene.spaces)
-        # small rooms can fall between grid points: search them on a fine grid of their own
-        for room in rooms:
-            if not _room_has_floor(room, elevation, next_elevation) or (len(spots) and _in_room(room, spots).any()):
-                continue
-            r_lo, r_hi = room.vertices.min(axis=0), room.vertices.max(axis=0)
-            fx, fy = (a.ravel() for a in np.meshgrid(np.arange(r_lo[0] + 0.125, r_hi[0], 0.25),
-                                                     np.arange(r_lo[1] + 0.125, r_hi[1], 0.25), indexing="xy"))
-            if len(fx) == 0:
-                continue
-            fine = _tripod_spots(scanner, fx, fy, elevation, next_elevation, floor_components, instrument, clearance_m)
-            fine = fine[_in_room(room, fine)] if len(fine) else fine
-            if len(fine):
-                spots = np.concatenate([spots, fine]) if len(spots) else fine
-        if len(spots) == 0:
-            rooms_without += [r.name for r in rooms if _room_has_floor(r, elevation, next_elevation)]
+    with_station = np.zeros(len(rooms), dtype=bool)
+    for level in range(int(levels.max()) + 1):
+        while True:  # a chosen spot the station check refuses is dropped and the level chosen again
+            members = np.flatnonzero((levels == level) & ~refused)
+            chosen = _choose(prober, scanner, spots, members, room_spots, with_station, max_spacing_m)
+            trial = [_station(len(stations) + k, spots.floor[i], rooms, room_spots, i, scene, instrument)
+                     for k, i in enumerate(chosen)]
+            bad = [i for i, s in zip(chosen, trial) if station_problem(s, scene, prober) is not None]
+            if not bad:
+                break
+            refused[bad] = True
+        for i, station in zip(chosen, trial):
+            stations.append(station)
+            storey = station.storey or f"level at {spots.floor[i, 2]:.2f} m"
+            per_storey[storey] = per_storey.get(storey, 0) + 1
+            for k, members_of_room in enumerate(room_spots):
+                with_station[k] |= bool(members_of_room[i])
+    rooms_without = tuple(room.name for k, room in enumerate(rooms) if not with_station[k])
+    return tuple(stations), PlanReport(per_storey, rooms_without)
+
+
+def station_spots(scene: BimScene, prober: Prober, scanner: ScannerModel, *, grid_m: float = 1.0,
+                  clearance_m: float = 0.4, max_columns: int = 4000) -> TripodSpots:
+    """The tripod spots the planner chooses from (see ``plan_stations``): on the grid, on a finer
+    grid in rooms the grid misses, covered ones only where the model has any. Raises StationError
+    when there is none: no tripod can stand anywhere in the model."""
+    instrument = scanner.instrument_height_m
+    lo, hi = scene.mesh.bounds()
+    spots = find_tripod_spots(scene, prober, grid_columns(lo, hi, grid_m=grid_m, max_columns=max_columns),
+                              instrument_m=instrument, clearance_m=clearance_m)
+    found = [spots]
+    for room in rooms_of(scene):  # small rooms can fall between grid points: search them on a fine grid of their own
+        if in_room(room, spots.floor).any():
             continue
-        chosen = _choose(scanner, spots, rooms, instrument, max_spacing_m, rooms_without, elevation, next_elevation)
-        per_storey[name or f"level {index}"] = len(chosen)
-        for i in chosen:
-            x, y, floor_z = spots[i]
-            stations.append(Station(id=len(stations), position=(float(x), float(y), float(floor_z + instrument)),
-                                    floor_z=float(floor_z), storey=name, room=_room_name(rooms, x, y, floor_z)))
-    if not stations:
-        raise StationError(f"{scene.source}: no place for a station found (no floor with {instrument + 0.3:.1f} m of "
-                           "headroom and a clear tripod spot); give stations in a file with --stations FILE")
-    return tuple(stations), PlanReport(per_storey, tuple(rooms_without))
-
-
-def _components_of(scene: BimScene, classes: tuple[str, ...]) -> np.ndarray:
-    """Boolean mask (C,) of components whose class descends from one of ``classes``."""
-    ancestry = scene.components.class_ancestry
-    wanted = {c.lower() for c in classes}
-    by_class = {cls: any(a.lower() in wanted for a in ancestry.get(cls, (cls,))) for cls in set(scene.components.ifc_class.tolist())}
-    mask = np.array([by_class[c] for c in scene.components.ifc_class.tolist()], dtype=bool)
-    return mask if mask.any() else np.ones(len(mask), dtype=bool)  # no slabs at all: any surface is a floor
-
-
-def _levels(scene: BimScene, z_min: float, z_max: float) -> list[tuple[str, float, float]]:
-    """(storey name, elevation, next elevation) from the storeys, or one level for the whole model."""
-    storeys = sorted(scene.storeys, key=lambda s: s.elevation_m)
-    if not storeys:
-        return [("", float(z_min), float(z_max) + 1.0)]
-    out = []
-    for i, s in enumerate(storeys):
-        nxt = storeys[i + 1].elevation_m if i + 1 < len(storeys) else float(z_max) + 1.0
-        if nxt - s.elevation_m > 1.0:
-            out.append((s.name, s.elevation_m, nxt))
-    return out
-
-
-def _tripod_spots(scanner: VirtualScanner, gx: np.ndarray, gy: np.ndarray, elevation: float, next_elevation: float,
-                  floor_components: np.ndarray, instrument: float, clearance: float) -> np.ndarray:
-    """(M, 3) candidate tripod spots (x, y, floor z) of one storey.
-
-    A spot stands on a floor surface near the storey's elevation (or, where the model has no
-    floor there, on a virtual floor at the elevation), under a ceiling or roof with headroom for
-    the instrument, with a clear circle around the tripod. Spots on furniture are rejected: the
-    first surface below must be a floor element or lie no higher than the elevation.
-    """
-    start_z = elevation + min(1.0, 0.5 * (next_elevation - elevation))
-    origins = np.stack([gx, gy, np.full_like(gx, start_z)], axis=1)
-    t, component = scanner.cast(origins, np.broadcast_to(np.array([0, 0, -1], np.float32), origins.shape))
-    floor_z = start_z - t
-    near_elevation = (floor_z > elevation - 0.6) & (floor_z < elevation + 0.6)
-    on_floor = np.isfinite(t) & (component >= 0) & floor_components[np.maximum(component, 0)] & near_elevation
-    # no floor element under the spot and nothing above the storey's elevation either (a model
-    # without floor slabs, or a footing at ground level): stand on a virtual floor at the elevation
-    floorless = ~on_floor & (~np.isfinite(t) | (floor_z <= elevation + 0.05))
-    floor_z = np.where(on_floor, floor_z, elevation)
-    spots = np.stack([gx, gy, floor_z], axis=1)[on_floor | floorless]
+        r_lo, r_hi = room.vertices.min(axis=0), room.vertices.max(axis=0)
+        columns = grid_columns(r_lo, r_hi, grid_m=FINE_GRID_M, max_columns=max_columns)
+        columns = columns[room.contains(np.column_stack([columns, np.full(len(columns), r_lo[2] + 0.5)]))]
+        fine = find_tripod_spots(scene, prober, columns, instrument_m=instrument, clearance_m=clearance_m)
+        found.append(fine.take(in_room(room, fine.floor)))
+    spots = TripodSpots.join(found)
+    if spots.covered.any():  # indoors wherever the model has an indoors
+        spots = spots.take(spots.covered)
     if len(spots) == 0:
-        return spots
-    # something overhead (a ceiling or roof: inside the building), above the instrument
-    up_origins = spots + [0.0, 0.0, 0.05]
-    t_up, _ = scanner.cast(up_origins, np.broadcast_to(np.array([0, 0, 1], np.float32), up_origins.shape))
-    spots = spots[np.isfinite(t_up) & (t_up >= instrument + 0.3)]
-    if len(spots) == 0:
-        return spots
-    # a clear circle around the tripod at three heights (this also rejects spots inside solids)
-    ring = np.array([[math.cos(a), math.sin(a), 0.0] for a in np.linspace(0, 2 * math.pi, 16, endpoint=False)], np.float32)
-    clear = np.ones(len(spots), dtype=bool)
-    for h in (0.3, 1.0, instrument):
-        origins = np.repeat(spots + [0.0, 0.0, h], len(ring), axis=0)
-        t_ring, _ = scanner.cast(origins, np.tile(ring, (len(spots), 1)))
-        clear &= (t_ring.reshape(len(spots), len(ring)) >= clearance).all(axis=1)
-    return spots[clear]
+        raise StationError(f"{scene.source}: no place for a station found (no level floor with "
+                           f"{instrument + 0.3:.1f} m of headroom and {clearance_m:g} m clear around a tripod); "
+                           "give stations in a file with --stations FILE")
+    return spots
 
 
-def _choose(scanner: VirtualScanner, spots: np.ndarray, rooms, instrument: float, max_spacing: float,
-            rooms_without: list[str], elevation: float, next_elevation: float) -> list[int]:
-    """Indices of spots to use: one per room, then a greedy visibility cover of all spots."""
-    heads = spots + [0.0, 0.0, instrument]
+def floor_levels(z: np.ndarray) -> np.ndarray:
+    """(M,) int level of each floor height (M,): heights sorted and split where they jump by more
+    than ``LEVEL_GAP_M``; level 0 is the lowest."""
+    if len(z) == 0:
+        return np.zeros(0, dtype=np.int64)
+    order = np.argsort(z, kind="stable")
+    jumps = np.concatenate([[0], np.diff(z[order]) > LEVEL_GAP_M]).astype(np.int64)
+    levels = np.empty(len(z), dtype=np.int64)
+    levels[order] = np.cumsum(jumps)
+    return levels
+
+
+def _station(number: int, floor: np.ndarray, rooms: list[Space], room_spots: list[np.ndarray], spot: int,
+             scene: BimScene, instrument: float) -> Station:
+    """The station standing at ``floor`` (x, y, floor z): its room (the first that holds the spot)
+    and storey (the room's, else the highest storey at or below the floor)."""
+    x, y, floor_z = (float(v) for v in floor)
+    room = next((r for r, members in zip(rooms, room_spots) if members[spot]), None)
+    if room is not None and room.storey:
+        storey = room.storey
+    else:
+        below = [s for s in scene.storeys if s.elevation_m <= floor_z + 0.5]
+        pick = max(below, key=lambda s: s.elevation_m) if below else min(scene.storeys, key=lambda s: s.elevation_m,
+                                                                             default=None)
+        storey = pick.name if pick is not None else ""
+    return Station(id=number, position=(x, y, floor_z + instrument), floor_z=floor_z, storey=storey,
+                   room=room.name if room is not None else "")
+
+
+def _choose(prober: Prober, scanner: ScannerModel, spots: TripodSpots, members: np.ndarray,
+            room_spots: list[np.ndarray], with_station: np.ndarray, max_spacing: float) -> list[int]:
+    """Indices of spots (among ``members``, one level's) to use: one per room that has none yet,
+    then a greedy visibility cover of the level's spots."""
+    if len(members) == 0:
+        return []
+    heads = spots.floor + [0.0, 0.0, scanner.instrument_height_m]
     chosen: list[int] = []
-    for room in rooms:
-        if not _room_has_floor(room, elevation, next_elevation):
-            continue
-        inside = np.flatnonzero(_in_room(room, spots))
-        if len(inside) == 0:
-            rooms_without.append(room.name)
+    for k, in_this_room in enumerate(room_spots):
+        inside = members[in_this_room[members]]
+        if len(inside) == 0 or with_station[k] or any(in_this_room[i] for i in chosen):
             continue
         # the spot that sees most of the room beyond the minimum range (narrow rooms and
         # corridors lose what is closer than that); ties go to the spot nearest the middle
-        useful = useful_return_fraction(scanner, heads[inside])
+        useful = useful_return_fraction(prober, scanner, heads[inside])
         centre = heads[inside, :2].mean(axis=0)
         distance = np.linalg.norm(heads[inside, :2] - centre, axis=1)
         chosen.append(int(inside[np.lexsort((distance, -np.round(useful, 2)))[0]]))
-    seen = np.zeros(len(spots), dtype=bool)
+    level_heads = heads[members]
+    seen = np.zeros(len(members), dtype=bool)
+    position = {int(i): j for j, i in enumerate(members)}
     for i in chosen:
-        seen |= _visible_from(scanner, heads, i, max_spacing)
+        seen |= _visible_from(prober, level_heads, position[i], max_spacing)
     while not seen.all():
         # the unseen spot seeing the most unseen spots becomes the next station
         unseen = np.flatnonzero(~seen)
         best, best_cover = -1, None
-        for i in unseen[:: max(1, len(unseen) // 200)]:
-            cover = _visible_from(scanner, heads, int(i), max_spacing) & ~seen
+        for j in unseen[:: max(1, len(unseen) // 200)]:
+            cover = _visible_from(prober, level_heads, int(j), max_spacing) & ~seen
             if best_cover is None or cover.sum() > best_cover.sum():
-                best, best_cover = int(i), cover
-        chosen.append(best)
+                best, best_cover = int(j), cover
+        chosen.append(int(members[best]))
         seen |= best_cover
         seen[best] = True
     return chosen
 
 
-def useful_return_fraction(scanner: VirtualScanner, heads: np.ndarray, n_rays: int = 256) -> np.ndarray:
-    """Per instrument position, the fraction of rays (in the scanner's window) that would give a point."""
-    model = scanner.scanner
+def useful_return_fraction(prober: Prober, scanner: ScannerModel, heads: np.ndarray, n_rays: int = 256) -> np.ndarray:
+    """Per instrument position (M, 3), the fraction of rays (in the scanner's window) that would give a point."""
     directions = sphere_directions(4 * n_rays)
-    low, high = np.sin(np.radians([model.elevation_min_deg, model.elevation_max_deg]))
+    low, high = np.sin(np.radians([scanner.elevation_min_deg, scanner.elevation_max_deg]))
     directions = directions[(directions[:, 2] >= low) & (directions[:, 2] < high)][:n_rays]
     origins = np.repeat(heads, len(directions), axis=0)
-    t, _ = scanner.cast(origins, np.tile(directions, (len(heads), 1)))
-    ok = (t >= model.min_range_m) & (t <= model.max_range_m)
+    t, _ = prober.cast(origins, np.tile(directions, (len(heads), 1)))
+    ok = (t >= scanner.min_range_m) & (t <= scanner.max_range_m)
     return ok.reshape(len(heads), len(directions)).mean(axis=1)
 
 
-def _visible_from(scanner: VirtualScanner, heads: np.ndarray, i: int, max_spacing: float) -> np.ndarray:
+def _visible_from(prober: Prober, heads: np.ndarray, i: int, max_spacing: float) -> np.ndarray:
     """Spots whose instrument point is in line of sight of spot i's, within max_spacing."""
     delta = heads - heads[i]
     distance = np.linalg.norm(delta, axis=1)
@@ -295,24 +304,6 @@ def _visible_from(scanner: VirtualScanner, heads: np.ndarray, i: int, max_spacin
     out[i] = True
     if near.any():
         directions = (delta[near] / distance[near, None]).astype(np.float32)
-        t, _ = scanner.cast(heads[i], directions)
+        t, _ = prober.cast(heads[i], directions)
         out[np.flatnonzero(near)] = t >= distance[near] - 0.05
     return out
-
-
-def _room_has_floor(room, elevation: float, next_elevation: float) -> bool:
-    z0 = float(room.vertices[:, 2].min())
-    return elevation - 0.6 < z0 < next_elevation - 1.0
-
-
-def _in_room(room, points: np.ndarray) -> np.ndarray:
-    """Points (x, y, z) whose xy falls inside the room's footprint and z inside its height."""
-    return room.contains(points)
-
-
-def _room_name(rooms, x: float, y: float, floor_z: float) -> str:
-    point = np.array([[x, y, floor_z]])
-    for room in rooms:
-        if _in_room(room, point)[0]:
-            return room.name
-    return ""

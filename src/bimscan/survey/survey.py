@@ -19,9 +19,10 @@ from typing import Any
 from bimscan import __version__
 from bimscan.errors import StationError
 from bimscan.scan.pattern import PulsePattern
+from bimscan.scan.probe import Prober
 from bimscan.scan.recipe import AUTO_STATIONS, ScanRecipe
 from bimscan.scan.virtual_scanner import VirtualScanner
-from bimscan.survey.stations import PlanReport, check_station, plan_stations, read_stations
+from bimscan.survey.stations import PlanReport, plan_stations, read_stations, station_spots
 from bimscan.types import BimScene, CloudHeader, PointCloud, Station
 
 
@@ -46,14 +47,21 @@ def station_pulses(recipe: ScanRecipe) -> int:
     return PulsePattern.of(recipe.settings, recipe.scanner).count()
 
 
-def choose_stations(scene: BimScene, scanner: VirtualScanner, stations_from: str) -> tuple[tuple[Station, ...], PlanReport | None]:
-    """The stations of a scene: planned (``"auto"``, each then checked) or read from a CSV file."""
-    if stations_from != AUTO_STATIONS:
-        return read_stations(stations_from, scene, scanner), None
-    stations, plan = plan_stations(scene, scanner)
-    for station in stations:
-        check_station(station, scene, scanner)
-    return stations, plan
+def choose_stations(scene: BimScene, recipe: ScanRecipe, *,
+                    prober: Prober | None = None) -> tuple[tuple[Station, ...], PlanReport | None]:
+    """The stations of a scene as ``recipe.stations_from`` says: planned (``"auto"``) or read from
+    a CSV file, each checked against the scene (``stations.check_station``). ``prober``: probes of
+    this scene's mesh already built (else built here)."""
+    prober = prober or Prober(scene.mesh, threads=recipe.threads)
+    if recipe.stations_from != AUTO_STATIONS:
+        return read_stations(recipe.stations_from, scene, prober, recipe.scanner), None
+    return plan_stations(scene, prober, recipe.scanner)
+
+
+def require_tripod_spots(scene: BimScene, recipe: ScanRecipe) -> None:
+    """Raise StationError when no tripod can stand anywhere in the scene (the first step of a plan,
+    for a quick check before slow work)."""
+    station_spots(scene, Prober(scene.mesh, threads=recipe.threads), recipe.scanner)
 
 
 def place_scanner(scene: BimScene, recipe: ScanRecipe) -> VirtualScanner:
@@ -99,22 +107,22 @@ def check_site(scene: BimScene, recipe: ScanRecipe) -> None:
 
 
 def prepare_survey(scene: BimScene, recipe: ScanRecipe, *, scanner: VirtualScanner | None = None,
-                   stations: tuple[Station, ...] | None = None) -> Survey:
+                   stations: tuple[Station, ...] | None = None, plan: PlanReport | None = None) -> Survey:
     """Place the scanner in the scene and fix the stations (``recipe.stations_from``).
 
     ``scanner``: reuse a VirtualScanner already built over this scene with the recipe's model.
-    ``stations`` given: use them as they are (planned once per scene and reused for every
-    configuration, as the dataset builder does); ``recipe.stations_from`` is then not consulted.
+    ``stations`` given: use them as they are (chosen and checked on this scene by the caller, as
+    ``pipeline.site_and_stations`` and the dataset builder do; ``plan`` is their planner's report);
+    ``recipe.stations_from`` is then not consulted.
     """
     check_site(scene, recipe)
     if scanner is None or not fits(scanner, recipe):
         scanner = place_scanner(scene, recipe)
-    if stations is not None:
-        if not stations:
-            raise StationError(f"{scene.source}: an empty station list was given; pass at least one station")
-        return Survey(scene=scene, scanner=scanner, recipe=recipe, stations=tuple(stations))
-    chosen, plan = choose_stations(scene, scanner, recipe.stations_from)
-    return Survey(scene=scene, scanner=scanner, recipe=recipe, stations=chosen, plan=plan)
+    if stations is None:
+        stations, plan = choose_stations(scene, recipe)
+    if not stations:
+        raise StationError(f"{scene.source}: an empty station list was given; pass at least one station")
+    return Survey(scene=scene, scanner=scanner, recipe=recipe, stations=tuple(stations), plan=plan)
 
 
 def run_survey(survey: Survey, *, on_pulses: Callable[[int], None] | None = None,
