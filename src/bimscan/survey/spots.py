@@ -10,7 +10,8 @@ could set a tripod up:
   tripod stands on: a slab, a floor covering, a ramp, a plate, a footing, a stair (its landings),
   a roof; or any element but furniture and fittings where it lies at the floor of an IfcSpace
   (the space says a floor is there); a model with none of these (every floor exported as a
-  proxy, say) takes any element but furniture and fittings. Where a room (an IfcSpace) has no
+  proxy, say) takes any element but furniture and fittings, and so does a model where nothing
+  else gives a spot (precast floor units exported as beams, say). Where a room (an IfcSpace) has no
   such surface anywhere at its floor (storeys exported without their slabs), the tripod stands
   on the room's own floor: the bottom of the space;
 - the three feet of the tripod, ``LEG_RADIUS_M`` out, rest on it level within ``LEG_LEVEL_M``
@@ -21,8 +22,8 @@ could set a tripod up:
 - seen from the instrument, most of the steep downward view meets something
   (``DOWN_CONE_Z``, the station check's own test), so the checks accept the station.
 
-Where the model has covered spots (under a slab or roof), only those are used: a station on a
-roof or in the open is a last resort, for open structures with nothing overhead.
+Where the model has spots indoors (under a slab or roof, or in a room), only those are used: a
+station on a roof or in the open is a last resort, for open structures with nothing overhead.
 """
 
 from __future__ import annotations
@@ -82,16 +83,16 @@ class TripodSpots:
                            covered=np.concatenate([p.covered for p in parts]))
 
 
-def standable_components(scene: BimScene) -> tuple[np.ndarray, np.ndarray]:
-    """((C,) bool: floors by class, (C,) bool: anything but furniture and fittings). A model with
-    no floor by class gets the second for both (every floor exported as a proxy, say)."""
+def standable_components(scene: BimScene, *, any_element: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """((C,) bool: floors by class, (C,) bool: anything but furniture and fittings). With
+    ``any_element``, or in a model with no floor by class, the second for both."""
     components = scene.components
     never = components.descends_from(NEVER_STANDABLE, parents=True)
     coverings = components.descends_from(("IfcCovering",))
     not_a_floor = coverings & np.isin(np.char.upper(components.predefined_type), NOT_STANDABLE_COVERINGS)
     floors = components.descends_from(STANDABLE_CLASSES, parents=True) & ~not_a_floor & ~never
     anything = ~never & ~not_a_floor
-    return (floors if floors.any() else anything), anything
+    return (floors if floors.any() and not any_element else anything), anything
 
 
 def rooms_of(scene: BimScene) -> list[Space]:
@@ -123,9 +124,11 @@ def grid_columns(lo: np.ndarray, hi: np.ndarray, *, grid_m: float, max_columns: 
 
 
 def find_tripod_spots(scene: BimScene, prober: Prober, columns: np.ndarray, *, instrument_m: float,
-                      clearance_m: float) -> TripodSpots:
+                      clearance_m: float, any_element: bool = False) -> TripodSpots:
     """The tripod spots (see the module docs) on the vertical lines at ``columns`` (N, 2) xy:
-    first those on elements, then those on the floors of rooms the model gives no floor."""
+    first those on elements, then those on the floors of rooms the model gives no floor.
+    ``any_element``: stand on any element but furniture and fittings (a structural model whose
+    floors are precast units exported as beams, say)."""
     if len(columns) == 0 or scene.mesh.n_triangles == 0:
         return TripodSpots.join([])
     _, hi = scene.mesh.bounds()
@@ -133,7 +136,7 @@ def find_tripod_spots(scene: BimScene, prober: Prober, columns: np.ndarray, *, i
     normals = prober.face_normals
     level = np.abs(normals[triangle, 2]) >= math.cos(math.radians(MAX_TILT_DEG))
     component = scene.mesh.face_component[triangle].astype(np.int64)
-    floors, anything = standable_components(scene)
+    floors, anything = standable_components(scene, any_element=any_element)
     ok = level & floors[component]
     room_floors = []
     for room in rooms_of(scene):

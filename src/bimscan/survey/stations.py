@@ -193,12 +193,15 @@ def plan_stations(scene: BimScene, prober: Prober, scanner: ScannerModel, *, gri
 def station_spots(scene: BimScene, prober: Prober, scanner: ScannerModel, *, grid_m: float = 1.0,
                   clearance_m: float = 0.4, max_columns: int = 4000) -> TripodSpots:
     """The tripod spots the planner chooses from (see ``plan_stations``): on the grid, on a finer
-    grid in rooms the grid misses, covered ones only where the model has any. Raises StationError
-    when there is none: no tripod can stand anywhere in the model."""
+    grid in rooms the grid misses; indoors ones (covered, or in a room) only where the model has
+    any. Raises StationError when there is none: no tripod can stand anywhere in the model."""
     instrument = scanner.instrument_height_m
     lo, hi = scene.mesh.bounds()
-    spots = find_tripod_spots(scene, prober, grid_columns(lo, hi, grid_m=grid_m, max_columns=max_columns),
-                              instrument_m=instrument, clearance_m=clearance_m)
+    columns = grid_columns(lo, hi, grid_m=grid_m, max_columns=max_columns)
+    spots = find_tripod_spots(scene, prober, columns, instrument_m=instrument, clearance_m=clearance_m)
+    if len(spots) == 0:  # no floor element gives a spot: whatever element is wide and level enough
+        spots = find_tripod_spots(scene, prober, columns, instrument_m=instrument, clearance_m=clearance_m,
+                                  any_element=True)
     found = [spots]
     for room in rooms_of(scene):  # small rooms can fall between grid points: search them on a fine grid of their own
         if in_room(room, spots.floor).any():
@@ -209,8 +212,11 @@ def station_spots(scene: BimScene, prober: Prober, scanner: ScannerModel, *, gri
         fine = find_tripod_spots(scene, prober, columns, instrument_m=instrument, clearance_m=clearance_m)
         found.append(fine.take(in_room(room, fine.floor)))
     spots = TripodSpots.join(found)
-    if spots.covered.any():  # indoors wherever the model has an indoors
-        spots = spots.take(spots.covered)
+    indoors = spots.covered.copy()  # under a slab or roof, or in a room (a model may have neither)
+    for room in rooms_of(scene):
+        indoors |= in_room(room, spots.floor)
+    if indoors.any():  # indoors wherever the model has an indoors
+        spots = spots.take(indoors)
     if len(spots) == 0:
         raise StationError(f"{scene.source}: no place for a station found (no level floor with "
                            f"{instrument + 0.3:.1f} m of headroom and {clearance_m:g} m clear around a tripod); "
