@@ -53,7 +53,7 @@ def single_scan(folder: Path, scene_ifc: Path, *, head_deg_per_s: float, engine:
     """One unit the way `bimscan scan` runs it (stations planned beforehand, not timed): points,
     seconds to LAZ, and seconds of the same scan to NumPy chunks only (no checks, no writing)."""
     from bimscan.pipeline import load_scene, scan_survey
-    from bimscan.scan.recipe import ScanRecipe
+    from bimscan.survey.recipe import ScanRecipe
     from bimscan.survey.survey import prepare_survey, run_survey
 
     recipe = ScanRecipe.resolve(preset="exp5", head_deg_per_s=head_deg_per_s, engine=engine)

@@ -85,7 +85,7 @@ def main() -> None:
     from bimscan.scan.noise import NoiseModel
     from bimscan.scan.pattern import PulsePattern
     from bimscan.scan.device import SCANNERS, ScanSettings
-    from bimscan.scan.recipe import ScanRecipe
+    from bimscan.survey.recipe import ScanRecipe
     from bimscan.scan.virtual_scanner import VirtualScanner
     from bimscan.scan.probe import Prober
     from bimscan.survey.stations import plan_stations
@@ -247,7 +247,7 @@ def warp_raw_query(warp, rays: np.ndarray):
 def survey_rates(scene, model_name: str, preset: str, engine_name: str, warp, stations_limit: int | None,
                  chunk: dict) -> None:
     """Section 4: a whole survey with ``preset`` at its own head speed, per engine, to NumPy chunks."""
-    from bimscan.scan.recipe import ScanRecipe
+    from bimscan.survey.recipe import ScanRecipe
     from bimscan.scan.virtual_scanner import VirtualScanner
     from bimscan.survey.survey import prepare_survey, run_survey
 

@@ -68,7 +68,7 @@ def synthetic_shares(scene, cloud_path: Path) -> dict[str, np.ndarray]:
 def scan(ifc: Path, out: Path, site, *, seed: int = 0) -> tuple[object, float, float]:
     """Scan the model dressed as ``site``; returns the dressed scene, dressing and scanning seconds."""
     from bimscan.pipeline import build_site, load_scene, scan_survey
-    from bimscan.scan.recipe import ScanRecipe
+    from bimscan.survey.recipe import ScanRecipe
     from bimscan.survey.survey import prepare_survey
 
     recipe = ScanRecipe.resolve(preset="exp3", head_deg_per_s=60.0, seed=seed, site=site)

@@ -7,7 +7,7 @@ import pytest
 import bimscan.pipeline as pipeline
 from bimscan.errors import ConfigError, StationError
 from bimscan.pipeline import load_scene, scan_model, site_and_stations
-from bimscan.scan.recipe import ScanRecipe
+from bimscan.survey.recipe import ScanRecipe
 from bimscan.site.model import ClutterSettings, SiteModel, StageSettings
 
 

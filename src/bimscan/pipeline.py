@@ -22,7 +22,7 @@ from bimscan.errors import ConfigError, StationError
 from bimscan.process.checks import check_semantics, filter_invalid
 from bimscan.process.summary import CloudSummary
 from bimscan.progress import progress_bar, step_line
-from bimscan.scan.recipe import AUTO_STATIONS, ScanRecipe
+from bimscan.survey.recipe import AUTO_STATIONS, ScanRecipe
 from bimscan.site import DressTimings, dress_scene_timed
 from bimscan.survey.stations import PlanReport
 from bimscan.survey.survey import Survey, cloud_header, prepare_survey, run_survey

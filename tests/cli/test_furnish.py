@@ -7,7 +7,7 @@ import pytest
 
 from bimscan.cli.main import main
 from bimscan.pipeline import build_site, load_scene
-from bimscan.scan.recipe import ScanRecipe
+from bimscan.survey.recipe import ScanRecipe
 from bimscan.site import ClutterSettings, SiteModel, StageSettings
 
 

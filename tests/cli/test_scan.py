@@ -10,7 +10,7 @@ import pytest
 from bimscan.cli.main import main
 from bimscan.io import read_cloud, read_cloud_header
 from bimscan.pipeline import scan_model
-from bimscan.scan.recipe import ScanRecipe
+from bimscan.survey.recipe import ScanRecipe
 
 FAST = ["--preset", "exp1", "--head-speed", "60"]
 

@@ -127,7 +127,7 @@ def test_a_site_dataset_records_what_was_placed_and_rebuilds_only_what_a_change_
 def test_a_stored_dressed_scene_reads_back_as_the_scene_dressed_again(tmp_path, box_room_ifc):
     from bimscan.dataset.layout import read_site_scene, write_site_scene
     from bimscan.pipeline import build_site, load_scene
-    from bimscan.scan.recipe import ScanRecipe
+    from bimscan.survey.recipe import ScanRecipe
     from bimscan.site import ClutterSettings, SiteModel
 
     scene = load_scene(box_room_ifc)

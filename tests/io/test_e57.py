@@ -26,7 +26,7 @@ from bimscan.io.e57 import (
 from bimscan.pipeline import scan_model
 from bimscan.scan.device import SCANNERS, ScanSettings
 from bimscan.scan.noise import NoiseModel
-from bimscan.scan.recipe import ScanRecipe
+from bimscan.survey.recipe import ScanRecipe
 from bimscan.scan.pattern import PulsePattern
 from bimscan.types import CloudHeader, Station
 

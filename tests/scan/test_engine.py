@@ -18,7 +18,7 @@ from bimscan.scan import engine as engine_module
 from bimscan.scan.device import SCANNERS, ScanSettings
 from bimscan.scan.engine import MISS, EmbreexEngine, Open3DEngine, RayEngine, make_engine, resolve_engine
 from bimscan.scan.noise import NoiseModel
-from bimscan.scan.recipe import ScanRecipe
+from bimscan.survey.recipe import ScanRecipe
 from bimscan.scan.probe import sphere_directions
 from bimscan.scan.virtual_scanner import VirtualScanner
 from bimscan.types import PointCloud, SceneMesh, Station

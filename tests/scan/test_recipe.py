@@ -17,7 +17,7 @@ from bimscan.pipeline import load_scene, scan_model
 from bimscan.scan.device import PRESETS, SCANNERS, ScanSettings, load_scanner
 from bimscan.scan.kernels import noise_key
 from bimscan.scan.noise import NoiseModel
-from bimscan.scan.recipe import ScanRecipe
+from bimscan.survey.recipe import ScanRecipe
 from bimscan.scan.virtual_scanner import VirtualScanner
 from bimscan.types import PointCloud, Station
 

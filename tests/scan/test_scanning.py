@@ -12,7 +12,7 @@ from bimscan.pipeline import load_scene
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.pattern import PulsePattern
 from bimscan.scan.device import PRESETS, SCANNERS, ScanSettings
-from bimscan.scan.recipe import ScanRecipe
+from bimscan.survey.recipe import ScanRecipe
 from bimscan.scan.virtual_scanner import VirtualScanner
 from bimscan.types import PointCloud, Station
 

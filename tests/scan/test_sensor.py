@@ -17,7 +17,7 @@ from bimscan.scan import waveform
 from bimscan.scan.device import SCANNERS, ScanSettings
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.pattern import PulsePattern
-from bimscan.scan.recipe import ScanRecipe
+from bimscan.survey.recipe import ScanRecipe
 from bimscan.scan.sensor import SensorModel
 from bimscan.scan.virtual_scanner import VirtualScanner
 from bimscan.survey.survey import prepare_survey, survey_metadata

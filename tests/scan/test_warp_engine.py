@@ -17,7 +17,7 @@ from bimscan.scan import engine as engine_module
 from bimscan.scan.device import SCANNERS, ScanSettings
 from bimscan.scan.engine import Open3DEngine, RayEngine, resolve_engine
 from bimscan.scan.noise import NoiseModel
-from bimscan.scan.recipe import ScanRecipe
+from bimscan.survey.recipe import ScanRecipe
 from bimscan.scan.virtual_scanner import VirtualScanner
 from bimscan.types import PointCloud, Station
 from bimscan.io import read_cloud, read_cloud_header

@@ -126,7 +126,7 @@ def test_doorways_stay_clear(office_scene, dressed_office):
 
 
 def test_every_room_that_had_a_station_still_gets_one(office_scene, dressed_office):
-    from bimscan.scan.recipe import ScanRecipe
+    from bimscan.survey.recipe import ScanRecipe
     from bimscan.survey.survey import choose_stations
 
     recipe = ScanRecipe()
@@ -186,7 +186,7 @@ def test_points_inside_walls_are_told_from_points_in_the_room(box_room_ifc):
 
 def test_stations_given_in_a_file_keep_their_spots_clear(box_room_ifc, tmp_path):
     from bimscan.pipeline import load_scene, site_and_stations
-    from bimscan.scan.recipe import ScanRecipe
+    from bimscan.survey.recipe import ScanRecipe
     from bimscan.survey.survey import prepare_survey
 
     stations = tmp_path / "stations.csv"
@@ -203,7 +203,7 @@ def test_stations_given_in_a_file_keep_their_spots_clear(box_room_ifc, tmp_path)
 
 
 def test_a_survey_refuses_a_scene_not_dressed_for_its_recipe(office_scene):
-    from bimscan.scan.recipe import ScanRecipe
+    from bimscan.survey.recipe import ScanRecipe
     from bimscan.survey.survey import prepare_survey
 
     with pytest.raises(ValueError, match="not dressed with this recipe's site model"):

@@ -88,7 +88,7 @@ def export_obj_command(model: Path, out_dir: Path, helios: bool, stations: str |
     prestart_worker()  # IfcOpenShell loads in the geometry worker while this process goes on
     from bimscan.io import export_obj
     from bimscan.pipeline import build_site, load_scene, rooms_without_station_line, site_and_stations
-    from bimscan.scan.recipe import ScanRecipe
+    from bimscan.survey.recipe import ScanRecipe
 
     survey_options = {"--stations": stations, "--preset": preset, "--scanner": scanner, "--head-speed": head_deg_per_s}
     given = [name for name, value in survey_options.items() if value is not None]

@@ -29,7 +29,7 @@ from bimscan.dataset.layout import (
 from bimscan.dataset.spec import DatasetSpec, SceneSpec, resolve_scheme
 from bimscan.errors import BimscanError
 from bimscan.files import dump_json, file_sha256
-from bimscan.scan.recipe import AUTO_STATIONS, ScanRecipe
+from bimscan.survey.recipe import AUTO_STATIONS, ScanRecipe
 
 
 @dataclass(frozen=True)

@@ -75,7 +75,7 @@ from bimscan.ifc.generate.styles import DEFAULT_STYLE
 from bimscan.scan.device import DEFAULT_SCANNER, ScanSettings
 from bimscan.scan.engine import DEFAULT_ENGINE
 from bimscan.scan.noise import NoiseModel
-from bimscan.scan.recipe import AUTO_STATIONS, DEFAULT_MAX_STATION_PULSES, ScanRecipe
+from bimscan.survey.recipe import AUTO_STATIONS, DEFAULT_MAX_STATION_PULSES, ScanRecipe
 from bimscan.scan.sensor import merge_sensor_tables
 from bimscan.site.model import ClutterSettings, SiteModel, StageSettings, stage_table
 from bimscan.toml_files import base_file, build_dataclass, load_toml
@@ -107,7 +107,7 @@ class SceneSpec:
         from bimscan.ifc.units import LENGTH_UNITS
 
         if self.length_unit is not None and self.length_unit not in LENGTH_UNITS:
-            raise ValueError(f"length_unit {self.length_unit!r} is not one of {', '.join(LENGTH_UNITS)}")
+            raise ConfigError(f"length_unit {self.length_unit!r} is not one of {', '.join(LENGTH_UNITS)}")
 
 
 @dataclass(frozen=True)

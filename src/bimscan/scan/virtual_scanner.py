@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator
+from typing import Protocol
 
 import numba
 import numpy as np
@@ -12,16 +13,28 @@ from bimscan.scan.asbuilt import Deviations
 from bimscan.scan.engine import FaceTables, HitSettings, LineChunk, RayEngine, make_engine
 from bimscan.scan.kernels import finish_hits, generate_rays, noise_key, station_normals
 from bimscan.scan.noise import NoiseModel
-from bimscan.scan.pattern import PulsePattern
-from bimscan.scan.device import ScannerModel
-from bimscan.scan.recipe import ScanRecipe
-from bimscan.scan.sensor import SensorModel
 from bimscan.scan import waveform
+from bimscan.scan.device import ScannerModel, ScanSettings
+from bimscan.scan.pattern import PulsePattern
+from bimscan.scan.sensor import SensorModel
 from bimscan.types import ComponentSurfaces, ComponentTable, PointCloud, SceneMesh, Station
 
 DEFAULT_REFLECTANCE = 0.5
 _POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.int64)
 INTENSITY_REFERENCE_M = 5.0  # intensity falls with (5 m / range)^2 beyond 5 m
+
+
+class StationRecipe(Protocol):
+    """What scanning one station needs of a recipe (``survey.recipe.ScanRecipe`` has it all): the
+    device, what a station does, noise, sensor effects, the noise generator's key and the chunk size."""
+
+    scanner: ScannerModel
+    settings: ScanSettings
+    noise: NoiseModel
+    sensor: SensorModel
+    seed: int
+    noise_stream: str
+    chunk_pulses: int
 
 
 def registration_error(noise: NoiseModel, key: np.uint64) -> tuple[np.ndarray, np.ndarray]:
@@ -80,7 +93,7 @@ class VirtualScanner:
         if self.threads:
             numba.set_num_threads(min(self.threads, numba.config.NUMBA_NUM_THREADS))
 
-    def scan_station(self, station: Station, recipe: ScanRecipe, *, time0_s: float = 0.0,
+    def scan_station(self, station: Station, recipe: StationRecipe, *, time0_s: float = 0.0,
                      on_pulses: Callable[[int], None] | None = None,
                      reuse_buffers: bool = False) -> Iterator[PointCloud]:
         """Stream the labelled points of one station scanned with ``recipe``, chunk by chunk.
@@ -199,7 +212,7 @@ class VirtualScanner:
             self._work_buffers[name] = buffer
         return buffer[:shape[0]]
 
-    def _scan_station_sensor(self, station: Station, recipe: ScanRecipe, *, time0_s: float,
+    def _scan_station_sensor(self, station: Station, recipe: StationRecipe, *, time0_s: float,
                              on_pulses: Callable[[int], None] | None, reuse_buffers: bool) -> Iterator[PointCloud]:
         """scan_station with the sensor effects (see ``bimscan.scan.waveform`` for the steps)."""
         sensor, noise, device = recipe.sensor, recipe.noise, self.scanner

@@ -20,7 +20,7 @@ from bimscan import __version__
 from bimscan.errors import StationError
 from bimscan.scan.pattern import PulsePattern
 from bimscan.scan.probe import Prober
-from bimscan.scan.recipe import AUTO_STATIONS, ScanRecipe
+from bimscan.survey.recipe import AUTO_STATIONS, ScanRecipe
 from bimscan.scan.virtual_scanner import VirtualScanner
 from bimscan.survey.stations import PlanReport, plan_stations, read_stations, station_spots
 from bimscan.types import BimScene, CloudHeader, PointCloud, Station
