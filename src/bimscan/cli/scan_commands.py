@@ -10,7 +10,11 @@ import click
 from bimscan.cli.ifc_commands import LENGTH_UNIT_HELP, SCHEME_HELP
 from bimscan.cli.site_options import describe_site, site_options
 from bimscan.ifc.units import LENGTH_UNITS
-from bimscan.scan.recipe import DEFAULT_MAX_STATION_PULSES
+from bimscan.scan.device import DEFAULT_PRESET, DEFAULT_SCANNER, PRESETS, SCANNERS
+from bimscan.scan.engine import AUTO_ENGINE, DEFAULT_ENGINE, ENGINES
+from bimscan.scan.noise import NoiseModel
+from bimscan.scan.sensor import REALISMS, RETURN_MODES, SensorModel
+from bimscan.survey.recipe import AUTO_STATIONS, DEFAULT_MAX_STATION_PULSES, ScanRecipe
 
 if TYPE_CHECKING:
     from bimscan.site.model import SiteModel
@@ -20,35 +24,41 @@ if TYPE_CHECKING:
 @click.argument("model", type=click.Path(path_type=Path))
 @click.argument("out", type=click.Path(path_type=Path))
 @click.option("--preset", default=None,
-              help="Scan settings: exp1..exp6 (the paper's Table 1) or a settings TOML file. Default: exp3.")
-@click.option("--stations", default="auto", show_default=True,
-              help="'auto' (planned per storey and room) or a CSV file (x,y,z or x,y,height[,storey][,heading_deg]).")
-@click.option("--seed", default=0, show_default=True, type=int, help="Noise seed; same seed, same bytes.")
+              help=f"Scan settings: {', '.join(PRESETS)} (the paper's Table 1) or a settings TOML file. "
+                   f"Default: {DEFAULT_PRESET}.")
+@click.option("--stations", default=AUTO_STATIONS, show_default=True,
+              help="'auto' (planned on the floors the model has: one per room, then every spot of a level seen "
+                   "from a station within 12 m) or a CSV file (x,y,z or x,y,height[,storey][,heading_deg]).")
+@click.option("--seed", default=ScanRecipe.seed, show_default=True, type=int, help="Noise seed; same seed, same bytes.")
 @click.option("--no-noise", is_flag=True, help="Exact points on the hit surfaces (no range or angle noise).")
 @click.option("--range-sigma", "range_sigma_m", default=None, type=float,
               help="Range noise sigma, metres. Default: the scanner's range accuracy (VZ-400: 0.005).")
 @click.option("--angle-sigma", "angle_sigma_deg", default=None, type=float,
               help="Azimuth and elevation noise sigma, degrees. Default: the scanner's angle accuracy (VZ-400: 0.03).")
-@click.option("--registration-sigma", "registration_sigma_m", default=0.0, show_default=True, type=float,
+@click.option("--registration-sigma", "registration_sigma_m", default=NoiseModel.registration_sigma_m, show_default=True,
+              type=float,
               help="Per-station registration error: translation sigma per axis, metres (0 = perfect registration).")
-@click.option("--registration-sigma-deg", "registration_sigma_deg", default=0.0, show_default=True, type=float,
+@click.option("--registration-sigma-deg", "registration_sigma_deg", default=NoiseModel.registration_sigma_deg,
+              show_default=True, type=float,
               help="Per-station registration error: rotation sigma about the vertical, degrees.")
 @click.option("--strict", is_flag=True, help="Settings outside the device's limits are errors, not warnings; so is an "
               "IFC file that needed a repair, has a problem or loses an element (see 'bimscan info --help').")
 @click.option("--length-unit", type=click.Choice(list(LENGTH_UNITS)), default=None, help=LENGTH_UNIT_HELP)
-@click.option("--scanner", default=None, help="Scanner: riegl_vz400 (default) or a scanner TOML file.")
+@click.option("--scanner", default=None,
+              help=f"Scanner: a name ({', '.join(SCANNERS)}; default {DEFAULT_SCANNER}) or a scanner TOML file.")
 @click.option("--head-speed", "head_deg_per_s", type=float, default=None,
               help="Head rotation in deg/s, overriding the preset (fewer points per station when faster).")
 @click.option("--scheme", default=None, help=SCHEME_HELP)
-@click.option("--engine", default="open3d", show_default=True,
-              help="Ray engine: open3d, embreex, warp (NVIDIA Warp: CUDA GPU, else its CPU device) or auto "
+@click.option("--engine", type=click.Choice([*ENGINES, AUTO_ENGINE]), default=DEFAULT_ENGINE, show_default=True,
+              help="Ray engine: open3d (Embree), embreex, warp (NVIDIA Warp: CUDA GPU, else its CPU device) or auto "
                    "(warp on a CUDA GPU, open3d otherwise).")
-@click.option("--realism", type=click.Choice(["paper", "full"]), default=None,
-              help="Sensor effects: paper (thin ray, Gaussian noise; the default) or full (every effect below on).")
+@click.option("--realism", type=click.Choice(list(REALISMS)), default=None,
+              help=f"Sensor effects: paper (thin ray, Gaussian noise) or full (every effect below on). "
+                   f"Default: {SensorModel.realism}.")
 @click.option("--sensor", "sensor_file", default=None,
               help="A TOML file of sensor settings (the keys of a dataset spec's [sensor] table).")
-@click.option("--returns", type=click.Choice(["first", "last", "strongest", "all"]), default=None,
-              help="Which echoes of a pulse become points (with the footprint or glass). Default: all.")
+@click.option("--returns", type=click.Choice(list(RETURN_MODES)), default=None,
+              help=f"Which echoes of a pulse become points (with the footprint or glass). Default: {SensorModel.returns}.")
 @click.option("--footprint/--no-footprint", default=None, help="Beam footprint with sub-rays at edges (mixed pixels).")
 @click.option("--beam-sample-quality", type=int, default=None,
               help="Sub-ray rings of the footprint (HELIOS++'s beamSampleQuality; 3 = 19 sub-rays).")
@@ -59,7 +69,7 @@ if TYPE_CHECKING:
 @click.option("--as-built/--no-as-built", "deviations", default=None,
               help="As-built deviations of every component within construction tolerances (ACI 117).")
 @click.option("--material-table", default=None, help="A TOML material table replacing the built-in one.")
-@click.option("--threads", default=0, show_default=True, type=int, help="Cores to use (0 = all).")
+@click.option("--threads", default=ScanRecipe.threads, show_default=True, type=int, help="Cores to use (0 = all).")
 @click.option("--max-station-pulses", default=DEFAULT_MAX_STATION_PULSES, show_default=True, type=int,
               help="Refuse settings under which one station would fire more pulses (a guard against typos).")
 @click.option("--overwrite", is_flag=True, help="Replace OUT if it exists.")
@@ -84,8 +94,7 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
 
     prestart_worker()  # IfcOpenShell loads in the geometry worker while this process loads the scanner
     from bimscan.pipeline import scan_model
-    from bimscan.scan.noise import NoiseModel
-    from bimscan.scan.recipe import ScanRecipe, resolve_sensor
+    from bimscan.survey.recipe import resolve_sensor
     from bimscan.toml_files import load_toml
 
     if no_noise:
@@ -122,7 +131,8 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
 @click.command("furnish")
 @click.argument("model", type=click.Path(path_type=Path))
 @click.argument("out", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--seed", default=0, show_default=True, type=int, help="Placement seed; same seed, same objects.")
+@click.option("--seed", default=ScanRecipe.seed, show_default=True, type=int,
+              help="Placement seed; same seed, same objects.")
 @click.option("--scheme", default=None, help=SCHEME_HELP)
 @site_options
 def furnish(model: Path, out: Path, seed: int, scheme: str | None, site: SiteModel) -> None:
@@ -131,7 +141,6 @@ def furnish(model: Path, out: Path, seed: int, scheme: str | None, site: SiteMod
     elements the stage leaves out removed: the scene 'bimscan scan' with the same flags and
     seed scans, for other tools to see."""
     from bimscan.pipeline import furnish_model
-    from bimscan.scan.recipe import ScanRecipe
 
     if site.is_bare:
         raise click.UsageError("nothing to furnish: give --clutter DENSITY and/or --stage")

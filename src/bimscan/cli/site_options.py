@@ -9,7 +9,7 @@ from typing import Any
 import click
 
 from bimscan.site.library import CLUTTER_KINDS, GROUPS
-from bimscan.site.model import STAGES, ClutterSettings, SiteModel, StageSettings
+from bimscan.site.model import DEFAULT_STAGE, STAGES, ClutterSettings, SiteModel, StageSettings
 
 
 def _names(text: str | None) -> tuple[str, ...]:
@@ -19,22 +19,22 @@ def _names(text: str | None) -> tuple[str, ...]:
 def site_options(command: Callable[..., Any]) -> Callable[..., Any]:
     """Add the site flags to a click command; the command receives one ``site: SiteModel``."""
     options = [
-        click.option("--clutter", "clutter", type=float, default=0.0, show_default=True,
+        click.option("--clutter", "clutter", type=float, default=ClutterSettings.density, show_default=True,
                      help="Clutter and temporary works: objects per square metre of free floor (0 = none; "
                           "an office holds as much furniture as the real S3DIS rooms at about 0.75)."),
         click.option("--clutter-kinds", default=None,
                      help=f"Comma-separated kinds ({', '.join(CLUTTER_KINDS)}) or groups ({', '.join(GROUPS)}). "
                           "Default: by stage (finished: office,ceiling,people; earlier: site,people)."),
-        click.option("--stage", default="finished", show_default=True, type=click.Choice(list(STAGES)),
+        click.option("--stage", default=DEFAULT_STAGE, show_default=True, type=click.Choice(list(STAGES)),
                      help="Construction stage: structure (slabs, walls, columns, beams, stairs), enclosed "
                           "(+ windows, doors), finished (everything)."),
         click.option("--stage-include", default=None, help="Comma-separated IFC classes built (replaces the stage's)."),
         click.option("--stage-exclude", default=None, help="Comma-separated IFC classes left out."),
-        click.option("--walls-missing", type=float, default=0.0, show_default=True,
+        click.option("--walls-missing", type=float, default=StageSettings.walls_missing_fraction, show_default=True,
                      help="Fraction of the walls not yet built (with their doors and windows)."),
-        click.option("--ceilings-open", type=float, default=0.0, show_default=True,
+        click.option("--ceilings-open", type=float, default=StageSettings.ceilings_open_fraction, show_default=True,
                      help="Fraction of the ceiling bays (between grid lines) without panels."),
-        click.option("--props", type=float, default=0.0, show_default=True,
+        click.option("--props", type=float, default=StageSettings.props_fraction, show_default=True,
                      help="Fraction of the rooms with steel props on a 1.5 m grid under the slab."),
         click.option("--at", "at", default=None,
                      help="A date (YYYY-MM-DD): keep what the model's work schedule has built by then."),
