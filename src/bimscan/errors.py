@@ -45,6 +45,11 @@ class OutputError(BimscanError):
     """An output could not be written (bad path, existing file, full disk)."""
 
 
+class SemanticError(BimscanError):
+    """A cloud whose labels contradict its component table, or an output that does not hold what
+    was written to it (a bug or a corrupted file: the post-checks failed)."""
+
+
 class DatasetError(BimscanError):
     """A dataset build or dataset folder is inconsistent."""
 

@@ -9,7 +9,7 @@ import pytest
 
 from bimscan.dataset.tasks import check_written
 from bimscan.io import open_cloud_writer
-from bimscan.process.checks import SemanticError
+from bimscan.errors import SemanticError
 from bimscan.process.summary import CloudSummary
 from bimscan.semantics import load_scheme
 from bimscan.types import CloudHeader, PointCloud

@@ -259,5 +259,5 @@ def test_cpu_threads_are_set_for_training_and_checked() -> None:
         assert torch.get_num_threads() == 1
     finally:
         torch.set_num_threads(before)
-    with pytest.raises(ValueError, match="cpu_threads must be >= 0"):
+    with pytest.raises(ConfigError, match="cpu_threads must be >= 0"):
         TrainConfig(cpu_threads=-1)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 
+from bimscan.errors import ConfigError
 from bimscan.io.text import write_text_cloud
 from bimscan.learn.train_config import DEFAULT_CLASS_NAMES, BlockConfig, InputConfig, ModelConfig
 from bimscan.learn.data import iter_raw_chunks, list_scenes
@@ -156,7 +157,7 @@ def test_eval_votes_shuffle_every_column_again(scene: tuple[Path, PointCloud], m
     assert thrice.blocks == once.blocks
     assert thrice.passes == 3 * once.passes  # every block cut into groups three times
     assert np.array_equal(np.sort(np.concatenate(labelled)), np.arange(len(cloud)))  # each point once
-    with pytest.raises(ValueError, match="eval_votes must be in 1..64"):
+    with pytest.raises(ConfigError, match="eval_votes must be in 1..64"):
         dataclasses.replace(BLOCKS, eval_votes=0)
 
 

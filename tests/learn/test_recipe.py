@@ -9,6 +9,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from bimscan.errors import ConfigError
 from bimscan.io.text import write_text_cloud
 from bimscan.learn.augment import augment_points
 from bimscan.learn.data import TileDataset, collect_scene_tiles, list_scenes
@@ -159,13 +160,13 @@ def test_class_weights_and_the_weighted_loss() -> None:
 
 
 def test_input_config_rejects_bad_values() -> None:
-    with pytest.raises(ValueError, match="start with 'xyz'"):
+    with pytest.raises(ConfigError, match="start with 'xyz'"):
         InputConfig(features=("height",))
-    with pytest.raises(ValueError, match="at most once"):
+    with pytest.raises(ConfigError, match="at most once"):
         InputConfig(features=("xyz", "colour"))
-    with pytest.raises(ValueError, match="label_neighbours must be in 0..64"):
+    with pytest.raises(ConfigError, match="label_neighbours must be in 0..64"):
         InputConfig(label_neighbours=-1)
-    with pytest.raises(ValueError, match="scale_range"):
+    with pytest.raises(ConfigError, match="scale_range"):
         AugmentConfig(scale_range=(1.2, 0.8))
 
 

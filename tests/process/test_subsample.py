@@ -70,7 +70,7 @@ def test_voxel_subsampler_refuses_a_bad_voxel_size_and_points_off_the_grid() -> 
     for bad in (0.0, -1.0, float("nan"), True):
         with pytest.raises(ConfigError, match="voxel_size_m"):
             VoxelSubsampler(bad)  # type: ignore[arg-type]
-    with pytest.raises(ValueError, match="use a larger voxel"):
+    with pytest.raises(ConfigError, match="use a larger voxel"):
         VoxelSubsampler(0.001).filter(PointCloud(xyz=np.array([[5000.0, 0.0, 0.0]])))
 
 

@@ -31,9 +31,9 @@ from bimscan.dataset.layout import (
     read_site_scene, write_json, write_site_scene, write_unit_record,
 )
 from bimscan.dataset.plan import SceneJob, UnitJob
-from bimscan.errors import BimscanError, DatasetError
+from bimscan.errors import BimscanError, DatasetError, SemanticError
 from bimscan.files import replace_path
-from bimscan.scan.recipe import AUTO_STATIONS
+from bimscan.survey.recipe import AUTO_STATIONS
 
 if TYPE_CHECKING:
     from bimscan.io import CloudWriter, WrittenCloud
@@ -127,7 +127,6 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
     from bimscan.io import open_cloud_writer
     from bimscan.ifc.summary import report_document
     from bimscan.pipeline import build_site, load_scene, stream_checked
-    from bimscan.process.checks import SemanticError
     from bimscan.process.subsample import VoxelSubsampler
     from bimscan.process.summary import CloudSummary
     from bimscan.survey.survey import cloud_header, prepare_survey
@@ -193,7 +192,7 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
         staged = None
         return UnitOutcome(unit=job.unit, status="done", points=kept.points, files=files, load_s=load_s,
                            seconds=time.perf_counter() - start, site_s=site_s)
-    except (BimscanError, SemanticError, OSError, ValueError) as exc:
+    except (BimscanError, OSError) as exc:
         return UnitOutcome(unit=job.unit, status="failed", error=_one_line(exc), seconds=time.perf_counter() - start)
     finally:
         for writer in writers.values():
@@ -209,7 +208,6 @@ def check_written(kept: CloudSummary, written: Mapping[str, WrittenCloud]) -> No
     component's class while it streamed: ``stream_checked`` runs ``check_semantics`` on each chunk.)
     Raises SemanticError."""
     from bimscan.io import count_points
-    from bimscan.process.checks import SemanticError
 
     if kept.points == 0:
         raise SemanticError("the scan has no point (no station sees a surface within the scanner's range); "

@@ -37,7 +37,7 @@ class LabelMapping:
     def __post_init__(self) -> None:
         for key, value in self.classes.items():
             if not isinstance(value, str):
-                raise ValueError(f"[classes] {key!r} must map to a class name (text), got {value!r}")
+                raise ConfigError(f"{self.source or self.name}: [classes] {key!r} must map to a class name (text), got {value!r}")
 
 
 def load_label_mapping(path: str | Path) -> LabelMapping:

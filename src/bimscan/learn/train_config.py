@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Literal
 
 from bimscan.errors import ConfigError
+from bimscan.learn.features import FEATURE_CHANNELS
 from bimscan.semantics import DEFAULT_SCHEME, load_scheme
 from bimscan.toml_files import build_dataclass, load_toml
 from bimscan.types import UNLABELLED
@@ -47,11 +48,11 @@ class DataConfig:
 
     def __post_init__(self) -> None:
         if not self.train:
-            raise ValueError("'train' lists no scenes; name at least one dataset folder or cloud")
+            raise ConfigError("'train' lists no scenes; name at least one dataset folder or cloud")
         if not 2 <= len(self.class_names) <= 255:
-            raise ValueError(f"'class_names' needs 2..255 names, got {len(self.class_names)}")
+            raise ConfigError(f"'class_names' needs 2..255 names, got {len(self.class_names)}")
         if len(set(self.class_names)) != len(self.class_names):
-            raise ValueError(f"'class_names' repeats a name: {list(self.class_names)}")
+            raise ConfigError(f"'class_names' repeats a name: {list(self.class_names)}")
 
 
 @dataclass(frozen=True)
@@ -84,21 +85,21 @@ class BlockConfig:
 
     def __post_init__(self) -> None:
         if not self.size_m > 0 or not self.eval_stride_m > 0:
-            raise ValueError(f"size_m and eval_stride_m must be positive, got {self.size_m}, {self.eval_stride_m}")
+            raise ConfigError(f"size_m and eval_stride_m must be positive, got {self.size_m}, {self.eval_stride_m}")
         ratio = self.size_m / self.eval_stride_m
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-            raise ValueError(
+            raise ConfigError(
                 f"size_m ({self.size_m}) must be a whole multiple of eval_stride_m ({self.eval_stride_m}); "
                 "e.g. 4.0 and 2.0"
             )
         if not 1 <= self.eval_votes <= 64:
-            raise ValueError(f"eval_votes must be in 1..64, got {self.eval_votes}")
+            raise ConfigError(f"eval_votes must be in 1..64, got {self.eval_votes}")
         if self.points < 16:
-            raise ValueError(f"points must be at least 16, got {self.points}")
+            raise ConfigError(f"points must be at least 16, got {self.points}")
         if self.cache_points < self.points:
-            raise ValueError(f"cache_points ({self.cache_points}) must be >= points ({self.points})")
+            raise ConfigError(f"cache_points ({self.cache_points}) must be >= points ({self.points})")
         if not 1 <= self.min_points <= self.cache_points:
-            raise ValueError(f"min_points must be in 1..cache_points, got {self.min_points}")
+            raise ConfigError(f"min_points must be in 1..cache_points, got {self.min_points}")
 
     @property
     def stride_ratio(self) -> int:
@@ -106,7 +107,7 @@ class BlockConfig:
         return int(round(self.size_m / self.eval_stride_m))
 
 
-FEATURE_NAMES = ("xyz", "height", "normals", "shape")  # see bimscan.learn.features
+FEATURE_NAMES = tuple(FEATURE_CHANNELS)  # the features bimscan.learn.features computes
 
 
 @dataclass(frozen=True)
@@ -134,18 +135,18 @@ class InputConfig:
 
     def __post_init__(self) -> None:
         if not self.grid_m >= 0 or self.grid_m > 1.0:
-            raise ValueError(f"grid_m must be in [0, 1] metres (0 = off), got {self.grid_m}")
+            raise ConfigError(f"grid_m must be in [0, 1] metres (0 = off), got {self.grid_m}")
         if not self.features or self.features[0] != "xyz":
-            raise ValueError(f"features must start with 'xyz', got {list(self.features)}")
+            raise ConfigError(f"features must start with 'xyz', got {list(self.features)}")
         unknown = [f for f in self.features if f not in FEATURE_NAMES]
         if unknown or len(set(self.features)) != len(self.features):
-            raise ValueError(f"features take each of {', '.join(FEATURE_NAMES)} at most once, got {list(self.features)}")
+            raise ConfigError(f"features take each of {', '.join(FEATURE_NAMES)} at most once, got {list(self.features)}")
         if not self.height_scale_m > 0:
-            raise ValueError(f"height_scale_m must be positive, got {self.height_scale_m}")
+            raise ConfigError(f"height_scale_m must be positive, got {self.height_scale_m}")
         if not 3 <= self.normal_neighbours <= 128:
-            raise ValueError(f"normal_neighbours must be in 3..128, got {self.normal_neighbours}")
+            raise ConfigError(f"normal_neighbours must be in 3..128, got {self.normal_neighbours}")
         if not 0 <= self.label_neighbours <= 64:
-            raise ValueError(f"label_neighbours must be in 0..64 (0 = the voxel's representative), got {self.label_neighbours}")
+            raise ConfigError(f"label_neighbours must be in 0..64 (0 = the voxel's representative), got {self.label_neighbours}")
 
 
 @dataclass(frozen=True)
@@ -167,16 +168,16 @@ class AugmentConfig:
     def __post_init__(self) -> None:
         low, high = self.scale_range
         if not 0 < low <= high:
-            raise ValueError(f"scale_range must be [low, high] with 0 < low <= high, got {list(self.scale_range)}")
+            raise ConfigError(f"scale_range must be [low, high] with 0 < low <= high, got {list(self.scale_range)}")
         if not 0.0 <= self.flip_probability <= 1.0:
-            raise ValueError(f"flip_probability must be in [0, 1], got {self.flip_probability}")
+            raise ConfigError(f"flip_probability must be in [0, 1], got {self.flip_probability}")
         if self.jitter_sigma_m < 0 or self.jitter_clip_m < 0:
-            raise ValueError("jitter_sigma_m and jitter_clip_m must be >= 0")
+            raise ConfigError("jitter_sigma_m and jitter_clip_m must be >= 0")
         if not 0.0 <= self.dropout_max < 1.0:
-            raise ValueError(f"dropout_max must be in [0, 1), got {self.dropout_max}")
+            raise ConfigError(f"dropout_max must be in [0, 1), got {self.dropout_max}")
         for pair in self.elastic:
             if len(pair) != 2 or not pair[0] > 0 or pair[1] < 0:
-                raise ValueError(f"elastic takes [granularity_m > 0, magnitude >= 0] pairs, got {list(pair)}")
+                raise ConfigError(f"elastic takes [granularity_m > 0, magnitude >= 0] pairs, got {list(pair)}")
 
 
 @dataclass(frozen=True)
@@ -191,11 +192,11 @@ class ModelConfig:
 
     def __post_init__(self) -> None:
         if self.embed_dim < 4 or self.embed_dim % 4:
-            raise ValueError(f"embed_dim must be a multiple of 4 (q/k project to embed_dim/4), got {self.embed_dim}")
+            raise ConfigError(f"embed_dim must be a multiple of 4 (q/k project to embed_dim/4), got {self.embed_dim}")
         if self.attention_layers < 1 or self.fuse_dim < 1 or any(d < 1 for d in self.head_dims):
-            raise ValueError("attention_layers, fuse_dim and head_dims must be positive")
+            raise ConfigError("attention_layers, fuse_dim and head_dims must be positive")
         if not 0.0 <= self.dropout < 1.0:
-            raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
+            raise ConfigError(f"dropout must be in [0, 1), got {self.dropout}")
 
 
 @dataclass(frozen=True)
@@ -240,15 +241,15 @@ class TrainConfig:
     def __post_init__(self) -> None:
         for name in ("epochs", "batch_size", "accumulation_steps", "eval_batch_size"):
             if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+                raise ConfigError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.num_workers < 0 or self.cpu_threads < 0:
-            raise ValueError(f"num_workers and cpu_threads must be >= 0, got {self.num_workers}, {self.cpu_threads}")
+            raise ConfigError(f"num_workers and cpu_threads must be >= 0, got {self.num_workers}, {self.cpu_threads}")
         if not self.max_lr > 0 or self.weight_decay < 0:
-            raise ValueError(f"max_lr must be > 0 and weight_decay >= 0, got {self.max_lr}, {self.weight_decay}")
+            raise ConfigError(f"max_lr must be > 0 and weight_decay >= 0, got {self.max_lr}, {self.weight_decay}")
         if not 0.0 < self.pct_start < 1.0:
-            raise ValueError(f"pct_start must be in (0, 1), got {self.pct_start}")
+            raise ConfigError(f"pct_start must be in (0, 1), got {self.pct_start}")
         if not 0.0 <= self.ema_alpha < 1.0:
-            raise ValueError(f"ema_alpha must be in [0, 1), got {self.ema_alpha}")
+            raise ConfigError(f"ema_alpha must be in [0, 1), got {self.ema_alpha}")
 
 
 @dataclass(frozen=True)

@@ -10,11 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from bimscan.errors import SemanticError
 from bimscan.types import ComponentTable, PointCloud
-
-
-class SemanticError(ValueError):
-    """A chunk whose labels contradict the component table (a bug or a corrupted cloud)."""
 
 
 def filter_invalid(chunk: PointCloud) -> tuple[PointCloud, int]:

@@ -60,47 +60,47 @@ class ScannerModel:
     reach_pulse_freq_hz: float = 100000.0
 
     def __post_init__(self) -> None:
-        problems = []
         for name in ("wavelength_nm", "pulse_length_ns", "reach_pulse_freq_hz"):
             value = getattr(self, name)
             if not math.isfinite(value) or value <= 0:
-                problems.append(f"{name} must be a number > 0, got {value}")
+                self._refuse(f"{name} must be a number > 0, got {value}")
         if not self.reach_reflectance or len(self.reach_reflectance) != len(self.reach_range_m):
-            problems.append(f"reach_reflectance and reach_range_m must be lists of the same length >= 1, got "
-                            f"{list(self.reach_reflectance)} and {list(self.reach_range_m)}")
+            self._refuse(f"reach_reflectance and reach_range_m must be lists of the same length >= 1, got "
+                         f"{list(self.reach_reflectance)} and {list(self.reach_range_m)}")
         elif not all(0 < r <= 1 for r in self.reach_reflectance) or not all(
                 math.isfinite(m) and m > 0 for m in self.reach_range_m):
-            problems.append("reach_reflectance must lie in (0, 1] and reach_range_m be > 0, got "
-                            f"{list(self.reach_reflectance)} and {list(self.reach_range_m)}")
+            self._refuse("reach_reflectance must lie in (0, 1] and reach_range_m be > 0, got "
+                         f"{list(self.reach_reflectance)} and {list(self.reach_range_m)}")
         for name in ("range_accuracy_m", "angle_accuracy_deg", "beam_divergence_rad"):
             value = getattr(self, name)
             if not math.isfinite(value) or value < 0:
-                problems.append(f"{name} must be a number >= 0, got {value}")
+                self._refuse(f"{name} must be a number >= 0, got {value}")
         for name in ("tripod_height_m", "beam_origin_height_m"):
             value = getattr(self, name)
             if not math.isfinite(value) or value < 0:
-                problems.append(f"{name} must be a number >= 0, got {value}")
+                self._refuse(f"{name} must be a number >= 0, got {value}")
         if not all(math.isfinite(f) and f > 0 for f in self.pulse_freqs_hz):
-            problems.append(f"pulse_freqs_hz must all be > 0, got {list(self.pulse_freqs_hz)}")
+            self._refuse(f"pulse_freqs_hz must all be > 0, got {list(self.pulse_freqs_hz)}")
         if not (math.isfinite(self.scan_freq_min_hz) and math.isfinite(self.scan_freq_max_hz)
                 and 0 < self.scan_freq_min_hz <= self.scan_freq_max_hz):
-            problems.append(f"need 0 < scan_freq_min_hz <= scan_freq_max_hz, got {self.scan_freq_min_hz} and "
-                            f"{self.scan_freq_max_hz}")
+            self._refuse(f"need 0 < scan_freq_min_hz <= scan_freq_max_hz, got {self.scan_freq_min_hz} and "
+                         f"{self.scan_freq_max_hz}")
         if not (math.isfinite(self.head_deg_per_s_max) and self.head_deg_per_s_max > 0):
-            problems.append(f"head_deg_per_s_max must be > 0, got {self.head_deg_per_s_max}")
+            self._refuse(f"head_deg_per_s_max must be > 0, got {self.head_deg_per_s_max}")
         if math.isfinite(self.angle_accuracy_deg) and self.angle_accuracy_deg > MAX_ANGLE_SIGMA_DEG:
-            problems.append(f"angle_accuracy_deg must be at most {MAX_ANGLE_SIGMA_DEG:g}, got {self.angle_accuracy_deg}")
+            self._refuse(f"angle_accuracy_deg must be at most {MAX_ANGLE_SIGMA_DEG:g}, got {self.angle_accuracy_deg}")
         if not 0 < self.mirror_sweep_deg <= 360:
-            problems.append(f"mirror_sweep_deg must be in (0, 360], got {self.mirror_sweep_deg}")
+            self._refuse(f"mirror_sweep_deg must be in (0, 360], got {self.mirror_sweep_deg}")
         half = self.mirror_sweep_deg / 2
         if not -half <= self.elevation_min_deg < self.elevation_max_deg <= half:
-            problems.append(
+            self._refuse(
                 f"the elevation window [{self.elevation_min_deg}, {self.elevation_max_deg}) must be non-empty "
                 f"and inside the mirror sweep [-{half}, {half}]")
         if not 0 <= self.min_range_m < self.max_range_m:
-            problems.append(f"need 0 <= min_range_m < max_range_m, got {self.min_range_m} and {self.max_range_m}")
-        if problems:
-            raise ScannerSettingsError(f"scanner {self.name!r}: " + "; ".join(problems))
+            self._refuse(f"need 0 <= min_range_m < max_range_m, got {self.min_range_m} and {self.max_range_m}")
+
+    def _refuse(self, problem: str) -> None:
+        raise ScannerSettingsError(f"scanner {self.name!r}: {problem}; fix the scanner file")
 
     @property
     def instrument_height_m(self) -> float:
