@@ -10,7 +10,7 @@ import pytest
 
 from bimscan.errors import InputFileError
 from bimscan.io.s3dis import S3DIS_CLASSES, is_s3dis_room, list_s3dis_rooms, read_s3dis_room
-from bimscan.learn.data import load_scene
+from bimscan.learn.data import read_labelled_cloud
 
 # (file name, points, expected S3DIS class id, expected 5-class id)
 ROOM = [
@@ -58,7 +58,7 @@ def test_room_reads_with_s3dis_class_ids_and_one_component_per_instance(tmp_path
 def test_shipped_mapping_sends_s3dis_classes_to_the_five_classes(tmp_path: Path) -> None:
     room = make_room(tmp_path / "office_1")
 
-    cloud = load_scene(room)
+    cloud = read_labelled_cloud(room)
 
     expected = np.concatenate([np.full(n, five) for _, n, _, five in ROOM])
     np.testing.assert_array_equal(cloud.label, expected)

@@ -15,7 +15,7 @@ from bimscan.io.text import write_text_cloud
 from bimscan.learn.blocks import locate_columns, encode_column_key
 from bimscan.learn.train_config import DEFAULT_CLASS_NAMES, BlockConfig
 from bimscan.learn.data import (
-    TileDataset, _sort_by_column_and_key, collect_scene_tiles, list_scenes, load_or_collect_tiles, load_scene,
+    TileDataset, _sort_by_column_and_key, collect_scene_tiles, list_scenes, load_or_collect_tiles, read_labelled_cloud,
 )
 from bimscan.learn.mapping import LabelMapping
 from bimscan.types import PointCloud
@@ -136,14 +136,14 @@ def test_training_blocks_depend_only_on_seed_epoch_and_tile(tmp_path: Path, room
     assert np.abs(first["xyz"]).max() <= 1.0 + 1e-6
 
 
-def test_load_scene_maps_a_stored_scheme_free_text_cloud_as_is(tmp_path: Path) -> None:
+def test_a_stored_scheme_free_text_cloud_is_read_with_its_labels_as_they_are(tmp_path: Path) -> None:
     xyz = np.zeros((4, 3))
     write_text_cloud(tmp_path / "a.txt", PointCloud(xyz=xyz, label=np.array([0, 4, 255, 2], np.uint8)))
     write_text_cloud(tmp_path / "b.txt", PointCloud(xyz=xyz, label=np.array([0, 5, 6, 2], np.uint8)))
 
-    assert load_scene(tmp_path / "a.txt").label.tolist() == [0, 4, 255, 2]
+    assert read_labelled_cloud(tmp_path / "a.txt").label.tolist() == [0, 4, 255, 2]
     with pytest.raises(LearnError, match="labels 5, 6 are not training classes"):
-        load_scene(tmp_path / "b.txt")
+        read_labelled_cloud(tmp_path / "b.txt")
 
 
 @pytest.mark.parametrize("name", ["scene.laz", "scene.las", "scene.ply", "scene"])
@@ -158,7 +158,7 @@ def test_every_bimscan_cloud_format_loads_with_its_labels(
     with open_cloud_writer(tmp_path / name, header=CloudHeader(scheme=load_scheme())) as writer:
         writer.write(cloud)
 
-    back = load_scene(tmp_path / name)
+    back = read_labelled_cloud(tmp_path / name)
 
     np.testing.assert_array_equal(back.label, cloud.label)
     np.testing.assert_allclose(back.xyz, cloud.xyz, atol=1e-4)
@@ -178,7 +178,7 @@ def test_a_stored_scheme_in_another_order_is_mapped_by_class_name(
     with open_cloud_writer(tmp_path / "scene.laz", header=CloudHeader(scheme=scheme)) as writer:
         writer.write(stored)
 
-    np.testing.assert_array_equal(load_scene(tmp_path / "scene.laz").label, cloud.label)
+    np.testing.assert_array_equal(read_labelled_cloud(tmp_path / "scene.laz").label, cloud.label)
 
 
 @pytest.mark.parametrize("classification", [0, 1])
@@ -190,12 +190,12 @@ def test_a_foreign_las_never_classified_has_no_ground_truth(
     blocks = BlockConfig(size_m=2.0, eval_stride_m=1.0, points=32, min_points=8, cache_points=64)
 
     with pytest.raises(LearnError, match="no ground-truth labels: its LAS classification is only 0/1.*--label-field"):
-        load_scene(path)
+        read_labelled_cloud(path)
     with pytest.raises(LearnError, match="no ground-truth labels"):
         collect_scene_tiles(list_scenes([path])[0], blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=0)
-    np.testing.assert_array_equal(load_scene(path, label_field="gt").label, cloud.label)
+    np.testing.assert_array_equal(read_labelled_cloud(path, label_field="gt").label, cloud.label)
     everything_others = LabelMapping(name="all-others", default="Others")
-    assert set(load_scene(path, mapping=everything_others).label.tolist()) == {4}
+    assert set(read_labelled_cloud(path, mapping=everything_others).label.tolist()) == {4}
 
 
 def test_a_foreign_las_with_classes_keeps_them(
@@ -203,7 +203,7 @@ def test_a_foreign_las_with_classes_keeps_them(
 ) -> None:
     cloud = room(10, points_per_m2=10)
 
-    back = load_scene(foreign_las(tmp_path / "site.las", cloud))
+    back = read_labelled_cloud(foreign_las(tmp_path / "site.las", cloud))
 
     np.testing.assert_array_equal(back.label, cloud.label)
 
@@ -214,7 +214,7 @@ def test_a_label_field_names_a_text_header_column_and_cannot_apply_to_s3dis_room
     (room / "Annotations").mkdir(parents=True)
     (room / "Annotations" / "wall_1.txt").write_text("0 0 0 1 2 3\n")
 
-    assert load_scene(tmp_path / "scan.txt", label_field="gt").label.tolist() == [1, 2]
+    assert read_labelled_cloud(tmp_path / "scan.txt", label_field="gt").label.tolist() == [1, 2]
     with pytest.raises(LearnError, match="label field 'gt' cannot apply to S3DIS rooms"):
         list_scenes([tmp_path / "Area_1"], label_field="gt")
     # in a list with other scans it names their field; the rooms keep their annotation labels

@@ -118,7 +118,7 @@ def test_export_obj_takes_the_site_flags(box_room_ifc, tmp_path):
 def test_added_components_get_valid_ifc_global_ids():
     import ifcopenshell.guid
 
-    from bimscan.site import derived_global_id
+    from bimscan.ifc.guid import derived_global_id
 
     ids = {derived_global_id("x", k) for k in range(200)}
     assert len(ids) == 200

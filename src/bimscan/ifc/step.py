@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import re
 import sys
-import uuid
 from array import array
 from collections import Counter
 from collections.abc import Iterable, Iterator
@@ -35,10 +34,10 @@ from functools import cache
 
 import numpy as np
 
+from bimscan.ifc import guid
 from bimscan.ifc.schema import class_ancestry
 
 BOM = b"\xef\xbb\xbf"
-_GUID_NAMESPACE = uuid.UUID("0b5d3c52-3f6e-4c55-9a7e-6a2b1f0c9d41")
 # Entities that are scannable elements when their class descends from IfcElement but not from these.
 NOT_SCANNABLE = ("IfcFeatureElement", "IfcVirtualElement")
 
@@ -255,9 +254,7 @@ def is_scannable_class(schema: str, entity: str) -> bool:
 
 def derived_global_id(file_sha256: str, step_id: int) -> str:
     """A GlobalId for instance ``step_id`` of a file that gave it none: stable across runs."""
-    import ifcopenshell.guid
-
-    return ifcopenshell.guid.compress(uuid.uuid5(_GUID_NAMESPACE, f"{file_sha256}#{step_id}").hex)
+    return guid.derived_global_id(f"{file_sha256}#{step_id}")
 
 
 # -- statements -----------------------------------------------------------------------------------

@@ -189,7 +189,7 @@ def iter_scene_chunks(
         )
 
 
-def load_scene(
+def read_labelled_cloud(
     path: str | Path, *, label_field: str | None = None, mapping: LabelMapping | None = None,
     class_names: Sequence[str] = DEFAULT_CLASS_NAMES,
 ) -> PointCloud:

@@ -7,13 +7,13 @@ over the shared types; ray probes go through the scan engine interface.
 """
 
 from bimscan.site.classes import SITE_CLASSES, site_class_names
-from bimscan.site.dress import DressTimings, default_kinds, derived_global_id, dress_scene, dress_scene_timed
+from bimscan.site.dress import DressTimings, default_kinds, dress_scene, dress_scene_timed
 from bimscan.site.library import CLUTTER_KINDS, GROUPS
 from bimscan.site.model import STAGES, ClutterSettings, SiteModel, StageSettings, site_from_mapping, site_settings
 
 __all__ = [
     "CLUTTER_KINDS", "GROUPS", "SITE_CLASSES", "STAGES", "ClutterSettings", "DressTimings", "SiteModel",
     "StageSettings",
-    "default_kinds", "derived_global_id", "dress_scene", "dress_scene_timed", "site_class_names", "site_from_mapping",
+    "default_kinds", "dress_scene", "dress_scene_timed", "site_class_names", "site_from_mapping",
     "site_settings",
 ]

@@ -16,7 +16,6 @@ bytes and one room's clutter does not depend on another's.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import time
 import zlib
 from collections import Counter
@@ -26,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bimscan.errors import ConfigError
+from bimscan.ifc.guid import derived_global_id
 from bimscan.progress import progress_bar
 from bimscan.site.classes import SITE_CLASSES, site_class_ancestry
 from bimscan.scan.probe import Prober
@@ -37,7 +37,6 @@ from bimscan.site.stage import built_components, ceiling_coverings, cut_openings
 from bimscan.types import BimScene, BuildDates, ComponentSurfaces, ComponentTable, SceneMesh, SiteState
 
 FULL_AFTER_MISSES = 8
-_GUID_CHARS = "0123456789ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz_$"
 
 
 @dataclass(frozen=True)
@@ -169,16 +168,6 @@ def _subset(scene: BimScene, keep: np.ndarray) -> BimScene:
                        face_component=new_id[mesh.face_component[faces_kept]].astype(np.int32)),
         components=ComponentTable(**columns, class_ancestry=table.class_ancestry), surfaces=surfaces,
     )
-
-
-def derived_global_id(*parts: object) -> str:
-    """An IFC GlobalId (22 characters of IFC's base-64) derived from ``parts`` (stable, unique)."""
-    number = int.from_bytes(hashlib.sha256(":".join(map(str, parts)).encode()).digest()[:16], "big")
-    chars = []
-    for _ in range(22):
-        chars.append(_GUID_CHARS[number & 63])
-        number >>= 6
-    return "".join(reversed(chars))
 
 
 def _append(scene: BimScene, placed: list[PlacedObject], *, seed: int) -> BimScene:
