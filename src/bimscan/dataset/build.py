@@ -186,7 +186,9 @@ def _run(folder: DatasetFolder, rows: dict[str, ManifestEntry], unit_jobs: dict[
     for scene_job in scene_jobs:
         submit("scene", (scene_job.scene, scene_job.site_tag), run_scene_job, with_threads(scene_job))
 
-    with progress_bar(total=len(unit_jobs), desc="units", unit="unit", enabled=progress) as unit_bar, \
+    with progress_bar(total=len(scene_jobs), desc="scenes (load, dress, plan stations)", unit="scene",
+                      enabled=progress) as scene_bar, \
+            progress_bar(total=len(unit_jobs), desc="units", unit="unit", enabled=progress) as unit_bar, \
             progress_bar(total=0, desc="scanning", unit="pulse", enabled=progress) as pulse_bar:
         finished = False
         try:
@@ -197,6 +199,7 @@ def _run(folder: DatasetFolder, rows: dict[str, ManifestEntry], unit_jobs: dict[
                         scene_outcome = value if error is None else SceneOutcome(scene=name[0], error=task_error(error),
                                                                                  site_tag=name[1])
                         result.scenes.append(scene_outcome)
+                        scene_bar.update(1)
                         if scene_outcome.error is not None:
                             for job in by_scene[name]:
                                 finish_unit(UnitOutcome(unit=job.unit, status="failed",
