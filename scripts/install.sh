@@ -1,13 +1,27 @@
 #!/usr/bin/env bash
 # Set up bimscan from nothing on a Debian-like machine: the system library Open3D needs,
 # a virtual environment in .venv, and the package with every optional part.
-#   scripts/install.sh          install bimscan (all extras)
-#   scripts/install.sh --test   also install the test dependencies
+#   scripts/install.sh                 install bimscan (all extras)
+#   scripts/install.sh --test          also install the test dependencies
+#   scripts/install.sh --docs          also install the documentation tools (MkDocs; see mkdocs.yml)
+#   scripts/install.sh --test --docs   flags combine, in any order
 set -euo pipefail
-cd "$(dirname "$0")/.."
 
-extras="all"
-[ "${1:-}" = "--test" ] && extras="all,test"
+test="" docs=""
+for flag in "$@"; do
+  case "$flag" in
+    --test) test=",test" ;;
+    --docs) docs=",docs" ;;
+    -h|--help)
+      sed -n '2,7p' "$0" | sed 's/^# \{0,1\}//'
+      exit 0 ;;
+    *)
+      echo "error: unknown option '$flag'; use --test and/or --docs (see 'scripts/install.sh --help')" >&2
+      exit 2 ;;
+  esac
+done
+extras="all${test}${docs}"
+cd "$(dirname "$0")/.."
 
 # Open3D's wheel imports only with libusb-1.0 present.
 if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
