@@ -129,7 +129,7 @@ def sampling_rate(repeats: int = 200, *, recipe: bool = False) -> float:
         xyz=(rng.random((points * 8, 3)) * 4).astype(np.float32), label=rng.integers(0, 5, points * 8).astype(np.uint8),
         offsets=np.arange(9, dtype=np.int64) * points, origin=np.zeros((8, 3)), key=np.arange(8, dtype=np.int64),
         count=np.full(8, points, dtype=np.int64), scene=np.zeros(8, dtype=np.int32), scene_names=("bench",),
-        floor=np.zeros(8),
+        height=(rng.random(points * 8) * 3).astype(np.float32),
     )
     dataset = (TileDataset(tiles, points=N, seed=0, inputs=InputConfig(), augment=AugmentConfig()) if recipe
                else TileDataset(tiles, points=N, seed=0))

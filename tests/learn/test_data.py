@@ -84,7 +84,7 @@ def test_tiles_keep_a_random_subset_per_column_whatever_the_chunking(
         assert small.count[t] == full[int(small.key[t])]
         assert kept == min(300, full[int(small.key[t])])
     # the kept points are points of the scene, in their own column, with their own labels
-    xyz, label = small.tile_points(0)
+    xyz, label, _ = small.tile_points(0)
     absolute = xyz + small.origin[0]
     distance = np.linalg.norm(scene.xyz[None, :, :] - absolute[:20, None, :], axis=2)
     nearest = distance.argmin(axis=1)

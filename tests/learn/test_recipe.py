@@ -14,7 +14,7 @@ from bimscan.io.text import write_text_cloud
 from bimscan.learn.augment import augment_points
 from bimscan.learn.data import TileDataset, collect_scene_tiles, list_scenes
 from bimscan.learn.density import grid_representatives, grid_sample, voxel_index
-from bimscan.learn.features import estimate_normals, extra_features, floor_height, local_geometry
+from bimscan.learn.features import estimate_normals, extra_features, local_geometry
 from bimscan.learn.train import class_weights_from_labels, compute_loss
 from bimscan.learn.train_config import DEFAULT_CLASS_NAMES, AugmentConfig, BlockConfig, InputConfig
 from bimscan.types import PointCloud
@@ -72,9 +72,10 @@ def test_grid_tiles_do_not_depend_on_point_order_or_chunking(tmp_path: Path) -> 
 def test_augmentation_is_seeded_and_keeps_labels_with_their_points() -> None:
     room = make_room(1, size_m=(3.0, 3.0), points_per_m2=80)
     config = AugmentConfig()
-    a, ka = augment_points(room.xyz, config=config, rng=np.random.default_rng(5))
-    b, kb = augment_points(room.xyz, config=config, rng=np.random.default_rng(5))
-    c, _ = augment_points(room.xyz, config=config, rng=np.random.default_rng(6))
+    a, ka, sa = augment_points(room.xyz, config=config, rng=np.random.default_rng(5))
+    b, kb, sb = augment_points(room.xyz, config=config, rng=np.random.default_rng(5))
+    c, _, _ = augment_points(room.xyz, config=config, rng=np.random.default_rng(6))
+    assert sa == sb and 0.9 <= sa <= 1.1
     assert np.array_equal(a, b) and np.array_equal(ka, kb)
     assert len(c) != len(a) or not np.allclose(c, a)
     label = room.label[ka]
@@ -82,10 +83,10 @@ def test_augmentation_is_seeded_and_keeps_labels_with_their_points() -> None:
     assert a[label == SLAB, 2].max() < a[label == COVERING, 2].min()
     # rotation + flips + scaling only: distances between points scale by at most the scale range
     rigid = AugmentConfig(jitter_sigma_m=0.0, dropout_max=0.0, elastic=(), anisotropic=False)
-    moved, kept = augment_points(room.xyz, config=rigid, rng=np.random.default_rng(7))
+    moved, kept, z_scale = augment_points(room.xyz, config=rigid, rng=np.random.default_rng(7))
     assert len(kept) == len(room)
     ratio = np.linalg.norm(moved[1:] - moved[0], axis=1) / np.linalg.norm(room.xyz[1:] - room.xyz[0], axis=1)
-    assert np.allclose(ratio, ratio[0]) and 0.9 <= ratio[0] <= 1.1
+    assert np.allclose(ratio, ratio[0]) and 0.9 <= ratio[0] <= 1.1 and ratio[0] == pytest.approx(z_scale)
 
 
 def test_augmented_blocks_are_identical_for_the_same_key_and_aligned(tmp_path: Path) -> None:
@@ -113,11 +114,10 @@ def test_features_height_and_normals() -> None:
     normals = estimate_normals(np.concatenate([floor, wall]), neighbours=12)
     assert np.allclose(normals[:500], [0.0, 0.0, 1.0], atol=1e-6)
     assert np.allclose(np.abs(normals[500:, 0]), 1.0, atol=1e-6)
-    extra = extra_features(floor, features=("xyz", "height", "normals"), floor_z=0.4, height_scale_m=3.0, neighbours=8)
+    extra = extra_features(floor, features=("xyz", "height", "normals"), height_m=np.full(500, 0.6),
+                           height_scale_m=3.0, neighbours=8)
     assert extra.shape == (500, 4) and np.allclose(extra[:, 0], 0.2)
-    assert extra_features(floor, features=("xyz",), floor_z=0.0, height_scale_m=3.0, neighbours=8) is None
-    z = np.r_[np.full(10_000, 2.0), -50.0]  # one stray point far below the floor
-    assert floor_height(z) == pytest.approx(2.0)
+    assert extra_features(floor, features=("xyz",), height_m=None, height_scale_m=3.0, neighbours=8) is None
 
 
 def test_shape_features_tell_planes_lines_and_scatter_apart() -> None:
@@ -136,7 +136,8 @@ def test_shape_features_tell_planes_lines_and_scatter_apart() -> None:
     # the same points in another order: the same features, point for point
     order = rng.permutation(len(points))
     assert np.allclose(local_geometry(points[order], neighbours=16)[1], shape[order], atol=1e-6)
-    extra = extra_features(points, features=("xyz", "normals", "shape"), floor_z=0.0, height_scale_m=3.0, neighbours=16)
+    extra = extra_features(points, features=("xyz", "normals", "shape"), height_m=None, height_scale_m=3.0,
+                           neighbours=16)
     assert extra.shape == (1200, 6) and np.allclose(extra[:, 3:], shape)
     assert local_geometry(points[:2], neighbours=16)[1].shape == (2, 3)
 

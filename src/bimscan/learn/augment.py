@@ -24,9 +24,11 @@ import numpy as np
 from bimscan.learn.train_config import AugmentConfig
 
 
-def augment_points(xyz: np.ndarray, *, config: AugmentConfig, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Augment (M, 3) float64 metres; returns the new (K, 3) points and (K,) int64 indices of
-    the input points they came from (K <= M after dropout), in input order."""
+def augment_points(xyz: np.ndarray, *, config: AugmentConfig,
+                   rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, float]:
+    """Augment (M, 3) float64 metres; returns the new (K, 3) points, (K,) int64 indices of the
+    input points they came from (K <= M after dropout), in input order, and the factor heights
+    were scaled by (heights above a floor scale with z)."""
     xyz = np.array(xyz, dtype=np.float64, copy=True)
     centre = (xyz.min(axis=0) + xyz.max(axis=0)) / 2.0 if len(xyz) else np.zeros(3)
     xyz -= centre
@@ -52,7 +54,7 @@ def augment_points(xyz: np.ndarray, *, config: AugmentConfig, rng: np.random.Gen
         survive = rng.random(len(xyz)) >= fraction
         if survive.any():  # never drop a whole block
             keep = keep[survive]
-    return xyz[keep], keep
+    return xyz[keep], keep, float(factors[2] if config.anisotropic else factors[0])
 
 
 def elastic_distortion(

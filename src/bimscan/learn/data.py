@@ -34,7 +34,8 @@ from bimscan.io import CLOUD_FORMATS, input_format, iter_cloud_chunks, read_clou
 from bimscan.io.s3dis import S3DIS_CLASSES, list_s3dis_rooms
 from bimscan.learn.blocks import locate_columns, encode_column_key, pad_block, sample_block, decode_column_key
 from bimscan.learn.density import point_hash, voxel_hash
-from bimscan.learn.features import extra_features, floor_height
+from bimscan.learn.features import extra_features
+from bimscan.learn.floors import FloorMapBuilder
 from bimscan.learn.train_config import DEFAULT_CLASS_NAMES, IGNORE_LABEL, AugmentConfig, BlockConfig, InputConfig
 from bimscan.learn.mapping import (
     LabelMapping, apply_label_table, build_label_table, load_s3dis_mapping,
@@ -213,7 +214,7 @@ class TileSet:
     xyz (P, 3) float32 metres relative to the tile's ``origin``; label (P,) uint8 training ids;
     offsets (T+1,) int64 into xyz/label; origin (T, 3) float64; key (T,) int64 column key;
     count (T,) int64 points of the whole column; scene (T,) int32 index into ``scene_names``;
-    floor (T,) float64 the floor level (absolute z) of the tile's scene.
+    height (P,) float32 metres of each point above the floor under it (:mod:`bimscan.learn.floors`).
     """
 
     xyz: np.ndarray
@@ -224,15 +225,16 @@ class TileSet:
     count: np.ndarray
     scene: np.ndarray
     scene_names: tuple[str, ...]
-    floor: np.ndarray
+    height: np.ndarray
 
     def __len__(self) -> int:
         return int(len(self.offsets) - 1)
 
-    def tile_points(self, index: int) -> tuple[np.ndarray, np.ndarray]:
-        """(M, 3) float64 relative coordinates and (M,) uint8 labels of one tile."""
+    def tile_points(self, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(M, 3) float64 relative coordinates, (M,) uint8 labels and (M,) float64 heights above
+        the floor of one tile."""
         lo, hi = int(self.offsets[index]), int(self.offsets[index + 1])
-        return self.xyz[lo:hi].astype(np.float64), self.label[lo:hi]
+        return self.xyz[lo:hi].astype(np.float64), self.label[lo:hi], self.height[lo:hi].astype(np.float64)
 
     @staticmethod
     def concatenate(parts: Sequence[TileSet]) -> TileSet:
@@ -253,7 +255,7 @@ class TileSet:
             count=np.concatenate([p.count for p in parts]) if parts else np.empty(0, np.int64),
             scene=np.concatenate(scenes).astype(np.int32) if parts else np.empty(0, np.int32),
             scene_names=tuple(names),
-            floor=np.concatenate([p.floor for p in parts]) if parts else np.empty(0, np.float64),
+            height=np.concatenate([p.height for p in parts]) if parts else np.empty(0, np.float32),
         )
 
 
@@ -298,7 +300,9 @@ def collect_scene_tiles(
     full_prio = np.empty(0, np.float64)
     column_keys: list[np.ndarray] = []
     column_counts: list[np.ndarray] = []
+    floors = FloorMapBuilder()  # the floor under every point: from all of them, stations merged
     for chunk in iter_scene_chunks(source, class_names=class_names, chunk_points=chunk_points):
+        floors.add(chunk.xyz)
         ix, iy = locate_columns(chunk.xyz[:, :2], size_m=blocks.size_m)
         if per_station and chunk.station is not None:
             if len(chunk.station) and int(chunk.station.max()) >= _MAX_STATIONS:
@@ -353,8 +357,8 @@ def collect_scene_tiles(
         counts = dict(zip(keys.tolist(), totals.tolist(), strict=True))
     else:
         counts = {}
-    floor = floor_height(kept_xyz[:, 2])
-    return _tiles_from_points(source, kept_key, kept_xyz, kept_label, counts, blocks=blocks, floor=floor)
+    height = kept_xyz[:, 2] - floors.build().floor_under(kept_xyz)
+    return _tiles_from_points(source, kept_key, kept_xyz, kept_label, height, counts, blocks=blocks)
 
 
 _STATION_SHIFT = 1 << 20  # per-station columns: column x index + station x this (|x index| < 2**19)
@@ -442,12 +446,12 @@ def _sort_by_column_and_key(key: np.ndarray, prio: np.ndarray) -> tuple[np.ndarr
 
 
 def _tiles_from_points(
-    source: SceneSource, key: np.ndarray, xyz: np.ndarray, label: np.ndarray, counts: dict[int, int],
-    *, blocks: BlockConfig, floor: float,
+    source: SceneSource, key: np.ndarray, xyz: np.ndarray, label: np.ndarray, height: np.ndarray,
+    counts: dict[int, int], *, blocks: BlockConfig,
 ) -> TileSet:
     starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]]) if len(key) else np.empty(0, np.int64)
     ends = np.r_[starts[1:], len(key)].astype(np.int64)
-    parts_xyz, parts_label, offsets, origins, keys, totals = [], [], [0], [], [], []
+    parts_xyz, parts_label, parts_height, offsets, origins, keys, totals = [], [], [], [0], [], [], []
     for start, end in zip(starts.tolist(), ends.tolist(), strict=True):
         column = int(key[start])
         labels = label[start:end]
@@ -458,6 +462,7 @@ def _tiles_from_points(
         origin = np.array([ix[0] * blocks.size_m, iy[0] * blocks.size_m, float(xyz[start:end, 2].min())])
         parts_xyz.append((xyz[start:end] - origin).astype(np.float32))
         parts_label.append(labels)
+        parts_height.append(height[start:end].astype(np.float32))
         offsets.append(offsets[-1] + end - start)
         origins.append(origin)
         keys.append(column)
@@ -471,7 +476,7 @@ def _tiles_from_points(
         count=np.asarray(totals, dtype=np.int64),
         scene=np.zeros(len(keys), dtype=np.int32),
         scene_names=(source.name,),
-        floor=np.full(len(keys), floor, dtype=np.float64),
+        height=np.concatenate(parts_height) if parts_height else np.empty(0, np.float32),
     )
 
 
@@ -493,7 +498,7 @@ def name_tile_cache(
 ) -> str:
     """File name of a scene's cached tiles: a digest of everything the tiles depend on."""
     recipe = {
-        "version": 2, "scene": _fingerprint(source.path), "name": source.name, "kind": source.kind,
+        "version": 3, "scene": _fingerprint(source.path), "name": source.name, "kind": source.kind,
         "label_field": source.label_field, "mapping": None if source.mapping is None else asdict(source.mapping),
         "blocks": asdict(blocks), "class_names": list(class_names), "seed": seed, "grid_m": grid_m,
         "per_station": per_station,
@@ -520,7 +525,7 @@ def load_or_collect_tiles(
             return TileSet(
                 xyz=data["xyz"], label=data["label"], offsets=data["offsets"], origin=data["origin"],
                 key=data["key"], count=data["count"], scene=data["scene"], scene_names=(source.name,),
-                floor=data["floor"],
+                height=data["height"],
             )
     if not build:
         raise LearnError(f"{path}: tile cache missing (rank 0 should have written it); rerun the training")
@@ -530,7 +535,7 @@ def load_or_collect_tiles(
     with atomic_output(path) as temp, temp.open("wb") as out:
         np.savez(
             out, xyz=tiles.xyz, label=tiles.label, offsets=tiles.offsets, origin=tiles.origin,
-            key=tiles.key, count=tiles.count, scene=tiles.scene, floor=tiles.floor,
+            key=tiles.key, count=tiles.count, scene=tiles.scene, height=tiles.height,
         )
     return tiles
 
@@ -562,7 +567,7 @@ class TileDataset:
     def __getitem__(self, key: tuple[int, int]) -> dict[str, np.ndarray]:
         epoch, index = key
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, epoch, index]))
-        xyz, label = self.tiles.tile_points(index)
+        xyz, label, height = self.tiles.tile_points(index)
         if self.augment is None and self.inputs.features == ("xyz",):
             block = sample_block(xyz, label, points=self.points, rng=rng)  # the paper's block, bit for bit
             return {"xyz": block.xyz, "label": block.label, "mask": block.mask}
@@ -571,15 +576,12 @@ class TileDataset:
         m = len(xyz)
         lower, upper = xyz.min(axis=0), xyz.max(axis=0)  # the whole block's box, as sample_block and inference use
         chosen = np.sort(rng.choice(m, size=self.points, replace=False)) if m > self.points else np.arange(m)
-        xyz, label = xyz[chosen], label[chosen]
+        xyz, label, height = xyz[chosen], label[chosen], height[chosen]
         if self.augment is not None:
-            xyz, kept = augment_points(xyz, config=self.augment, rng=rng)
-            label, chosen = label[kept], chosen[kept]
+            xyz, kept, z_scale = augment_points(xyz, config=self.augment, rng=rng)
+            label, chosen, height = label[kept], chosen[kept], height[kept] * z_scale  # a taller storey
             lower, upper = xyz.min(axis=0), xyz.max(axis=0)
-        absolute = xyz + np.array([0.0, 0.0, self.tiles.origin[index, 2]])
-        extra = extra_features(
-            absolute, features=self.inputs.features, floor_z=float(self.tiles.floor[index]),
-            height_scale_m=self.inputs.height_scale_m, neighbours=self.inputs.normal_neighbours,
-        )
+        extra = extra_features(xyz, features=self.inputs.features, height_m=height,
+                               height_scale_m=self.inputs.height_scale_m, neighbours=self.inputs.normal_neighbours)
         block = pad_block(xyz, label, chosen, points=self.points, lower=lower, upper=upper, extra=extra)
         return {"xyz": block.xyz, "label": block.label, "mask": block.mask}

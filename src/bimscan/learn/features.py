@@ -2,10 +2,11 @@
 
 - ``xyz``: the block's coordinates, centred and scaled (:func:`bimscan.learn.blocks.normalize_block`);
   always the first three channels (the paper's input).
-- ``height``: z above the floor of the block's scene, in units of ``height_scale_m`` (a storey,
+- ``height``: z above the floor under the point, in units of ``height_scale_m`` (a storey,
   3 m): a block normalised to [-1, 1] no longer knows whether it is at floor or ceiling
-  level, while floors, ceilings and beams are told apart mostly by height. The floor is a low
-  percentile (``FLOOR_PERCENTILE``) of the scene's z, robust to a few stray points below it.
+  level, while floors, ceilings and beams are told apart mostly by height. The floor is the
+  point's own storey's, found from the scene's points (:mod:`bimscan.learn.floors`), so the
+  feature means the same on every storey of a building and in a single scanned room.
 - ``normals``: unit normals estimated by PCA of each point's ``normal_neighbours`` nearest
   neighbours among the block's input points (the eigenvector of the smallest eigenvalue of the
   neighbourhood covariance), sign chosen with n_z >= 0 (a scan's normals have no reliable
@@ -24,19 +25,11 @@ from __future__ import annotations
 import numpy as np
 
 FEATURE_CHANNELS = {"xyz": 3, "height": 1, "normals": 3, "shape": 3}
-FLOOR_PERCENTILE = 0.1
 
 
 def input_channels(features: tuple[str, ...]) -> int:
     """Channels of the network input for a feature list."""
     return sum(FEATURE_CHANNELS[name] for name in features)
-
-
-def floor_height(z: np.ndarray) -> float:
-    """The scene's floor level from (a sample of) its z values."""
-    if len(z) == 0:
-        return 0.0
-    return float(np.percentile(np.asarray(z, dtype=np.float64), FLOOR_PERCENTILE))
 
 
 def local_geometry(xyz: np.ndarray, *, neighbours: int) -> tuple[np.ndarray, np.ndarray]:
@@ -70,17 +63,20 @@ def estimate_normals(xyz: np.ndarray, *, neighbours: int) -> np.ndarray:
 
 
 def extra_features(
-    xyz: np.ndarray, *, features: tuple[str, ...], floor_z: float, height_scale_m: float, neighbours: int,
+    xyz: np.ndarray, *, features: tuple[str, ...], height_m: np.ndarray | None, height_scale_m: float, neighbours: int,
 ) -> np.ndarray | None:
-    """(M, E) float32 channels after xyz for (M, 3) absolute-height points, or None for XYZ only.
+    """(M, E) float32 channels after xyz for (M, 3) points, or None for XYZ only.
 
-    ``xyz`` must hold absolute z (x and y may be relative: only their differences matter).
+    ``height_m``: (M,) metres above the floor under each point (needed with ``height``); only
+    the differences of ``xyz`` matter.
     """
     parts = []
     geometry = None
     for name in features[1:]:
         if name == "height":
-            parts.append(((xyz[:, 2:3] - floor_z) / height_scale_m).astype(np.float32))
+            if height_m is None:
+                raise ValueError("the height feature needs each point's height above its floor")
+            parts.append((np.asarray(height_m, dtype=np.float64)[:, None] / height_scale_m).astype(np.float32))
         elif name in ("normals", "shape"):
             if geometry is None:
                 geometry = local_geometry(xyz, neighbours=neighbours)

@@ -20,7 +20,8 @@ With density normalisation (``inputs.grid_m`` > 0, :mod:`bimscan.learn.density`)
 made of one representative point per voxel, as in training (the same point in every block
 holding the voxel); every other point takes the distance-weighted votes of its nearest
 representatives (``inputs.label_neighbours``; 0: its own voxel's representative's).
-Extra input features (height, normals) are computed per block group exactly as in training.
+Extra input features (normals, shape) are computed per block group exactly as in training; the
+height above the floor under each point from the scene's floor map (:mod:`bimscan.learn.floors`).
 
 Results reach the caller per finished stripe (``on_labels(index, prediction)``), so a
 caller writes labels to disk (prediction) or only counts them (evaluation).
@@ -28,6 +29,7 @@ caller writes labels to disk (prediction) or only counts them (evaluation).
 
 from __future__ import annotations
 
+import math
 import tempfile
 import time
 from collections.abc import Callable, Sequence
@@ -41,7 +43,8 @@ from torch import nn
 from bimscan.errors import LearnError
 from bimscan.learn.blocks import Block, pad_block, plan_passes
 from bimscan.learn.density import grid_representatives
-from bimscan.learn.features import extra_features, floor_height
+from bimscan.learn.features import extra_features
+from bimscan.learn.floors import TILE_M, FloorMap, FloorMapBuilder
 from bimscan.learn.train_config import IGNORE_LABEL, BlockConfig, InputConfig
 from bimscan.learn.data import CHUNK_POINTS, SceneSource, iter_raw_chunks, iter_scene_chunks
 from bimscan.learn.metrics import compute_confusion
@@ -49,7 +52,6 @@ from bimscan.learn.model import autocast_context, flush_denormals
 from bimscan.progress import progress_bar
 from bimscan.types import PointCloud
 
-FLOOR_SAMPLE = 10_000  # heights kept to find the floor: memory bounded whatever the scene size
 SPREAD_CHUNK = 262_144  # points interpolated at a time (see _spread_votes)
 RECORD = np.dtype([("xyz", "<f8", (3,)), ("label", "u1"), ("index", "<i8")])
 
@@ -155,7 +157,7 @@ def _label_scene(
     block_count = 0
     with tempfile.TemporaryDirectory(prefix=".bimscan-stripes-", dir=work_dir) as temp:
         folder = Path(temp)
-        counts, lower, upper, cy_range, floor_z = _bucket_points(
+        counts, lower, upper, cy_range, floor_map = _bucket_points(
             source, folder, class_names=class_names, stride=stride, use_labels=use_labels, chunk_points=chunk_points,
         )
         total = sum(counts.values())
@@ -172,6 +174,7 @@ def _label_scene(
                         records = np.fromfile(folder / f"{s}.bin", dtype=RECORD)
                         loaded[s] = (records, np.zeros((len(records), classes), dtype=np.float32))
                 xyz = np.concatenate([loaded[s][0]["xyz"] for s in window])
+                height = xyz[:, 2] - floor_map.floor_under(xyz) if "height" in inputs.features else None
                 offsets = np.cumsum([0] + [len(loaded[s][0]) for s in window])
                 runner.votes = np.zeros((len(xyz), classes), dtype=np.float32)
                 if inputs.grid_m > 0:
@@ -192,13 +195,15 @@ def _label_scene(
                     if inputs.grid_m > 0:
                         members = np.sort(members[is_rep[members]])
                     points = xyz[members]
+                    heights = None if height is None else height[members]
                     box_lower, box_upper = points.min(axis=0), points.max(axis=0)
                     rng = np.random.default_rng(_seed(seed, column, row))
                     groups = [group for _ in range(blocks.eval_votes)
                               for group in plan_passes(len(members), points=blocks.points, rng=rng, max_passes=max_passes)]
                     for group in groups:
                         extra = extra_features(
-                            points[group], features=inputs.features, floor_z=floor_z,
+                            points[group], features=inputs.features,
+                            height_m=None if heights is None else heights[group],
                             height_scale_m=inputs.height_scale_m, neighbours=inputs.normal_neighbours,
                         )
                         runner.add(pad_block(
@@ -234,11 +239,10 @@ def _label_scene(
 def _bucket_points(
     source: SceneSource, folder: Path, *, class_names: Sequence[str], stride: float, use_labels: bool,
     chunk_points: int,
-) -> tuple[dict[int, int], np.ndarray, np.ndarray, tuple[int, int], float]:
+) -> tuple[dict[int, int], np.ndarray, np.ndarray, tuple[int, int], FloorMap]:
     """Stream the scene into per-stripe record files; returns counts, bounds, the y-cell range
-    and the floor level (:func:`bimscan.learn.features.floor_height` of a z sample)."""
+    and the floor under every point (:mod:`bimscan.learn.floors`)."""
     counts: dict[int, int] = {}
-    z_sample, z_stride = np.empty(0), 1  # every z_stride-th height, thinned to stay <= 2 * FLOOR_SAMPLE
     lower = np.full(3, np.inf)
     upper = np.full(3, -np.inf)
     cy_min, cy_max = None, None
@@ -256,9 +260,6 @@ def _bucket_points(
         records["label"] = chunk.label if use_labels and chunk.label is not None else IGNORE_LABEL
         records["index"] = np.arange(total, total + n, dtype=np.int64)
         total += n
-        z_sample = np.concatenate([z_sample, chunk.xyz[::z_stride, 2]])
-        if len(z_sample) > 2 * FLOOR_SAMPLE:
-            z_sample, z_stride = z_sample[::2], z_stride * 2
         lower = np.minimum(lower, chunk.xyz.min(axis=0))
         upper = np.maximum(upper, chunk.xyz.max(axis=0))
         cy = np.floor(chunk.xyz[:, 1] / stride).astype(np.int64)
@@ -275,7 +276,23 @@ def _bucket_points(
             counts[stripe] = counts.get(stripe, 0) + (b - a)
     if total == 0 or cy_min is None or cy_max is None:
         raise LearnError(f"{source.path}: the scene holds no points; pass a non-empty cloud")
-    return counts, lower, upper, (cy_min, cy_max), floor_height(z_sample)
+    return counts, lower, upper, (cy_min, cy_max), _floor_map(folder, counts, stride)
+
+
+def _floor_map(folder: Path, counts: dict[int, int], stride: float) -> FloorMap:
+    """The scene's floor map from its stripe files, read in x order: the floor tiles a stripe
+    completes are summarised as soon as it is read (one stripe's width of margin against
+    rounding), so memory holds a tile column's points, not the scene's."""
+    builder = FloorMapBuilder()
+    pending = np.empty((0, 3))
+    for stripe in sorted(counts):
+        xyz = np.fromfile(folder / f"{stripe}.bin", dtype=RECORD)["xyz"]
+        pending = np.concatenate([pending, xyz])
+        complete = np.floor(pending[:, 0] / TILE_M) < math.floor(stripe * stride / TILE_M)
+        builder.add_tiles(pending[complete])
+        pending = pending[~complete]
+    builder.add_tiles(pending)
+    return builder.build()
 
 
 def _spread_votes(
