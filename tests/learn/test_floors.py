@@ -1,0 +1,109 @@
+"""The floor under every point, from the points: every storey its own floor, ceilings and tables
+never taken for one, the same map however the scene is streamed or where it lies."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bimscan.learn.floors import FloorMapBuilder
+
+SHARED_REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "s3dis_area6"
+
+
+def _plane(rng, x, y, z, n):
+    return np.column_stack([rng.uniform(*x, n), rng.uniform(*y, n), np.full(n, z) + rng.normal(0, 0.003, n)])
+
+
+def _wall(rng, x, y, z, n):
+    return np.column_stack([rng.uniform(*x, n), rng.uniform(*y, n), rng.uniform(*z, n)])
+
+
+def building(rng, *, storeys=3, storey_m=3.6, ceiling_m=2.8, size=(12.0, 8.0), table=True):
+    """Points of a building scanned inside: per storey a floor, a ceiling under the next slab,
+    the walls between them, and (optionally) a big table; returns points and the floor of each."""
+    parts, floors = [], []
+    sx, sy = size
+    for k in range(storeys):
+        base = k * storey_m
+        parts.append(_plane(rng, (0, sx), (0, sy), base, 40_000))
+        parts.append(_plane(rng, (0, sx), (0, sy), base + ceiling_m, 40_000))
+        for x, y in (((0, sx), (0, 0.05)), ((0, sx), (sy - 0.05, sy)), ((0, 0.05), (0, sy)), ((sx - 0.05, sx), (0, sy))):
+            parts.append(_wall(rng, x, y, (base, base + ceiling_m), 8_000))
+        if table:
+            parts.append(_plane(rng, (1.0, 4.0), (1.0, 3.5), base + 0.75, 8_000))  # a big table
+        floors.append(base)
+    return np.concatenate(parts), floors
+
+
+def floor_of(xyz):
+    builder = FloorMapBuilder()
+    for start in range(0, len(xyz), 50_000):
+        builder.add(xyz[start:start + 50_000])
+    return builder.build()
+
+
+def test_every_storey_gets_its_own_floor_and_ceilings_and_tables_are_not_floors():
+    rng = np.random.default_rng(0)
+    xyz, floors = building(rng)
+    floor_map = floor_of(xyz)
+    assert np.allclose(floor_map.scene_floors, floors, atol=0.06)
+    height = xyz[:, 2] - floor_map.floor_under(xyz)
+    storey = np.floor(xyz[:, 2] / 3.6 + 0.01)
+    for k in range(3):
+        in_storey = (storey == k) & (xyz[:, 2] > k * 3.6 - 0.1)
+        assert np.all(height[in_storey] > -0.1) and np.all(height[in_storey] < 2.9)
+    ceiling = np.abs(xyz[:, 2] % 3.6 - 2.8) < 0.02
+    assert np.allclose(height[ceiling], 2.8, atol=0.08)  # a ceiling is 2.8 m above its own storey's floor
+
+
+def test_the_map_is_the_same_however_the_scene_is_streamed_or_where_it_lies():
+    rng = np.random.default_rng(1)
+    xyz, _ = building(rng, storeys=2)
+    streamed = floor_of(xyz[rng.permutation(len(xyz))])
+    by_tiles = FloorMapBuilder()
+    tile = np.floor(xyz[:, 0] / 2.0)
+    for t in np.unique(tile):  # whole tile columns at a time, as labelling reads its stripes
+        by_tiles.add_tiles(xyz[tile == t])
+    by_tiles = by_tiles.build()
+    assert np.array_equal(streamed.floor_under(xyz), by_tiles.floor_under(xyz))
+    offset = np.array([512_345.678, 5_421_000.25, 312.0])  # georeferenced
+    moved = floor_of(xyz + offset)
+    difference = np.abs(moved.floor_under(xyz + offset) - offset[2] - streamed.floor_under(xyz))
+    # a height bin may round the other way at a boundary once coordinates are large: at most a bin
+    assert difference.max() <= 0.05 + 1e-6 and np.mean(difference < 1e-6) > 0.95
+
+
+def test_a_split_level_keeps_its_own_floor_and_a_scene_without_layers_falls_back():
+    rng = np.random.default_rng(2)
+    low = _plane(rng, (0, 6), (0, 8), 0.0, 30_000)
+    high = _plane(rng, (6, 12), (0, 8), 1.2, 30_000)
+    ceiling = _plane(rng, (0, 12), (0, 8), 3.8, 60_000)
+    walls = _wall(rng, (0, 12), (0, 0.05), (0, 3.8), 20_000)
+    step = _wall(rng, (5.98, 6.0), (0, 8), (0, 1.2), 5_000)
+    # what stands on each level (cabinets, chairs): rises from its floor
+    stuff = [_wall(rng, (x, x + 0.5), (y, y + 0.5), (z, z + 0.9), 400)
+             for x in np.arange(0.5, 12, 1.5) for y in np.arange(0.5, 8, 1.5) for z in [0.0 if x < 6 else 1.2]]
+    xyz = np.concatenate([low, high, ceiling, walls, step, *stuff])
+    floor_map = floor_of(xyz)
+    assert np.allclose(floor_map.floor_under(np.array([[3.0, 4.0, 1.0], [9.0, 4.0, 2.0]])), [0.0, 1.2], atol=0.06)
+    scatter = rng.uniform(0, 5, (2_000, 3))  # no surface at all
+    assert len(floor_of(scatter).floor_under(scatter)) == 2_000
+
+
+@pytest.mark.skipif(not SHARED_REAL.is_dir(), reason="the shared real rooms are absent (../shared/data/real)")
+def test_real_rooms_get_their_floor_under_every_point():
+    from bimscan.learn.data import iter_scene_chunks, list_scenes
+    from bimscan.learn.train_config import DEFAULT_CLASS_NAMES
+
+    slab = DEFAULT_CLASS_NAMES.index("Slab")
+    covering = DEFAULT_CLASS_NAMES.index("Covering")
+    for source in list_scenes([SHARED_REAL])[:4]:
+        chunks = list(iter_scene_chunks(source, class_names=DEFAULT_CLASS_NAMES))
+        xyz = np.concatenate([c.xyz for c in chunks])
+        label = np.concatenate([c.label for c in chunks])
+        height = xyz[:, 2] - floor_of(xyz).floor_under(xyz)
+        assert abs(np.median(height[label == slab])) < 0.08, source.name
+        assert 2.3 < np.median(height[label == covering]) < 3.2, source.name
