@@ -69,7 +69,7 @@ def test_tiles_keep_a_random_subset_per_column_whatever_the_chunking(
     scene = room(4, size_m=(5.0, 3.0), points_per_m2=60)
     write_text_cloud(tmp_path / "scene.txt", scene)
     source = list_scenes([tmp_path / "scene.txt"])[0]
-    blocks = BlockConfig(size_m=2.0, eval_stride_m=1.0, points=64, min_points=16, cache_points=300)
+    blocks = BlockConfig(size_m=2.0, points=64, min_points=16, cache_points=300)
 
     small = collect_scene_tiles(source, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=3, chunk_points=500)
     large = collect_scene_tiles(source, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=3, chunk_points=10**6)
@@ -95,7 +95,7 @@ def test_tiles_keep_a_random_subset_per_column_whatever_the_chunking(
 def test_tiles_with_too_few_points_are_dropped(tmp_path: Path) -> None:
     xyz = np.array([[0.5, 0.5, 0.0]] * 50 + [[3.5, 0.5, 0.0]] * 5, dtype=np.float64)
     write_text_cloud(tmp_path / "two.txt", PointCloud(xyz=xyz, label=np.zeros(55, np.uint8)))
-    blocks = BlockConfig(size_m=2.0, eval_stride_m=1.0, points=16, min_points=10, cache_points=64)
+    blocks = BlockConfig(size_m=2.0, points=16, min_points=10, cache_points=64)
 
     tiles = collect_scene_tiles(list_scenes([tmp_path / "two.txt"])[0], blocks=blocks,
                                 class_names=DEFAULT_CLASS_NAMES, seed=0)
@@ -106,7 +106,7 @@ def test_tiles_with_too_few_points_are_dropped(tmp_path: Path) -> None:
 def test_tile_cache_on_disk_gives_the_same_tiles(tmp_path: Path, room: Callable[..., PointCloud]) -> None:
     write_text_cloud(tmp_path / "scene.txt", room(1, points_per_m2=30))
     source = list_scenes([tmp_path / "scene.txt"])[0]
-    blocks = BlockConfig(size_m=2.0, eval_stride_m=1.0, points=32, min_points=8, cache_points=64)
+    blocks = BlockConfig(size_m=2.0, points=32, min_points=8, cache_points=64)
 
     built = load_or_collect_tiles(source, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=1,
                                   cache_dir=tmp_path / "cache")
@@ -123,7 +123,7 @@ def test_tile_cache_on_disk_gives_the_same_tiles(tmp_path: Path, room: Callable[
 
 def test_training_blocks_depend_only_on_seed_epoch_and_tile(tmp_path: Path, room: Callable[..., PointCloud]) -> None:
     write_text_cloud(tmp_path / "scene.txt", room(2, points_per_m2=60))
-    blocks = BlockConfig(size_m=2.0, eval_stride_m=1.0, points=64, min_points=16, cache_points=256)
+    blocks = BlockConfig(size_m=2.0, points=64, min_points=16, cache_points=256)
     tiles = collect_scene_tiles(list_scenes([tmp_path / "scene.txt"])[0], blocks=blocks,
                                 class_names=DEFAULT_CLASS_NAMES, seed=0)
     dataset = TileDataset(tiles, points=64, seed=5)
@@ -187,7 +187,7 @@ def test_a_foreign_las_never_classified_has_no_ground_truth(
 ) -> None:
     cloud = room(9, points_per_m2=10)
     path = foreign_las(tmp_path / "site.las", cloud, classification=classification)
-    blocks = BlockConfig(size_m=2.0, eval_stride_m=1.0, points=32, min_points=8, cache_points=64)
+    blocks = BlockConfig(size_m=2.0, points=32, min_points=8, cache_points=64)
 
     with pytest.raises(LearnError, match="no ground-truth labels: its LAS classification is only 0/1.*--label-field"):
         read_labelled_cloud(path)

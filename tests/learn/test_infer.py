@@ -3,7 +3,6 @@ nearest-neighbour filling, and results independent of how the scene is streamed.
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable
 from pathlib import Path
 
@@ -13,18 +12,18 @@ import torch
 
 from bimscan.errors import ConfigError
 from bimscan.io.text import write_text_cloud
-from bimscan.learn.train_config import DEFAULT_CLASS_NAMES, BlockConfig, InputConfig, ModelConfig
+from bimscan.learn.train_config import DEFAULT_CLASS_NAMES, BlockConfig, EvalConfig, InputConfig, ModelConfig
 from bimscan.learn.data import iter_raw_chunks, list_scenes
-from bimscan.learn.density import grid_representatives
+from bimscan.learn.density import voxel_representatives
 from bimscan.learn import infer
-from bimscan.learn.infer import _spread_votes, label_scene
+from bimscan.learn.infer import label_scene, spread_votes
 from bimscan.learn.metrics import compute_confusion
 from bimscan.learn.model import build_model
 from bimscan.types import PointCloud
 
 from .conftest import denormals_kept
 
-BLOCKS = BlockConfig(size_m=2.0, eval_stride_m=1.0, points=64, min_points=8, cache_points=128)
+BLOCKS = BlockConfig(size_m=2.0, points=64, min_points=8, cache_points=128)
 
 
 @pytest.fixture
@@ -101,23 +100,28 @@ def test_points_off_the_grid_take_the_distance_weighted_votes_of_the_nearest_rep
     monkeypatch.setattr(infer, "SPREAD_CHUNK", chunk)
     rng = np.random.default_rng(5)
     xyz = rng.random((3000, 3)) * [2.0, 1.5, 1.0]
-    representatives, rep_of = grid_representatives(xyz, 0.2)
+    representatives, rep_of = voxel_representatives(xyz, 0.2)
+    rep_votes = rng.random((len(representatives), 5)).astype(np.float32)
+    rep_votes[::7] = 0.0  # representatives no pass saw lend no votes
     votes = np.zeros((len(xyz), 5), np.float32)
-    votes[representatives] = rng.random((len(representatives), 5))
-    votes[representatives[::7]] = 0.0  # representatives no pass saw lend no votes
+    votes[representatives] = rep_votes
 
-    spread = _spread_votes(votes, xyz, representatives, rep_of, 3)
+    spread = spread_votes(rep_votes, xyz, representatives, rep_of, 3)
 
-    np.testing.assert_array_equal(spread[representatives], votes[representatives])
-    voted = representatives[votes[representatives].sum(axis=1) > 0]
+    np.testing.assert_array_equal(spread[representatives], rep_votes)
+    voted = representatives[rep_votes.sum(axis=1) > 0]
     others = np.setdiff1d(np.arange(len(xyz)), representatives)
     distance = np.linalg.norm(xyz[others, None, :] - xyz[None, voted, :], axis=2)  # brute force
     nearest = np.argsort(distance, axis=1)[:, :3]
     weight = 1.0 / np.take_along_axis(distance, nearest, axis=1) ** 2
     expected = (weight[..., None] * votes[voted][nearest]).sum(axis=1) / weight.sum(axis=1, keepdims=True)
     np.testing.assert_allclose(spread[others], expected, rtol=1e-5)
-    # 0 neighbours: the votes of the voxel's own representative, as before
-    np.testing.assert_array_equal(_spread_votes(votes, xyz, representatives, rep_of, 0), votes[rep_of])
+    # 0 neighbours: the votes of the voxel's own representative
+    np.testing.assert_array_equal(spread_votes(rep_votes, xyz, representatives, rep_of, 0), votes[rep_of])
+    # the representatives of the next stripe lend their votes too
+    near = (xyz[rep_of != np.arange(len(xyz))][:1] + [0.001, 0.0, 0.0])
+    lent = spread_votes(rep_votes, xyz, representatives, rep_of, 1, others=[(near, np.eye(5, dtype=np.float32)[:1])])
+    assert lent[np.flatnonzero(rep_of != np.arange(len(xyz)))[0]].argmax() == 0
 
 
 def test_interpolated_labels_keep_the_representatives_and_change_only_other_points(
@@ -131,11 +135,11 @@ def test_interpolated_labels_keep_the_representatives_and_change_only_other_poin
             return torch.cat([4.0 * xyz[..., :3], torch.zeros_like(xyz[..., :2])], dim=-1)
 
     for neighbours in (0, 3):
-        inputs = InputConfig(grid_m=0.5, features=("xyz",), label_neighbours=neighbours)
-        index, prediction, _ = _label(ByPosition(), path, inputs=inputs)
+        inputs = InputConfig(grid_m=0.5, features=("xyz",))
+        index, prediction, _ = _label(ByPosition(), path, inputs=inputs, evaluation=EvalConfig(label_neighbours=neighbours))
         results[neighbours] = prediction[np.argsort(index)]
     xyz = np.concatenate([c.xyz for c in iter_raw_chunks(list_scenes([path])[0], labels=False)])  # as read
-    representatives, rep_of = grid_representatives(xyz, 0.5)
+    representatives, rep_of = voxel_representatives(xyz - xyz.min(axis=0), 0.5)  # voxels from the scene's corner
 
     # 0.5 m voxels fall inside the 1 m stripes: one representative per voxel in every window
     np.testing.assert_array_equal(results[3][representatives], results[0][representatives])
@@ -152,19 +156,20 @@ def test_eval_votes_shuffle_every_column_again(scene: tuple[Path, PointCloud], m
         labelled.append(index)
 
     thrice = label_scene(model, list_scenes([path])[0], class_names=DEFAULT_CLASS_NAMES, on_labels=keep,
-                         blocks=dataclasses.replace(BLOCKS, eval_votes=3))
+                         blocks=BLOCKS, evaluation=EvalConfig(votes=3))
 
     assert thrice.blocks == once.blocks
     assert thrice.passes == 3 * once.passes  # every block cut into groups three times
     assert np.array_equal(np.sort(np.concatenate(labelled)), np.arange(len(cloud)))  # each point once
-    with pytest.raises(ConfigError, match="eval_votes must be in 1..64"):
-        dataclasses.replace(BLOCKS, eval_votes=0)
+    with pytest.raises(ConfigError, match="votes must be in 1..64"):
+        EvalConfig(votes=0)
 
 
 def test_blocks_overlap_as_configured(scene: tuple[Path, PointCloud], model: torch.nn.Module) -> None:
     path, cloud = scene
-    x_columns = np.unique(np.floor(cloud.xyz[:, 0] / 1.0)).size
-    y_columns = np.unique(np.floor(cloud.xyz[:, 1] / 1.0)).size
+    corner = cloud.xyz.min(axis=0)  # columns count from the scene's own corner
+    x_columns = np.unique(np.floor((cloud.xyz[:, 0] - corner[0]) / 1.0)).size
+    y_columns = np.unique(np.floor((cloud.xyz[:, 1] - corner[1]) / 1.0)).size
 
     _, _, result = _label(model, path)
 
@@ -239,3 +244,126 @@ def test_denormals_are_flushed_for_the_network_only(
     assert seen["features"] and all(seen["features"])
     assert seen["network"] and not any(seen["network"])
     assert denormals_kept()  # and never left on
+
+
+def _ordered(model: torch.nn.Module, path: Path, **options: object) -> tuple[np.ndarray, object]:
+    index, prediction, result = _label(model, path, **options)
+    out = np.empty(len(index), np.uint8)
+    out[index] = prediction
+    return out, result
+
+
+RECIPE_INPUTS = InputConfig(grid_m=0.1, features=("xyz", "height", "normals", "shape"))
+
+
+class LinearProbe(torch.nn.Module):
+    """A fixed linear map of each point's input channels to class scores: unlike an untrained PCT
+    (one class everywhere) its labels change with every input channel, so equal labels mean equal
+    inputs."""
+
+    def __init__(self, in_dim: int) -> None:
+        super().__init__()
+        self.weight = torch.nn.Parameter(torch.randn(in_dim, 5, generator=torch.Generator().manual_seed(0)) * 3.0)
+
+    def forward(self, xyz: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+        return xyz @ self.weight
+
+
+def _recipe_model() -> torch.nn.Module:
+    from bimscan.learn.features import input_channels
+
+    return LinearProbe(input_channels(RECIPE_INPUTS.features)).eval()
+
+
+def _varied(labels: np.ndarray) -> np.ndarray:
+    counts = np.bincount(labels, minlength=5)
+    assert (counts > 0.02 * len(labels)).sum() >= 3, counts  # the comparison means something
+    return labels
+
+
+def test_a_scene_moved_far_away_gets_the_same_labels(tmp_path: Path, room: Callable[..., PointCloud]) -> None:
+    """Columns, voxels and floors count from the scene itself: georeferenced coordinates (a site
+    hundreds of kilometres from its origin) change nothing."""
+    cloud = room(3, size_m=(5.0, 4.0), points_per_m2=40)
+    shift = np.array([412_345.678, 5_321_987.654, 231.5])  # UTM-like
+    write_text_cloud(tmp_path / "here.txt", cloud)
+    write_text_cloud(tmp_path / "there.txt", PointCloud(xyz=cloud.xyz + shift, label=cloud.label))
+    model = _recipe_model()
+
+    here, _ = _ordered(model, tmp_path / "here.txt", inputs=RECIPE_INPUTS)
+    _varied(here)
+    there, _ = _ordered(model, tmp_path / "there.txt", inputs=RECIPE_INPUTS)
+
+    # the coordinates themselves differ in their last bits after the shift (float64, 6 decimals in text)
+    assert (here == there).mean() > 0.995
+
+
+def test_the_same_scene_in_another_format_gets_the_same_labels(tmp_path: Path, room: Callable[..., PointCloud]) -> None:
+    from bimscan.io import open_cloud_writer
+    from bimscan.semantics import DEFAULT_SCHEME, load_scheme
+    from bimscan.types import CloudHeader
+
+    cloud = room(4, size_m=(4.0, 4.0), points_per_m2=40)
+    cloud = PointCloud(xyz=np.round(cloud.xyz, 3), label=cloud.label)  # millimetres: what LAS stores exactly
+    write_text_cloud(tmp_path / "room.txt", cloud)
+    for name in ("room.ply", "room.laz"):
+        with open_cloud_writer(tmp_path / name, header=CloudHeader(scheme=load_scheme(DEFAULT_SCHEME))) as writer:
+            writer.write(cloud)
+    model = _recipe_model()
+
+    text, _ = _ordered(model, tmp_path / "room.txt", inputs=RECIPE_INPUTS)
+    _varied(text)
+    for name in ("room.ply", "room.laz"):
+        other, _ = _ordered(model, tmp_path / name, inputs=RECIPE_INPUTS)
+        assert (other == text).mean() > 0.995, name
+
+
+def test_each_storey_is_labelled_in_blocks_of_its_own(tmp_path: Path, room: Callable[..., PointCloud]) -> None:
+    """A column through two storeys is cut at the floors: the upper storey's blocks hold its points
+    only, as if it were scanned alone (the network never saw a block of two storeys)."""
+    lower = room(5, size_m=(4.0, 3.0), points_per_m2=30)
+    upper = PointCloud(xyz=lower.xyz + [0.0, 0.0, 3.4], label=lower.label)  # the same room one storey up
+    both = PointCloud(xyz=np.concatenate([lower.xyz, upper.xyz]), label=np.concatenate([lower.label, upper.label]))
+    write_text_cloud(tmp_path / "both.txt", both)
+    write_text_cloud(tmp_path / "lower.txt", lower)
+    write_text_cloud(tmp_path / "upper.txt", upper)
+    inputs = InputConfig(grid_m=0.1, features=("xyz", "height"))
+    model = LinearProbe(4).eval()
+
+    labels_both, result_both = _ordered(model, tmp_path / "both.txt", inputs=inputs)
+    _, result_lower = _ordered(model, tmp_path / "lower.txt", inputs=inputs)
+    labels_upper, result_upper = _ordered(model, tmp_path / "upper.txt", inputs=inputs)
+
+    assert result_both.blocks == result_lower.blocks + result_upper.blocks  # type: ignore[attr-defined]
+    # the upper storey's labels as when scanned alone (its blocks, its heights above its own floor)
+    assert (labels_both[len(lower):] == _varied(labels_upper)).mean() > 0.99
+
+
+def test_a_sparse_cloud_kilometres_wide_is_quick_and_warned_about(tmp_path: Path, model: torch.nn.Module) -> None:
+    """Only the columns that hold points are labelled: 1,000 points over 10 km take seconds. Its extent gets one warning line (no building is 10 km wide: the unit is likely wrong)."""
+    import time
+
+    rng = np.random.default_rng(0)
+    xyz = rng.random((1000, 3)) * [10_000.0, 10_000.0, 3.0]
+    write_text_cloud(tmp_path / "sparse.txt", PointCloud(xyz=xyz, label=rng.integers(0, 5, 1000).astype(np.uint8)))
+    warned: list[str] = []
+    started = time.perf_counter()
+
+    index, _, result = _label(model, tmp_path / "sparse.txt", warn=warned.append)
+
+    assert time.perf_counter() - started < 60.0  # every 1 m column over 10 km: 10^8 columns, hours
+    assert np.array_equal(np.sort(index), np.arange(1000))
+    assert len(warned) == 1 and "check its unit" in warned[0]
+
+
+def test_a_room_in_millimetres_is_labelled_and_named_as_likely_millimetres(
+    tmp_path: Path, room: Callable[..., PointCloud], model: torch.nn.Module,
+) -> None:
+    cloud = room(8, size_m=(4.0, 3.0), points_per_m2=10)
+    write_text_cloud(tmp_path / "mm.txt", PointCloud(xyz=cloud.xyz * 1000.0, label=cloud.label))
+    warned: list[str] = []
+
+    index, _, _ = _label(model, tmp_path / "mm.txt", warn=warned.append)
+
+    assert len(index) == len(cloud)
+    assert len(warned) == 1 and "looks like millimetres" in warned[0]

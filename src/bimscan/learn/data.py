@@ -35,7 +35,7 @@ from bimscan.io.s3dis import S3DIS_CLASSES, list_s3dis_rooms
 from bimscan.learn.blocks import locate_columns, encode_column_key, pad_block, sample_block, decode_column_key
 from bimscan.learn.density import point_hash, voxel_hash
 from bimscan.learn.features import extra_features
-from bimscan.learn.floors import FloorMapBuilder
+from bimscan.learn.floors import FloorMapBuilder, storey_of
 from bimscan.learn.train_config import DEFAULT_CLASS_NAMES, IGNORE_LABEL, AugmentConfig, BlockConfig, InputConfig
 from bimscan.learn.mapping import (
     LabelMapping, apply_label_table, build_label_table, load_s3dis_mapping,
@@ -300,10 +300,14 @@ def collect_scene_tiles(
     full_prio = np.empty(0, np.float64)
     column_keys: list[np.ndarray] = []
     column_counts: list[np.ndarray] = []
-    floors = FloorMapBuilder()  # the floor under every point: from all of them, stations merged
+    floors = FloorMapBuilder()  # the floor under every point (from all of them, stations merged): a first pass
     for chunk in iter_scene_chunks(source, class_names=class_names, chunk_points=chunk_points):
         floors.add(chunk.xyz)
+    floor_map = floors.build()
+    for chunk in iter_scene_chunks(source, class_names=class_names, chunk_points=chunk_points):
+        floor = floor_map.floor_under(chunk.xyz)
         ix, iy = locate_columns(chunk.xyz[:, :2], size_m=blocks.size_m)
+        iy = iy + storey_of(floor_map, floor) * _STOREY_SHIFT  # a column of a building is one block per storey
         if per_station and chunk.station is not None:
             if len(chunk.station) and int(chunk.station.max()) >= _MAX_STATIONS:
                 raise LearnError(
@@ -357,18 +361,25 @@ def collect_scene_tiles(
         counts = dict(zip(keys.tolist(), totals.tolist(), strict=True))
     else:
         counts = {}
-    height = kept_xyz[:, 2] - floors.build().floor_under(kept_xyz)
+    height = kept_xyz[:, 2] - floor_map.floor_under(kept_xyz)
     return _tiles_from_points(source, kept_key, kept_xyz, kept_label, height, counts, blocks=blocks)
 
 
 _STATION_SHIFT = 1 << 20  # per-station columns: column x index + station x this (|x index| < 2**19)
 _MAX_STATIONS = 1 << 9  # station x _STATION_SHIFT stays inside encode_column_key's |ix| < 2**30
+_STOREY_SHIFT = 1 << 20  # per-storey columns: column y index + storey x this (at most 512 storeys)
 
 
 def _column_x(ix: np.ndarray) -> np.ndarray:
     """The column x index without a per-station shift (identity for unshifted indices)."""
     half = _STATION_SHIFT // 2
     return (ix + half) % _STATION_SHIFT - half
+
+
+def _column_y(iy: np.ndarray) -> np.ndarray:
+    """The column y index without its per-storey shift."""
+    half = _STOREY_SHIFT // 2
+    return (iy + half) % _STOREY_SHIFT - half
 
 
 def _keep_smallest(
@@ -458,7 +469,7 @@ def _tiles_from_points(
         if counts[column] < blocks.min_points or not (labels != IGNORE_LABEL).any():
             continue
         ix, iy = decode_column_key(np.array([column]))
-        ix = _column_x(ix)
+        ix, iy = _column_x(ix), _column_y(iy)
         origin = np.array([ix[0] * blocks.size_m, iy[0] * blocks.size_m, float(xyz[start:end, 2].min())])
         parts_xyz.append((xyz[start:end] - origin).astype(np.float32))
         parts_label.append(labels)
@@ -498,7 +509,7 @@ def name_tile_cache(
 ) -> str:
     """File name of a scene's cached tiles: a digest of everything the tiles depend on."""
     recipe = {
-        "version": 3, "scene": _fingerprint(source.path), "name": source.name, "kind": source.kind,
+        "version": 4, "scene": _fingerprint(source.path), "name": source.name, "kind": source.kind,
         "label_field": source.label_field, "mapping": None if source.mapping is None else asdict(source.mapping),
         "blocks": asdict(blocks), "class_names": list(class_names), "seed": seed, "grid_m": grid_m,
         "per_station": per_station,

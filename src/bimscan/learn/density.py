@@ -30,9 +30,17 @@ def _mix(value: np.ndarray) -> np.ndarray:
     return z
 
 
+QUANTUM_M = 1e-4  # coordinates are voxelised on a 0.1 mm lattice: finer than any scanner's precision
+
+
 def voxel_index(xyz: np.ndarray, grid_m: float) -> np.ndarray:
-    """(N, 3) int64 voxel indices of (N, 3) coordinates in metres."""
-    return np.floor(np.asarray(xyz, dtype=np.float64) / grid_m).astype(np.int64)
+    """(N, 3) int64 voxel indices of (N, 3) coordinates in metres.
+
+    Coordinates are first rounded to ``QUANTUM_M``: a point a file format stored one bit apart
+    (LAS integers times a scale, decimal text) stays in its voxel even on a voxel's face, where
+    millimetre data puts every hundredth coordinate of a 0.1 m grid."""
+    quantum = np.rint(np.asarray(xyz, dtype=np.float64) / QUANTUM_M).astype(np.int64)
+    return quantum // max(1, round(grid_m / QUANTUM_M))
 
 
 def voxel_hash(xyz: np.ndarray, grid_m: float, *, seed: int = 0) -> np.ndarray:
@@ -79,3 +87,35 @@ def grid_representatives(xyz: np.ndarray, grid_m: float) -> tuple[np.ndarray, np
 def grid_sample(xyz: np.ndarray, grid_m: float) -> np.ndarray:
     """(R,) int64 ascending indices of one point per occupied ``grid_m`` voxel (see the module)."""
     return grid_representatives(xyz, grid_m)[0]
+
+
+def voxel_representatives(xyz: np.ndarray, grid_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """One representative per occupied voxel, for labelling: the point nearest the voxel's centre
+    (ties: the first), so points a file format rounded differently, or moved by an offset that the
+    caller subtracted, keep their representatives. ``xyz`` (N, 3) relative to the scene's origin.
+
+    Returns (R,) int64 indices of the representatives, ascending, and (N,) int64 ``rep_of``: for
+    every point, the index of its voxel's representative (a representative maps to itself).
+    """
+    n = len(xyz)
+    if n == 0:
+        return np.empty(0, np.int64), np.empty(0, np.int64)
+    cells = voxel_index(xyz, grid_m)
+    step = max(1, round(grid_m / QUANTUM_M))  # the distance on the same lattice: no float tie differs
+    offset = (np.rint(np.asarray(xyz, dtype=np.float64) / QUANTUM_M).astype(np.int64) - cells * step) * 2 - step
+    distance = np.einsum("ij,ij->i", offset, offset)  # int64, (2 x lattice steps)^2
+    cells -= cells.min(axis=0)
+    span = cells.max(axis=0) + 1
+    if float(span[0]) * float(span[1]) * float(span[2]) < 2.0**62:  # one int64 key per voxel: one sort key less
+        key = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
+        order = np.lexsort((distance, key))  # stable: ties keep the first
+        sorted_key = key[order]
+        starts = np.flatnonzero(np.r_[True, sorted_key[1:] != sorted_key[:-1]])
+    else:
+        order = np.lexsort((distance, cells[:, 2], cells[:, 1], cells[:, 0]))
+        sorted_cells = cells[order]
+        starts = np.flatnonzero(np.r_[True, (sorted_cells[1:] != sorted_cells[:-1]).any(axis=1)])
+    sizes = np.diff(np.r_[starts, n])
+    rep_of = np.empty(n, dtype=np.int64)
+    rep_of[order] = np.repeat(order[starts], sizes)
+    return np.sort(order[starts]), rep_of

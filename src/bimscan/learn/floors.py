@@ -15,11 +15,16 @@ underside, a large table. Going up the layers of a tile, a layer is a *ceiling* 
 above it (a roof or the top storey's ceiling), or when the next layer lies within ``SLAB_M``
 above it with (almost) nothing between them (the two faces of a slab: the lower one is the
 ceiling under it); every other layer is a *floor*, and a floor less than ``STOREY_M`` above the
-previous floor of its tile is not one (a table, a landing, a beam's underside). A point's floor
+previous floor of its tile, or covering less than ``FLOOR_FRACTION`` of it, is not one (a table, a
+landing, a beam's underside). A point's floor
 is the highest floor of its tile at most ``ABOVE_TOLERANCE_M`` above it (the floor's own points
 lie on it); a point below every floor takes the lowest. Tiles without a floor (a floor hidden
 under furniture, a tile of wall only) take the floors of the whole scene, found the same way
 from all tiles at once.
+
+A point's *storey* is the scene floor nearest its own floor (``storey_of``): blocks of the network
+are cut per storey, so a column of a five-storey building is five blocks of one storey each, as
+a single room is one.
 
 This is the "nearest dominant upward-facing horizontal surface below it in its column": dominant
 is the coverage test, upward-facing the slab and roof tests (a slab's top is seen from above,
@@ -38,6 +43,7 @@ TILE_M = 2.0
 CELL_M = 0.25
 BIN_M = 0.05
 DENSE_FRACTION = 0.2
+FLOOR_FRACTION = 0.35  # a floor above another covers at least this share of its column
 SLAB_M = 1.0  # a slab (with a ceiling void) is thinner than this; a storey is taller
 STOREY_M = 2.3  # floors of one tile at least this far apart (lower: a table, a landing, a beam's underside)
 ABOVE_TOLERANCE_M = 0.15  # a floor's own points lie on it (noise, finishes)
@@ -81,19 +87,19 @@ class FloorMapBuilder:
     its points) or a set of whole tiles at a time (``add_tiles``: summarised at once and let go,
     memory a few numbers per tile)."""
 
-    def __init__(self) -> None:
+    def __init__(self, *, origin: np.ndarray | None = None) -> None:
         self._parts: list[np.ndarray] = []
         self._pending = 0
         self._keys = np.empty(0, dtype=np.int64)
         self._tiles: dict[int, _Column] = {}
-        self._origin: np.ndarray | None = None  # whole tiles and bins: floors do not depend on it
+        # tiles and bins count from the scene's origin (default: the lower corner of the first
+        # points added), so a georeferencing offset does not move them against the points
+        self._origin = None if origin is None else np.asarray(origin, dtype=np.float64)
 
     def _relative(self, xyz: np.ndarray) -> np.ndarray:
         xyz = np.asarray(xyz, dtype=np.float64)
         if self._origin is None:
-            low = xyz.min(axis=0)
-            self._origin = np.array([np.floor(low[0] / TILE_M) * TILE_M, np.floor(low[1] / TILE_M) * TILE_M,
-                                     np.floor(low[2] / BIN_M) * BIN_M])
+            self._origin = xyz.min(axis=0)
         return xyz - self._origin
 
     def add(self, xyz: np.ndarray) -> None:
@@ -155,6 +161,18 @@ class FloorMap:
 
 
 _TILE_OFFSET = 1 << 23  # tile indices within +-2**23 (16,000 km of 2 m tiles)
+
+
+def storey_of(floor_map: FloorMap, floor: np.ndarray) -> np.ndarray:
+    """(N,) int64 storey of points whose floors (N,) are ``floor`` (from ``floor_under``): the
+    index of the scene's floor nearest it (a split level joins the storey it is part of)."""
+    scene = floor_map.scene_floors
+    index = np.clip(np.searchsorted(scene, floor), 1, max(len(scene) - 1, 1))
+    if len(scene) == 1:
+        return np.zeros(len(floor), dtype=np.int64)
+    lower = scene[index - 1]
+    upper = scene[np.minimum(index, len(scene) - 1)]
+    return np.where(np.abs(floor - lower) <= np.abs(upper - floor), index - 1, index).astype(np.int64)
 
 
 def _tile_key(tile: np.ndarray) -> np.ndarray:
@@ -270,21 +288,18 @@ def _floors(column: _Column, *, scene_floors: np.ndarray | None) -> np.ndarray:
         below = occupied[max(layer - far, 0):max(layer - near, 0)].sum()
         if below > SIDE_RATIO * above + 2:
             continue  # a ceiling: the room is under it
+        nxt = layers[i + 1] if i + 1 < len(layers) else None
+        if nxt is not None and nxt - layer <= slab_bins and \
+                occupied[layer + 2:nxt - 1].sum() <= BETWEEN_FRACTION * coverage[layer]:
+            continue  # the underside of a slab whose top is the next layer (the floor above counts as "above" it)
         near_scene = scene_floors is not None and bool(len(scene_floors)) and \
             np.abs(scene_floors - z).min() <= SCENE_MATCH_M
         if scene_floors is not None and not near_scene and \
                 coverage[layer] < LOCAL_FLOOR_FRACTION * max(footprint, _CELLS_PER_TILE**2):
             continue  # a floor of its own (a split level) covers most of its tile; a table does not
-        if not above > SIDE_RATIO * below + 2:  # the sides do not tell
-            if scene_floors is not None:
-                if not near_scene:
-                    continue
-            else:
-                nxt = layers[i + 1] if i + 1 < len(layers) else None
-                if nxt is not None and nxt - layer <= slab_bins and \
-                        occupied[layer + 2:nxt - 1].sum() <= BETWEEN_FRACTION * coverage[layer]:
-                    continue  # the underside of a slab whose top is the next layer
-        if out and z - out[-1] < STOREY_M - 1e-9:
-            continue
+        if not above > SIDE_RATIO * below + 2 and scene_floors is not None and not near_scene:
+            continue  # the sides do not tell, and no floor of the scene is there
+        if out and (z - out[-1] < STOREY_M - 1e-9 or coverage[layer] < FLOOR_FRACTION * footprint):
+            continue  # a storey above: its floor spans most of the column (a beam's underside a strip)
         out.append(z)
     return np.asarray(out, dtype=np.float64)

@@ -1,30 +1,33 @@
-"""Label every point of a scene with a trained network, in bounded memory.
+"""Label every point of a scene with a trained network, in bounded memory, at a cost that follows
+the scene's voxels and not its raw points.
 
-Blocks are the training columns (``size_m`` square, full height) slid with ``eval_stride_m``
-(k = size / stride overlapping columns along x and along y), and each point's class is the
-argmax of the softmax summed over every block pass that saw it.
-
-Bounded memory for scenes of tens of millions of points:
+Blocks are the training columns (``size_m`` square, full height) slid every ``stride_m``
+(``EvalConfig``; k = size / stride overlapping columns along x and along y), and each point's
+class is the argmax of the softmax summed over every block pass that saw it.
 
 1. One streamed pass writes the points (xyz, ground truth, original index) into one temporary
-   file per x-stripe of width ``eval_stride_m``.
-2. Block columns are processed in x order. Column i needs stripes i .. i+k-1 only; once it is
-   done, stripe i gets no more votes: its labels are final and it is dropped from memory. So
-   memory holds k stripes, not the scene.
-3. Within a block, the points are shuffled and cut into groups of N (the last topped up with
-   other points of the block), so every point is seen once per block at the training
-   density, ``eval_votes`` times over with new shuffles; ``max_passes`` can cap the groups per
-   shuffle, and points no group saw take the class of their nearest voted neighbour.
+   file per x-stripe of width ``stride_m``, counted from the scene's own origin (the lower corner
+   of its first chunk), so a georeferencing offset changes neither the stripes nor the voxels;
+   the scene's extent is checked for a likely unit mistake.
+2. The floor under every point (:mod:`bimscan.learn.floors`) is read from the stripe files, a
+   tile column at a time.
+3. Stripes are read in x order. With density normalisation (``grid_m`` > 0) each stripe's points
+   are reduced once to one representative per voxel (:func:`bimscan.learn.density.voxel_representatives`:
+   the point nearest the voxel's centre, so the same points give the same representatives
+   whatever file format rounded them); only representatives go through the network. Column i
+   needs stripes i .. i+k-1; within it every row of columns is one block: its representatives
+   shuffled and cut into groups of N (the last topped up with other points of the block), so each
+   is seen once per block at the training density, ``votes`` times over with new shuffles.
+   Blocks of fewer than N points run padded to the next power of two, not to N, so sparse
+   areas cost what they hold.
+4. Once no later column reaches a stripe, its labels are final: every point that is not a
+   representative takes the inverse-square-distance mean of the votes of its
+   ``label_neighbours`` nearest voted representatives (0: its voxel's representative's), points
+   no pass saw (only with ``max_passes``) the class of their nearest voted neighbour, and the
+   stripe leaves memory. Memory holds k stripes and the previous stripe's representatives.
 
-With density normalisation (``inputs.grid_m`` > 0, :mod:`bimscan.learn.density`) blocks are
-made of one representative point per voxel, as in training (the same point in every block
-holding the voxel); every other point takes the distance-weighted votes of its nearest
-representatives (``inputs.label_neighbours``; 0: its own voxel's representative's).
-Extra input features (normals, shape) are computed per block group exactly as in training; the
-height above the floor under each point from the scene's floor map (:mod:`bimscan.learn.floors`).
-
-Results reach the caller per finished stripe (``on_labels(index, prediction)``), so a
-caller writes labels to disk (prediction) or only counts them (evaluation).
+Results reach the caller per finished stripe (``on_labels(index, prediction)``), so a caller
+writes labels to disk (prediction) or only counts them (evaluation).
 """
 
 from __future__ import annotations
@@ -32,8 +35,9 @@ from __future__ import annotations
 import math
 import tempfile
 import time
+import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -42,18 +46,21 @@ from torch import nn
 
 from bimscan.errors import LearnError
 from bimscan.learn.blocks import Block, pad_block, plan_passes
-from bimscan.learn.density import grid_representatives
-from bimscan.learn.features import extra_features
-from bimscan.learn.floors import TILE_M, FloorMap, FloorMapBuilder
-from bimscan.learn.train_config import IGNORE_LABEL, BlockConfig, InputConfig
 from bimscan.learn.data import CHUNK_POINTS, SceneSource, iter_raw_chunks, iter_scene_chunks
+from bimscan.learn.density import voxel_representatives
+from bimscan.learn.features import extra_features
+from bimscan.learn.floors import TILE_M, FloorMap, FloorMapBuilder, storey_of
 from bimscan.learn.metrics import compute_confusion
 from bimscan.learn.model import autocast_context, flush_denormals
+from bimscan.learn.train_config import IGNORE_LABEL, BlockConfig, EvalConfig, InputConfig
 from bimscan.progress import progress_bar
 from bimscan.types import PointCloud
 
-SPREAD_CHUNK = 262_144  # points interpolated at a time (see _spread_votes)
+SPREAD_CHUNK = 262_144  # points interpolated at a time (see spread_votes)
 RECORD = np.dtype([("xyz", "<f8", (3,)), ("label", "u1"), ("index", "<i8")])
+MIN_PADDED = 16  # blocks smaller than N run padded to a power of two at least this
+BUILDING_EXTENT_M = 2_000.0  # wider than this, or taller than BUILDING_HEIGHT_M: likely not metres
+BUILDING_HEIGHT_M = 300.0
 
 
 @dataclass(frozen=True)
@@ -62,7 +69,8 @@ class SceneLabels:
 
     ``confusion`` (C, C) int64 against the scene's ground truth (all zero without labels);
     ``lower``/``upper`` (3,) float64 metres bound the points; ``nearest_filled`` counts points
-    no block pass saw (only with ``max_passes``), labelled from their nearest neighbour.
+    no block pass saw (only with ``max_passes``), labelled from their nearest neighbour;
+    ``network_points``: the points that went through the network (the representatives).
     """
 
     name: str
@@ -75,285 +83,392 @@ class SceneLabels:
     lower: np.ndarray
     upper: np.ndarray
     seconds: float
+    network_points: int = 0
 
 
 def _seed(*parts: int) -> np.random.SeedSequence:
     return np.random.SeedSequence([p % (1 << 64) for p in parts])  # column indices may be negative
 
 
+def padded_size(m: int, points: int) -> int:
+    """The rows a block of ``m`` points runs with: ``points`` when full, else the next power of two
+    (at least ``MIN_PADDED``): the network's masked layers give the same result either way."""
+    if m >= points:
+        return points
+    return min(points, max(MIN_PADDED, 1 << max(m - 1, 1).bit_length()))
+
+
 class BlockRunner:
-    """Batches blocks through the network and adds their softmax to ``votes`` (M, C) float32,
-    indexed by the blocks' ``index`` (set ``votes`` before adding blocks)."""
+    """Batches blocks through the network (blocks of one padded size together) and adds their
+    softmax to ``votes`` (M, C) float32, indexed by the blocks' ``index`` (set ``votes`` before
+    adding blocks; ``flush`` before reading it)."""
 
     def __init__(self, model: nn.Module, *, device: torch.device, batch_size: int, amp: str) -> None:
         self.model = model
         self.device = device
         self.batch_size = batch_size
         self.amp = amp
-        self.queue: list[Block] = []
+        self.queues: dict[int, list[Block]] = {}
         self.votes: np.ndarray | None = None
         self.passes = 0
 
     def add(self, block: Block) -> None:
-        self.queue.append(block)
-        if len(self.queue) >= self.batch_size:
-            self.flush()
+        queue = self.queues.setdefault(len(block.mask), [])
+        queue.append(block)
+        if len(queue) >= self.batch_size:
+            self._run(queue)
+            queue.clear()
+
+    def flush(self) -> None:
+        for queue in self.queues.values():
+            if queue:
+                self._run(queue)
+                queue.clear()
 
     @torch.inference_mode()
-    def flush(self) -> None:
-        if not self.queue:
-            return
+    def _run(self, queue: list[Block]) -> None:
         if self.votes is None:
             raise RuntimeError("BlockRunner.votes must be set before blocks are added")
-        xyz = torch.from_numpy(np.stack([b.xyz for b in self.queue])).to(self.device)
-        mask = torch.from_numpy(np.stack([b.mask for b in self.queue])).to(self.device)
+        xyz = torch.from_numpy(np.stack([b.xyz for b in queue])).to(self.device)
+        mask = torch.from_numpy(np.stack([b.mask for b in queue])).to(self.device)
         with autocast_context(self.device, self.amp), flush_denormals():  # the network only (see flush_denormals)
             logits = self.model(xyz, mask)
         probs = torch.softmax(logits.float(), dim=-1).cpu().numpy()
-        for block, prob in zip(self.queue, probs, strict=True):
+        for block, prob in zip(queue, probs, strict=True):
             # indices are unique within one pass, so plain fancy-index addition is exact
             self.votes[block.index[block.mask]] += prob[block.mask]
-        self.passes += len(self.queue)
-        self.queue = []
+        self.passes += len(queue)
 
 
 def label_scene(
     model: nn.Module, source: SceneSource, *, class_names: Sequence[str], blocks: BlockConfig,
-    device: torch.device | str = "cpu", batch_size: int = 8, amp: str = "off", seed: int = 0,
-    max_passes: int = 0, use_labels: bool = True, work_dir: Path | None = None,
+    evaluation: EvalConfig | None = None, inputs: InputConfig | None = None, device: torch.device | str = "cpu",
+    amp: str = "off", seed: int = 0, use_labels: bool = True, work_dir: Path | None = None,
     on_labels: Callable[[np.ndarray, np.ndarray], None] | None = None, chunk_points: int = CHUNK_POINTS,
-    inputs: InputConfig | None = None,
+    max_passes: int = 0, warn: Callable[[str], None] | None = None,
 ) -> SceneLabels:
     """Predict a class for every point of ``source`` (see the module docstring).
 
-    ``model`` must be in eval mode. ``use_labels`` False ignores the scene's labels (prediction
-    of unlabelled or foreign-labelled scans). ``on_labels(index, prediction)`` receives (M,)
-    int64 original point indices and (M,) uint8 classes, stripe by stripe. Temporary stripe
-    files go to ``work_dir`` (default: the system's temporary folder). ``inputs``: what the
-    network was trained on (default: the paper's raw XYZ).
+    ``model`` must be in eval mode. ``evaluation``: columns, votes and interpolation (default:
+    ``EvalConfig()``); ``inputs``: what the network was trained on (default: the paper's raw
+    XYZ). ``use_labels`` False ignores the scene's labels (prediction of unlabelled or
+    foreign-labelled scans). ``on_labels(index, prediction)`` receives (M,) int64 original point
+    indices and (M,) uint8 classes, stripe by stripe. Temporary stripe files go to ``work_dir``
+    (default: the system's temporary folder). ``max_passes`` > 0 caps the groups per block
+    (points left out take their nearest voted neighbour's class). ``warn`` receives one line
+    when the scene's extent looks like another unit than metres (default: a Python warning).
     """
-    return _label_scene(
-        model, source, class_names=class_names, blocks=blocks, device=torch.device(device),
-        batch_size=batch_size, amp=amp, seed=seed, max_passes=max_passes, use_labels=use_labels,
-        work_dir=work_dir, on_labels=on_labels, chunk_points=chunk_points,
-        inputs=inputs or InputConfig(grid_m=0.0, features=("xyz",)),
-    )
+    evaluation = evaluation or EvalConfig()
+    inputs = inputs or InputConfig(grid_m=0.0, features=("xyz",))
+    return _Labeller(model, source, class_names=class_names, blocks=blocks, evaluation=evaluation, inputs=inputs,
+                     device=torch.device(device), amp=amp, seed=seed, use_labels=use_labels, on_labels=on_labels,
+                     max_passes=max_passes).run(work_dir=work_dir, chunk_points=chunk_points, warn=warn)
 
 
-def _label_scene(
-    model: nn.Module, source: SceneSource, *, class_names: Sequence[str], blocks: BlockConfig,
-    device: torch.device, batch_size: int, amp: str, seed: int, max_passes: int, use_labels: bool,
-    work_dir: Path | None, on_labels: Callable[[np.ndarray, np.ndarray], None] | None, chunk_points: int,
-    inputs: InputConfig,
-) -> SceneLabels:
-    started = time.perf_counter()
-    stride = blocks.eval_stride_m
-    k = blocks.stride_ratio
-    classes = len(class_names)
-    runner = BlockRunner(model, device=device, batch_size=batch_size, amp=amp)
-    confusion = np.zeros((classes, classes), dtype=np.int64)
-    labelled = 0
-    nearest_filled = 0
-    block_count = 0
-    with tempfile.TemporaryDirectory(prefix=".bimscan-stripes-", dir=work_dir) as temp:
-        folder = Path(temp)
-        counts, lower, upper, cy_range, floor_map = _bucket_points(
-            source, folder, class_names=class_names, stride=stride, use_labels=use_labels, chunk_points=chunk_points,
+@dataclass
+class _Stripe:
+    """One x-stripe in memory: its records, its representatives (indices into the records),
+    their votes (R, C) and heights above the floor (R,) (None without the height feature)."""
+
+    records: np.ndarray
+    reps: np.ndarray
+    rep_of: np.ndarray
+    votes: np.ndarray
+    height: np.ndarray  # (R,) metres above the floor under each representative
+    storey: np.ndarray  # (R,) int64 storey of each representative (blocks are cut per storey)
+    cy: np.ndarray  # (R,) int64 row cell of each representative
+
+
+@dataclass
+class _Labeller:
+    model: nn.Module
+    source: SceneSource
+    class_names: Sequence[str]
+    blocks: BlockConfig
+    evaluation: EvalConfig
+    inputs: InputConfig
+    device: torch.device
+    amp: str
+    seed: int
+    use_labels: bool
+    on_labels: Callable[[np.ndarray, np.ndarray], None] | None
+    max_passes: int
+    confusion: np.ndarray = field(init=False)
+    labelled: int = 0
+    nearest_filled: int = 0
+    block_count: int = 0
+    network_points: int = 0
+
+    def run(self, *, work_dir: Path | None, chunk_points: int, warn: Callable[[str], None] | None) -> SceneLabels:
+        started = time.perf_counter()
+        classes = len(self.class_names)
+        self.confusion = np.zeros((classes, classes), dtype=np.int64)
+        self.stride = self.evaluation.stride_for(self.blocks.size_m)
+        self.k = int(round(self.blocks.size_m / self.stride))
+        self.runner = BlockRunner(self.model, device=self.device, batch_size=self.evaluation.batch_size, amp=self.amp)
+        with tempfile.TemporaryDirectory(prefix=".bimscan-stripes-", dir=work_dir) as temp:
+            self.folder = Path(temp)
+            counts, lower, upper, self.origin = self._bucket(chunk_points)
+            self.rows_from = int(np.floor((lower[1] - self.origin[1]) / self.stride))
+            self.rows_to = max(self.rows_from, int(np.floor((upper[1] - self.origin[1]) / self.stride)) - self.k + 1)
+            _check_extent(self.source, lower, upper, warn)
+            self.floor_map = self._floor_map(counts)
+            self._label_stripes(counts)
+        return SceneLabels(
+            name=self.source.name, points=sum(counts.values()), labelled=self.labelled, confusion=self.confusion,
+            blocks=self.block_count, passes=self.runner.passes, nearest_filled=self.nearest_filled, lower=lower,
+            upper=upper, seconds=time.perf_counter() - started, network_points=self.network_points,
         )
-        total = sum(counts.values())
+
+    # -- 1. the scene into stripe files ---------------------------------------------------------
+
+    def _bucket(self, chunk_points: int) -> tuple[dict[int, int], np.ndarray, np.ndarray, np.ndarray]:
+        """Stream the scene into per-stripe record files; returns points per stripe, bounds and the
+        scene's origin (the lower corner of its first chunk: stripes and voxels count from it)."""
+        counts: dict[int, int] = {}
+        lower = np.full(3, np.inf)
+        upper = np.full(3, -np.inf)
+        origin: np.ndarray | None = None
+        total = 0
+        chunks = (iter_scene_chunks(self.source, class_names=self.class_names, chunk_points=chunk_points)
+                  if self.use_labels else iter_raw_chunks(self.source, chunk_points=chunk_points, labels=False))
+        for chunk in chunks:
+            n = len(chunk)
+            if n == 0:
+                continue
+            if not self.use_labels and not np.isfinite(chunk.xyz).all():
+                raise LearnError(f"{self.source.path}: some points have non-finite coordinates; filter them out first")
+            if origin is None:
+                origin = chunk.xyz.min(axis=0)
+            records = np.empty(n, dtype=RECORD)
+            records["xyz"] = chunk.xyz
+            records["label"] = chunk.label if self.use_labels and chunk.label is not None else IGNORE_LABEL
+            records["index"] = np.arange(total, total + n, dtype=np.int64)
+            total += n
+            lower = np.minimum(lower, chunk.xyz.min(axis=0))
+            upper = np.maximum(upper, chunk.xyz.max(axis=0))
+            cx = np.floor((chunk.xyz[:, 0] - origin[0]) / self.stride).astype(np.int64)
+            order = np.argsort(cx, kind="stable")
+            cx, records = cx[order], records[order]
+            starts = np.flatnonzero(np.r_[True, cx[1:] != cx[:-1]])
+            for a, b in zip(starts.tolist(), np.r_[starts[1:], n].tolist(), strict=True):
+                stripe = int(cx[a])
+                with (self.folder / f"{stripe}.bin").open("ab") as out:
+                    records[a:b].tofile(out)
+                counts[stripe] = counts.get(stripe, 0) + (b - a)
+        if total == 0 or origin is None:
+            raise LearnError(f"{self.source.path}: the scene holds no points; pass a non-empty cloud")
+        return counts, lower, upper, origin
+
+    def _read(self, stripe: int) -> np.ndarray:
+        return np.fromfile(self.folder / f"{stripe}.bin", dtype=RECORD)
+
+    # -- 2. floors --------------------------------------------------------------------------------
+
+    def _floor_map(self, counts: dict[int, int]) -> FloorMap:
+        """The floor map from the stripe files, read in x order: the floor tiles a stripe completes
+        are summarised when it is read (one stripe of margin against rounding), so memory holds a
+        tile column's points, not the scene's."""
+        builder = FloorMapBuilder(origin=self.origin)
+        pending = np.empty((0, 3))
+        for stripe in sorted(counts):
+            pending = np.concatenate([pending, self._read(stripe)["xyz"]])
+            tile = np.floor((pending[:, 0] - self.origin[0]) / TILE_M)
+            complete = tile < math.floor(stripe * self.stride / TILE_M)
+            builder.add_tiles(pending[complete])
+            pending = pending[~complete]
+        builder.add_tiles(pending)
+        return builder.build()
+
+    # -- 3. and 4. stripes in x order -------------------------------------------------------------
+
+    def _load(self, stripe: int) -> _Stripe:
+        records = self._read(stripe)
+        xyz = records["xyz"]
+        if self.inputs.grid_m > 0:
+            reps, rep_of = voxel_representatives(xyz - self.origin, self.inputs.grid_m)
+        else:
+            reps = rep_of = np.arange(len(records), dtype=np.int64)
+        rep_xyz = xyz[reps]
+        floor = self.floor_map.floor_under(rep_xyz)
+        height, storey = rep_xyz[:, 2] - floor, storey_of(self.floor_map, floor)
+        cy = np.floor((rep_xyz[:, 1] - self.origin[1]) / self.stride).astype(np.int64)
+        self.network_points += len(reps)
+        return _Stripe(records=records, reps=reps, rep_of=rep_of, votes=np.zeros((len(reps), len(self.class_names)),
+                       dtype=np.float32), height=height, storey=storey, cy=cy)
+
+    def _label_stripes(self, counts: dict[int, int]) -> None:
+        k = self.k
         stripes = sorted(counts)
-        last_column = max(stripes[0], stripes[-1] - k + 1)
-        last_row = max(cy_range[0], cy_range[1] - k + 1)
-        columns = sorted({i for s in stripes for i in range(max(s - k + 1, stripes[0]), min(s, last_column) + 1)})
-        loaded: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        with progress_bar(total=len(columns), desc=f"labelling {source.name}", unit="column") as bar:
+        # columns inside the scene's extent only (a column over its edge sees a part of what the
+        # inside one sees): each point is covered by up to k x k blocks, fewer at the edges
+        last = max(stripes[0], stripes[-1] - k + 1)
+        columns = sorted({i for s in stripes for i in range(max(s - k + 1, stripes[0]), min(s, last) + 1)})
+        loaded: dict[int, _Stripe] = {}
+        previous: _Stripe | None = None  # the last finished stripe's representatives: neighbours across its edge
+        with progress_bar(total=len(columns), desc=f"labelling {self.source.name}", unit="column") as bar:
             for position, column in enumerate(columns):
                 window = [s for s in range(column, column + k) if s in counts]
                 for s in window:
                     if s not in loaded:
-                        records = np.fromfile(folder / f"{s}.bin", dtype=RECORD)
-                        loaded[s] = (records, np.zeros((len(records), classes), dtype=np.float32))
-                xyz = np.concatenate([loaded[s][0]["xyz"] for s in window])
-                height = xyz[:, 2] - floor_map.floor_under(xyz) if "height" in inputs.features else None
-                offsets = np.cumsum([0] + [len(loaded[s][0]) for s in window])
-                runner.votes = np.zeros((len(xyz), classes), dtype=np.float32)
-                if inputs.grid_m > 0:
-                    representatives, rep_of = grid_representatives(xyz, inputs.grid_m)
-                    is_rep = np.zeros(len(xyz), dtype=bool)
-                    is_rep[representatives] = True
-                cy = np.floor(xyz[:, 1] / stride).astype(np.int64)
-                order = np.argsort(cy, kind="stable")
-                cy_sorted = cy[order]
-                rows = sorted({j for c in np.unique(cy).tolist()
-                               for j in range(max(c - k + 1, cy_range[0]), min(c, last_row) + 1)})
-                for row in rows:
-                    lo = int(np.searchsorted(cy_sorted, row, side="left"))
-                    hi = int(np.searchsorted(cy_sorted, row + k - 1, side="right"))
-                    if hi == lo:
-                        continue
-                    members = order[lo:hi]
-                    if inputs.grid_m > 0:
-                        members = np.sort(members[is_rep[members]])
-                    points = xyz[members]
-                    heights = None if height is None else height[members]
-                    box_lower, box_upper = points.min(axis=0), points.max(axis=0)
-                    rng = np.random.default_rng(_seed(seed, column, row))
-                    groups = [group for _ in range(blocks.eval_votes)
-                              for group in plan_passes(len(members), points=blocks.points, rng=rng, max_passes=max_passes)]
-                    for group in groups:
-                        extra = extra_features(
-                            points[group], features=inputs.features,
-                            height_m=None if heights is None else heights[group],
-                            height_scale_m=inputs.height_scale_m, neighbours=inputs.normal_neighbours,
-                        )
-                        runner.add(pad_block(
-                            points[group], None, members[group], points=blocks.points, lower=box_lower, upper=box_upper,
-                            extra=extra,
-                        ))
-                    block_count += 1
-                runner.flush()
-                if inputs.grid_m > 0:
-                    runner.votes = _spread_votes(runner.votes, xyz, representatives, rep_of, inputs.label_neighbours)
-                for s, a, b in zip(window, offsets[:-1], offsets[1:], strict=True):
-                    loaded[s][1][:] += runner.votes[a:b]
+                        loaded[s] = self._load(s)
+                self._column(column, [loaded[s] for s in window])
                 next_column = columns[position + 1] if position + 1 < len(columns) else None
-                finished = [s for s in sorted(loaded) if next_column is None or s < next_column]
-                for s in finished:
-                    records, votes = loaded.pop(s)
-                    prediction, filled = _decide(records, votes, loaded)
-                    nearest_filled += filled
-                    truth = records["label"]
-                    has_truth = truth != IGNORE_LABEL
-                    labelled += int(has_truth.sum())
-                    confusion += compute_confusion(truth, prediction, num_classes=classes)
-                    if on_labels is not None:
-                        on_labels(records["index"], prediction)
+                for s in [s for s in sorted(loaded) if next_column is None or s < next_column]:
+                    stripe = loaded.pop(s)
+                    neighbours = [previous] if previous is not None and previous is not stripe else []
+                    neighbours += list(loaded.values())
+                    self._finish(stripe, neighbours)
+                    previous = stripe
                 bar.update(1)
-    return SceneLabels(
-        name=source.name, points=total, labelled=labelled, confusion=confusion, blocks=block_count,
-        passes=runner.passes, nearest_filled=nearest_filled, lower=lower, upper=upper,
-        seconds=time.perf_counter() - started,
-    )
+
+    def _column(self, column: int, window: list[_Stripe]) -> None:
+        """Every block of one column of stripes: rows of k cells along y, one block per storey each."""
+        if not window:
+            return
+        k = self.k
+        xyz = np.concatenate([w.records["xyz"][w.reps] for w in window])
+        height = np.concatenate([w.height for w in window]) if "height" in self.inputs.features else None
+        storey = np.concatenate([w.storey for w in window])
+        cy = np.concatenate([w.cy for w in window])
+        offsets = np.cumsum([0] + [len(w.reps) for w in window])
+        self.runner.votes = np.zeros((len(xyz), len(self.class_names)), dtype=np.float32)
+        order = np.argsort(cy, kind="stable")
+        cy_sorted = cy[order]
+        rows = sorted({j for c in np.unique(cy).tolist()
+                       for j in range(max(c - k + 1, self.rows_from), min(c, self.rows_to) + 1)})
+        for row in rows:
+            lo = int(np.searchsorted(cy_sorted, row, side="left"))
+            hi = int(np.searchsorted(cy_sorted, row + k - 1, side="right"))
+            if hi == lo:
+                continue
+            in_row = np.sort(order[lo:hi])
+            for level in np.unique(storey[in_row]).tolist():  # one block per storey of the column
+                self._block(column, row, level, in_row[storey[in_row] == level], xyz, height)
+        self.runner.flush()
+        for w, a, b in zip(window, offsets[:-1], offsets[1:], strict=True):
+            w.votes += self.runner.votes[a:b]
+
+    def _block(self, column: int, row: int, level: int, members: np.ndarray, xyz: np.ndarray,
+               height: np.ndarray | None) -> None:
+        """The passes of one block (a column's row of cells, one storey): its points shuffled and
+        cut into groups of N, ``votes`` times."""
+        blocks, evaluation = self.blocks, self.evaluation
+        points = xyz[members]
+        heights = None if height is None else height[members]
+        box_lower, box_upper = points.min(axis=0), points.max(axis=0)
+        # not seeded by the storey: a storey's blocks are cut as they would be were it scanned alone
+        rng = np.random.default_rng(_seed(self.seed, column, row))
+        groups = [group for _ in range(evaluation.votes)
+                  for group in plan_passes(len(members), points=blocks.points, rng=rng, max_passes=self.max_passes)]
+        for group in groups:
+            extra = extra_features(points[group], features=self.inputs.features,
+                                   height_m=None if heights is None else heights[group],
+                                   height_scale_m=self.inputs.height_scale_m, neighbours=self.inputs.normal_neighbours)
+            self.runner.add(pad_block(points[group], None, members[group], points=padded_size(len(group), blocks.points),
+                                      lower=box_lower, upper=box_upper, extra=extra))
+        self.block_count += 1
+
+    def _finish(self, stripe: _Stripe, neighbours: list[_Stripe]) -> None:
+        """Final labels of a stripe: representatives from their votes, the other points from their
+        nearest representatives'; the caller gets them and the confusion counts them."""
+        records = stripe.records
+        xyz = records["xyz"]
+        pool = [(s.records["xyz"][s.reps], s.votes) for s in neighbours]
+        votes = spread_votes(stripe.votes, xyz, stripe.reps, stripe.rep_of, self.evaluation.label_neighbours,
+                             others=pool)
+        prediction, filled = _decide(xyz, votes, pool)
+        self.nearest_filled += filled
+        truth = records["label"]
+        self.labelled += int((truth != IGNORE_LABEL).sum())
+        self.confusion += compute_confusion(truth, prediction, num_classes=len(self.class_names))
+        if self.on_labels is not None:
+            self.on_labels(records["index"], prediction)
 
 
-def _bucket_points(
-    source: SceneSource, folder: Path, *, class_names: Sequence[str], stride: float, use_labels: bool,
-    chunk_points: int,
-) -> tuple[dict[int, int], np.ndarray, np.ndarray, tuple[int, int], FloorMap]:
-    """Stream the scene into per-stripe record files; returns counts, bounds, the y-cell range
-    and the floor under every point (:mod:`bimscan.learn.floors`)."""
-    counts: dict[int, int] = {}
-    lower = np.full(3, np.inf)
-    upper = np.full(3, -np.inf)
-    cy_min, cy_max = None, None
-    total = 0
-    chunks = (iter_scene_chunks(source, class_names=class_names, chunk_points=chunk_points) if use_labels
-              else iter_raw_chunks(source, chunk_points=chunk_points, labels=False))
-    for chunk in chunks:
-        n = len(chunk)
-        if n == 0:
-            continue
-        if not use_labels and not np.isfinite(chunk.xyz).all():
-            raise LearnError(f"{source.path}: some points have non-finite coordinates; filter them out first")
-        records = np.empty(n, dtype=RECORD)
-        records["xyz"] = chunk.xyz
-        records["label"] = chunk.label if use_labels and chunk.label is not None else IGNORE_LABEL
-        records["index"] = np.arange(total, total + n, dtype=np.int64)
-        total += n
-        lower = np.minimum(lower, chunk.xyz.min(axis=0))
-        upper = np.maximum(upper, chunk.xyz.max(axis=0))
-        cy = np.floor(chunk.xyz[:, 1] / stride).astype(np.int64)
-        cy_min = int(cy.min()) if cy_min is None else min(cy_min, int(cy.min()))
-        cy_max = int(cy.max()) if cy_max is None else max(cy_max, int(cy.max()))
-        cx = np.floor(chunk.xyz[:, 0] / stride).astype(np.int64)
-        order = np.argsort(cx, kind="stable")
-        cx, records = cx[order], records[order]
-        starts = np.flatnonzero(np.r_[True, cx[1:] != cx[:-1]])
-        for a, b in zip(starts.tolist(), np.r_[starts[1:], n].tolist(), strict=True):
-            stripe = int(cx[a])
-            with (folder / f"{stripe}.bin").open("ab") as out:
-                records[a:b].tofile(out)
-            counts[stripe] = counts.get(stripe, 0) + (b - a)
-    if total == 0 or cy_min is None or cy_max is None:
-        raise LearnError(f"{source.path}: the scene holds no points; pass a non-empty cloud")
-    return counts, lower, upper, (cy_min, cy_max), _floor_map(folder, counts, stride)
+def _check_extent(source: SceneSource, lower: np.ndarray, upper: np.ndarray,
+                  warn: Callable[[str], None] | None) -> None:
+    """One warning when the scene is larger than a building scanned in metres is: it is likely in
+    millimetres (or feet); the network's blocks are metres."""
+    size = upper - lower
+    wide, tall = float(max(size[0], size[1])), float(size[2])
+    if wide <= BUILDING_EXTENT_M and tall <= BUILDING_HEIGHT_M:
+        return
+    unit = next((name for name, factor in (("millimetres", 1000.0), ("centimetres", 100.0), ("inches", 39.37),
+                                           ("feet", 3.281))
+                 if wide / factor <= BUILDING_EXTENT_M and tall / factor <= BUILDING_HEIGHT_M and tall / factor >= 2.0),
+                None)
+    line = (f"{source.path}: the scene is {wide:,.0f} x {tall:,.0f} units across; bimscan reads metres"
+            + (f": it looks like {unit}, so scale it to metres first" if unit else ": check its unit"))
+    (warn or (lambda text: warnings.warn(text, stacklevel=3)))(line)
 
 
-def _floor_map(folder: Path, counts: dict[int, int], stride: float) -> FloorMap:
-    """The scene's floor map from its stripe files, read in x order: the floor tiles a stripe
-    completes are summarised as soon as it is read (one stripe's width of margin against
-    rounding), so memory holds a tile column's points, not the scene's."""
-    builder = FloorMapBuilder()
-    pending = np.empty((0, 3))
-    for stripe in sorted(counts):
-        xyz = np.fromfile(folder / f"{stripe}.bin", dtype=RECORD)["xyz"]
-        pending = np.concatenate([pending, xyz])
-        complete = np.floor(pending[:, 0] / TILE_M) < math.floor(stripe * stride / TILE_M)
-        builder.add_tiles(pending[complete])
-        pending = pending[~complete]
-    builder.add_tiles(pending)
-    return builder.build()
-
-
-def _spread_votes(
-    votes: np.ndarray, xyz: np.ndarray, representatives: np.ndarray, rep_of: np.ndarray, neighbours: int,
+def spread_votes(
+    votes: np.ndarray, xyz: np.ndarray, reps: np.ndarray, rep_of: np.ndarray, neighbours: int,
+    *, others: Sequence[tuple[np.ndarray, np.ndarray]] = (),
 ) -> np.ndarray:
-    """Votes for every point from the votes of the voxel representatives (see InputConfig).
+    """(N, C) votes for every point of ``xyz`` (N, 3) from the votes (R, C) of its representatives
+    ``reps`` (R,) (indices into ``xyz``; ``rep_of`` (N,) each point's own representative).
 
-    votes (N, C) hold the network's votes at the representatives (zero elsewhere and at
-    representatives no pass saw). With ``neighbours`` 0 every point takes its voxel
-    representative's votes. Otherwise a representative keeps its own and every other point
-    takes sum_i w_i v_i / sum_i w_i over its ``neighbours`` nearest voted representatives,
-    w_i = 1 / max(d_i, 1 mm)^2 (Qi et al. 2017, PointNet++'s feature propagation): a point near a
-    voxel's face is labelled by the representatives around it, not only by the one point its
-    voxel kept (at 0.1 m voxels, 3.6 % of the real S3DIS points differ in class from their
-    voxel's representative, 2.9 % from their nearest one).
+    With ``neighbours`` 0 every point takes its voxel representative's votes. Otherwise a
+    representative keeps its own and every other point takes sum_i w_i v_i / sum_i w_i over its
+    ``neighbours`` nearest voted representatives (among these and ``others``: (xyz, votes) of the
+    neighbouring stripes' representatives), w_i = 1 / max(d_i, 1 mm)^2 (Qi et al. 2017,
+    PointNet++'s feature propagation): a point near a voxel's face is labelled by the
+    representatives around it, not only by the one point its voxel kept (at 0.1 m voxels, 3.6 %
+    of the real S3DIS points differ in class from their voxel's representative, 2.9 % from their
+    nearest one).
     """
-    if neighbours == 0:
-        return votes[rep_of]
-    voted = representatives[votes[representatives].sum(axis=1) > 0]
-    others = np.flatnonzero(rep_of != np.arange(len(xyz)))
-    spread = votes.copy()  # the representatives keep theirs; the others' zeros are replaced below
-    if len(voted) == 0 or len(others) == 0:
+    position = np.full(len(xyz), -1, dtype=np.int64)
+    position[reps] = np.arange(len(reps))
+    if neighbours == 0 or len(reps) == len(xyz):
+        return votes[position[rep_of]]
+    pool_xyz = [xyz[reps], *(o[0] for o in others)]
+    pool_votes = [votes, *(o[1] for o in others)]
+    candidate_xyz, candidate_votes = np.concatenate(pool_xyz), np.concatenate(pool_votes)
+    voted = candidate_votes.sum(axis=1) > 0
+    spread = np.zeros((len(xyz), votes.shape[1]), dtype=np.float32)
+    spread[reps] = votes  # the representatives keep theirs
+    others_index = np.flatnonzero(position < 0)
+    if not voted.any() or len(others_index) == 0:
         return spread
     from scipy.spatial import cKDTree
 
-    k = min(neighbours, len(voted))
-    tree, voted_votes = cKDTree(xyz[voted]), votes[voted]
-    for start in range(0, len(others), SPREAD_CHUNK):  # bounded memory on dense scans
-        part = others[start:start + SPREAD_CHUNK]
-        distance, nearest = tree.query(xyz[part], k=k)
+    tree_xyz, tree_votes = candidate_xyz[voted], candidate_votes[voted]
+    k = min(neighbours, len(tree_xyz))
+    tree = cKDTree(tree_xyz)
+    for start in range(0, len(others_index), SPREAD_CHUNK):  # bounded memory on dense scans
+        part = others_index[start:start + SPREAD_CHUNK]
+        distance, nearest = tree.query(xyz[part], k=k, workers=-1)  # parallel; the same result
         distance, nearest = distance.reshape(len(part), k), nearest.reshape(len(part), k)
         weight = 1.0 / np.maximum(distance, 1e-3) ** 2
         weight /= weight.sum(axis=1, keepdims=True)
         mean = np.zeros((len(part), votes.shape[1]))
         for j in range(k):
-            mean += weight[:, j, None] * voted_votes[nearest[:, j]]
+            mean += weight[:, j, None] * tree_votes[nearest[:, j]]
         spread[part] = mean
     return spread
 
 
-def _decide(
-    records: np.ndarray, votes: np.ndarray, others: dict[int, tuple[np.ndarray, np.ndarray]],
-) -> tuple[np.ndarray, int]:
-    """Argmax of the votes; points without votes take their nearest voted neighbour's class."""
+def _decide(xyz: np.ndarray, votes: np.ndarray, others: Sequence[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, int]:
+    """Argmax of the votes; points without votes take their nearest voted neighbour's class (from
+    these points and the ``others``' (xyz, votes))."""
     prediction = votes.argmax(axis=1).astype(np.uint8)
     unseen = votes.sum(axis=1) == 0
     if not unseen.any():
         return prediction, 0
     from scipy.spatial import cKDTree
 
-    # neighbours come from this stripe and the stripes still in memory (its x-neighbours)
-    pool_xyz = [records["xyz"][~unseen]]
+    pool_xyz = [xyz[~unseen]]
     pool_label = [prediction[~unseen]]
-    for other_records, other_votes in others.values():
+    for other_xyz, other_votes in others:
         seen = other_votes.sum(axis=1) > 0
-        pool_xyz.append(other_records["xyz"][seen])
+        pool_xyz.append(other_xyz[seen])
         pool_label.append(other_votes[seen].argmax(axis=1).astype(np.uint8))
-    xyz, label = np.concatenate(pool_xyz), np.concatenate(pool_label)
-    if len(xyz) == 0:
+    near_xyz, label = np.concatenate(pool_xyz), np.concatenate(pool_label)
+    if len(near_xyz) == 0:
         raise LearnError("no block pass saw any point near an unseen one; raise max_passes (0 = all points)")
-    _, nearest = cKDTree(xyz).query(records["xyz"][unseen])
+    _, nearest = cKDTree(near_xyz).query(xyz[unseen])
     prediction[unseen] = label[nearest]
     return prediction, int(unseen.sum())
 
