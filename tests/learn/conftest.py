@@ -103,10 +103,12 @@ val = [{val}]
 
 [blocks]
 size_m = 2.0
-eval_stride_m = 1.0
 points = {points}
 min_points = 32
 cache_points = {cache}
+
+[eval]
+stride_m = 1.0
 
 [model]
 embed_dim = 16

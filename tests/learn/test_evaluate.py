@@ -21,6 +21,7 @@ from bimscan.learn.evaluate import (
     write_evaluation,
 )
 from bimscan.learn.infer import SceneLabels
+from bimscan.learn.train_config import EvalConfig
 from bimscan.learn.metrics import compute_confusion, compute_metrics
 from bimscan.types import PointCloud
 
@@ -107,7 +108,7 @@ def scored_scene(name: str, truth: np.ndarray, prediction: np.ndarray) -> SceneE
     confusion = compute_confusion(truth, prediction, num_classes=len(CLASS_NAMES))
     labels = SceneLabels(name=name, points=len(truth), labelled=len(truth), confusion=confusion, blocks=1, passes=1,
                          nearest_filled=0, lower=np.zeros(3), upper=np.ones(3), seconds=0.0)
-    return SceneEvaluation(name, Path(f"{name}.txt"), labels, compute_metrics(confusion), CLASS_NAMES)
+    return SceneEvaluation(name, Path(f"{name}.txt"), labels, compute_metrics(confusion), CLASS_NAMES, EvalConfig())
 
 
 def random_scenes(seed: int) -> tuple[list[SceneEvaluation], list[tuple[np.ndarray, np.ndarray]]]:

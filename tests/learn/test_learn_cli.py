@@ -63,12 +63,13 @@ def project(tmp_path: Path, room: Callable[..., PointCloud]) -> Path:
     (tmp_path / "train.toml").write_text("""\
 [data]
 train = ["spc"]
-val = ["site.las"]
-val_label_field = "gt"
+val = { scenes = ["site.las"], label_field = "gt" }
+
+[eval]
+stride_m = 1.0
 
 [blocks]
 size_m = 2.0
-eval_stride_m = 1.0
 points = 128
 min_points = 32
 cache_points = 256
@@ -213,7 +214,7 @@ def test_training_with_an_unlabelled_validation_set_is_one_error_line(
 ) -> None:
     foreign_las(project / "bare.las", room(53, points_per_m2=40), classification=1)
     config = project / "train.toml"
-    config.write_text(config.read_text().replace('val = ["site.las"]\nval_label_field = "gt"', 'val = ["bare.las"]'))
+    config.write_text(config.read_text().replace('val = { scenes = ["site.las"], label_field = "gt" }', 'val = ["bare.las"]'))
 
     status = main(["train", str(config)])
 

@@ -16,7 +16,7 @@ from bimscan.learn.data import TileDataset, collect_scene_tiles, list_scenes
 from bimscan.learn.density import grid_representatives, grid_sample, voxel_index
 from bimscan.learn.features import estimate_normals, extra_features, local_geometry
 from bimscan.learn.train import class_weights_from_labels, compute_loss
-from bimscan.learn.train_config import DEFAULT_CLASS_NAMES, AugmentConfig, BlockConfig, InputConfig
+from bimscan.learn.train_config import DEFAULT_CLASS_NAMES, AugmentConfig, BlockConfig, EvalConfig, InputConfig
 from bimscan.types import PointCloud
 
 from .conftest import COVERING, SLAB, make_room
@@ -51,7 +51,7 @@ def test_grid_tiles_do_not_depend_on_point_order_or_chunking(tmp_path: Path) -> 
     order = np.random.default_rng(9).permutation(len(room))
     write_text_cloud(tmp_path / "a.txt", room)
     write_text_cloud(tmp_path / "a-shuffled.txt", PointCloud(xyz=room.xyz[order], label=room.label[order]))
-    blocks = BlockConfig(size_m=2.0, eval_stride_m=1.0, points=64, min_points=16, cache_points=200)
+    blocks = BlockConfig(size_m=2.0, points=64, min_points=16, cache_points=200)
     results = []
     for name, chunk in (("a.txt", 1_000_000), ("a-shuffled.txt", 1_000_000), ("a-shuffled.txt", 3001)):
         source = list_scenes([tmp_path / name])[0]
@@ -92,7 +92,7 @@ def test_augmentation_is_seeded_and_keeps_labels_with_their_points() -> None:
 def test_augmented_blocks_are_identical_for_the_same_key_and_aligned(tmp_path: Path) -> None:
     write_text_cloud(tmp_path / "r.txt", make_room(2, size_m=(4.0, 4.0), points_per_m2=60))
     source = list_scenes([tmp_path / "r.txt"])[0]
-    blocks = BlockConfig(size_m=4.0, eval_stride_m=2.0, points=256, min_points=16, cache_points=2048)
+    blocks = BlockConfig(size_m=4.0, points=256, min_points=16, cache_points=2048)
     tiles = collect_scene_tiles(source, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=0, grid_m=0.05)
     dataset = TileDataset(tiles, points=256, seed=0, inputs=InputConfig(grid_m=0.05), augment=AugmentConfig())
     one, two = dataset[(3, 0)], dataset[(3, 0)]
@@ -166,7 +166,7 @@ def test_input_config_rejects_bad_values() -> None:
     with pytest.raises(ConfigError, match="at most once"):
         InputConfig(features=("xyz", "colour"))
     with pytest.raises(ConfigError, match="label_neighbours must be in 0..64"):
-        InputConfig(label_neighbours=-1)
+        EvalConfig(label_neighbours=-1)
     with pytest.raises(ConfigError, match="scale_range"):
         AugmentConfig(scale_range=(1.2, 0.8))
 
@@ -183,7 +183,7 @@ def test_per_station_columns_keep_each_tripod_apart(tmp_path: Path) -> None:
         writer.write(PointCloud(xyz=room.xyz, label=room.label, station=station,
                                 component=np.zeros(len(room), np.int32)))
     source = list_scenes([tmp_path / "scan"])[0]
-    blocks = BlockConfig(size_m=4.0, eval_stride_m=2.0, points=64, min_points=16, cache_points=100_000)
+    blocks = BlockConfig(size_m=4.0, points=64, min_points=16, cache_points=100_000)
     merged = collect_scene_tiles(source, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=0)
     apart = collect_scene_tiles(source, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=0, per_station=True)
     assert len(merged) == 1 and len(apart) == 2
@@ -209,7 +209,7 @@ def test_grid_station_tiles_do_not_depend_on_chunking(tmp_path: Path) -> None:
     station = np.random.default_rng(8).integers(0, 2, len(room)).astype(np.uint16)
     _write_station_scan(tmp_path / "scan", room, station)
     source = list_scenes([tmp_path / "scan"])[0]
-    blocks = BlockConfig(size_m=2.0, eval_stride_m=1.0, points=64, min_points=16, cache_points=100_000)
+    blocks = BlockConfig(size_m=2.0, points=64, min_points=16, cache_points=100_000)
     results = [collect_scene_tiles(source, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=0, grid_m=0.2,
                                    per_station=True, chunk_points=chunk) for chunk in (1_000_000, 997)]
     first, other = results
@@ -227,7 +227,7 @@ def test_too_many_stations_for_station_columns_is_a_clear_error(tmp_path: Path) 
     room = make_room(9, size_m=(2.0, 2.0), points_per_m2=20)
     _write_station_scan(tmp_path / "scan", room, np.full(len(room), 600, np.uint16))
     source = list_scenes([tmp_path / "scan"])[0]
-    blocks = BlockConfig(size_m=2.0, eval_stride_m=1.0, points=64, min_points=16, cache_points=1000)
+    blocks = BlockConfig(size_m=2.0, points=64, min_points=16, cache_points=1000)
     with pytest.raises(LearnError, match="train_columns = \"scene\""):
         collect_scene_tiles(source, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=0, per_station=True)
     assert len(collect_scene_tiles(source, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=0)) >= 1

@@ -159,9 +159,18 @@ def test_unknown_config_key_is_a_config_error(tmp_path: Path, room_files: dict[s
 def test_block_size_must_be_a_whole_multiple_of_the_stride(tmp_path: Path, room_files: dict[str, list[str]],
                                                            tiny_config: Callable[..., Path]) -> None:
     path = tiny_config(tmp_path, **room_files)
-    path.write_text(path.read_text().replace("eval_stride_m = 1.0", "eval_stride_m = 1.5"))
+    path.write_text(path.read_text().replace("stride_m = 1.0", "stride_m = 1.5"))
 
-    with pytest.raises(ConfigError, match="whole multiple of eval_stride_m"):
+    with pytest.raises(ConfigError, match="stride_m = 1.5 does not divide the 2 m blocks whole"):
+        load_train_config(path)
+
+
+def test_a_setting_that_moved_names_its_new_home(tmp_path: Path, room_files: dict[str, list[str]],
+                                                 tiny_config: Callable[..., Path]) -> None:
+    path = tiny_config(tmp_path, **room_files)
+    path.write_text(path.read_text().replace("size_m = 2.0", "size_m = 2.0\neval_votes = 3"))
+
+    with pytest.raises(ConfigError, match=r"\[blocks\] eval_votes is now \[eval\] votes"):
         load_train_config(path)
 
 

@@ -14,11 +14,21 @@ F = TypeVar("F", bound=Callable[..., object])
 
 
 def inference_options(command: F) -> F:
-    """The options evaluate and predict share: --device, --batch-size, --max-passes, --weights, --seed."""
+    """The options evaluate and predict share: --device, how to label (--stride, --votes,
+    --label-neighbours, --batch-size: the checkpoint's [eval] unless given), --max-passes,
+    --weights, --seed."""
     options = [
         click.option("--device", type=DEVICES, default="auto", show_default=True),
-        click.option("--batch-size", type=click.IntRange(min=1), default=8, show_default=True,
-                     help="Blocks per forward pass."),
+        click.option("--stride", "stride_m", type=float, default=None,
+                     help="Columns every this many metres (a whole divisor of the block size). Default: the "
+                          "checkpoint's [eval] stride_m."),
+        click.option("--votes", type=click.IntRange(min=1, max=64), default=None,
+                     help="Random samples of every column each point is voted on. Default: the checkpoint's [eval] votes."),
+        click.option("--label-neighbours", type=click.IntRange(min=0, max=64), default=None,
+                     help="Points off the voxel grid take the votes of this many nearest representatives (0: their "
+                          "voxel's). Default: the checkpoint's [eval] label_neighbours."),
+        click.option("--batch-size", type=click.IntRange(min=1), default=None,
+                     help="Blocks per forward pass (speed and memory only). Default: the checkpoint's [eval] batch_size."),
         click.option("--max-passes", type=click.IntRange(min=0), default=0, show_default=True,
                      help="Passes per block at most (0: every point seen; else the rest from nearest neighbours)."),
         click.option("--weights", type=click.Choice(["ema", "live"]), default="ema", show_default=True),
@@ -29,12 +39,25 @@ def inference_options(command: F) -> F:
     return command
 
 
+def evaluation_settings(checkpoint: Path, **given: object):  # -> EvalConfig
+    """The checkpoint's [eval] with the options given on the command line in place of its values."""
+    import dataclasses
+
+    from bimscan.learn.checkpoint import stored_eval_config
+
+    changes = {key: value for key, value in given.items() if value is not None}
+    return dataclasses.replace(stored_eval_config(checkpoint), **changes)
+
+
 @click.command("train")
 @click.argument("config", type=click.Path(path_type=Path, dir_okay=False))
 @click.option("--resume", is_flag=True, help="Continue the run in the output folder from its last checkpoint.")
 @click.option("--out", "out_dir", type=click.Path(path_type=Path, file_okay=False), default=None,
               help="Output folder (default: [train] out_dir of the config, relative to the config file).")
-def train(config: Path, resume: bool, out_dir: Path | None) -> None:
+@click.option("--init", "init", type=click.Path(path_type=Path, dir_okay=False), default=None,
+              help="Start from this checkpoint's weights (fine-tuning: same network and classes); its own "
+                   "schedule is the config's [train] (epochs, max_lr, freeze).")
+def train(config: Path, resume: bool, out_dir: Path | None, init: Path | None) -> None:
     """Train PCT on synthetic scenes as CONFIG.toml says (Table 2 defaults).
 
     Writes last.pt (every epoch), best.pt (best validation mIoU), metrics.csv and curves.png.
@@ -45,7 +68,11 @@ def train(config: Path, resume: bool, out_dir: Path | None) -> None:
     from bimscan.learn.train import train_model
 
     settings, base = load_train_config(config)
-    result = train_model(settings, base_dir=base, out_dir=out_dir, resume=resume,
+    if init is not None:
+        from bimscan.learn.checkpoint import read_checkpoint
+
+        read_checkpoint(init)  # a missing or damaged file: one line before any work
+    result = train_model(settings, base_dir=base, out_dir=out_dir, resume=resume, init=init,
                          log=lambda text: click.echo(text, err=True))
     if int(os.environ.get("RANK", "0")) == 0:
         click.echo(f"trained {result.epochs_done} epoch(s); checkpoint {result.checkpoint}; "
@@ -65,7 +92,8 @@ def train(config: Path, resume: bool, out_dir: Path | None) -> None:
 @inference_options
 def evaluate(
     checkpoint: Path, scenes: tuple[Path, ...], out_dir: Path | None, label_field: str | None, mapping: Path | None,
-    device: str, batch_size: int, max_passes: int, weights: str, seed: int,
+    device: str, stride_m: float | None, votes: int | None, label_neighbours: int | None, batch_size: int | None,
+    max_passes: int, weights: str, seed: int,
 ) -> None:
     """Score CHECKPOINT on labelled SCENE... (every point): OA, mIoU, mAcc, FWIoU, kappa per scene.
 
@@ -78,9 +106,11 @@ def evaluate(
     from bimscan.learn.mapping import load_label_mapping
 
     label_mapping = None if mapping is None else load_label_mapping(mapping)
+    evaluation = evaluation_settings(checkpoint, stride_m=stride_m, votes=votes, label_neighbours=label_neighbours,
+                                     batch_size=batch_size)
     results = evaluate_checkpoint(
-        checkpoint, scenes, label_field=label_field, mapping=label_mapping, device=device, batch_size=batch_size,
-        max_passes=max_passes, weights=weights, seed=seed,
+        checkpoint, scenes, label_field=label_field, mapping=label_mapping, device=device, evaluation=evaluation,
+        max_passes=max_passes, weights=weights, seed=seed, warn=lambda line: click.echo(f"warning: {line}", err=True),
     )
     click.echo(format_markdown(results), nl=False)  # the metrics table, then IoU per class
     if out_dir is not None:
@@ -96,25 +126,31 @@ def evaluate(
 @click.option("--overwrite", is_flag=True, help="Replace OUT when it exists.")
 @inference_options
 def predict(
-    checkpoint: Path, in_path: Path, out_path: Path, overwrite: bool, device: str, batch_size: int, max_passes: int,
-    weights: str, seed: int,
+    checkpoint: Path, in_path: Path, out_path: Path, overwrite: bool, device: str, stride_m: float | None,
+    votes: int | None, label_neighbours: int | None, batch_size: int | None, max_passes: int, weights: str, seed: int,
 ) -> None:
     """Label every point of the scan IN with CHECKPOINT and write OUT (.laz/.las/.ply or a folder).
 
     The class goes to `classification` (LAS/LAZ) or `label` (PLY/NumPy), replacing whatever
     labels IN had (they are not read); other columns are kept.
     """
+    from bimscan.io import check_cloud_output
     from bimscan.learn.predict import predict_cloud
 
+    check_cloud_output(out_path, overwrite=overwrite)  # before the checkpoint is read
+    evaluation = evaluation_settings(checkpoint, stride_m=stride_m, votes=votes, label_neighbours=label_neighbours,
+                                     batch_size=batch_size)
     result = predict_cloud(
-        checkpoint, in_path, out_path, device=device, batch_size=batch_size, max_passes=max_passes,
-        weights=weights, seed=seed, overwrite=overwrite,
+        checkpoint, in_path, out_path, device=device, evaluation=evaluation, max_passes=max_passes,
+        weights=weights, seed=seed, overwrite=overwrite, warn=lambda line: click.echo(f"warning: {line}", err=True),
     )
     shares = ", ".join(
         f"{name} {100.0 * count / max(result.points, 1):.1f}%"
         for name, count in zip(result.class_names, result.class_counts.tolist(), strict=True)
     )
-    click.echo(f"wrote {result.path}: {result.points:,} points in {result.seconds:.1f} s ({shares})")
+    click.echo(f"wrote {result.path}: {result.points:,} points in {result.seconds:.1f} s "
+               f"({result.points / max(result.seconds, 1e-9):,.0f} points/s; {result.network_points:,} through the "
+               f"network) ({shares})")
 
 
 @click.command("sim2real")
@@ -124,18 +160,20 @@ def predict(
               help="Real labelled scenes to score on, replacing [real] scenes of the file (repeatable).")
 @click.option("--device", type=DEVICES, default=None, help="Replaces [train] device of the file.")
 def sim2real(experiment: Path, out_dir: Path, real: tuple[Path, ...], device: str | None) -> None:
-    """Train on synthetic variants only and score each on real scans (see configs/sim2real_cpu.toml).
+    """Train variants (synthetic scans, real rooms, fine-tuned) and score each on real scans it never
+    saw (see configs/sim2real_cpu.toml, configs/finetune_cpu.toml).
 
-    Builds the variants' datasets (resumable), trains one PCT per variant with the same seed and
-    schedule (real scenes as validation: curves per epoch), evaluates each on every real scene
-    and writes OUT_DIR/report.md, results.csv/.json, val_miou.png and per variant its
-    confusion matrix and curves. Run the same command again to continue a killed run.
+    Builds the variants' datasets and the holdout buildings' scans (resumable), trains one PCT per
+    variant (or per fold, when it trains on the scored rooms), evaluates each on the real scenes it
+    did not train on and on the holdout buildings, and writes OUT_DIR/report.md, results.csv/.json,
+    val_miou.png, label_efficiency.png and per variant its confusion matrices and curves. Run the
+    same command again to continue a killed run.
     """
     from bimscan.learn.experiment import format_report, load_experiment, run_experiment
 
     parsed = load_experiment(experiment, real=list(real) or None, device=device)
-    summary = run_experiment(parsed, out_dir, log=lambda text: click.echo(text, err=True))
-    click.echo(format_report(summary), nl=False)
+    results = run_experiment(parsed, out_dir, log=lambda text: click.echo(text, err=True))
+    click.echo(format_report(results, parsed), nl=False)
 
 
 COMMANDS: list[click.Command] = [train, evaluate, predict, sim2real]

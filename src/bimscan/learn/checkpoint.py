@@ -20,7 +20,7 @@ from torch import nn
 
 from bimscan.errors import InputFileError, LearnError
 from bimscan.files import atomic_output
-from bimscan.learn.train_config import TrainRunConfig, parse_config
+from bimscan.learn.train_config import EvalConfig, TrainRunConfig, parse_config
 from bimscan.learn.features import input_channels
 from bimscan.learn.model import PCTSegmentation, build_model
 
@@ -122,6 +122,12 @@ def restore_rng_state(state: dict[str, Any]) -> None:
     torch.set_rng_state(state["torch"])
     if "cuda" in state and torch.cuda.is_available():
         torch.cuda.set_rng_state_all(state["cuda"])
+
+
+def stored_eval_config(path: str | Path) -> EvalConfig:
+    """The ``[eval]`` a checkpoint's training run stored: how its model labels scenes by default."""
+    payload = read_checkpoint(path, require=("config",))
+    return parse_config(payload["config"], where=f"{path} [config]").eval
 
 
 @dataclass

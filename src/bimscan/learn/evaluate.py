@@ -16,9 +16,10 @@ each class per scene and over all points. Files written by ``write_evaluation``:
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,6 +34,7 @@ from bimscan.learn.mapping import LabelMapping
 from bimscan.learn.metrics import METRIC_NAMES, SegmentationMetrics, compute_metrics
 from bimscan.learn.model import pick_device
 from bimscan.learn.plots import plot_confusion
+from bimscan.learn.train_config import EvalConfig
 
 HEADINGS = {"oa": "OA", "miou": "mIoU", "macc": "mAcc", "fwiou": "FWIoU", "kappa": "κ"}
 CONFUSION_AXES = "rows: ground truth, columns: prediction"
@@ -41,33 +43,39 @@ CONFUSION_AXES = "rows: ground truth, columns: prediction"
 @dataclass(frozen=True)
 class SceneEvaluation:
     """One scene's result: its labelling summary and the metrics of its confusion matrix, whose
-    rows and columns are ``class_names`` (the checkpoint's classes)."""
+    rows and columns are ``class_names`` (the checkpoint's classes), and how it was labelled."""
 
     scene: str
     path: Path
     labels: SceneLabels
     metrics: SegmentationMetrics
     class_names: tuple[str, ...]
+    evaluation: EvalConfig  # how the scene was labelled
 
 
 def evaluate_checkpoint(
     checkpoint: str | Path, scenes: Sequence[str | Path], *, label_field: str | None = None,
-    mapping: LabelMapping | None = None, device: str = "auto", batch_size: int = 8, max_passes: int = 0,
-    weights: str = "ema", seed: int = 0, work_dir: Path | None = None,
+    mapping: LabelMapping | None = None, device: str = "auto", evaluation: EvalConfig | None = None,
+    max_passes: int = 0, weights: str = "ema", seed: int = 0, work_dir: Path | None = None,
+    warn: Callable[[str], None] | None = None,
 ) -> list[SceneEvaluation]:
     """Label every point of each scene with the checkpoint's network and score it.
 
     Scenes must carry ground truth (after the mapping); class names come from the checkpoint.
+    ``evaluation``: how to label (default: the checkpoint's own ``[eval]``).
     """
     torch_device = pick_device(device)
     trained = load_trained_model(checkpoint, device=torch_device, weights="ema" if weights == "ema" else "live")
+    evaluation = evaluation or trained.config.eval
+    trained.config.eval.stride_for(trained.config.blocks.size_m)
+    evaluation.stride_for(trained.config.blocks.size_m)  # a stride that does not divide the blocks: one line now
     sources = list_scenes(scenes, label_field=label_field, mapping=mapping)
     results = []
     for source in sources:
         labels = label_scene(
             trained.model, source, class_names=trained.class_names, blocks=trained.config.blocks,
-            device=torch_device, batch_size=batch_size, amp=trained.config.train.amp, seed=seed,
-            max_passes=max_passes, work_dir=work_dir, inputs=trained.config.input,
+            evaluation=evaluation, device=torch_device, amp=trained.config.train.amp, seed=seed,
+            max_passes=max_passes, work_dir=work_dir, inputs=trained.config.input, warn=warn,
         )
         if labels.labelled == 0:
             raise LearnError(
@@ -75,7 +83,7 @@ def evaluate_checkpoint(
                 "evaluation needs labels (check --label-field/--mapping, or use 'bimscan predict')"
             )
         results.append(SceneEvaluation(
-            source.name, source.path, labels, compute_metrics(labels.confusion), trained.class_names,
+            source.name, source.path, labels, compute_metrics(labels.confusion), trained.class_names, evaluation,
         ))
     return results
 
@@ -185,12 +193,15 @@ def evaluation_document(results: Sequence[SceneEvaluation], class_names: Sequenc
     for result in results:
         entry = _metrics_document(result.scene, result.metrics, result.labels.confusion, class_names)
         entry.update(path=str(result.path), points=result.labels.points, labelled_points=result.labels.labelled,
-                     nearest_filled=result.labels.nearest_filled)
+                     nearest_filled=result.labels.nearest_filled, network_points=result.labels.network_points,
+                     seconds=round(result.labels.seconds, 3))
         scenes.append(entry)
     pooled_confusion = pool_confusion(results) if results else np.zeros((len(class_names),) * 2, np.int64)
     pooled = compute_metrics(pooled_confusion)
     document: dict[str, object] = {
-        "class_names": list(class_names), "scenes": scenes,
+        "class_names": list(class_names),
+        "evaluation": dataclasses.asdict(results[0].evaluation) if results else None,  # how every point was labelled
+        "scenes": scenes,
         "all points": _metrics_document("all points", pooled, pooled_confusion, class_names),
         "mean": None,
     }

@@ -5,7 +5,8 @@ voted on, then the input is streamed again into :func:`bimscan.io.open_cloud_wri
 from __future__ import annotations
 
 import tempfile
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,7 @@ from bimscan.learn.checkpoint import load_trained_model
 from bimscan.learn.data import CHUNK_POINTS, SceneSource, iter_raw_chunks, list_scenes
 from bimscan.learn.infer import label_scene, replace_labels
 from bimscan.learn.model import pick_device
+from bimscan.learn.train_config import EvalConfig
 from bimscan.semantics import DEFAULT_SCHEME, load_scheme
 from bimscan.types import CloudHeader, LabelClass, LabelScheme
 
@@ -34,6 +36,7 @@ class PredictionResult:
     class_names: tuple[str, ...]
     nearest_filled: int
     seconds: float
+    network_points: int = 0
 
 
 def build_prediction_scheme(class_names: tuple[str, ...], stored: LabelScheme | None = None) -> LabelScheme:
@@ -54,8 +57,8 @@ def build_prediction_scheme(class_names: tuple[str, ...], stored: LabelScheme | 
 
 def predict_cloud(
     checkpoint: str | Path, in_path: str | Path, out_path: str | Path, *, device: str = "auto",
-    batch_size: int = 8, max_passes: int = 0, weights: str = "ema", seed: int = 0, overwrite: bool = False,
-    chunk_points: int = CHUNK_POINTS,
+    evaluation: EvalConfig | None = None, max_passes: int = 0, weights: str = "ema", seed: int = 0,
+    overwrite: bool = False, chunk_points: int = CHUNK_POINTS, warn: Callable[[str], None] | None = None,
 ) -> PredictionResult:
     """Label every point of ``in_path`` and write ``out_path`` (format by suffix, see bimscan.io).
 
@@ -69,6 +72,8 @@ def predict_cloud(
     check_cloud_output(out_path, overwrite=overwrite)
     torch_device = pick_device(device)
     trained = load_trained_model(checkpoint, device=torch_device, weights="ema" if weights == "ema" else "live")
+    evaluation = evaluation or trained.config.eval
+    evaluation.stride_for(trained.config.blocks.size_m)  # a stride that does not divide the blocks: one line now
     sources = list_scenes([in_path])
     if len(sources) != 1:
         raise LearnError(f"{in_path}: holds {len(sources)} scenes; predict one cloud at a time")
@@ -85,9 +90,9 @@ def predict_cloud(
 
             result = label_scene(
                 trained.model, source, class_names=trained.class_names, blocks=trained.config.blocks,
-                device=torch_device, batch_size=batch_size, amp=trained.config.train.amp, seed=seed,
+                evaluation=evaluation, device=torch_device, amp=trained.config.train.amp, seed=seed,
                 max_passes=max_passes, use_labels=False, work_dir=folder, on_labels=keep, chunk_points=chunk_points,
-                inputs=trained.config.input,
+                inputs=trained.config.input, warn=warn,
             )
         labels = np.memmap(folder / "labels.u1", dtype=np.uint8, mode="w+", shape=(result.points,))
         for offset in range(0, result.points, chunk_points):
@@ -105,8 +110,8 @@ def predict_cloud(
                 "prediction": {
                     "checkpoint": str(checkpoint), "epoch": trained.epoch, "weights": trained.weights,
                     "source": str(in_path), "seed": seed, "max_passes": max_passes,
-                    "block_size_m": trained.config.blocks.size_m, "block_stride_m": trained.config.blocks.eval_stride_m,
-                    "points_per_block": trained.config.blocks.points,
+                    "block_size_m": trained.config.blocks.size_m, "points_per_block": trained.config.blocks.points,
+                    "evaluation": asdict(evaluation),
                 },
                 **({} if stored is None else {"source_metadata": dict(stored.metadata)}),
             },
@@ -122,6 +127,6 @@ def predict_cloud(
         del labels  # release the memory map before the folder goes
     return PredictionResult(
         path=out_path, points=result.points, class_counts=counts, class_names=trained.class_names,
-        nearest_filled=result.nearest_filled, seconds=result.seconds,
+        nearest_filled=result.nearest_filled, seconds=result.seconds, network_points=result.network_points,
     )
 

@@ -42,7 +42,7 @@ from bimscan.processes import die_with_parent
 from bimscan.learn.checkpoint import (
     MODEL_KEYS, capture_rng_state, load_state, read_checkpoint, restore_rng_state, save_checkpoint,
 )
-from bimscan.learn.train_config import IGNORE_LABEL, TrainConfig, TrainRunConfig, dump_config, parse_config
+from bimscan.learn.train_config import IGNORE_LABEL, SceneSet, TrainConfig, TrainRunConfig, dump_config, parse_config
 from bimscan.toml_files import resolve_path
 from bimscan.learn.data import SceneSource, TileDataset, TileSet, list_scenes, load_or_collect_tiles
 from bimscan.learn.features import input_channels
@@ -58,7 +58,9 @@ from bimscan.progress import progress_bar
 VAL_EPOCH_KEY = 2**31  # validation blocks are drawn once, with this fixed "epoch"
 # settings a resumed run may change: they do not alter the computation ("device" may change as
 # long as it picks the same kind of device: that is checked on its own, see _train)
-RESUMABLE_CHANGES = {("train", "num_workers"), ("train", "device"), ("train", "eval_batch_size"), ("train", "out_dir")}
+# settings that change how a run is carried out or evaluated, not the model it trains
+RESUMABLE_CHANGES = {("train", "num_workers"), ("train", "device"), ("train", "out_dir"), ("eval", "stride_m"),
+                     ("eval", "votes"), ("eval", "label_neighbours"), ("eval", "batch_size")}
 # what resuming reads from last.pt besides MODEL_KEYS
 RESUME_KEYS = (*MODEL_KEYS, "ema_steps", "optimizer", "scheduler", "scaler", "rng", "history", "world_size", "device")
 
@@ -100,6 +102,15 @@ def _seed_int(*parts: int) -> int:
     return int(np.random.SeedSequence(list(parts)).generate_state(1, dtype=np.uint64)[0] % (2**63 - 1))
 
 
+def tile_draws(tiles: TileSet, scenes_per_set: list[int], weights: list[float]) -> np.ndarray | None:
+    """(T,) float draws per epoch of each tile: its scene set's weight (None when every weight is
+    1: each tile once). ``scenes_per_set``: how many of the tiles' scenes (in order) each set holds."""
+    if all(w == 1.0 for w in weights):
+        return None
+    per_scene = np.repeat(np.asarray(weights, dtype=np.float64), scenes_per_set)
+    return per_scene[tiles.scene]
+
+
 class GlobalBatchSampler:
     """This process's micro-batches of ``(epoch, tile)`` keys for one epoch (see module docs).
 
@@ -107,10 +118,13 @@ class GlobalBatchSampler:
     micro-batch would hold other blocks than in a one-process run and BatchNorm statistics,
     dropout and the result would differ. Here global batch t holds permutation entries
     t*G .. t*G+G-1 (wrapping around at the end of the epoch, so every tile is seen) and
-    process r takes its A contiguous micro-batches of it.
+    process r takes its A contiguous micro-batches of it. ``draws`` (T,): how often each tile
+    is drawn per epoch (the whole part that many times, the fraction at random by the epoch's
+    seed); None: each once.
     """
 
-    def __init__(self, size: int, *, batch_size: int, accumulation: int, world: int, rank: int, seed: int) -> None:
+    def __init__(self, size: int, *, batch_size: int, accumulation: int, world: int, rank: int, seed: int,
+                 draws: np.ndarray | None = None) -> None:
         if size < 1:
             raise LearnError("no training blocks: every tile was dropped; lower blocks.min_points or check the data")
         self.size = size
@@ -119,9 +133,11 @@ class GlobalBatchSampler:
         self.world = world
         self.rank = rank
         self.seed = seed
+        self.draws = draws
         self.epoch = 0
         self.global_batch = batch_size * accumulation * world
-        self.steps_per_epoch = math.ceil(size / self.global_batch)
+        expected = size if draws is None else max(1, int(round(float(draws.sum()))))
+        self.steps_per_epoch = math.ceil(expected / self.global_batch)
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = epoch
@@ -129,9 +145,17 @@ class GlobalBatchSampler:
     def __len__(self) -> int:
         return self.steps_per_epoch * self.accumulation
 
+    def _epoch_tiles(self, rng: np.random.Generator) -> np.ndarray:
+        if self.draws is None:
+            return rng.permutation(self.size)
+        whole = np.floor(self.draws).astype(np.int64)
+        extra = rng.random(self.size) < self.draws - whole  # the fraction of a draw, at random
+        tiles = np.repeat(np.arange(self.size), whole + extra)
+        return rng.permutation(tiles) if len(tiles) else rng.permutation(self.size)
+
     def __iter__(self) -> Iterator[list[tuple[int, int]]]:
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, 7, self.epoch]))
-        order = np.resize(rng.permutation(self.size), self.steps_per_epoch * self.global_batch)
+        order = np.resize(self._epoch_tiles(rng), self.steps_per_epoch * self.global_batch)
         for step in range(self.steps_per_epoch):
             for k in range(self.accumulation):
                 micro = self.rank * self.accumulation + k
@@ -279,11 +303,10 @@ class TrainResult:
     parameters: int
 
 
-def _resolve_sources(
-    paths: tuple[str, ...], *, base: Path, label_field: str | None, mapping_path: str | None,
-) -> list[SceneSource]:
-    mapping = None if mapping_path is None else load_label_mapping(resolve_path(base, mapping_path))
-    return list_scenes([resolve_path(base, p) for p in paths], label_field=label_field, mapping=mapping)
+def resolve_scene_set(scenes: SceneSet, *, base: Path) -> list[SceneSource]:
+    """The scenes of a scene set, its paths and mapping resolved against ``base``."""
+    mapping = None if scenes.mapping is None else load_label_mapping(resolve_path(base, scenes.mapping))
+    return list_scenes([resolve_path(base, p) for p in scenes.scenes], label_field=scenes.label_field, mapping=mapping)
 
 
 def _collect_tiles(
@@ -311,6 +334,42 @@ def _collect_tiles(
         for source in sources
     ]
     return TileSet.concatenate(parts)
+
+
+def start_from(model: PCTSegmentation, path: Path, config: TrainRunConfig) -> dict[str, Any]:
+    """Load ``path``'s EMA weights (what it is evaluated with) into ``model``: fine-tuning starts
+    from them. LearnError unless that checkpoint's network is this one (model, inputs, classes).
+    Returns what the new checkpoint records of where it started."""
+    from bimscan.files import file_sha256
+
+    payload = read_checkpoint(path)
+    parent = parse_config(payload["config"], where=f"{path} [config]")
+    for what, mine, theirs in (("[model]", config.model, parent.model), ("[input] features", config.input.features,
+                               parent.input.features), ("class names", config.data.class_names, tuple(payload["class_names"]))):
+        if mine != theirs:
+            raise LearnError(f"{path}: the run to start from has other {what} ({theirs}) than this one ({mine}); "
+                             "fine-tune with the same network and classes")
+    load_state(model, payload["ema"], what="EMA weights", path=path)
+    return {"checkpoint": str(path), "sha256": file_sha256(path), "epoch": int(payload["epoch"])}
+
+
+def freeze(model: PCTSegmentation, parts: tuple[str, ...]) -> tuple[nn.Module, ...]:
+    """Keep ``parts`` of ``model`` ("embedding", "attention") as they are while training: their
+    parameters get no gradient, and :func:`train_mode` keeps their normalisation statistics.
+    Returns the frozen modules."""
+    modules = {"embedding": (model.embed1, model.embed2), "attention": tuple(model.attention)}
+    frozen = tuple(module for part in parts for module in modules[part])
+    for module in frozen:
+        module.requires_grad_(False)
+    return frozen
+
+
+def train_mode(model: nn.Module, frozen: tuple[nn.Module, ...]) -> None:
+    """``model.train()`` but the frozen modules in eval mode: batch-norm statistics are weights too,
+    updated in train mode without any gradient."""
+    model.train()
+    for module in frozen:
+        module.eval()
 
 
 def _check_resumable(stored: dict[str, Any], current: dict[str, Any], where: Path) -> None:
@@ -368,13 +427,16 @@ def use_cpu_threads(threads: int) -> None:
 
 def train_model(
     config: TrainRunConfig, *, base_dir: Path, out_dir: Path | None = None, resume: bool = False,
-    on_step_end: Callable[[int, int], None] | None = None, log: Callable[[str], None] | None = None,
+    init: Path | None = None, on_step_end: Callable[[int, int], None] | None = None,
+    log: Callable[[str], None] | None = None,
 ) -> TrainResult:
     """Train PCT as configured; checkpoints, ``metrics.csv`` and ``curves.png`` go to ``out_dir``.
 
     ``base_dir`` anchors the config's relative paths; ``out_dir`` overrides ``[train] out_dir``.
     ``resume`` continues from ``out_dir/last.pt`` (the interrupted epoch restarts from its
-    beginning). ``on_step_end(epoch, step)`` is called after every optimizer step (0-based).
+    beginning). ``init``: a checkpoint whose weights (its EMA, the ones it is evaluated with)
+    the run starts from instead of random ones (fine-tuning; the checkpoint records it).
+    ``on_step_end(epoch, step)`` is called after every optimizer step (0-based).
     Run under ``torchrun`` for DDP; every process calls this function.
     """
     settings = config.train
@@ -382,7 +444,7 @@ def train_model(
     ctx = init_distributed(settings.device)
     try:
         return _train(config, settings=settings, ctx=ctx, base_dir=base_dir, out_dir=out_dir, resume=resume,
-                      on_step_end=on_step_end, log=log)
+                      init=init, on_step_end=on_step_end, log=log)
     finally:
         if ctx.owns_group and dist.is_initialized():
             dist.destroy_process_group()
@@ -390,7 +452,8 @@ def train_model(
 
 def _train(
     config: TrainRunConfig, *, settings: TrainConfig, ctx: DistributedContext, base_dir: Path, out_dir: Path | None,
-    resume: bool, on_step_end: Callable[[int, int], None] | None, log: Callable[[str], None] | None,
+    resume: bool, init: Path | None, on_step_end: Callable[[int, int], None] | None,
+    log: Callable[[str], None] | None,
 ) -> TrainResult:
     emit = log or (lambda text: print(text, file=sys.stderr, flush=True))
     out = Path(out_dir) if out_dir is not None else resolve_path(base_dir, settings.out_dir)
@@ -400,10 +463,9 @@ def _train(
     if resume and not last_path.is_file():
         raise LearnError(f"{last_path}: no checkpoint to resume from; start without --resume")
     # every input is checked before the output folder appears
-    train_sources = _resolve_sources(config.data.train, base=base_dir, label_field=config.data.train_label_field,
-                                     mapping_path=config.data.train_mapping)
-    val_sources = _resolve_sources(config.data.val, base=base_dir, label_field=config.data.val_label_field,
-                                   mapping_path=config.data.val_mapping)
+    train_sets = [resolve_scene_set(scenes, base=base_dir) for scenes in config.data.train]
+    train_sources = [source for sources in train_sets for source in sources]
+    val_sources = [] if config.data.val is None else resolve_scene_set(config.data.val, base=base_dir)
     if ctx.is_main:
         out.mkdir(parents=True, exist_ok=True)
     classes = len(config.data.class_names)
@@ -414,7 +476,8 @@ def _train(
     if val_tiles is not None and len(val_tiles) == 0:
         raise LearnError(
             f"[data] val: no column of its {len(val_sources)} scene(s) has ground truth and at least blocks.min_points "
-            f"({config.blocks.min_points}) points; give the val scenes labels (val_label_field / val_mapping) or set val = []"
+            f"({config.blocks.min_points}) points; give the val scenes labels ([data.val] label_field / mapping) or "
+            "leave val out"
         )
     train_tiles = _collect_tiles(train_sources, config=config, cache_dir=cache_dir, ctx=ctx,
                                  per_station=config.blocks.train_columns == "station")
@@ -430,11 +493,17 @@ def _train(
     model: PCTSegmentation = build_model(
         classes, config.model, in_dim=input_channels(config.input.features),
     ).to(ctx.device)
+    started_from = None if init is None else start_from(model, init, config)  # before the EMA copies the weights
+    frozen = freeze(model, settings.freeze)
+    frozen_parameters = sum(p.numel() for module in frozen for p in module.parameters())
     ema = WeightEMA(model, alpha=settings.ema_alpha)
-    optimizer = torch.optim.Adam(model.parameters(), lr=settings.max_lr, weight_decay=settings.weight_decay)
+    optimizer = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=settings.max_lr,
+                                 weight_decay=settings.weight_decay)
+    draws = tile_draws(train_tiles, [len(sources) for sources in train_sets],
+                       [scenes.weight for scenes in config.data.train])
     sampler = GlobalBatchSampler(
         len(train_set), batch_size=settings.batch_size, accumulation=settings.accumulation_steps,
-        world=ctx.world, rank=ctx.rank, seed=settings.seed,
+        world=ctx.world, rank=ctx.rank, seed=settings.seed, draws=draws,
     )
     scheduler = torch.optim.lr_scheduler.OneCycleLR(
         optimizer, max_lr=settings.max_lr, total_steps=settings.epochs * sampler.steps_per_epoch,
@@ -502,7 +571,7 @@ def _train(
     for epoch in range(start_epoch, settings.epochs):
         started = time.perf_counter()
         sampler.set_epoch(epoch)
-        model.train()
+        train_mode(model, frozen)
         confusion = torch.zeros(classes, classes, dtype=torch.int64, device=ctx.device)
         sums = torch.zeros(2, dtype=torch.float64, device=ctx.device)
         last_lr = math.nan
@@ -537,7 +606,7 @@ def _train(
         row.update(_metric_row("train", confusion, float(sums[0]), float(sums[1])))
         if val_set is not None:
             val_confusion, val_loss, val_points = _validate(
-                ema.module, val_set, ctx=ctx, batch_size=settings.eval_batch_size, amp=settings.amp, classes=classes,
+                ema.module, val_set, ctx=ctx, batch_size=config.eval.batch_size, amp=settings.amp, classes=classes,
             )
             row.update(_metric_row("val", val_confusion, val_loss, val_points))
         else:
@@ -554,6 +623,7 @@ def _train(
                 "device": ctx.device.type,
                 "global_batch": sampler.global_batch, "parameters": parameters,
                 "best_val_miou": max(best_miou, row["val_miou"]) if not math.isnan(row["val_miou"]) else best_miou,
+                "init": started_from, "frozen_parameters": frozen_parameters,
             }
             save_checkpoint(last_path, payload)
             if not math.isnan(row["val_miou"]) and row["val_miou"] > best_miou:

@@ -26,25 +26,56 @@ IGNORE_LABEL = UNLABELLED  # skipped by the loss and the metrics
 
 
 @dataclass(frozen=True)
-class DataConfig:
-    """Where the scenes are and how their labels read.
+class SceneSet:
+    """Scenes whose labels read alike.
 
-    ``train``/``val``: bimscan dataset folders (``manifest.json``; the units with status
-    "done"), cloud files (``.las .laz .ply``, text ``.txt .xyz .pts .csv .asc``), NumPy cloud
-    folders, S3DIS room/area folders. ``train`` is the synthetic set, ``val`` the real set
-    (no fine-tuning: it is only evaluated). ``*_label_field`` names the LAS/PLY dimension that
-    holds the labels (None: ``classification``/``label``). ``*_mapping`` is a mapping TOML
-    (source class name or id -> one of ``class_names``); S3DIS rooms use the shipped
-    S3DIS->5-class mapping when none is given.
+    ``scenes``: bimscan dataset folders (``manifest.json``; the units with status "done"), cloud
+    files (``.las .laz .ply .e57``, text ``.txt .xyz .pts .csv .asc``), NumPy cloud folders, S3DIS
+    room or area folders; relative paths are relative to the file that names them.
+    ``label_field``: the LAS/PLY dimension, NumPy file or text column that holds the labels (None:
+    ``classification``/``label``; S3DIS rooms: their annotation names). ``mapping``: a mapping TOML
+    (source class name or id -> one of the class names; S3DIS rooms use the shipped
+    S3DIS->5-class mapping when none is given). ``weight`` (training only): how often each training
+    block of these scenes is drawn per epoch (1 = once; 4: four times, a few real rooms among many
+    synthetic buildings; 0.5: half of them, at random each epoch).
+
+    In TOML a list of paths is a scene set with the defaults (``train = ["a", "b"]``); a table, or
+    a list of tables, gives the other keys (``[[data.train]]`` ... ``scenes = [...]``, ``weight = 4``).
     """
 
-    train: tuple[str, ...]
-    val: tuple[str, ...] = ()
+    scenes: tuple[str, ...]
+    label_field: str | None = None
+    mapping: str | None = None
+    weight: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not self.scenes:
+            raise ConfigError("a scene set names no scenes; give at least one path in 'scenes'")
+        if not 0 < self.weight <= 100:
+            raise ConfigError(f"weight = {self.weight!r} is impossible; give how often each block is drawn per epoch, "
+                              "above 0 and at most 100")
+
+
+def scene_sets(value: object) -> object:
+    """A TOML value naming scenes as a list of scene-set tables (see ``SceneSet``): a list of paths is
+    one set, a table one set; anything else is left for the loader to refuse."""
+    if isinstance(value, list | tuple) and value and all(isinstance(v, str) for v in value):
+        return [{"scenes": list(value)}]
+    if isinstance(value, dict):
+        return [value]
+    return value
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """Where the scenes are and how their labels read (``SceneSet``): ``train``, one or more sets
+    (synthetic datasets, and real labelled scans to train on); ``val``, the set validated on every
+    epoch (real scans; none: no validation). ``class_names``: the training classes, in id order.
+    """
+
+    train: tuple[SceneSet, ...]
+    val: SceneSet | None = None
     class_names: tuple[str, ...] = DEFAULT_CLASS_NAMES
-    train_label_field: str | None = None
-    val_label_field: str | None = None
-    train_mapping: str | None = None
-    val_mapping: str | None = None
 
     def __post_init__(self) -> None:
         if not self.train:
@@ -64,17 +95,11 @@ class BlockConfig:
     keeps a uniform random subset of at most ``cache_points`` points in memory, from which
     every epoch draws ``points`` without replacement (zero padding with a validity mask when
     the tile has fewer). Tiles with fewer than ``min_points`` points are skipped for training
-    and validation. Evaluation and prediction slide the same column with ``eval_stride_m``
-    (``size_m`` must be a whole multiple of it) and vote with the summed softmax; each column's
-    points are shuffled and cut into groups of ``points`` ``eval_votes`` times, so every point is
-    voted on that many times per column, each time among another random sample of the column
-    (test-time voting over random subsamples, as RandLA-Net and KPConv vote; 1 = one pass).
+    and validation. Evaluation and prediction slide the same column (``EvalConfig``).
     """
 
     size_m: float = 4.0
-    eval_stride_m: float = 2.0
     points: int = 8192
-    eval_votes: int = 1
     min_points: int = 1024
     cache_points: int = 16384
     # training columns of scenes that record stations: "station" (each station's points apart: what
@@ -84,27 +109,14 @@ class BlockConfig:
     train_columns: Literal["scene", "station"] = "station"
 
     def __post_init__(self) -> None:
-        if not self.size_m > 0 or not self.eval_stride_m > 0:
-            raise ConfigError(f"size_m and eval_stride_m must be positive, got {self.size_m}, {self.eval_stride_m}")
-        ratio = self.size_m / self.eval_stride_m
-        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-            raise ConfigError(
-                f"size_m ({self.size_m}) must be a whole multiple of eval_stride_m ({self.eval_stride_m}); "
-                "e.g. 4.0 and 2.0"
-            )
-        if not 1 <= self.eval_votes <= 64:
-            raise ConfigError(f"eval_votes must be in 1..64, got {self.eval_votes}")
+        if not self.size_m > 0:
+            raise ConfigError(f"size_m must be positive, got {self.size_m}")
         if self.points < 16:
             raise ConfigError(f"points must be at least 16, got {self.points}")
         if self.cache_points < self.points:
             raise ConfigError(f"cache_points ({self.cache_points}) must be >= points ({self.points})")
         if not 1 <= self.min_points <= self.cache_points:
             raise ConfigError(f"min_points must be in 1..cache_points, got {self.min_points}")
-
-    @property
-    def stride_ratio(self) -> int:
-        """Blocks covering each point along x (and along y): size_m / eval_stride_m."""
-        return int(round(self.size_m / self.eval_stride_m))
 
 
 FEATURE_NAMES = tuple(FEATURE_CHANNELS)  # the features bimscan.learn.features computes
@@ -120,18 +132,13 @@ class InputConfig:
     ``normals`` (PCA of ``normal_neighbours`` neighbours among the block's points) and
     ``shape`` (linearity, planarity, scattering of the same neighbourhood)
     (:mod:`bimscan.learn.features`). Defaults: the sim-to-real recipe measured in the README;
-    the paper's baseline is ``grid_m = 0.0``, ``features = ["xyz"]``. ``label_neighbours``
-    (labelling only, with ``grid_m`` > 0): a point that is not its voxel's representative takes
-    the inverse-square-distance mean of the votes of its ``label_neighbours`` nearest
-    representatives (PointNet++'s interpolation, Qi et al. 2017); 0 = the votes of its own
-    voxel's representative.
+    the paper's baseline is ``grid_m = 0.0``, ``features = ["xyz"]``.
     """
 
     grid_m: float = 0.05
     features: tuple[str, ...] = ("xyz", "height", "normals", "shape")
     height_scale_m: float = 3.0
     normal_neighbours: int = 32
-    label_neighbours: int = 3
 
     def __post_init__(self) -> None:
         if not self.grid_m >= 0 or self.grid_m > 1.0:
@@ -145,8 +152,6 @@ class InputConfig:
             raise ConfigError(f"height_scale_m must be positive, got {self.height_scale_m}")
         if not 3 <= self.normal_neighbours <= 128:
             raise ConfigError(f"normal_neighbours must be in 3..128, got {self.normal_neighbours}")
-        if not 0 <= self.label_neighbours <= 64:
-            raise ConfigError(f"label_neighbours must be in 0..64 (0 = the voxel's representative), got {self.label_neighbours}")
 
 
 @dataclass(frozen=True)
@@ -229,7 +234,6 @@ class TrainConfig:
     ema_alpha: float = 0.99
     amp: Literal["float16", "bfloat16", "off"] = "float16"
     num_workers: int = 4
-    eval_batch_size: int = 8
     seed: int = 0
     device: Literal["auto", "cpu", "cuda"] = "auto"
     cpu_threads: int = 0
@@ -237,9 +241,12 @@ class TrainConfig:
     # class-balanced loss: per-class weights from the training points' class frequencies f_c,
     # "inverse" 1/f_c, "inverse_sqrt" 1/sqrt(f_c) (milder), normalised to mean 1; "none": the paper
     class_weights: Literal["none", "inverse", "inverse_sqrt"] = "inverse_sqrt"
+    # parts of the network kept as they are while training (fine-tuning): "embedding" (the
+    # point-wise layers before attention), "attention"
+    freeze: tuple[Literal["embedding", "attention"], ...] = ()
 
     def __post_init__(self) -> None:
-        for name in ("epochs", "batch_size", "accumulation_steps", "eval_batch_size"):
+        for name in ("epochs", "batch_size", "accumulation_steps"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.num_workers < 0 or self.cpu_threads < 0:
@@ -253,8 +260,51 @@ class TrainConfig:
 
 
 @dataclass(frozen=True)
+class EvalConfig:
+    """How evaluation and prediction label every point of a scene (:mod:`bimscan.learn.infer`).
+
+    Columns of the training block's size slide every ``stride_m`` (the block size must be a whole
+    multiple of it; None: half the block) and vote with their summed softmax; each column's points
+    (its voxel representatives, with a grid) are shuffled and cut into groups of the block's
+    points ``votes`` times, so every point is voted on that many times per column, each time
+    among another random sample of it (test-time voting over random subsamples, as RandLA-Net and
+    KPConv vote). With a density grid a point that is not its voxel's representative takes the
+    inverse-square-distance mean of the votes of its ``label_neighbours`` nearest representatives
+    (PointNet++'s interpolation, Qi et al. 2017; 0: its own voxel's representative's).
+    ``batch_size``: blocks per forward pass (speed and memory only).
+
+    A training run stores its ``[eval]`` with its checkpoint as that model's evaluation; commands
+    that evaluate or predict use it unless told otherwise, and record what they used.
+    """
+
+    stride_m: float | None = None
+    votes: int = 1
+    label_neighbours: int = 3
+    batch_size: int = 8
+
+    def __post_init__(self) -> None:
+        if self.stride_m is not None and not self.stride_m > 0:
+            raise ConfigError(f"stride_m must be positive (or left out: half the block), got {self.stride_m}")
+        if not 1 <= self.votes <= 64:
+            raise ConfigError(f"votes must be in 1..64, got {self.votes}")
+        if not 0 <= self.label_neighbours <= 64:
+            raise ConfigError(f"label_neighbours must be in 0..64 (0 = the voxel's representative), got {self.label_neighbours}")
+        if self.batch_size < 1:
+            raise ConfigError(f"batch_size must be at least 1, got {self.batch_size}")
+
+    def stride_for(self, size_m: float) -> float:
+        """The stride for columns of ``size_m``; ConfigError unless it divides ``size_m`` whole."""
+        stride = size_m / 2 if self.stride_m is None else self.stride_m
+        ratio = size_m / stride
+        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+            raise ConfigError(f"[eval] stride_m = {stride:g} does not divide the {size_m:g} m blocks whole; "
+                              f"give one like {size_m / 2:g} or {size_m / 3:g}")
+        return stride
+
+
+@dataclass(frozen=True)
 class TrainRunConfig:
-    """A whole training experiment: the four sections of the TOML file."""
+    """A whole training experiment: the sections of the TOML file."""
 
     data: DataConfig
     blocks: BlockConfig = field(default_factory=BlockConfig)
@@ -262,14 +312,54 @@ class TrainRunConfig:
     augment: AugmentConfig = field(default_factory=AugmentConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
+    eval: EvalConfig = field(default_factory=EvalConfig)
+
+    def __post_init__(self) -> None:
+        self.eval.stride_for(self.blocks.size_m)  # a stride that does not divide the blocks fails now
+
+
+# Keys that moved, with where they live now (a one-line error names the new home).
+MOVED_KEYS = {
+    ("blocks", "eval_stride_m"): "[eval] stride_m", ("blocks", "eval_votes"): "[eval] votes",
+    ("input", "label_neighbours"): "[eval] label_neighbours", ("train", "eval_batch_size"): "[eval] batch_size",
+    ("data", "train_label_field"): "[[data.train]] label_field", ("data", "train_mapping"): "[[data.train]] mapping",
+    ("data", "val_label_field"): "[data.val] label_field", ("data", "val_mapping"): "[data.val] mapping",
+}
 
 
 def load_train_config(path: str | Path) -> tuple[TrainRunConfig, Path]:
     """Load a training TOML file; returns the config and the folder relative paths start from."""
     path = Path(path)
     data = load_toml(path)
-    config = build_dataclass(TrainRunConfig, data, where=str(path))
-    return config, path.resolve().parent
+    check_moved_keys(data, where=str(path))
+    return build_dataclass(TrainRunConfig, with_scene_sets(data), where=str(path)), path.resolve().parent
+
+
+def check_moved_keys(data: dict[str, object], *, where: str) -> None:
+    """ConfigError naming the new home of a key that moved (see ``MOVED_KEYS``)."""
+    for (section, key), home in MOVED_KEYS.items():
+        table = data.get(section)
+        if isinstance(table, dict) and key in table:
+            raise ConfigError(f"{where}: [{section}] {key} is now {home}; move it there")
+
+
+def with_scene_sets(data: dict[str, object]) -> dict[str, object]:
+    """``data`` with its ``[data]`` train and val in scene-set form (``SceneSet``)."""
+    table = data.get("data")
+    if not isinstance(table, dict):
+        return data
+    table = dict(table)
+    if "train" in table:
+        table["train"] = scene_sets(table["train"])
+    if "val" in table:
+        val = scene_sets(table["val"])
+        if isinstance(val, list) and not val:
+            table["val"] = None
+        elif isinstance(val, list) and len(val) == 1:
+            table["val"] = val[0]
+        else:
+            table["val"] = val
+    return {**data, "data": table}
 
 
 def dump_config(config: TrainRunConfig) -> dict[str, object]:
@@ -283,14 +373,41 @@ def parse_config(data: dict[str, object], *, where: str) -> TrainRunConfig:
     """Rebuild a config stored by :func:`dump_config` (tuples come back as lists).
 
     A config stored before the sim-to-real recipe existed (no ``input`` section) was trained
-    as the paper's baseline: it reads back as such, not with today's recipe defaults.
+    as the paper's baseline: it reads back as such, not with today's recipe defaults. One stored
+    before ``[eval]`` existed reads its evaluation from where it was kept then.
     """
     if "input" not in data:
         data = _as_paper_baseline(data)
+    if "eval" not in data:
+        data = _with_eval_section(data)
     try:
-        return build_dataclass(TrainRunConfig, data, where=where)
+        return build_dataclass(TrainRunConfig, with_scene_sets(data), where=where)
     except ConfigError as exc:
         raise ConfigError(f"{where}: stored configuration is not readable by this version ({exc})") from exc
+
+
+def _with_eval_section(data: dict[str, object]) -> dict[str, object]:
+    """A stored config from before ``[eval]``: its evaluation settings and scene sets moved to
+    where they live now, with the values that run had (then-defaults included)."""
+    sections = {k: dict(v) if isinstance(v, dict) else v for k, v in data.items()}
+    blocks, inputs, train = (sections.setdefault(k, {}) for k in ("blocks", "input", "train"))
+    stride = blocks.pop("eval_stride_m", 2.0)  # type: ignore[union-attr]
+    sections["eval"] = {
+        "stride_m": stride, "votes": blocks.pop("eval_votes", 1),  # type: ignore[union-attr]
+        "label_neighbours": inputs.pop("label_neighbours", 0),  # type: ignore[union-attr]
+        "batch_size": train.pop("eval_batch_size", 8),  # type: ignore[union-attr]
+    }
+    table = dict(sections.get("data", {}))  # type: ignore[arg-type]
+    for name in ("train", "val"):
+        field_name, mapping_name = f"{name}_label_field", f"{name}_mapping"
+        extras = {"label_field": table.pop(field_name, None), "mapping": table.pop(mapping_name, None)}
+        value = table.get(name)
+        if isinstance(value, list | tuple) and value and all(isinstance(v, str) for v in value):
+            table[name] = {"scenes": list(value), **extras} if name == "val" else [{"scenes": list(value), **extras}]
+        elif name == "val" and not value:
+            table[name] = None
+    sections["data"] = table
+    return sections
 
 
 def _as_paper_baseline(data: dict[str, object]) -> dict[str, object]:
