@@ -1,6 +1,7 @@
 """bimscan sim2real: the experiment file is checked before any work; a tiny experiment runs end
 to end (one generated building built, two variants trained, scored on a labelled room), writes
-every output and continues where it stopped."""
+every output and continues where it stopped; variants training on real rooms (alone, or
+fine-tuning a synthetic model) are never scored on a room they trained on."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import pytest
 from bimscan.cli.main import main
 from bimscan.errors import ConfigError, InputFileError, LearnError
 from bimscan.io.text import write_text_cloud
-from bimscan.learn.experiment import load_experiment, run_experiment
+from bimscan.learn.experiment import load_experiment, run_experiment, training_config, training_sections
 
 from .conftest import make_room
 
@@ -38,9 +39,11 @@ name = "tiny"
 [real]
 scenes = ["real.txt"]
 
+[eval]
+stride_m = 1.5
+
 [blocks]
 size_m = 3.0
-eval_stride_m = 1.5
 points = 128
 min_points = 32
 cache_points = 512
@@ -79,6 +82,16 @@ data = "spec.toml"
 """
 
 
+class _Sections:
+    def __init__(self, sections: dict[str, object]) -> None:
+        self.__dict__.update(sections)
+
+
+def _config(variant: object) -> _Sections:
+    """A variant's training sections as attributes (``.model``, ``.train``, ...)."""
+    return _Sections(training_sections(variant))  # type: ignore[arg-type]
+
+
 @pytest.fixture
 def experiment_dir(tmp_path: Path) -> Path:
     (tmp_path / "spec.toml").write_text(SPEC, encoding="utf-8")
@@ -90,7 +103,7 @@ def experiment_dir(tmp_path: Path) -> Path:
 def test_a_tiny_experiment_runs_end_to_end_and_resumes(experiment_dir: Path) -> None:
     out = experiment_dir / "out"
     summary = run_experiment(load_experiment(experiment_dir / "exp.toml"), out, log=lambda text: None)
-    assert [v["variant"] for v in summary["variants"]] == ["baseline", "recipe"]
+    assert [v.variant for v in summary] == ["baseline", "recipe"]
     for name in ("report.md", "results.csv", "results.json", "val_miou.png", "experiment.json"):
         assert (out / name).stat().st_size > 0, name
     for variant in ("baseline", "recipe"):
@@ -99,7 +112,7 @@ def test_a_tiny_experiment_runs_end_to_end_and_resumes(experiment_dir: Path) -> 
                      "eval/evaluation.json", "eval/evaluation.md", "result.json"):
             assert (folder / name).is_file(), f"{variant}/{name}"
         result = json.loads((folder / "result.json").read_text())
-        assert len(result["val_miou_per_epoch"]) == 2
+        assert [len(epochs) for epochs in result["val_miou_per_epoch"]] == [2]
         assert set(result["pooled"]["iou"]) == {"Wall&Column", "Beam", "Covering", "Slab", "Others"}
         assert sum(map(sum, result["confusion"])) == result["pooled"]["points"] > 0
     report = (out / "report.md").read_text()
@@ -116,7 +129,7 @@ def test_a_tiny_experiment_runs_end_to_end_and_resumes(experiment_dir: Path) -> 
     again = run_experiment(load_experiment(experiment_dir / "exp.toml"), out, log=messages.append)
     assert any("baseline: finished earlier" in m for m in messages)
     assert not any("training" in m for m in messages)
-    assert again["variants"][1]["pooled"] == summary["variants"][1]["pooled"]
+    assert again[1].pooled == summary[1].pooled
     assert any("0 built, 1 already done" in m for m in messages)
 
     # once the data changes, the finished variants no longer stand for it: refused before training
@@ -152,8 +165,12 @@ def test_bad_experiment_files_are_one_line_errors_before_any_work(
 def test_real_scenes_on_the_command_line_replace_those_of_the_file(experiment_dir: Path) -> None:
     write_text_cloud(experiment_dir / "other.txt", make_room(7, size_m=(3.0, 3.0), points_per_m2=40))
     parsed = load_experiment(experiment_dir / "exp.toml", real=[experiment_dir / "other.txt"], device="cpu")
-    assert parsed.real == ((experiment_dir / "other.txt").resolve(),)
-    assert parsed.variants[0].config.data.val == (str((experiment_dir / "other.txt").resolve()),)
+    assert parsed.real.scenes == (str((experiment_dir / "other.txt").resolve()),)
+    from bimscan.learn.experiment import _runs, _scored_scenes
+
+    run = _runs(parsed, parsed.variants[0], _scored_scenes(parsed))[0]
+    config = training_config(parsed, run, experiment_dir / "out")
+    assert config.data.val is not None and config.data.val.scenes == parsed.real.scenes
 
 
 def test_the_shipped_experiments_are_valid() -> None:
@@ -164,11 +181,11 @@ def test_the_shipped_experiments_are_valid() -> None:
     for name in ("sim2real_cpu.toml", "sim2real_table2.toml"):
         parsed = load_experiment(configs / name)
         assert [v.name for v in parsed.variants][0] == "paper-baseline"
-        baseline = parsed.variants[0].config
+        baseline = _config(parsed.variants[0])
         assert baseline.input.features == ("xyz",) and baseline.input.grid_m == 0
         assert not baseline.augment.enabled and baseline.train.class_weights == "none"
         assert baseline.blocks.train_columns == "scene"
-        assert parsed.variants[-1].config.blocks.train_columns == "station"
+        assert _config(parsed.variants[-1]).blocks.train_columns == "station"
 
 
 def test_the_shipped_companion_experiments_match_the_ablation() -> None:
@@ -178,19 +195,19 @@ def test_the_shipped_companion_experiments_match_the_ablation() -> None:
     if not real.is_dir():
         pytest.skip(f"{real} absent: the shipped experiments score on the shared S3DIS rooms")
     ablation = load_experiment(configs / "sim2real_cpu.toml")
-    recipe = ablation.variants[-1].config
+    recipe = _config(ablation.variants[-1])
     for name in ("sim2real_cpu_data.toml", "sim2real_cpu_seeds.toml", "sim2real_cpu_scale.toml",
                  "sim2real_cpu_without.toml"):
         parsed = load_experiment(configs / name)
         for variant in parsed.variants:
-            config = variant.config
+            config = _config(variant)
             assert config.model == recipe.model and config.blocks.size_m == recipe.blocks.size_m, variant.name
             assert config.train.max_lr == recipe.train.max_lr, variant.name
             assert config.train.cpu_threads == recipe.train.cpu_threads == 2, variant.name  # comparable sums
             if name != "sim2real_cpu_scale.toml":  # the scale rows set their epochs to equal steps
                 assert config.train.epochs == recipe.train.epochs, variant.name
     seeds = load_experiment(configs / "sim2real_cpu_seeds.toml")
-    assert sorted({v.config.train.seed for v in seeds.variants}) == [1, 2]
+    assert sorted({_config(v).train.seed for v in seeds.variants}) == [1, 2]
 
 
 COMPANION = """\
@@ -211,12 +228,12 @@ model = { dropout = 0.1 }
 def test_a_companion_experiment_takes_its_base_files_sections_key_by_key(experiment_dir: Path) -> None:
     (experiment_dir / "more").mkdir()
     (experiment_dir / "more" / "exp.toml").write_text(COMPANION, encoding="utf-8")
-    base = load_experiment(experiment_dir / "exp.toml").variants[1].config
+    base = _config(load_experiment(experiment_dir / "exp.toml").variants[1])
     companion = load_experiment(experiment_dir / "more" / "exp.toml")
     assert companion.name == "companion" and [v.name for v in companion.variants] == ["more"]
-    config = companion.variants[0].config
+    config = _config(companion.variants[0])
     # the base's real scenes, relative to the base file, not to the companion
-    assert companion.real == ((experiment_dir / "real.txt").resolve(),)
+    assert companion.real.scenes == (str((experiment_dir / "real.txt").resolve()),)
     assert config.blocks == base.blocks and config.input == base.input
     assert config.train.epochs == 3 and config.train.max_lr == base.train.max_lr  # own key replaces, others kept
     assert config.model.dropout == 0.1 and config.model.embed_dim == base.model.embed_dim
@@ -261,3 +278,135 @@ def test_cpu_threads_are_set_for_training_and_checked() -> None:
         torch.set_num_threads(before)
     with pytest.raises(ConfigError, match="cpu_threads must be >= 0"):
         TrainConfig(cpu_threads=-1)
+
+
+ROOMS_EXPERIMENT = """\
+[experiment]
+name = "rooms"
+folds = 2
+
+[real]
+scenes = ["r1.txt", "r2.txt", "r3.txt"]
+
+[rooms]
+scenes = ["r1.txt", "r2.txt", "r3.txt"]
+
+[blocks]
+size_m = 3.0
+points = 128
+min_points = 32
+cache_points = 512
+
+[input]
+grid_m = 0.15
+
+[model]
+embed_dim = 8
+attention_layers = 1
+fuse_dim = 16
+head_dims = [16]
+dropout = 0.0
+
+[train]
+epochs = 1
+batch_size = 4
+max_lr = 0.01
+amp = "off"
+num_workers = 0
+device = "cpu"
+
+[eval]
+stride_m = 1.5
+votes = 1
+
+[[variants]]
+name = "synthetic"
+data = "synthetic.txt"
+
+[[variants]]
+name = "real-only"
+rooms = "all"
+
+[[variants]]
+name = "finetune-1"
+init = "synthetic"
+rooms = ["r2.txt"]
+room_weight = 4.0
+
+[[variants]]
+name = "finetune-all"
+init = "synthetic"
+rooms = "all"
+train = { epochs = 2, freeze = ["embedding"] }
+"""
+
+
+@pytest.fixture
+def rooms_dir(tmp_path: Path) -> Path:
+    for k in (1, 2, 3):
+        write_text_cloud(tmp_path / f"r{k}.txt", make_room(10 + k, size_m=(4.0, 3.0 + k), points_per_m2=40))
+    write_text_cloud(tmp_path / "synthetic.txt", make_room(5, size_m=(6.0, 5.0), points_per_m2=40))
+    (tmp_path / "exp.toml").write_text(ROOMS_EXPERIMENT, encoding="utf-8")
+    return tmp_path
+
+
+def test_variants_training_on_real_rooms_are_never_scored_on_them(rooms_dir: Path) -> None:
+    import torch
+
+    from bimscan.learn.checkpoint import read_checkpoint
+
+    out = rooms_dir / "out"
+    results = {r.variant: r for r in run_experiment(load_experiment(rooms_dir / "exp.toml"), out, log=lambda t: None)}
+    rooms = {"r1", "r2", "r3"}
+    assert results["synthetic"].train_rooms == [[]] and set(results["synthetic"].scenes) == rooms
+    # every room once in one fold's scored scenes, the other fold trained on it
+    real_only = results["real-only"]
+    assert real_only.folds == 2 and sorted(map(sorted, real_only.train_rooms)) == [["r1", "r3"], ["r2"]]
+    assert set(real_only.scenes) == rooms and real_only.excluded == sorted(rooms)
+    for fold, trained in enumerate(real_only.train_rooms, start=1):
+        scored = json.loads((out / f"variants/real-only/fold-{fold}/eval/evaluation.json").read_text())
+        assert {s["name"] for s in scored["scenes"]} and not {s["name"] for s in scored["scenes"]} & set(trained)
+    # one named room: trained once, scored on the two others
+    assert results["finetune-1"].train_rooms == [["r2"]] and set(results["finetune-1"].scenes) == {"r1", "r3"}
+    assert sum(map(sum, results["finetune-1"].confusion)) == results["finetune-1"].pooled["points"]
+
+    # a fine-tuned run starts from its parent's EMA weights, tensor for tensor, and records which
+    parent = read_checkpoint(out / "variants/synthetic/train/last.pt")
+    for fold in (1, 2):
+        child = read_checkpoint(out / f"variants/finetune-all/fold-{fold}/train/last.pt")
+        assert child["init"]["checkpoint"] == str(out / "variants/synthetic/train/last.pt")
+        frozen = [k for k in parent["ema"] if k.startswith(("embed1.", "embed2.")) and parent["ema"][k].is_floating_point()]
+        assert frozen and all(torch.equal(child["model"][k], parent["ema"][k]) for k in frozen)  # kept as they were
+        moved = [k for k in parent["ema"] if k.startswith("attention.") and parent["ema"][k].is_floating_point()]
+        assert any(not torch.equal(child["model"][k], parent["ema"][k]) for k in moved)  # the rest trained on
+
+    report = (out / "report.md").read_text()
+    assert "| finetune-all |" in report and "2 folds" in report
+    assert (out / "label_efficiency.png").stat().st_size > 0
+    csv_rows = [row.split(",") for row in (out / "results.csv").read_text().splitlines()]
+    assert csv_rows[0][:3] == ["variant", "scope", "oa"]
+    assert [row[0] for row in csv_rows if row[1] == "all points"] == list(results)
+    assert {row[1] for row in csv_rows if row[0] == "finetune-1"} >= {"r1", "r3"}
+
+
+@pytest.mark.parametrize(("patch", "message"), [
+    (('init = "synthetic"\nrooms = ["r2.txt"]', 'init = "later"\nrooms = ["r2.txt"]'), "not an earlier variant"),
+    (('rooms = ["r2.txt"]', 'rooms = ["r9.txt"]'), "'r9.txt' is not of the \\[rooms\\] scenes"),
+    (("room_weight = 4.0", "room_weight = 0.0"), "room_weight"),
+    (('[rooms]\nscenes = ["r1.txt", "r2.txt", "r3.txt"]', ""), "'all' of no rooms"),
+    (("folds = 2", "folds = 1"), "folds = 1 is impossible"),
+    (('freeze = ["embedding"]', 'freeze = ["head"]'), "freeze"),
+])
+def test_bad_room_variants_are_one_line_errors(rooms_dir: Path, patch: tuple[str, str], message: str) -> None:
+    text = ROOMS_EXPERIMENT.replace(*patch)
+    assert text != ROOMS_EXPERIMENT
+    (rooms_dir / "exp.toml").write_text(text, encoding="utf-8")
+    with pytest.raises(ConfigError, match=message):
+        load_experiment(rooms_dir / "exp.toml")
+
+
+def test_a_variant_training_on_every_scored_room_by_name_is_refused(rooms_dir: Path) -> None:
+    text = ROOMS_EXPERIMENT.replace('rooms = ["r2.txt"]', 'rooms = ["r1.txt", "r2.txt", "r3.txt"]')
+    (rooms_dir / "exp.toml").write_text(text, encoding="utf-8")
+    with pytest.raises(ConfigError, match="trains on every scored scene"):
+        run_experiment(load_experiment(rooms_dir / "exp.toml"), rooms_dir / "out", log=lambda t: None)

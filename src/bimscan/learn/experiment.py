@@ -1,72 +1,168 @@
-"""Sim-to-real experiments: train on synthetic variants only, score every model on real scans.
+"""Experiments: train variants on synthetic scans (and real rooms), score every model on real scans
+it never saw and on whole synthetic buildings, in one report.
 
-One TOML file names the synthetic *variants* (each a dataset spec that is built, or existing
-dataset folders / clouds), the training sections shared by all variants (``[blocks]``,
-``[input]``, ``[augment]``, ``[model]``, ``[train]``, as in a training TOML, see
-:mod:`bimscan.learn.train_config`), per-variant overrides of those sections, and the real
-scenes (``[real]``); ``[experiment] base`` takes those sections from another experiment file
-(see :func:`_with_base`). :func:`run_experiment` builds what is missing (the dataset builder,
-resumable), trains one model per variant with the same seed and schedule (the real scenes are
-the validation set, so ``curves.png`` shows synthetic train against real validation per epoch,
-as the paper's Figs. 7-8), evaluates each last checkpoint on every real scene and writes one
-comparison. Every step is kept on disk and skipped when found finished: a killed run continues.
+One TOML file (loaded like every config, :func:`bimscan.toml_files.build_dataclass`) holds:
+
+- ``[experiment]``: ``name``, ``class_names``, ``workers`` (dataset builds), ``folds`` (see
+  below), ``base`` (another experiment file whose ``[real]``, ``[rooms]``, ``[holdout]`` and
+  training sections are this file's defaults, key by key; its variants are not taken);
+- ``[real]``: the real scenes every variant is scored on (a scene set: ``scenes``,
+  ``label_field``, ``mapping``; ``--real`` replaces its scenes);
+- ``[rooms]``: real labelled scenes variants may train on (a scene set; the variants name them);
+- ``[holdout]``: IFC models scanned once with the given settings (``ifc``, ``preset``,
+  ``head_deg_per_s``, ``clutter``, ``stage``, ``seed``), never trained on: every variant is
+  also scored on them, whole buildings beside the real rooms;
+- the training sections shared by all variants (``[blocks]``, ``[input]``, ``[augment]``,
+  ``[model]``, ``[train]``, ``[eval]``, as in a training TOML, :mod:`bimscan.learn.train_config`);
+- ``[[variants]]``: ``name``, ``description``, ``data`` (synthetic: dataset specs to build, or
+  dataset folders and clouds), ``rooms`` (names of ``[rooms]`` scenes to train on, or ``"all"``),
+  ``room_weight`` (how often each block of those rooms is drawn per epoch), ``init`` (an earlier
+  variant whose trained weights this one starts from: fine-tuning) and overrides of the training
+  sections.
+
+Scoring never counts a room a model trained on. A variant whose rooms are not among the scored
+scenes is trained once and scored on all of them; one whose rooms are, on the others; one
+training on ``"all"`` rooms when every scored scene is among them is run in ``folds`` folds
+(the scored rooms, in their order, dealt into ``folds`` groups): each fold's model trains on the
+other rooms and is scored on its own, and the variant's score pools the folds. A fine-tuned
+variant starts each run from its parent's run of the same fold (or its parent's only run).
+
+Every run's real scored scenes are its validation set (``curves.png`` per epoch, as the paper's
+Figs. 7-8). Every step is kept on disk and skipped when found finished: a killed run continues.
 
 Layout of ``OUT_DIR``::
 
-    experiment.json              the resolved experiment (what was run)
-    datasets/<spec name>/        datasets built from the variants' specs
-    variants/<name>/train/       checkpoints, metrics.csv, curves.png
-    variants/<name>/eval/        evaluation.md/.csv/.json, confusion.png/.csv
-    variants/<name>/result.json  the variant's scores (the marker that it is finished)
-    report.md, results.csv, results.json, val_miou.png
+    experiment.json                      what was run (``ExperimentRecord``)
+    datasets/<spec name>/                datasets built from the variants' specs
+    holdout/                             the holdout models' scans (a dataset)
+    variants/<name>/[fold-<k>/]train/    checkpoints, metrics.csv, curves.png
+    variants/<name>/[fold-<k>/]eval/     evaluation.md/.csv/.json, confusion.png/.csv (real scenes)
+    variants/<name>/[fold-<k>/]holdout/  the same on the holdout buildings
+    variants/<name>/result.json          the variant's scores (``VariantResult``; the marker that it is finished)
+    report.md, results.csv, results.json, val_miou.png, label_efficiency.png
 """
 
 from __future__ import annotations
 
-import csv
+import dataclasses
 import hashlib
-import io
 import json
 import math
 import re
 import sys
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
 from bimscan.errors import ConfigError, InputFileError, LearnError
 from bimscan.files import write_atomic
+from bimscan.learn.data import SceneSource
 from bimscan.learn.metrics import METRIC_NAMES, compute_metrics
-from bimscan.learn.train_config import TrainRunConfig
+from bimscan.learn.train_config import (
+    AugmentConfig, BlockConfig, DataConfig, EvalConfig, InputConfig, ModelConfig, SceneSet, TrainConfig,
+    TrainRunConfig, check_moved_keys, scene_sets,
+)
 from bimscan.toml_files import base_file, build_dataclass, load_toml, resolve_path
 
-TRAINING_SECTIONS = ("blocks", "input", "augment", "model", "train")
-VARIANT_KEYS = {"name", "data", "description", *TRAINING_SECTIONS}
-TOP_KEYS = {"experiment", "real", "variants", *TRAINING_SECTIONS}
-DATA_RECORD = "synthetic_data.digest"  # in a variant's folder: the data its model was trained on
-REAL_KEYS = {"scenes", "label_field", "mapping"}
-EXPERIMENT_KEYS = {"name", "class_names", "workers", "base"}
+TRAINING_SECTIONS = {"blocks": BlockConfig, "input": InputConfig, "augment": AugmentConfig, "model": ModelConfig,
+                     "train": TrainConfig, "eval": EvalConfig}
+DATA_RECORD = "synthetic_data.digest"  # in a variant's folder: the data its models were trained on
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9+][A-Za-z0-9._+-]{0,63}$")
-RESULT_VERSION = 1
+RECORD_FORMAT = "bimscan-experiment"
+RECORD_VERSION = 2
+
+
+@dataclass(frozen=True)
+class ExperimentTable:
+    """``[experiment]``: the experiment's name (default: the file's stem), its classes, the dataset
+    builds' worker processes, the folds of variants training on every scored room, a base file."""
+
+    name: str | None = None
+    class_names: tuple[str, ...] | None = None
+    workers: int | None = None
+    folds: int = 3
+    base: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.name is not None and not NAME_PATTERN.match(self.name):
+            raise ConfigError(f"name {self.name!r} is not a usable name (letters, digits, . _ -)")
+        if self.workers is not None and self.workers < 1:
+            raise ConfigError(f"workers = {self.workers} is impossible; give 1 or more")
+        if not 2 <= self.folds <= 64:
+            raise ConfigError(f"folds = {self.folds} is impossible; give 2..64")
+
+
+@dataclass(frozen=True)
+class HoldoutTable:
+    """``[holdout]``: IFC models scanned once (auto stations) and scored, never trained on."""
+
+    ifc: tuple[str, ...] = ()
+    preset: str = "exp3"
+    head_deg_per_s: float | None = None
+    clutter: float = 0.0
+    stage: str = "finished"
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class VariantTable:
+    """``[[variants]]``: one model (or one per fold) to train and score (see the module docs)."""
+
+    name: str
+    description: str = ""
+    data: tuple[str, ...] = ()
+    rooms: tuple[str, ...] | Literal["all"] = ()
+    room_weight: float = 1.0
+    init: str | None = None
+    blocks: dict[str, Any] = field(default_factory=dict)
+    input: dict[str, Any] = field(default_factory=dict)
+    augment: dict[str, Any] = field(default_factory=dict)
+    model: dict[str, Any] = field(default_factory=dict)
+    train: dict[str, Any] = field(default_factory=dict)
+    eval: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not NAME_PATTERN.match(self.name):
+            raise ConfigError(f"name {self.name!r} is not a usable name (letters, digits, . _ -, at most 64)")
+        if not self.data and not self.rooms:
+            raise ConfigError(f"variant {self.name!r} trains on nothing; give 'data' (synthetic) and/or 'rooms' (real)")
+        if not 0 < self.room_weight <= 100:
+            raise ConfigError(f"room_weight = {self.room_weight!r} is impossible; give 0 < weight <= 100")
+
+
+@dataclass(frozen=True)
+class ExperimentFile:
+    """An experiment TOML file as written (before paths are resolved)."""
+
+    experiment: ExperimentTable = field(default_factory=ExperimentTable)
+    real: SceneSet | None = None
+    rooms: SceneSet | None = None
+    holdout: HoldoutTable = field(default_factory=HoldoutTable)
+    variants: tuple[VariantTable, ...] = ()
+    blocks: dict[str, Any] = field(default_factory=dict)
+    input: dict[str, Any] = field(default_factory=dict)
+    augment: dict[str, Any] = field(default_factory=dict)
+    model: dict[str, Any] = field(default_factory=dict)
+    train: dict[str, Any] = field(default_factory=dict)
+    eval: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
 class Variant:
-    """One synthetic training set and its training configuration.
-
-    ``specs``: dataset spec files to build (absolute); ``folders``: existing dataset folders or
-    clouds (absolute); ``config``: the whole training run (its ``data.train`` is filled in
-    once the specs are built, see :func:`training_config`).
-    """
+    """A variant resolved: its synthetic data (spec files to build, dataset folders or clouds,
+    absolute), its training rooms (resolved scenes, or "all"), and its training sections (checked)."""
 
     name: str
     description: str
     specs: tuple[Path, ...]
     folders: tuple[Path, ...]
-    config: TrainRunConfig
+    rooms: tuple[SceneSource, ...] | Literal["all"]
+    room_weight: float
+    init: str | None
+    sections: dict[str, Any]
 
 
 @dataclass(frozen=True)
@@ -75,224 +171,366 @@ class Experiment:
 
     name: str
     path: Path
-    real: tuple[Path, ...]
-    real_label_field: str | None
-    real_mapping: Path | None
+    real: SceneSet
+    rooms: SceneSet | None
+    holdout: HoldoutTable
     variants: tuple[Variant, ...]
+    class_names: tuple[str, ...] | None
     workers: int | None
+    folds: int
 
 
-def _check_keys(table: Any, allowed: set[str], *, where: str) -> dict[str, Any]:
-    if not isinstance(table, dict):
-        raise ConfigError(f"{where}: expected a table, got {type(table).__name__}")
-    unknown = sorted(set(table) - allowed)
-    if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}; allowed: {', '.join(sorted(allowed))}")
-    return table
-
-
-def _paths(value: Any, *, base: Path, where: str) -> tuple[Path, ...]:
-    items = [value] if isinstance(value, str) else value
-    if not isinstance(items, list) or not items or not all(isinstance(v, str) and v for v in items):
-        raise ConfigError(f"{where}: expected a path or a non-empty list of paths")
-    return tuple(resolve_path(base, v).resolve() for v in items)
-
-
-def load_experiment(
-    path: str | Path, *, real: Sequence[str | Path] | None = None, device: str | None = None,
-) -> Experiment:
+def load_experiment(path: str | Path, *, real: Sequence[str | Path] | None = None,
+                    device: str | None = None) -> Experiment:
     """Parse and check an experiment TOML before any work (one-line ConfigError/InputFileError).
 
     ``real`` replaces the ``[real] scenes`` of the file; ``device`` its ``[train] device``.
     """
-    path = Path(path)
-    own = _check_keys(load_toml(path), TOP_KEYS, where=str(path))
+    path = Path(path).resolve()
+    own = load_toml(path)
     data = _with_base(own, path)
-    # the file to fix when the real scenes are missing: the base's when they come from there
-    real_from = path if "scenes" in own.get("real", {}) or data is own else resolve_path(path.parent, own["experiment"]["base"]).resolve()
-    base = path.resolve().parent
-    head = _check_keys(data.get("experiment", {}), EXPERIMENT_KEYS, where=f"{path} [experiment]")
-    name = head.get("name", path.stem)
-    if not isinstance(name, str) or not NAME_PATTERN.match(name):
-        raise ConfigError(f"{path} [experiment] name: {name!r} is not a usable name (letters, digits, . _ -)")
-    workers = head.get("workers")
-    if workers is not None and (not isinstance(workers, int) or isinstance(workers, bool) or workers < 1):
-        raise ConfigError(f"{path} [experiment] workers: expected a whole number >= 1, got {workers!r}")
-    real_table = _check_keys(data.get("real", {}), REAL_KEYS, where=f"{path} [real]")
+    real_file = path  # the file whose [real] scenes are used (the base's when this one names none)
+    head = own.get("experiment")
+    if isinstance(head, dict) and "base" in head and data.get("real") and "scenes" not in (
+            _one_set(own["real"], where=f"{path} [real]") if own.get("real") else {}):
+        real_file = base_file(head["base"], path, where="[experiment] base", kind="experiment file")
+    for section in ("real", "rooms"):
+        if section in data:
+            data[section] = _one_set(data[section], where=f"{path} [{section}]")
+    if isinstance(data.get("variants"), list):  # one path or room may be given as a string
+        data["variants"] = [_listed(v) for v in data["variants"]]
+    if isinstance(data.get("holdout"), dict) and isinstance(data["holdout"].get("ifc"), str):
+        data["holdout"] = {**data["holdout"], "ifc": [data["holdout"]["ifc"]]}
+    parsed = build_dataclass(ExperimentFile, data, where=str(path))
+    folder = path.parent
     if real:
-        real_paths = tuple(Path(p).expanduser().resolve() for p in real)
-    elif "scenes" in real_table:
-        real_paths = _paths(real_table["scenes"], base=base, where=f"{path} [real] scenes")
+        real_set = SceneSet(scenes=tuple(str(Path(p).expanduser().resolve()) for p in real),
+                            label_field=None if parsed.real is None else parsed.real.label_field,
+                            mapping=None if parsed.real is None else parsed.real.mapping)
+    elif parsed.real is not None:
+        real_set = _absolute(parsed.real, folder)
     else:
         raise ConfigError(f"{path} [real] scenes: no real scenes named; add them or pass --real PATH")
-    for scene in real_paths:
-        if not scene.exists():
-            raise InputFileError(f"{scene}: real scenes not found; fix [real] scenes in {real_from} or pass --real PATH")
-    mapping = real_table.get("mapping")
-    real_mapping = None if mapping is None else resolve_path(base, str(mapping)).resolve()
-    if real_mapping is not None and not real_mapping.is_file():
-        raise InputFileError(f"{real_mapping}: [real] mapping not found; fix the path in {path}")
-    label_field = real_table.get("label_field")
-    if label_field is not None and not isinstance(label_field, str):
-        raise ConfigError(f"{path} [real] label_field: expected a field name")
-
-    raw_variants = data.get("variants")
-    if not isinstance(raw_variants, list) or not raw_variants:
-        raise ConfigError(f"{path}: no [[variants]]; name at least one synthetic training set")
-    shared = {section: data.get(section, {}) for section in TRAINING_SECTIONS}
-    for section, table in shared.items():
-        if not isinstance(table, dict):
-            raise ConfigError(f"{path} [{section}]: expected a table")
-    class_names = head.get("class_names")
+    for scene in real_set.scenes:
+        if not Path(scene).exists():
+            raise InputFileError(f"{scene}: real scenes not found; fix [real] scenes in {real_file} or pass --real PATH")
+    rooms_set = None if parsed.rooms is None else _absolute(parsed.rooms, folder)
+    if not parsed.variants:
+        raise ConfigError(f"{path}: no [[variants]]; name at least one training set")
+    shared = {name: getattr(parsed, name) for name in TRAINING_SECTIONS}
+    room_sources = _room_sources(rooms_set, where=f"{path} [rooms]") if rooms_set is not None else []
     variants: list[Variant] = []
-    for i, raw in enumerate(raw_variants):
-        where = f"{path} [[variants]] #{i + 1}"
-        raw = _check_keys(raw, VARIANT_KEYS, where=where)
-        vname = raw.get("name")
-        if not isinstance(vname, str) or not NAME_PATTERN.match(vname):
-            raise ConfigError(f"{where} name: {vname!r} is not a usable name (letters, digits, . _ -, at most 64)")
-        if any(v.name == vname for v in variants):
-            raise ConfigError(f"{where} name: {vname!r} is used twice; give every variant its own name")
-        if "data" not in raw:
-            raise ConfigError(f"{where}: no 'data'; name a dataset spec (.toml) or dataset folders")
-        data_paths = _paths(raw["data"], base=base, where=f"{where} data")
+    for number, table in enumerate(parsed.variants, start=1):
+        where = f"{path} [[variants]] #{number} ({table.name})"
+        if any(v.name == table.name for v in variants):
+            raise ConfigError(f"{where}: the name is used twice; give every variant its own name")
+        if table.init is not None and all(v.name != table.init for v in variants):
+            raise ConfigError(f"{where} init: {table.init!r} is not an earlier variant; name one defined above it")
         specs, folders = [], []
-        for item in data_paths:
+        for item in (resolve_path(folder, value).resolve() for value in table.data):
             if not item.exists():
-                raise InputFileError(f"{item}: variant {vname!r} data not found; fix the path in {path}")
+                raise InputFileError(f"{item}: variant {table.name!r} data not found; fix the path in {path}")
             (specs if item.is_file() and item.suffix.lower() == ".toml" else folders).append(item)
         for spec in specs:
             from bimscan.dataset.spec import load_spec
 
             load_spec(spec)  # every spec error before any work
-        sections: dict[str, Any] = {}
-        for section in TRAINING_SECTIONS:
-            override = raw.get(section, {})
-            if not isinstance(override, dict):
-                raise ConfigError(f"{where} {section}: expected a table of overrides")
-            sections[section] = {**shared[section], **override}
-        train = dict(sections["train"])
+        sections = {name: {**shared[name], **getattr(table, name)} for name in TRAINING_SECTIONS}
         if device is not None:
-            train["device"] = device
-        run = {
-            "data": {
-                "train": ["<built by the experiment>"], "val": [str(p) for p in real_paths],
-                "val_label_field": label_field, "val_mapping": None if real_mapping is None else str(real_mapping),
-                **({"class_names": class_names} if class_names is not None else {}),
-            },
-            **{s: sections[s] for s in ("blocks", "input", "augment", "model")},
-            "train": train,
-        }
-        config = build_dataclass(TrainRunConfig, run, where=where)
-        description = raw.get("description", "")
-        if not isinstance(description, str):
-            raise ConfigError(f"{where} description: expected text")
-        variants.append(Variant(vname, description, tuple(specs), tuple(folders), config))
-    return Experiment(name, path.resolve(), real_paths, label_field, real_mapping, tuple(variants), workers)
+            sections["train"] = {**sections["train"], "device": device}
+        check_moved_keys(sections, where=where)
+        for name, kind in TRAINING_SECTIONS.items():
+            build_dataclass(kind, sections[name], where=f"{where} [{name}]")
+        variants.append(Variant(
+            name=table.name, description=table.description, specs=tuple(specs), folders=tuple(folders),
+            rooms=_variant_rooms(table.rooms, room_sources, where=where), room_weight=table.room_weight,
+            init=table.init, sections=sections))
+    head = parsed.experiment
+    return Experiment(name=head.name or path.stem, path=path, real=real_set, rooms=rooms_set, holdout=parsed.holdout,
+                      variants=tuple(variants), class_names=head.class_names, workers=head.workers, folds=head.folds)
+
+
+def _listed(table: Any) -> Any:
+    """A variant table with ``data = "x"`` as ``["x"]`` and ``rooms = "r"`` (not ``"all"``) as ``["r"]``."""
+    if not isinstance(table, dict):
+        return table
+    table = dict(table)
+    if isinstance(table.get("data"), str):
+        table["data"] = [table["data"]]
+    if isinstance(table.get("rooms"), str) and table["rooms"] != "all":
+        table["rooms"] = [table["rooms"]]
+    return table
+
+
+def _one_set(value: Any, *, where: str) -> Any:
+    """``[real]``/``[rooms]`` as one scene-set table (a list of paths or a table)."""
+    sets = scene_sets(value)
+    if isinstance(sets, list) and len(sets) == 1:
+        return sets[0]
+    raise ConfigError(f"{where}: expected a table with scenes (and label_field, mapping) or a list of paths")
+
+
+def _absolute(scenes: SceneSet, folder: Path) -> SceneSet:
+    return dataclasses.replace(
+        scenes, scenes=tuple(str(resolve_path(folder, s).resolve()) for s in scenes.scenes),
+        mapping=None if scenes.mapping is None else str(resolve_path(folder, scenes.mapping).resolve()))
+
+
+def _room_sources(rooms: SceneSet, *, where: str) -> list[SceneSource]:
+    from bimscan.learn.train import resolve_scene_set
+
+    for scene in rooms.scenes:
+        if not Path(scene).exists():
+            raise InputFileError(f"{scene}: training rooms not found; fix {where} scenes")
+    return resolve_scene_set(rooms, base=Path("/"))
+
+
+def _variant_rooms(names: tuple[str, ...] | str, sources: list[SceneSource], *,
+                   where: str) -> tuple[SceneSource, ...] | Literal["all"]:
+    if names == "all":
+        if not sources:
+            raise ConfigError(f"{where} rooms: 'all' of no rooms; name the real rooms to train on in [rooms]")
+        return "all"
+    chosen = []
+    for name in names:
+        found = [s for s in sources if s.name == name or s.name.endswith("/" + name) or s.path.name == name]
+        if len(found) != 1:
+            known = ", ".join(s.name.rsplit("/", 1)[-1] for s in sources) or "none in [rooms]"
+            raise ConfigError(f"{where} rooms: {name!r} is {'not' if not found else 'more than one'} of the "
+                              f"[rooms] scenes ({known})")
+        chosen.append(found[0])
+    return tuple(chosen)
 
 
 def _with_base(data: dict[str, Any], path: Path) -> dict[str, Any]:
-    """``data`` on top of its ``[experiment] base`` file: the base's ``[real]`` and training
-    sections are the defaults, this file's keys replace them key by key (its variants are not
-    taken). Companion experiments so share one model and schedule instead of copying it."""
+    """``data`` on top of its ``[experiment] base`` file: the base's ``[real]``, ``[rooms]``,
+    ``[holdout]`` and training sections are the defaults, this file's keys replace them key by
+    key (its variants are not taken). Companion experiments so share one model and schedule."""
     head = data.get("experiment", {})
     if not isinstance(head, dict) or "base" not in head:
-        return data
+        return dict(data)
     base_path = base_file(head["base"], path, where="[experiment] base", kind="experiment file")
-    base = _check_keys(load_toml(base_path), TOP_KEYS, where=str(base_path))
-    if "base" in base.get("experiment", {}):
+    base = load_toml(base_path)
+    if isinstance(base.get("experiment"), dict) and "base" in base["experiment"]:
         raise ConfigError(f"{path} [experiment] base: {base_path.name} has a base of its own; name the file at the root")
     merged = dict(data)
-    real = dict(_check_keys(base.get("real", {}), REAL_KEYS, where=f"{base_path} [real]"))
 
     def from_base(value: Any) -> Any:  # the base's relative paths are relative to the base file
         return str(resolve_path(base_path.parent, value).resolve()) if isinstance(value, str) else value
 
-    for key in ("scenes", "mapping"):
-        if key in real:
-            real[key] = [from_base(v) for v in real[key]] if isinstance(real[key], list) else from_base(real[key])
-    for section, defaults in (("real", real), *((s, base.get(s, {})) for s in TRAINING_SECTIONS)):
-        own = data.get(section, {})
+    for section in ("real", "rooms"):
+        if section in base:
+            table = _one_set(base[section], where=f"{base_path} [{section}]")
+            table = {**table, "scenes": [from_base(v) for v in table.get("scenes", [])]}
+            if "mapping" in table:
+                table["mapping"] = from_base(table["mapping"])
+            own = data.get(section, {})
+            own = _one_set(own, where=f"{path} [{section}]") if own else {}
+            merged[section] = {**table, **own}
+    holdout = base.get("holdout")
+    if isinstance(holdout, dict):
+        holdout = {**holdout, "ifc": [from_base(v) for v in holdout.get("ifc", [])]}
+        merged["holdout"] = {**holdout, **data.get("holdout", {})}
+    for section in TRAINING_SECTIONS:
+        defaults, own = base.get(section, {}), data.get(section, {})
         if not isinstance(defaults, dict) or not isinstance(own, dict):
             raise ConfigError(f"{path} [{section}] (or its base's): expected a table")
         merged[section] = {**defaults, **own}
     return merged
 
 
-def _dataset_dir(out: Path, spec: Path) -> Path:
-    return out / "datasets" / spec.stem
+# -- running --------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Run:
+    """One model of a variant: the rooms it trains on and the real scenes it is scored on."""
+
+    variant: Variant
+    fold: int | None
+    train_rooms: tuple[SceneSource, ...]
+    scored: tuple[SceneSource, ...]
+
+    def folder(self, out: Path) -> Path:
+        base = out / "variants" / self.variant.name
+        return base if self.fold is None else base / f"fold-{self.fold + 1}"
 
 
-def training_config(variant: Variant, out: Path) -> TrainRunConfig:
-    """The variant's training run with its synthetic data filled in."""
-    from dataclasses import replace
+@dataclass(frozen=True)
+class VariantResult:
+    """What ``result.json`` of a variant holds (its scores, pooled over its runs' scored scenes)."""
 
-    train = [str(_dataset_dir(out, s)) for s in variant.specs] + [str(f) for f in variant.folders]
-    return replace(variant.config, data=replace(variant.config.data, train=tuple(train)))
+    variant: str
+    description: str
+    class_names: tuple[str, ...]
+    pooled: dict[str, Any]
+    scene_mean: dict[str, float]
+    scenes: dict[str, dict[str, Any]]
+    confusion: list[list[int]]
+    holdout: dict[str, Any] | None
+    val_miou_per_epoch: list[list[float]]
+    train_miou_per_epoch: list[list[float]]
+    train_seconds: float
+    synthetic: list[str]
+    train_rooms: list[list[str]]
+    excluded: list[str]
+    folds: int
+    evaluation: dict[str, Any]
+    init: str | None
+
+    def to_json(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @staticmethod
+    def from_json(data: dict[str, Any]) -> VariantResult:
+        fields = {f.name for f in dataclasses.fields(VariantResult)}
+        if set(data) != fields:
+            raise LearnError("a variant result of another bimscan version; delete the variant's folder to rerun it")
+        return VariantResult(**{**data, "class_names": tuple(data["class_names"])})
 
 
-def _fingerprint(variant: Variant, out: Path) -> str:
-    from bimscan.learn.train_config import dump_config
+@dataclass(frozen=True)
+class ExperimentRecord:
+    """What ``experiment.json`` holds: what was run (the variants' fingerprints)."""
 
-    config = dump_config(training_config(variant, out))
-    config["train"] = {k: v for k, v in config["train"].items() if k not in ("device", "num_workers", "out_dir")}
-    return hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode()).hexdigest()[:16]
+    name: str
+    file: str
+    real: list[str]
+    variants: dict[str, str]
+    format: str = RECORD_FORMAT
+    version: int = RECORD_VERSION
+
+    @staticmethod
+    def read(path: Path) -> ExperimentRecord | None:
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            raise LearnError(f"{path}: unreadable ({exc}); delete it or use another OUT_DIR") from exc
+        if data.get("format") != RECORD_FORMAT or data.get("version") != RECORD_VERSION:
+            return None  # another version's record: its variants are checked by their own digests
+        return ExperimentRecord(**data)
 
 
-def run_experiment(
-    experiment: Experiment, out_dir: str | Path, *, log: Callable[[str], None] | None = None,
-) -> dict[str, Any]:
-    """Build, train, evaluate every variant (skipping finished steps) and write the report.
+def run_experiment(experiment: Experiment, out_dir: str | Path, *,
+                   log: Callable[[str], None] | None = None) -> list[VariantResult]:
+    """Build, train, evaluate every variant (skipping finished steps) and write the report."""
+    from bimscan.learn.report import write_report
 
-    Returns the results as written to ``results.json``.
-    """
     emit = log or (lambda text: print(text, file=sys.stderr, flush=True))
     out = Path(out_dir).resolve()
     out.mkdir(parents=True, exist_ok=True)
     _check_same_experiment(experiment, out)
     _build_datasets(experiment, out, emit)
+    holdout = _build_holdout(experiment, out, emit)
     _check_same_data(experiment, out)
+    scored = _scored_scenes(experiment)
+    runs_of: dict[str, list[Run]] = {}
     results = []
     for variant in experiment.variants:
-        results.append(_run_variant(experiment, variant, out, emit))
-    summary = _summarize(experiment, results)
-    _write_report(experiment, summary, out)
+        runs_of[variant.name] = _runs(experiment, variant, scored)
+        results.append(_run_variant(experiment, variant, runs_of, out, holdout, emit))
+    write_report(experiment, results, out)
     emit(f"report: {out / 'report.md'}")
-    return summary
+    return results
+
+
+def _scored_scenes(experiment: Experiment) -> list[SceneSource]:
+    from bimscan.learn.train import resolve_scene_set
+
+    return resolve_scene_set(experiment.real, base=Path("/"))
+
+
+def _runs(experiment: Experiment, variant: Variant, scored: list[SceneSource]) -> list[Run]:
+    """The models of a variant (see the module docs: never scored on a room it trained on)."""
+    all_rooms = () if experiment.rooms is None else tuple(_room_sources(experiment.rooms, where="[rooms]"))
+    rooms = all_rooms if variant.rooms == "all" else variant.rooms
+    trained = {s.path.resolve() for s in rooms}
+    others = tuple(s for s in scored if s.path.resolve() not in trained)
+    if len(others) == len(scored) or (others and variant.rooms != "all"):
+        return [Run(variant, None, tuple(rooms), others)]
+    if variant.rooms != "all":
+        raise ConfigError(f"variant {variant.name!r} trains on every scored scene; score it on others (--real) or "
+                          "train on rooms = \"all\" (then in folds)")
+    if others:
+        return [Run(variant, None, tuple(rooms), others)]
+    folds = min(experiment.folds, len(scored))
+    runs = []
+    for k in range(folds):
+        held = tuple(s for i, s in enumerate(scored) if i % folds == k)
+        out_of_fold = {s.path.resolve() for s in held}
+        runs.append(Run(variant, k, tuple(s for s in rooms if s.path.resolve() not in out_of_fold), held))
+    return runs
+
+
+def _dataset_dir(out: Path, spec: Path) -> Path:
+    return out / "datasets" / spec.stem
+
+
+def _synthetic(variant: Variant, out: Path) -> tuple[str, ...]:
+    return tuple(str(_dataset_dir(out, s)) for s in variant.specs) + tuple(str(f) for f in variant.folders)
+
+
+def training_config(experiment: Experiment, run: Run, out: Path) -> TrainRunConfig:
+    """A run's whole training configuration: its synthetic data and rooms, its scored scenes as
+    validation, the variant's sections."""
+    train: list[SceneSet] = []
+    synthetic = _synthetic(run.variant, out)
+    if synthetic:
+        train.append(SceneSet(scenes=synthetic))
+    if run.train_rooms:
+        rooms = experiment.rooms
+        if rooms is None:
+            raise LearnError(f"variant {run.variant.name!r} names rooms but the experiment has no [rooms]")
+        train.append(SceneSet(scenes=tuple(str(s.path) for s in run.train_rooms), label_field=rooms.label_field,
+                              mapping=rooms.mapping, weight=run.variant.room_weight))
+    val = SceneSet(scenes=tuple(str(s.path) for s in run.scored), label_field=experiment.real.label_field,
+                   mapping=experiment.real.mapping) if run.scored else None
+    data = DataConfig(train=tuple(train), val=val, **({"class_names": experiment.class_names}
+                                                        if experiment.class_names else {}))
+    return TrainRunConfig(data=data, **training_sections(run.variant))
+
+
+def training_sections(variant: Variant) -> dict[str, Any]:
+    """A variant's training sections as their dataclasses (``blocks``, ``input``, ... ``eval``)."""
+    return {name: build_dataclass(kind, variant.sections[name], where=f"variant {variant.name} [{name}]")
+            for name, kind in TRAINING_SECTIONS.items()}
+
+
+def _fingerprint(experiment: Experiment, variant: Variant, out: Path) -> str:
+    """What decides a variant's models: its sections, data, rooms and parent."""
+    document = {"sections": variant.sections, "synthetic": _synthetic(variant, out), "init": variant.init,
+                "rooms": "all" if variant.rooms == "all" else [str(s.path) for s in variant.rooms],
+                "room_weight": variant.room_weight, "folds": experiment.folds, "class_names": experiment.class_names}
+    document["sections"] = {k: {kk: vv for kk, vv in v.items() if (k, kk) not in _RUNTIME} for k, v in variant.sections.items()}
+    return hashlib.sha256(json.dumps(document, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+_RUNTIME = {("train", "device"), ("train", "num_workers"), ("train", "out_dir"), ("eval", "batch_size")}
 
 
 def _check_same_experiment(experiment: Experiment, out: Path) -> None:
     """A folder holds one experiment: variants of the same name must have the same recipe."""
-    record = out / "experiment.json"
-    current = {
-        "format": "bimscan-sim2real", "version": RESULT_VERSION, "name": experiment.name,
-        "file": str(experiment.path), "real": [str(p) for p in experiment.real],
-        "variants": {v.name: _fingerprint(v, out) for v in experiment.variants},
-    }
-    if record.is_file():
-        try:
-            stored = json.loads(record.read_text(encoding="utf-8"))
-        except (OSError, ValueError) as exc:
-            raise LearnError(f"{record}: unreadable ({exc}); delete it or use another OUT_DIR") from exc
-        for name, digest in current["variants"].items():
-            old = stored.get("variants", {}).get(name)
+    path = out / "experiment.json"
+    current = {v.name: _fingerprint(experiment, v, out) for v in experiment.variants}
+    stored = ExperimentRecord.read(path) if path.is_file() else None
+    if stored is not None:
+        for name, digest in current.items():
+            old = stored.variants.get(name)
             # a variant whose folder was deleted starts afresh (what the message below offers)
             if old is not None and old != digest and (out / "variants" / name).exists():
-                raise LearnError(
-                    f"{out}: variant {name!r} was run with another recipe; use another OUT_DIR or delete "
-                    f"{out / 'variants' / name} to rerun it"
-                )
-        current["variants"] = {**stored.get("variants", {}), **current["variants"]}
-    write_atomic(record, (json.dumps(current, indent=2) + "\n").encode("utf-8"))
+                raise LearnError(f"{out}: variant {name!r} was run with another recipe; use another OUT_DIR or delete "
+                                 f"{out / 'variants' / name} to rerun it")
+        current = {**stored.variants, **current}
+    record = ExperimentRecord(name=experiment.name, file=str(experiment.path), real=list(experiment.real.scenes),
+                              variants=current)
+    write_atomic(path, (json.dumps(dataclasses.asdict(record), indent=2) + "\n").encode("utf-8"))
 
 
 def _data_digest(variant: Variant, out: Path) -> str:
-    """What a variant trains on: every finished unit of its datasets with its fingerprint (the
-    recipe, scene, scheme and software its bytes came from)."""
+    """What a variant trains on: every finished unit of its datasets with its fingerprint."""
     from bimscan.dataset.layout import DatasetFolder
 
     digest = hashlib.sha256()
-    for root in training_config(variant, out).data.train:
+    for root in _synthetic(variant, out):
         folder = DatasetFolder(root)
         digest.update(f"{root}\n".encode())
         if folder.is_dataset():
@@ -302,8 +540,8 @@ def _data_digest(variant: Variant, out: Path) -> str:
 
 
 def _check_same_data(experiment: Experiment, out: Path) -> None:
-    """A variant's model and scores stand for the data it was trained on: once its datasets change
-    (another spec, scheme or software), its folder must go before it is run again."""
+    """A variant's models and scores stand for the data they were trained on: once its datasets
+    change (another spec, scheme or software), its folder must go before it is run again."""
     for variant in experiment.variants:
         folder = out / "variants" / variant.name
         record = folder / DATA_RECORD
@@ -312,7 +550,7 @@ def _check_same_data(experiment: Experiment, out: Path) -> None:
             if record.read_text(encoding="utf-8").strip() != digest:
                 raise LearnError(f"{folder}: variant {variant.name!r} was trained on other synthetic data (its dataset "
                                  f"changed since); delete {folder} to rerun it, or use another OUT_DIR")
-        else:  # a new variant, or one run before this record existed
+        else:
             folder.mkdir(parents=True, exist_ok=True)
             write_atomic(record, (digest + "\n").encode("utf-8"))
 
@@ -333,12 +571,39 @@ def _build_datasets(experiment: Experiment, out: Path, emit: Callable[[str], Non
         report = build_dataset(load_spec(spec_path), target, workers=experiment.workers)
         emit(report.summary())
         if not report.ok:
-            raise LearnError(
-                f"{target}: {report.failed} unit(s) failed to build (see manifest.json); fix them and run again"
-            )
+            raise LearnError(f"{target}: {report.failed} unit(s) failed to build (see manifest.json); fix them and run again")
 
 
-def _run_variant(experiment: Experiment, variant: Variant, out: Path, emit: Callable[[str], None]) -> dict[str, Any]:
+def _build_holdout(experiment: Experiment, out: Path, emit: Callable[[str], None]) -> Path | None:
+    """Scan the holdout models once (a dataset of one configuration) into OUT/holdout."""
+    holdout = experiment.holdout
+    if not holdout.ifc:
+        return None
+    from bimscan.dataset.build import build_dataset
+    from bimscan.dataset.spec import parse_spec
+
+    folder = experiment.path.parent
+    names = [Path(p).stem for p in holdout.ifc]
+    config: dict[str, Any] = {"name": "holdout", "preset": holdout.preset, "stage": holdout.stage}
+    if holdout.head_deg_per_s is not None:
+        config["head_deg_per_s"] = holdout.head_deg_per_s
+    if holdout.clutter:
+        config["clutter"] = {"density": holdout.clutter}
+    spec = parse_spec({"name": f"{experiment.name}-holdout", "seed": holdout.seed, "formats": ["npy"],
+                       "scenes": [{"name": n, "ifc": str(resolve_path(folder, p).resolve())}
+                                  for n, p in zip(names, holdout.ifc, strict=True)],
+                       "configs": [config]}, base=folder, where=f"{experiment.path} [holdout]")
+    target = out / "holdout"
+    emit(f"holdout: {len(names)} model(s) -> {target}")
+    report = build_dataset(spec, target, workers=experiment.workers)
+    emit(report.summary())
+    if not report.ok:
+        raise LearnError(f"{target}: {report.failed} holdout unit(s) failed to build (see manifest.json)")
+    return target
+
+
+def _run_variant(experiment: Experiment, variant: Variant, runs_of: dict[str, list[Run]], out: Path,
+                 holdout: Path | None, emit: Callable[[str], None]) -> VariantResult:
     from bimscan.learn.checkpoint import read_checkpoint
     from bimscan.learn.evaluate import evaluate_checkpoint, pool_confusion, write_evaluation
     from bimscan.learn.mapping import load_label_mapping
@@ -348,44 +613,88 @@ def _run_variant(experiment: Experiment, variant: Variant, out: Path, emit: Call
     result_path = folder / "result.json"
     if result_path.is_file():
         emit(f"variant {variant.name}: finished earlier, scores read from {result_path}")
-        return json.loads(result_path.read_text(encoding="utf-8"))
-    config = training_config(variant, out)
-    train_dir = folder / "train"
-    last = train_dir / "last.pt"
-    epochs = config.train.epochs
-    done = int(read_checkpoint(last)["epoch"]) if last.is_file() else 0
-    if done < epochs:
-        emit(f"variant {variant.name}: training{' (resuming after epoch ' + str(done) + ')' if done else ''}")
-        train_model(config, base_dir=experiment.path.parent, out_dir=train_dir, resume=last.is_file(), log=emit)
-    emit(f"variant {variant.name}: evaluating on {len(experiment.real)} real path(s)")
-    use_cpu_threads(config.train.cpu_threads)  # the scores, too, are sums in thread order
-    mapping = None if experiment.real_mapping is None else load_label_mapping(experiment.real_mapping)
-    evaluations = evaluate_checkpoint(
-        last, experiment.real, label_field=experiment.real_label_field, mapping=mapping,
-        device=config.train.device, batch_size=config.train.eval_batch_size, seed=config.train.seed,
-        work_dir=folder,
-    )
-    class_names = list(config.data.class_names)
-    write_evaluation(evaluations, folder / "eval", class_names,
-                     title=f"{variant.name}: confusion on {len(evaluations)} real scene(s), all points")
+        return VariantResult.from_json(json.loads(result_path.read_text(encoding="utf-8")))
+    runs = runs_of[variant.name]
+    evaluations, holdouts, histories, seconds = [], [], [], 0.0
+    config = training_config(experiment, runs[0], out)
+    class_names = tuple(config.data.class_names)
+    for run in runs:
+        config = training_config(experiment, run, out)
+        where = run.folder(out)
+        last = where / "train" / "last.pt"
+        init = None if variant.init is None else _parent_checkpoint(runs_of[variant.init], run, out)
+        done = int(read_checkpoint(last)["epoch"]) if last.is_file() else 0
+        label = variant.name + ("" if run.fold is None else f" fold {run.fold + 1}/{len(runs)}")
+        if done < config.train.epochs:
+            emit(f"variant {label}: training{' (resuming after epoch ' + str(done) + ')' if done else ''} on "
+                 f"{len(run.train_rooms)} real room(s){' and synthetic data' if variant.specs or variant.folders else ''}"
+                 + (f", from {variant.init}" if init else ""))
+            train_model(config, base_dir=experiment.path.parent, out_dir=where / "train", resume=last.is_file(),
+                        init=init, log=emit)
+        use_cpu_threads(config.train.cpu_threads)  # the scores, too, are sums in thread order
+        history = read_checkpoint(last)["history"]
+        histories.append(history)
+        seconds += float(sum(row.get("seconds", 0.0) for row in history))
+        if run.scored:
+            emit(f"variant {label}: evaluating on {len(run.scored)} real scene(s)")
+            mapping = None if experiment.real.mapping is None else load_label_mapping(experiment.real.mapping)
+            found = evaluate_checkpoint(last, [s.path for s in run.scored], label_field=experiment.real.label_field,
+                                        mapping=mapping, device=config.train.device, evaluation=config.eval,
+                                        seed=config.train.seed, work_dir=where)
+            write_evaluation(found, where / "eval", class_names,
+                             title=f"{label}: confusion on {len(found)} real scene(s), all points")
+            evaluations += found
+        if holdout is not None:
+            found = evaluate_checkpoint(last, [holdout], device=config.train.device, evaluation=config.eval,
+                                        seed=config.train.seed, work_dir=where)
+            write_evaluation(found, where / "holdout", class_names,
+                             title=f"{label}: confusion on {len(found)} holdout building(s), all points")
+            holdouts.append(found)
+    if not evaluations:
+        raise LearnError(f"variant {variant.name!r}: no real scene left to score it on")
     confusion = pool_confusion(evaluations)
-    pooled = compute_metrics(confusion)
-    history = read_checkpoint(last)["history"]
-    result = {
-        "variant": variant.name, "description": variant.description, "class_names": class_names,
-        "pooled": _metrics_json(pooled, class_names),
-        "scene_mean": {m: float(np.nanmean([e.metrics.scalars()[m] for e in evaluations])) for m in METRIC_NAMES},
-        "scenes": {e.scene: _metrics_json(e.metrics, class_names) for e in evaluations},
-        "confusion": confusion.tolist(),
-        "val_miou_per_epoch": [float(row.get("val_miou", math.nan)) for row in history],
-        "train_miou_per_epoch": [float(row.get("train_miou", math.nan)) for row in history],
-        "train_seconds": float(sum(row.get("seconds", 0.0) for row in history)),
-        "synthetic": [str(p) for p in config.data.train],
-    }
-    write_atomic(result_path, (json.dumps(result, indent=2, allow_nan=True) + "\n").encode("utf-8"))
-    p = result["pooled"]
-    emit(f"variant {variant.name}: mIoU {p['miou']:.3f} kappa {p['kappa']:.3f} OA {p['oa']:.3f} (all real points)")
+    result = VariantResult(
+        variant=variant.name, description=variant.description, class_names=class_names,
+        pooled=_metrics_json(compute_metrics(confusion), class_names),
+        scene_mean={m: float(np.nanmean([e.metrics.scalars()[m] for e in evaluations])) for m in METRIC_NAMES},
+        scenes={e.scene: _metrics_json(e.metrics, class_names) for e in evaluations},
+        confusion=confusion.tolist(), holdout=_holdout_json(holdouts, class_names),
+        val_miou_per_epoch=[[float(r.get("val_miou", math.nan)) for r in h] for h in histories],
+        train_miou_per_epoch=[[float(r.get("train_miou", math.nan)) for r in h] for h in histories],
+        train_seconds=seconds, synthetic=list(_synthetic(variant, out)),
+        train_rooms=[[s.name for s in run.train_rooms] for run in runs],
+        excluded=sorted({s.name for run in runs for s in run.train_rooms} & {s.name for s in _scored_scenes(experiment)}),
+        folds=len(runs) if runs[0].fold is not None else 0, evaluation=dataclasses.asdict(config.eval),
+        init=variant.init)
+    write_atomic(result_path, (json.dumps(result.to_json(), indent=2, allow_nan=True) + "\n").encode("utf-8"))
+    p = result.pooled
+    emit(f"variant {variant.name}: mIoU {p['miou']:.3f} kappa {p['kappa']:.3f} OA {p['oa']:.3f} (real points it never "
+         "trained on)")
     return result
+
+
+def _parent_checkpoint(parent_runs: list[Run], run: Run, out: Path) -> Path:
+    """The checkpoint a fine-tuned run starts from: its parent's run of the same fold, else the
+    parent's only run."""
+    same = [r for r in parent_runs if r.fold == run.fold] or parent_runs[:1]
+    path = same[0].folder(out) / "train" / "last.pt"
+    if not path.is_file():
+        raise LearnError(f"{path}: the parent variant's model is missing; run the experiment from its start")
+    return path
+
+
+def _holdout_json(found: list[list[Any]], class_names: Sequence[str]) -> dict[str, Any] | None:
+    """The holdout buildings' scores of a variant's runs: per building and pooled, each the sum of
+    its runs' confusion matrices (folds of one variant all score every building)."""
+    if not found:
+        return None
+    per_building: dict[str, np.ndarray] = {}
+    for run in found:
+        for e in run:
+            per_building[e.scene] = per_building.get(e.scene, 0) + e.labels.confusion
+    pooled = np.sum(list(per_building.values()), axis=0)
+    return {"pooled": _metrics_json(compute_metrics(pooled), class_names),
+            "buildings": {name: _metrics_json(compute_metrics(c), class_names) for name, c in per_building.items()}}
 
 
 def _metrics_json(metrics: Any, class_names: Sequence[str]) -> dict[str, Any]:
@@ -395,79 +704,13 @@ def _metrics_json(metrics: Any, class_names: Sequence[str]) -> dict[str, Any]:
     return row
 
 
-def _summarize(experiment: Experiment, results: list[dict[str, Any]]) -> dict[str, Any]:
-    return {"experiment": experiment.name, "file": str(experiment.path), "real": [str(p) for p in experiment.real],
-            "variants": results}
+def format_report(results: Sequence[VariantResult], experiment: Experiment) -> str:
+    """The report as Markdown (see :mod:`bimscan.learn.report`)."""
+    from bimscan.learn.report import format_report as markdown
+
+    return markdown(experiment, results)
 
 
-def _pct(value: float) -> str:
-    return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{100.0 * value:.1f}"
-
-
-def format_report(summary: dict[str, Any]) -> str:
-    """The comparison as Markdown: one row per variant (all real points pooled), per-class IoU,
-    the mean over scenes, and per real scene mIoU / kappa."""
-    variants = summary["variants"]
-    if not variants:
-        return "# sim2real\n\nNo variant.\n"
-    classes = variants[0]["class_names"]
-    lines = [f"# sim2real: {summary['experiment']}", "",
-             f"Trained on synthetic data only; scored on {len(variants[0]['scenes'])} real scene(s) "
-             f"({', '.join(summary['real'])}). Metrics in percent over all real points pooled; "
-             "'scene mean' averages the per-scene values (the paper's Table 3 mean).", "",
-             "| Variant | OA | mIoU | mAcc | FWIoU | κ | " + " | ".join(f"IoU {c}" for c in classes)
-             + " | scene mean mIoU | scene mean κ |",
-             "|---|" + "---:|" * (5 + len(classes) + 2)]
-    for v in variants:
-        p = v["pooled"]
-        lines.append(
-            f"| {v['variant']} | " + " | ".join(_pct(p[m]) for m in METRIC_NAMES) + " | "
-            + " | ".join(_pct(p["iou"][c]) for c in classes)
-            + f" | {_pct(v['scene_mean']['miou'])} | {_pct(v['scene_mean']['kappa'])} |"
-        )
-    lines += ["", "Variants:", ""]
-    for v in variants:
-        text = f" {v['description']}" if v["description"] else ""
-        lines.append(f"- **{v['variant']}**:{text} Confusion: `variants/{v['variant']}/eval/confusion.png`; "
-                     f"curves: `variants/{v['variant']}/train/curves.png`; training {v['train_seconds'] / 60:.1f} min.")
-    scenes = list(variants[0]["scenes"])
-    lines += ["", "Per real scene (mIoU / κ, percent):", "",
-              "| Scene | " + " | ".join(v["variant"] for v in variants) + " |", "|---|" + "---:|" * len(variants)]
-    for scene in scenes:
-        cells = []
-        for v in variants:
-            row = v["scenes"].get(scene)
-            cells.append("-" if row is None else f"{_pct(row['miou'])} / {_pct(row['kappa'])}")
-        lines.append(f"| {scene} | " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
-
-
-def format_results_csv(summary: dict[str, Any]) -> str:
-    """One row per variant and scope (pooled, scene mean, each scene): metrics and per-class IoU."""
-    variants = summary["variants"]
-    classes = variants[0]["class_names"] if variants else []
-    buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(["variant", "scope", *METRIC_NAMES, *(f"iou_{c}" for c in classes)])
-    for v in variants:
-        rows = [("all points", v["pooled"]), ("scene mean", v["scene_mean"]), *v["scenes"].items()]
-        for scope, row in rows:
-            ious = [row["iou"][c] for c in classes] if "iou" in row else [math.nan] * len(classes)
-            writer.writerow([v["variant"], scope, *(f"{row[m]:.6f}" for m in METRIC_NAMES),
-                             *("" if math.isnan(x) else f"{x:.6f}" for x in ious)])
-    return buffer.getvalue()
-
-
-def _write_report(experiment: Experiment, summary: dict[str, Any], out: Path) -> None:
-    write_atomic(out / "report.md", format_report(summary).encode("utf-8"))
-    write_atomic(out / "results.csv", format_results_csv(summary).encode("utf-8"))
-    write_atomic(out / "results.json", (json.dumps(summary, indent=2) + "\n").encode("utf-8"))
-    _plot_val_curves(summary, out / "val_miou.png")
-
-
-def _plot_val_curves(summary: dict[str, Any], path: Path) -> None:
-    """Real-validation mIoU per epoch of every variant in one figure."""
-    from bimscan.learn.plots import plot_variant_curves
-
-    plot_variant_curves({v["variant"]: v["val_miou_per_epoch"] for v in summary["variants"]}, path,
-                        title=f"sim2real {summary['experiment']}: trained on synthetic only")
+__all__ = ["Experiment", "ExperimentRecord", "Run", "Variant", "VariantResult", "format_report", "load_experiment",
+           "run_experiment", "training_config",
+           "training_sections"]

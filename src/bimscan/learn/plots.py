@@ -110,6 +110,26 @@ def plot_variant_curves(curves: Mapping[str, Sequence[float]], path: Path, *, ti
     save_figure(figure, path)
 
 
+def plot_label_efficiency(series: Mapping[str, Sequence[tuple[float, float, str]]], path: Path, *, title: str) -> None:
+    """mIoU against the number of real rooms trained on: points (rooms, mIoU, variant name) per
+    series (with and without synthetic pretraining), each series joined in order of rooms."""
+    figure = _figure((7, 4.5), layout="tight")
+    axis = figure.subplots()
+    for name, points in series.items():
+        if not points:
+            continue
+        ordered = sorted(points)
+        axis.plot([p[0] for p in ordered], [p[1] for p in ordered], marker="o", label=name)
+        for rooms, miou, variant in ordered:
+            axis.annotate(variant, (rooms, miou), textcoords="offset points", xytext=(4, 4), fontsize=7)
+    axis.set_xlabel("real rooms trained on")
+    axis.set_ylabel("mIoU on real rooms not trained on")
+    axis.set_title(title)
+    axis.grid(alpha=0.3)
+    axis.legend(fontsize=8)
+    save_figure(figure, path)
+
+
 def _figure(size_in: tuple[float, float], *, layout: str) -> Figure:
     """A matplotlib Figure of its own (no pyplot state: nothing to close, safe in threads)."""
     from matplotlib.figure import Figure
