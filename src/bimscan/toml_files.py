@@ -58,6 +58,8 @@ def build_dataclass(cls: type[T], data: Mapping[str, Any], *, where: str) -> T:
             raise ConfigError(f"{where}: missing required key {name!r}")
     try:
         return cls(**values)
+    except ConfigError as exc:  # a dataclass's own check does not know the file it was read from
+        raise exc if str(exc).startswith(where) else type(exc)(f"{where}: {exc}") from exc
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{where}: {exc}") from exc
 

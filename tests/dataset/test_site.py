@@ -63,7 +63,7 @@ def test_a_stages_sweep_makes_one_unit_per_scene_configuration_and_stage(tmp_pat
     ('stages = ["structure"]\nstage = "enclosed"', "", "not both"),
     ('stages = ["structure"]', 'stage = "enclosed"', "sets its own 'stage'"),
     ('stages = ["structure", "structure"]', "", "more than once"),
-    ("", 'clutter = { density = 0.2, kinds = ["piano"] }', r"\[\[configs\]\] #2: unknown clutter kind 'piano'"),
+    ("", 'clutter = { density = 0.2, kinds = ["piano"] }', r"\[\[configs\]\] #2 key 'clutter': unknown clutter kind 'piano'"),
     ("", 'clutter = { density = -0.2 }', "clutter density = -0.2 is impossible"),
     ("", 'clutter = { denisty = 0.2 }', "unknown key"),
     ('stage = "roughcast"', "", "unknown construction stage 'roughcast'"),
