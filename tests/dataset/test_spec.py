@@ -204,7 +204,7 @@ def test_a_bad_base_is_one_clear_error(spec_folder: Path, text: str, error: type
 
 def test_the_companion_sim2real_specs_scan_the_same_units_as_their_base() -> None:
     root = Path(__file__).resolve().parents[2] / "configs"
-    base = load_spec(root / "sim2real_cpu_dataset.toml")
+    base = load_spec(root / "sim2real_cpu_dataset_one_storey.toml")
     for name, change in (("empty", {"clutter": 0.0}), ("full", {"realism": "full"})):
         companion = load_spec(root / f"sim2real_cpu_dataset_{name}.toml")
         assert companion.scenes == base.scenes and companion.configs == base.configs

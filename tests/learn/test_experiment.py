@@ -178,7 +178,7 @@ def test_the_shipped_experiments_are_valid() -> None:
     real = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "s3dis_area6"
     if not real.is_dir():
         pytest.skip(f"{real} absent: the shipped experiments score on the shared S3DIS rooms")
-    for name in ("sim2real_cpu.toml", "sim2real_table2.toml"):
+    for name in ("sim2real_cpu_ablation.toml", "sim2real_table2.toml"):
         parsed = load_experiment(configs / name)
         assert [v.name for v in parsed.variants][0] == "paper-baseline"
         baseline = _config(parsed.variants[0])
@@ -186,6 +186,28 @@ def test_the_shipped_experiments_are_valid() -> None:
         assert not baseline.augment.enabled and baseline.train.class_weights == "none"
         assert baseline.blocks.train_columns == "scene"
         assert _config(parsed.variants[-1]).blocks.train_columns == "station"
+    recipe = load_experiment(configs / "sim2real_cpu.toml")
+    assert [v.name for v in recipe.variants] == ["sim2real-recipe"] and len(recipe.holdout.ifc) == 4
+    assert all((configs / f).is_file() for f in recipe.holdout.ifc) and recipe.holdout.clutter == 0.3
+    ablation = load_experiment(configs / "sim2real_cpu_ablation.toml")
+    whole, last_row = _config(recipe.variants[0]), _config(ablation.variants[-1])
+    for section in ("blocks", "input", "augment", "model", "train", "eval"):
+        assert getattr(whole, section) == getattr(last_row, section), section  # the ablation's last row: the recipe
+
+
+def test_the_shipped_label_efficiency_experiment_is_valid() -> None:
+    configs = Path(__file__).resolve().parents[2] / "configs"
+    real = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "s3dis_area6"
+    if not real.is_dir():
+        pytest.skip(f"{real} absent: the label-efficiency experiment trains and scores on the shared S3DIS rooms")
+    parsed = load_experiment(configs / "finetune_cpu.toml")
+    variants = {v.name: v for v in parsed.variants}
+    assert list(variants) == ["synthetic-only", "real-only-12", "finetune-1", "finetune-3", "finetune-12"]
+    assert not variants["synthetic-only"].rooms and variants["real-only-12"].rooms == "all"
+    assert [len(variants[f"finetune-{n}"].rooms) for n in (1, 3)] == [1, 3] and variants["finetune-12"].rooms == "all"
+    assert {variants[f"finetune-{n}"].init for n in (1, 3, 12)} == {"synthetic-only"}
+    recipe = _config(load_experiment(configs / "sim2real_cpu.toml").variants[0])
+    assert _config(variants["synthetic-only"]).model == recipe.model and parsed.holdout.ifc == ()
 
 
 def test_the_shipped_companion_experiments_match_the_ablation() -> None:
@@ -194,11 +216,12 @@ def test_the_shipped_companion_experiments_match_the_ablation() -> None:
     real = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "s3dis_area6"
     if not real.is_dir():
         pytest.skip(f"{real} absent: the shipped experiments score on the shared S3DIS rooms")
-    ablation = load_experiment(configs / "sim2real_cpu.toml")
+    ablation = load_experiment(configs / "sim2real_cpu_ablation.toml")
     recipe = _config(ablation.variants[-1])
     for name in ("sim2real_cpu_data.toml", "sim2real_cpu_seeds.toml", "sim2real_cpu_scale.toml",
                  "sim2real_cpu_without.toml"):
         parsed = load_experiment(configs / name)
+        assert parsed.holdout.ifc == (), name  # measured on the real rooms only
         for variant in parsed.variants:
             config = _config(variant)
             assert config.model == recipe.model and config.blocks.size_m == recipe.blocks.size_m, variant.name
@@ -338,6 +361,12 @@ name = "finetune-all"
 init = "synthetic"
 rooms = "all"
 train = { epochs = 2, freeze = ["embedding"] }
+
+[[variants]]
+name = "mixed-1"
+data = "synthetic.txt"
+rooms = ["r1.txt"]
+room_weight = 2.0
 """
 
 
@@ -369,6 +398,8 @@ def test_variants_training_on_real_rooms_are_never_scored_on_them(rooms_dir: Pat
     # one named room: trained once, scored on the two others
     assert results["finetune-1"].train_rooms == [["r2"]] and set(results["finetune-1"].scenes) == {"r1", "r3"}
     assert sum(map(sum, results["finetune-1"].confusion)) == results["finetune-1"].pooled["points"]
+    # synthetic scans and a real room together, from scratch: scored on the rooms it did not see
+    assert results["mixed-1"].train_rooms == [["r1"]] and set(results["mixed-1"].scenes) == {"r2", "r3"}
 
     # a fine-tuned run starts from its parent's EMA weights, tensor for tensor, and records which
     parent = read_checkpoint(out / "variants/synthetic/train/last.pt")
