@@ -129,6 +129,17 @@ def test_train_evaluate_and_predict_from_the_command_line(
     assert len(written.points) == len(laspy.read(project / "site.las").points)
     assert set(np.unique(written.classification)) <= set(range(5))
 
+    # a room with a class the S3DIS mapping does not know: prediction reads its points only
+    room = project / "Area_1" / "office_1"
+    np.savetxt(room / "Annotations" / "radiator_1.txt", np.array([[1.0, 1.0, 0.5, 9, 9, 9], [1.1, 1.0, 0.5, 9, 9, 9]]),
+               fmt="%.4f %.4f %.4f %d %d %d")
+    assert main(["predict", str(checkpoint), str(room), "room-labelled.laz", "--device", "cpu"]) == 0
+    capsys.readouterr()
+    assert len(laspy.read(project / "room-labelled.laz").points) == sum(
+        len(np.loadtxt(f, ndmin=2)) for f in (room / "Annotations").glob("*.txt"))
+    assert main(["evaluate", str(checkpoint), str(room), "--device", "cpu"]) == 1  # scoring needs the class
+    assert "unknown S3DIS class 'radiator'" in capsys.readouterr().err
+
 
 def test_training_resumes_from_the_command_line(project: Path, capsys: pytest.CaptureFixture[str],
                                                 monkeypatch: pytest.MonkeyPatch) -> None:

@@ -76,26 +76,30 @@ def _annotation_files(path: Path) -> list[Path]:
     return sorted(p for p in (path / "Annotations").iterdir() if p.suffix == ".txt")
 
 
-def read_s3dis_room(path: str | Path, *, class_map: Mapping[str, int] | None = None) -> PointCloud:
+def read_s3dis_room(path: str | Path, *, class_map: Mapping[str, int] | None = None, labels: bool = True) -> PointCloud:
     """Read one S3DIS room folder.
 
     ``class_map`` maps S3DIS class names to label ids (values 0..255; 255 is "unlabelled" by
     bimscan's convention); without it the label is the class's index in ``S3DIS_CLASSES``.
     Returns xyz (N, 3) float64 metres, label (N,) uint8, component (N,) int32 instance index.
+    ``labels`` False: the class names are not read (a room with classes of its own labels as
+    well; prediction needs the points only) and ``label`` is None.
     """
     path = Path(path)
     files = _annotation_files(path)
     table = {name: i for i, name in enumerate(S3DIS_CLASSES)} if class_map is None else dict(class_map)
     parts: list[PointCloud] = []
     for instance, file in enumerate(files):
-        name = class_of_annotation(file)
-        if name not in table:
-            raise InputFileError(
-                f"{file}: class {name!r} is missing from the class map; add it to the mapping file"
-            )
-        label_id = table[name]
-        if not 0 <= label_id <= 255:
-            raise InputFileError(f"class map sends {name!r} to {label_id}; label ids must be in 0..255")
+        label_id = 0
+        if labels:
+            name = class_of_annotation(file)
+            if name not in table:
+                raise InputFileError(
+                    f"{file}: class {name!r} is missing from the class map; add it to the mapping file"
+                )
+            label_id = table[name]
+            if not 0 <= label_id <= 255:
+                raise InputFileError(f"class map sends {name!r} to {label_id}; label ids must be in 0..255")
         try:
             xyz = np.loadtxt(file, dtype=np.float64, usecols=(0, 1, 2), ndmin=2)
         except ValueError as exc:
@@ -108,7 +112,7 @@ def read_s3dis_room(path: str | Path, *, class_map: Mapping[str, int] | None = N
     cloud = PointCloud.concatenate(parts)
     if len(cloud) == 0:
         raise InputFileError(f"{path}: the room's annotation files hold no points; check the download")
-    return cloud
+    return cloud if labels else replace(cloud, label=None)
 
 
 def iter_s3dis_chunks(
@@ -124,9 +128,7 @@ def iter_s3dis_chunks(
                              "the annotation file names; drop the label field")
     if chunk_points < 1:
         raise ValueError(f"chunk_points must be positive, got {chunk_points}")
-    room = read_s3dis_room(path)
-    if not labels:
-        room = replace(room, label=None)
+    room = read_s3dis_room(path, labels=labels)
     for start in range(0, len(room), chunk_points):
         yield room.take(slice(start, start + chunk_points))
 
