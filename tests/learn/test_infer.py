@@ -3,6 +3,8 @@ nearest-neighbour filling, and results independent of how the scene is streamed.
 
 from __future__ import annotations
 
+import dataclasses
+
 from collections.abc import Callable
 from pathlib import Path
 
@@ -46,8 +48,8 @@ def _label(model: torch.nn.Module, path: Path, **options: object) -> tuple[np.nd
         indices.append(index.copy())
         predictions.append(prediction.copy())
 
-    result = label_scene(model, list_scenes([path])[0], class_names=DEFAULT_CLASS_NAMES, blocks=BLOCKS,
-                         on_labels=keep, **options)  # type: ignore[arg-type]
+    result = label_scene(model, list_scenes([path])[0], class_names=DEFAULT_CLASS_NAMES, on_labels=keep,
+                         **{"blocks": BLOCKS, **options})  # type: ignore[arg-type]
     return np.concatenate(indices), np.concatenate(predictions), result
 
 
@@ -159,10 +161,22 @@ def test_eval_votes_shuffle_every_column_again(scene: tuple[Path, PointCloud], m
                          blocks=BLOCKS, evaluation=EvalConfig(votes=3))
 
     assert thrice.blocks == once.blocks
-    assert thrice.passes == 3 * once.passes  # every block cut into groups three times
+    # every block of more than N points cut into groups three times; a smaller one passes whole once
+    assert once.passes < thrice.passes <= 3 * once.passes
     assert np.array_equal(np.sort(np.concatenate(labelled)), np.arange(len(cloud)))  # each point once
     with pytest.raises(ConfigError, match="votes must be in 1..64"):
         EvalConfig(votes=0)
+
+
+def test_a_block_that_fits_one_pass_is_not_passed_again_for_its_votes(
+    scene: tuple[Path, PointCloud], model: torch.nn.Module,
+) -> None:
+    path, _ = scene
+    roomy = dataclasses.replace(BLOCKS, points=4096, cache_points=4096)  # every block fits one pass
+    index1, labels1, once = _label(model, path, blocks=roomy)
+    index3, labels3, thrice = _label(model, path, blocks=roomy, evaluation=EvalConfig(votes=3))
+    assert thrice.passes == once.passes == once.blocks  # the same points in the same order would give the same votes
+    assert np.array_equal(index1, index3) and np.array_equal(labels1, labels3)
 
 
 def test_blocks_overlap_as_configured(scene: tuple[Path, PointCloud], model: torch.nn.Module) -> None:

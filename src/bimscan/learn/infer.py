@@ -108,13 +108,14 @@ class BlockRunner:
         self.device = device
         self.batch_size = batch_size
         self.amp = amp
-        self.queues: dict[int, list[Block]] = {}
+        self.queues: dict[int, list[tuple[Block, float]]] = {}
         self.votes: np.ndarray | None = None
         self.passes = 0
 
-    def add(self, block: Block) -> None:
+    def add(self, block: Block, weight: float = 1.0) -> None:
+        """Queue ``block``; its softmax counts ``weight`` times (one pass standing for identical ones)."""
         queue = self.queues.setdefault(len(block.mask), [])
-        queue.append(block)
+        queue.append((block, weight))
         if len(queue) >= self.batch_size:
             self._run(queue)
             queue.clear()
@@ -126,17 +127,17 @@ class BlockRunner:
                 queue.clear()
 
     @torch.inference_mode()
-    def _run(self, queue: list[Block]) -> None:
+    def _run(self, queue: list[tuple[Block, float]]) -> None:
         if self.votes is None:
             raise RuntimeError("BlockRunner.votes must be set before blocks are added")
-        xyz = torch.from_numpy(np.stack([b.xyz for b in queue])).to(self.device)
-        mask = torch.from_numpy(np.stack([b.mask for b in queue])).to(self.device)
+        xyz = torch.from_numpy(np.stack([b.xyz for b, _ in queue])).to(self.device)
+        mask = torch.from_numpy(np.stack([b.mask for b, _ in queue])).to(self.device)
         with autocast_context(self.device, self.amp), flush_denormals():  # the network only (see flush_denormals)
             logits = self.model(xyz, mask)
         probs = torch.softmax(logits.float(), dim=-1).cpu().numpy()
-        for block, prob in zip(queue, probs, strict=True):
+        for (block, weight), prob in zip(queue, probs, strict=True):
             # indices are unique within one pass, so plain fancy-index addition is exact
-            self.votes[block.index[block.mask]] += prob[block.mask]
+            self.votes[block.index[block.mask]] += prob[block.mask] if weight == 1.0 else prob[block.mask] * weight
         self.passes += len(queue)
 
 
@@ -359,14 +360,18 @@ class _Labeller:
         box_lower, box_upper = points.min(axis=0), points.max(axis=0)
         # not seeded by the storey: a storey's blocks are cut as they would be were it scanned alone
         rng = np.random.default_rng(_seed(self.seed, column, row))
-        groups = [group for _ in range(evaluation.votes)
-                  for group in plan_passes(len(members), points=blocks.points, rng=rng, max_passes=self.max_passes)]
+        if len(members) <= blocks.points:  # every vote would pass the same points in the same order: one pass counts for all
+            groups, weight = plan_passes(len(members), points=blocks.points, rng=rng), float(evaluation.votes)
+        else:
+            groups = [group for _ in range(evaluation.votes)
+                      for group in plan_passes(len(members), points=blocks.points, rng=rng, max_passes=self.max_passes)]
+            weight = 1.0
         for group in groups:
             extra = extra_features(points[group], features=self.inputs.features,
                                    height_m=None if heights is None else heights[group],
                                    height_scale_m=self.inputs.height_scale_m, neighbours=self.inputs.normal_neighbours)
             self.runner.add(pad_block(points[group], None, members[group], points=padded_size(len(group), blocks.points),
-                                      lower=box_lower, upper=box_upper, extra=extra))
+                                      lower=box_lower, upper=box_upper, extra=extra), weight)
         self.block_count += 1
 
     def _finish(self, stripe: _Stripe, neighbours: list[_Stripe]) -> None:
@@ -415,9 +420,9 @@ def spread_votes(
     ``neighbours`` nearest voted representatives (among these and ``others``: (xyz, votes) of the
     neighbouring stripes' representatives), w_i = 1 / max(d_i, 1 mm)^2 (Qi et al. 2017,
     PointNet++'s feature propagation): a point near a voxel's face is labelled by the
-    representatives around it, not only by the one point its voxel kept (at 0.1 m voxels, 3.6 %
-    of the real S3DIS points differ in class from their voxel's representative, 2.9 % from their
-    nearest one).
+    representatives around it, not only by the one point its voxel kept (at 0.1 m voxels, 3.2 %
+    of the real S3DIS points differ in class from their voxel's representative, 2.8 % from their
+    nearest one; counted 2026-11-26 on the 12 shared Area 6 rooms).
     """
     position = np.full(len(xyz), -1, dtype=np.int64)
     position[reps] = np.arange(len(reps))
