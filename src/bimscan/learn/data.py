@@ -109,7 +109,7 @@ def list_scenes(
     if label_field is not None and scenes and all(s.kind == "s3dis" for s in scenes):
         raise LearnError(
             f"label field {label_field!r} cannot apply to S3DIS rooms: their labels are the annotation file "
-            "names; drop --label-field (the *_label_field setting)"
+            "names; drop --label-field (a scene set's label_field)"
         )
     return scenes
 
@@ -185,8 +185,8 @@ def iter_scene_chunks(
     if asprs and not classified:
         raise LearnError(
             f"{source.path}: no ground-truth labels: its LAS classification is only 0/1 (never classified/"
-            "unclassified); pass --label-field (*_label_field) naming the dimension with the labels, or "
-            "--mapping (*_mapping)"
+            "unclassified); pass --label-field (a scene set's label_field) naming the dimension with the labels, or "
+            "--mapping (a scene set's mapping)"
         )
 
 

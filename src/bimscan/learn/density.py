@@ -6,10 +6,15 @@ network fed raw points learns the density pattern. Grid sampling (Pointcept's ``
 mode "train"/"test") keeps one point per occupied ``grid_m`` voxel, applied identically to
 synthetic training scenes and real test scenes, so both reach the network at one density.
 
-The representative of a voxel is its point with the smallest hash of its coordinates' bits, so
-the result depends only on the set of points, not on their order, on how a stream is chunked
-or on which block reads them (a voxel has the same representative in every block that holds
-it). Voxels are anchored at multiples of ``grid_m`` in absolute coordinates.
+Two rules, each depending only on the set of points (not on their order, on how a stream is
+chunked or on which block reads them: a voxel has the same representative in every block that
+holds it):
+
+- training tiles (``grid_representatives``, ``grid_sample``): the voxel's point with the
+  smallest hash of its coordinates' bits, voxels anchored at multiples of ``grid_m``;
+- labelling (``voxel_representatives``): the point nearest the voxel's centre, coordinates
+  counted on a ``QUANTUM_M`` lattice from the scene's first points, so a file format (float
+  rounding) or a georeferencing offset changes no representative.
 """
 
 from __future__ import annotations

@@ -108,6 +108,6 @@ def apply_label_table(label: np.ndarray, table: np.ndarray, *, where: str) -> np
         shown = ", ".join(str(int(v)) for v in bad[:10]) + (" ..." if len(bad) > 10 else "")
         raise LearnError(
             f"{where}: labels {shown} are not training classes; pass a mapping file (--mapping / "
-            "*_mapping) that sends them to a class or leave them as 255 (unlabelled)"
+            "a scene set's mapping) that sends them to a class or leave them as 255 (unlabelled)"
         )
     return mapped.astype(np.uint8)

@@ -1,11 +1,11 @@
 """Training configuration: one TOML file per experiment -> frozen dataclasses.
 
-Sections ``[data]``, ``[blocks]``, ``[input]``, ``[augment]``, ``[model]`` and ``[train]``;
-unknown keys are errors. Keys Table 2 gives default to its value; the sim-to-real recipe
-(``[input]``, ``[augment]``, ``[train] class_weights``) defaults to what the README's ablation
-measured best, and ``configs/train_table2.toml`` switches it off to stay the paper's baseline. Relative paths
-in the file are relative to the file's folder. See ``configs/train_table2.toml`` for a
-commented example.
+Sections ``[data]``, ``[blocks]``, ``[input]``, ``[augment]``, ``[model]``, ``[train]`` and
+``[eval]``; unknown keys are errors. Keys Table 2 gives default to its value; the sim-to-real
+recipe (``[input]``, ``[augment]``, ``[train] class_weights``) defaults to what the ablation in
+docs/results/sim2real.md measured best, and ``configs/train_table2.toml`` switches it off to stay
+the paper's baseline. Relative paths in the file are relative to the file's folder. See
+``configs/train_table2.toml`` for a commented example.
 """
 
 from __future__ import annotations
@@ -128,11 +128,12 @@ class InputConfig:
 
     ``grid_m``: density normalisation, one point per voxel of this size before blocking
     (:mod:`bimscan.learn.density`); 0 = off (the paper: raw points). ``features``: ``xyz``
-    first, optionally ``height`` (above the scene's floor, / ``height_scale_m``),
+    first, optionally ``height`` (above the floor under the point, :mod:`bimscan.learn.floors`,
+    / ``height_scale_m``),
     ``normals`` (PCA of ``normal_neighbours`` neighbours among the block's points) and
     ``shape`` (linearity, planarity, scattering of the same neighbourhood)
-    (:mod:`bimscan.learn.features`). Defaults: the sim-to-real recipe measured in the README;
-    the paper's baseline is ``grid_m = 0.0``, ``features = ["xyz"]``.
+    (:mod:`bimscan.learn.features`). Defaults: the sim-to-real recipe measured in
+    docs/results/sim2real.md; the paper's baseline is ``grid_m = 0.0``, ``features = ["xyz"]``.
     """
 
     grid_m: float = 0.05

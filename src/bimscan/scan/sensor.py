@@ -4,8 +4,8 @@
 of every effect: ``"paper"`` (the default) is the SPC paper's scanner, a thin ray with Gaussian
 range and angle noise, bit for bit what bimscan did before these effects existed; ``"full"`` turns
 every effect on with the defaults below. Each effect can also be switched on or off alone (a
-``None`` switch follows ``realism``). The models, their formulas and sources are in the README
-("Sensor realism"); in short:
+``None`` switch follows ``realism``). The models, their formulas and sources are in
+docs/guide/scanner.md ("Sensor realism beyond the paper"); in short:
 
 - ``footprint``: the beam has the scanner's divergence; pulses whose footprint may straddle a
   depth or component edge (their neighbours in the scan grid disagree) are sampled with

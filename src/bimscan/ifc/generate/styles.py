@@ -5,7 +5,7 @@ dimensions are drawn from (uniformly, metres) and the odds of building-wide choi
 shape, ceiling system, window type, where perimeter columns stand). ``layout.plan_building``
 draws from the row; nothing else in the generator holds a dimension.
 
-Sources of the ranges (the README's generator section has the table):
+Sources of the ranges (docs/guide/generated-buildings.md has the table):
 
 * Rooms, ceilings, beams of ``office``: measured on the real S3DIS Area 6 rooms
   (``../shared/data/real/s3dis_area6``): offices about 5.8 x 2.9 m and 3.7-3.8 x 2.7-3.3 m,
