@@ -83,9 +83,15 @@ def grid_representatives(xyz: np.ndarray, grid_m: float) -> tuple[np.ndarray, np
     order = np.lexsort((secondary, cells[:, 2], cells[:, 1], cells[:, 0]))
     sorted_cells = cells[order]
     starts = np.flatnonzero(np.r_[True, (sorted_cells[1:] != sorted_cells[:-1]).any(axis=1)])
-    sizes = np.diff(np.r_[starts, n])
+    return _first_of_each_voxel(order, starts)
+
+
+def _first_of_each_voxel(order: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The representatives (ascending) and every point's representative, from ``order`` (the points
+    sorted by voxel, the chosen one first in each) and ``starts`` (where each voxel's run begins)."""
+    n = len(order)
     rep_of = np.empty(n, dtype=np.int64)
-    rep_of[order] = np.repeat(order[starts], sizes)
+    rep_of[order] = np.repeat(order[starts], np.diff(np.r_[starts, n]))
     return np.sort(order[starts]), rep_of
 
 
@@ -120,7 +126,4 @@ def voxel_representatives(xyz: np.ndarray, grid_m: float) -> tuple[np.ndarray, n
         order = np.lexsort((distance, cells[:, 2], cells[:, 1], cells[:, 0]))
         sorted_cells = cells[order]
         starts = np.flatnonzero(np.r_[True, (sorted_cells[1:] != sorted_cells[:-1]).any(axis=1)])
-    sizes = np.diff(np.r_[starts, n])
-    rep_of = np.empty(n, dtype=np.int64)
-    rep_of[order] = np.repeat(order[starts], sizes)
-    return np.sort(order[starts]), rep_of
+    return _first_of_each_voxel(order, starts)
