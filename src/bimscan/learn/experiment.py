@@ -107,8 +107,21 @@ class HoldoutTable:
     seed: int = 0
 
 
+@dataclass(frozen=True, kw_only=True)
+class TrainingTables:
+    """The training sections as written (``TRAINING_SECTIONS``, tables checked once merged): the
+    experiment's shared ones and a variant's overrides."""
+
+    blocks: dict[str, Any] = field(default_factory=dict)
+    input: dict[str, Any] = field(default_factory=dict)
+    augment: dict[str, Any] = field(default_factory=dict)
+    model: dict[str, Any] = field(default_factory=dict)
+    train: dict[str, Any] = field(default_factory=dict)
+    eval: dict[str, Any] = field(default_factory=dict)
+
+
 @dataclass(frozen=True)
-class VariantTable:
+class VariantTable(TrainingTables):
     """``[[variants]]``: one model (or one per fold) to train and score (see the module docs)."""
 
     name: str
@@ -117,12 +130,6 @@ class VariantTable:
     rooms: tuple[str, ...] | Literal["all"] = ()
     room_weight: float = 1.0
     init: str | None = None
-    blocks: dict[str, Any] = field(default_factory=dict)
-    input: dict[str, Any] = field(default_factory=dict)
-    augment: dict[str, Any] = field(default_factory=dict)
-    model: dict[str, Any] = field(default_factory=dict)
-    train: dict[str, Any] = field(default_factory=dict)
-    eval: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not NAME_PATTERN.match(self.name):
@@ -134,7 +141,7 @@ class VariantTable:
 
 
 @dataclass(frozen=True)
-class ExperimentFile:
+class ExperimentFile(TrainingTables):
     """An experiment TOML file as written (before paths are resolved)."""
 
     experiment: ExperimentTable = field(default_factory=ExperimentTable)
@@ -142,12 +149,6 @@ class ExperimentFile:
     rooms: SceneSet | None = None
     holdout: HoldoutTable = field(default_factory=HoldoutTable)
     variants: tuple[VariantTable, ...] = ()
-    blocks: dict[str, Any] = field(default_factory=dict)
-    input: dict[str, Any] = field(default_factory=dict)
-    augment: dict[str, Any] = field(default_factory=dict)
-    model: dict[str, Any] = field(default_factory=dict)
-    train: dict[str, Any] = field(default_factory=dict)
-    eval: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
