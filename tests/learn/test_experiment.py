@@ -428,13 +428,17 @@ def test_variants_training_on_real_rooms_are_never_scored_on_them(rooms_dir: Pat
     (('[rooms]\nscenes = ["r1.txt", "r2.txt", "r3.txt"]', ""), "'all' of no rooms"),
     (("folds = 2", "folds = 1"), "folds = 1 is impossible"),
     (('freeze = ["embedding"]', 'freeze = ["head"]'), "freeze"),
+    (("stride_m = 1.5", "stride_m = 0.7"), r"#1 \(synthetic\): \[eval\] stride_m = 0.7 does not divide"),
+    (("[rooms]", '[holdout]\nifc = ["house.ifc"]\nclutter = -1.0\n\n[rooms]'), r"\[holdout\].*clutter density = -1"),
 ])
 def test_bad_room_variants_are_one_line_errors(rooms_dir: Path, patch: tuple[str, str], message: str) -> None:
     text = ROOMS_EXPERIMENT.replace(*patch)
     assert text != ROOMS_EXPERIMENT
     (rooms_dir / "exp.toml").write_text(text, encoding="utf-8")
-    with pytest.raises(ConfigError, match=message):
+    (rooms_dir / "house.ifc").write_text("ISO-10303-21;\n", encoding="utf-8")  # a holdout model's path must exist
+    with pytest.raises(ConfigError, match=message) as caught:
         load_experiment(rooms_dir / "exp.toml")
+    assert "\n" not in str(caught.value)
 
 
 def test_a_variant_training_on_every_scored_room_by_name_is_refused(rooms_dir: Path) -> None:

@@ -53,7 +53,7 @@ import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -66,6 +66,9 @@ from bimscan.learn.train_config import (
     TrainRunConfig, check_moved_keys, scene_sets,
 )
 from bimscan.toml_files import base_file, build_dataclass, load_toml, resolve_path
+
+if TYPE_CHECKING:
+    from bimscan.dataset.spec import DatasetSpec
 
 TRAINING_SECTIONS = {"blocks": BlockConfig, "input": InputConfig, "augment": AugmentConfig, "model": ModelConfig,
                      "train": TrainConfig, "eval": EvalConfig}
@@ -240,15 +243,22 @@ def load_experiment(path: str | Path, *, real: Sequence[str | Path] | None = Non
         if device is not None:
             sections["train"] = {**sections["train"], "device": device}
         check_moved_keys(sections, where=where)
-        for name, kind in TRAINING_SECTIONS.items():
-            build_dataclass(kind, sections[name], where=f"{where} [{name}]")
+        built = {name: build_dataclass(kind, sections[name], where=f"{where} [{name}]")
+                 for name, kind in TRAINING_SECTIONS.items()}
+        try:  # what TrainRunConfig checks across sections, before any work
+            built["eval"].stride_for(built["blocks"].size_m)
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from exc
         variants.append(Variant(
             name=table.name, description=table.description, specs=tuple(specs), folders=tuple(folders),
             rooms=_variant_rooms(table.rooms, room_sources, where=where), room_weight=table.room_weight,
             init=table.init, sections=sections))
     head = parsed.experiment
-    return Experiment(name=head.name or path.stem, path=path, real=real_set, rooms=rooms_set, holdout=parsed.holdout,
-                      variants=tuple(variants), class_names=head.class_names, workers=head.workers, folds=head.folds)
+    experiment = Experiment(name=head.name or path.stem, path=path, real=real_set, rooms=rooms_set,
+                            holdout=parsed.holdout, variants=tuple(variants), class_names=head.class_names,
+                            workers=head.workers, folds=head.folds)
+    _holdout_spec(experiment)  # its models and settings checked before any work
+    return experiment
 
 
 def _listed(table: Any) -> Any:
@@ -575,12 +585,11 @@ def _build_datasets(experiment: Experiment, out: Path, emit: Callable[[str], Non
             raise LearnError(f"{target}: {report.failed} unit(s) failed to build (see manifest.json); fix them and run again")
 
 
-def _build_holdout(experiment: Experiment, out: Path, emit: Callable[[str], None]) -> Path | None:
-    """Scan the holdout models once (a dataset of one configuration) into OUT/holdout."""
+def _holdout_spec(experiment: Experiment) -> DatasetSpec | None:
+    """The holdout models as a dataset spec of one configuration (None without holdout models)."""
     holdout = experiment.holdout
     if not holdout.ifc:
         return None
-    from bimscan.dataset.build import build_dataset
     from bimscan.dataset.spec import parse_spec
 
     folder = experiment.path.parent
@@ -590,12 +599,21 @@ def _build_holdout(experiment: Experiment, out: Path, emit: Callable[[str], None
         config["head_deg_per_s"] = holdout.head_deg_per_s
     if holdout.clutter:
         config["clutter"] = {"density": holdout.clutter}
-    spec = parse_spec({"name": f"{experiment.name}-holdout", "seed": holdout.seed, "formats": ["npy"],
+    return parse_spec({"name": f"{experiment.name}-holdout", "seed": holdout.seed, "formats": ["npy"],
                        "scenes": [{"name": n, "ifc": str(resolve_path(folder, p).resolve())}
                                   for n, p in zip(names, holdout.ifc, strict=True)],
                        "configs": [config]}, base=folder, where=f"{experiment.path} [holdout]")
+
+
+def _build_holdout(experiment: Experiment, out: Path, emit: Callable[[str], None]) -> Path | None:
+    """Scan the holdout models once (a dataset of one configuration) into OUT/holdout."""
+    spec = _holdout_spec(experiment)
+    if spec is None:
+        return None
+    from bimscan.dataset.build import build_dataset
+
     target = out / "holdout"
-    emit(f"holdout: {len(names)} model(s) -> {target}")
+    emit(f"holdout: {len(spec.scenes)} model(s) -> {target}")
     report = build_dataset(spec, target, workers=experiment.workers)
     emit(report.summary())
     if not report.ok:
