@@ -153,6 +153,29 @@ def test_training_resumes_from_the_command_line(project: Path, capsys: pytest.Ca
     assert main(["train", "train.toml", "--out", "one", "--resume"]) == 0  # nothing left to do, no error
 
 
+def test_fine_tuning_from_the_command_line_checks_its_start_before_any_work(
+    project: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from bimscan.learn.checkpoint import read_checkpoint
+
+    monkeypatch.chdir(project)
+    config = project / "train.toml"
+    config.write_text(config.read_text().replace("epochs = 3", "epochs = 1"))
+    assert main(["train", "train.toml", "--out", "parent"]) == 0
+    parent = project / "parent" / "last.pt"
+
+    assert main(["train", "train.toml", "--out", "missing", "--init", "nowhere.pt"]) == 1
+    assert "nowhere.pt" in capsys.readouterr().err and not (project / "missing").exists()
+    other = project / "other.toml"
+    other.write_text(config.read_text().replace("embed_dim = 16", "embed_dim = 8"))
+    assert main(["train", "other.toml", "--out", "other", "--init", str(parent)]) == 1
+    error = capsys.readouterr().err
+    assert "other [model]" in error and error.count("\n") == 1 and not (project / "other").exists()
+
+    assert main(["train", "train.toml", "--out", "child", "--init", str(parent)]) == 0
+    assert read_checkpoint(project / "child" / "last.pt")["init"]["checkpoint"] == str(parent)
+
+
 @pytest.mark.parametrize(
     ("edit", "message"),
     [

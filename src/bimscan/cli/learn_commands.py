@@ -68,10 +68,6 @@ def train(config: Path, resume: bool, out_dir: Path | None, init: Path | None) -
     from bimscan.learn.train import train_model
 
     settings, base = load_train_config(config)
-    if init is not None:
-        from bimscan.learn.checkpoint import read_checkpoint
-
-        read_checkpoint(init)  # a missing or damaged file: one line before any work
     result = train_model(settings, base_dir=base, out_dir=out_dir, resume=resume, init=init,
                          log=lambda text: click.echo(text, err=True))
     if int(os.environ.get("RANK", "0")) == 0:

@@ -336,12 +336,9 @@ def _collect_tiles(
     return TileSet.concatenate(parts)
 
 
-def start_from(model: PCTSegmentation, path: Path, config: TrainRunConfig) -> dict[str, Any]:
-    """Load ``path``'s EMA weights (what it is evaluated with) into ``model``: fine-tuning starts
-    from them. LearnError unless that checkpoint's network is this one (model, inputs, classes).
-    Returns what the new checkpoint records of where it started."""
-    from bimscan.files import file_sha256
-
+def read_start(path: Path, config: TrainRunConfig) -> dict[str, Any]:
+    """The checkpoint fine-tuning starts from, read and checked (before any work): LearnError
+    unless its network is this one (model, inputs, classes)."""
     payload = read_checkpoint(path)
     parent = parse_config(payload["config"], where=f"{path} [config]")
     for what, mine, theirs in (("[model]", config.model, parent.model), ("[input] features", config.input.features,
@@ -349,6 +346,15 @@ def start_from(model: PCTSegmentation, path: Path, config: TrainRunConfig) -> di
         if mine != theirs:
             raise LearnError(f"{path}: the run to start from has other {what} ({theirs}) than this one ({mine}); "
                              "fine-tune with the same network and classes")
+    return payload
+
+
+def start_from(model: PCTSegmentation, path: Path, payload: dict[str, Any]) -> dict[str, Any]:
+    """Load the EMA weights (what a run is evaluated with) of ``payload`` (:func:`read_start` of
+    ``path``) into ``model``: fine-tuning starts from them. Returns what the new checkpoint records
+    of where it started."""
+    from bimscan.files import file_sha256
+
     load_state(model, payload["ema"], what="EMA weights", path=path)
     return {"checkpoint": str(path), "sha256": file_sha256(path), "epoch": int(payload["epoch"])}
 
@@ -466,6 +472,7 @@ def _train(
     train_sets = [resolve_scene_set(scenes, base=base_dir) for scenes in config.data.train]
     train_sources = [source for sources in train_sets for source in sources]
     val_sources = [] if config.data.val is None else resolve_scene_set(config.data.val, base=base_dir)
+    parent = None if init is None else read_start(init, config)
     if ctx.is_main:
         out.mkdir(parents=True, exist_ok=True)
     classes = len(config.data.class_names)
@@ -493,7 +500,7 @@ def _train(
     model: PCTSegmentation = build_model(
         classes, config.model, in_dim=input_channels(config.input.features),
     ).to(ctx.device)
-    started_from = None if init is None else start_from(model, init, config)  # before the EMA copies the weights
+    started_from = None if init is None else start_from(model, init, parent)  # before the EMA copies the weights
     frozen = freeze(model, settings.freeze)
     frozen_parameters = sum(p.numel() for module in frozen for p in module.parameters())
     ema = WeightEMA(model, alpha=settings.ema_alpha)
