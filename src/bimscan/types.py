@@ -459,8 +459,10 @@ class PointCloud:
     time: (N,) float64 seconds since the start of the survey. return_number / number_of_returns:
     (N,) uint8, which echo of its pulse a point is (1-based) and how many echoes the pulse gave
     (scans with the beam footprint; LAS names them the same). rgb: (N, 3) uint8 colour (scans
-    with colour, or a foreign file's red/green/blue). Only ``xyz`` is required (real scans may
-    lack the rest).
+    with colour, or a foreign file's red/green/blue). Mobile scans add ring: (N,) uint8 the beam's
+    ring (rank by elevation), channel: (N,) uint8 which lidar of the platform, and sensor_xyz:
+    (N, 3) float64 the beam origin at the pulse's time (as registered, drift included). Only
+    ``xyz`` is required (real scans may lack the rest).
     """
 
     xyz: np.ndarray
@@ -472,9 +474,15 @@ class PointCloud:
     return_number: np.ndarray | None = None
     number_of_returns: np.ndarray | None = None
     rgb: np.ndarray | None = None
+    ring: np.ndarray | None = None
+    channel: np.ndarray | None = None
+    sensor_xyz: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         _check("xyz", self.xyz, "float64", (None, 3))
+        _check("ring", self.ring, "uint8", (None,))
+        _check("channel", self.channel, "uint8", (None,))
+        _check("sensor_xyz", self.sensor_xyz, "float64", (None, 3))
         _check("label", self.label, "uint8", (None,))
         _check("component", self.component, "int32", (None,))
         _check("station", self.station, "uint16", (None,))
@@ -486,14 +494,16 @@ class PointCloud:
         _check_rows(
             "PointCloud", len(self.xyz), label=self.label, component=self.component,
             station=self.station, intensity=self.intensity, time=self.time, return_number=self.return_number,
-            number_of_returns=self.number_of_returns, rgb=self.rgb,
+            number_of_returns=self.number_of_returns, rgb=self.rgb, ring=self.ring, channel=self.channel,
+            sensor_xyz=self.sensor_xyz,
         )
 
     def __len__(self) -> int:
         return int(len(self.xyz))
 
     # Column order of writers and headers; columns added later go last, so older files keep their bytes.
-    COLUMNS = ("xyz", "label", "component", "station", "intensity", "time", "return_number", "number_of_returns", "rgb")
+    COLUMNS = ("xyz", "label", "component", "station", "intensity", "time", "return_number", "number_of_returns", "rgb",
+               "ring", "channel", "sensor_xyz")
 
     def take(self, index: np.ndarray) -> PointCloud:
         """The rows selected by a boolean mask or an index array."""

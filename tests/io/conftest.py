@@ -87,6 +87,10 @@ def make_cloud(n: int, *, seed: int, columns: tuple[str, ...] = SCAN_COLUMNS) ->
     count = extra_rng.integers(1, 5, n).astype(np.uint8)
     extra = {"number_of_returns": count, "return_number": (1 + extra_rng.integers(0, 4, n) % count).astype(np.uint8),
              "rgb": extra_rng.integers(0, 256, (n, 3)).astype(np.uint8)}
+    mobile_rng = np.random.default_rng(seed + 2_000)  # a mobile scan's columns: ring, lidar, beam origin
+    extra |= {"ring": mobile_rng.integers(0, 128, n).astype(np.uint8),
+              "channel": mobile_rng.integers(0, 4, n).astype(np.uint8),
+              "sensor_xyz": np.asarray(ORIGIN) + mobile_rng.uniform(-5.0, 5.0, (n, 3))}
     cloud = PointCloud(**{c: getattr(cloud, c) for c in SCAN_COLUMNS}, **extra)
     return PointCloud(xyz=cloud.xyz, **{c: getattr(cloud, c) for c in columns if c != "xyz"})
 

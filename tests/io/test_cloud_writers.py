@@ -31,6 +31,8 @@ from bimscan.io import (
 from bimscan.io._writer import BLOCK_POINTS, WatchedFile
 from bimscan.types import CloudHeader, PointCloud
 
+SCAN_COLUMNS = ("xyz", "label", "component", "station", "intensity", "time")
+MOBILE_COLUMNS = ("ring", "channel", "sensor_xyz")  # what E57 (one pose per scan) cannot hold
 NAMES = {name: "cloud" + CLOUD_FORMATS[name][0] for name in WRITABLE_FORMATS}
 FORMATS = sorted(WRITERS)
 
@@ -68,16 +70,28 @@ def output_bytes(path: Path) -> dict[str, bytes]:
 
 @pytest.mark.parametrize("key", FORMATS)
 def test_every_writer_round_trips_every_column_through_its_reader(key, tmp_path, header, cloud_factory, chunk_splitter):
-    cloud = cloud_factory(25_013, seed=1, columns=PointCloud.COLUMNS)
+    columns = tuple(c for c in PointCloud.COLUMNS if key != "e57" or c not in MOBILE_COLUMNS)
+    cloud = cloud_factory(25_013, seed=1, columns=columns)
     path = tmp_path / NAMES[key]
     written = write_chunks(path, header, chunk_splitter(cloud, seed=2, low=1, high=4_000))
     back = read_cloud(path)
     assert written.n_points == len(back) == len(cloud)
     assert np.abs(back.xyz - cloud.xyz).max() <= xyz_tolerance(key, cloud.xyz, header.origin)
-    for column in PointCloud.COLUMNS[1:]:
+    for column in columns[1:]:
+        if column == "sensor_xyz":  # LAS keeps beam origins in the 0.1 mm steps of its coordinates
+            assert np.abs(back.sensor_xyz - cloud.sensor_xyz).max() <= xyz_tolerance(key, cloud.sensor_xyz,
+                                                                                     header.origin)
+            continue
         assert np.array_equal(getattr(back, column), getattr(cloud, column)), column
         assert getattr(back, column).dtype == getattr(cloud, column).dtype
     assert read_cloud_header(path) is not None
+
+
+def test_e57_refuses_a_mobile_scan_in_one_line_and_leaves_no_file(tmp_path, header, cloud_factory):
+    path = tmp_path / "mobile.e57"
+    with pytest.raises(OutputError, match="one pose per scan"):
+        write_chunks(path, header, [cloud_factory(100, seed=1, columns=(*SCAN_COLUMNS, "ring", "sensor_xyz"))])
+    assert list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.parametrize("key", FORMATS)
@@ -309,7 +323,8 @@ def test_reading_an_unknown_format_or_a_missing_path_is_an_input_error(tmp_path)
 def test_any_chunking_gives_the_bytes_of_the_unchunked_stream(key, cuts, header, cloud_factory):
     # Small re-blocking units, so hypothesis' cuts land on, before and after block boundaries
     # (the fixtures are immutable, so sharing them between examples is safe).
-    cloud = cloud_factory(3_500, seed=16, columns=PointCloud.COLUMNS)
+    cloud = cloud_factory(3_500, seed=16, columns=tuple(c for c in PointCloud.COLUMNS
+                                                        if key != "e57" or c not in MOBILE_COLUMNS))
     bounds = [0, *sorted(cuts), len(cloud)]
     chunks = [cloud.take(slice(a, b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
     with tempfile.TemporaryDirectory() as scratch, \

@@ -254,6 +254,10 @@ class E57CloudWriter(StreamingCloudWriter):
 
     # -- layout ---------------------------------------------------------------------------------
     def _begin(self, columns: tuple[str, ...]) -> None:
+        mobile = [c for c in ("ring", "channel", "sensor_xyz") if c in columns]
+        if mobile:
+            raise OutputError(f"{self.path}: E57 stores one pose per scan and has no field for a mobile scan's "
+                              f"{', '.join(mobile)}; write a mobile scan to .las, .laz, .ply or a folder")
         temp = self._stage_file(self.path)
         self._posed = "station" in columns and bool(self.header.stations)
         self._grid = _scan_grid(self.header) if self._posed and "time" in columns else None

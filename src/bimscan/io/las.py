@@ -90,6 +90,9 @@ def _classification_lookup(scheme: LabelScheme) -> ClassificationLookupVlr:
     return vlr
 
 
+SENSOR_DIMENSIONS = ("sensor_x", "sensor_y", "sensor_z")  # a mobile scan's beam origins, 0.1 mm steps
+
+
 def _las_header(header: CloudHeader, columns: tuple[str, ...]) -> laspy.LasHeader:
     las_header = laspy.LasHeader(version="1.4", point_format=7 if "rgb" in columns else 6)
     extra = []
@@ -97,6 +100,13 @@ def _las_header(header: CloudHeader, columns: tuple[str, ...]) -> laspy.LasHeade
         extra.append(laspy.ExtraBytesParams(name="component", type=np.int32, description="BIM component id"))
     if "station" in columns:
         extra.append(laspy.ExtraBytesParams(name="station", type=np.uint16, description="scan station id"))
+    if "ring" in columns:
+        extra.append(laspy.ExtraBytesParams(name="ring", type=np.uint8, description="lidar ring (beam by elevation)"))
+    if "sensor_xyz" in columns:
+        for axis, name in enumerate(SENSOR_DIMENSIONS):
+            extra.append(laspy.ExtraBytesParams(name=name, type=np.int32, description=f"beam origin {'xyz'[axis]}",
+                                                scales=np.array([LAS_SCALE_M]),
+                                                offsets=np.array([header.origin[axis]], dtype=np.float64)))
     if extra:
         las_header.add_extra_dims(extra)
     las_header.offsets = np.asarray(header.origin, dtype=np.float64)
@@ -179,6 +189,15 @@ class LasCloudWriter(StreamingCloudWriter):
         if chunk.rgb is not None:
             for channel, name in enumerate(("red", "green", "blue")):
                 out[name] = chunk.rgb[:, channel].astype(np.uint16) * RGB_SCALE
+        if chunk.ring is not None:
+            out["ring"] = chunk.ring
+        if chunk.channel is not None:  # LAS 1.4 scanner_channel: bits 4-5 of the classification flags byte
+            out["classification_flags"] = (out["classification_flags"] & 0b1100_1111) | (chunk.channel.astype(np.uint8) << 4)
+        if chunk.sensor_xyz is not None:
+            for axis, name in enumerate(SENSOR_DIMENSIONS):
+                np.subtract(chunk.sensor_xyz[:, axis], origin[axis], out=steps)
+                np.divide(steps, LAS_SCALE_M, out=steps)
+                out[name] = np.rint(steps)
 
     def _append(self, chunk: PointCloud) -> None:
         assert self._block is not None
@@ -392,6 +411,10 @@ def iter_las_chunks(
                 number_of_returns=np.asarray(points.number_of_returns, dtype=np.uint8)
                 if "number_of_returns" in columns else None,
                 rgb=_rgb8(raw, ours=document is not None) if "rgb" in columns and "red" in names else None,
+                ring=np.asarray(raw["ring"], dtype=np.uint8) if "ring" in columns and "ring" in names else None,
+                channel=np.asarray(points.scanner_channel, dtype=np.uint8) if "channel" in columns else None,
+                sensor_xyz=np.column_stack([np.asarray(points[name], dtype=np.float64) for name in SENSOR_DIMENSIONS])
+                if "sensor_xyz" in columns and SENSOR_DIMENSIONS[0] in names else None,
             )
 
         try:

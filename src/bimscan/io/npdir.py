@@ -15,6 +15,9 @@ file                         dtype       content
 ``return_number.npy``        (N,) u1     which echo of its pulse (1-based)
 ``number_of_returns.npy``    (N,) u1     echoes of its pulse
 ``color.npy``                (N, 3) u1   RGB colour (Pointcept's name)
+``ring.npy``                 (N,) u1     lidar ring (mobile scans: the beam's rank by elevation)
+``channel.npy``              (N,) u1     which lidar of the platform (mobile scans)
+``sensor.npy``               (N, 3) f8   beam origin at the pulse's time, metres (mobile scans)
 ``meta.json``                            the header document (``bimscan.io._header``), origin included
 ===========================  ==========  =============================================================
 
@@ -48,6 +51,9 @@ NPDIR_FILES: dict[str, tuple[str, str, tuple[int, ...]]] = {
     "return_number": ("return_number", "u1", ()),
     "number_of_returns": ("number_of_returns", "u1", ()),
     "rgb": ("color", "u1", (3,)),
+    "ring": ("ring", "u1", ()),
+    "channel": ("channel", "u1", ()),
+    "sensor_xyz": ("sensor", "<f8", (3,)),
 }
 META_NAME = "meta.json"
 ORIGIN_NAME = "origin.npy"
@@ -167,7 +173,8 @@ def iter_npdir_chunks(
             raise InputFileError(f"{folder / ORIGIN_NAME}: shape {origin.shape}, expected (3,); the folder is damaged")
     stems = {"label": label_field or "segment", "component": "instance", "station": "station",
              "intensity": "intensity", "time": "time", "return_number": "return_number",
-             "number_of_returns": "number_of_returns", "rgb": "color"}
+             "number_of_returns": "number_of_returns", "rgb": "color", "ring": "ring", "channel": "channel",
+             "sensor_xyz": "sensor"}
     if label_field is not None and not (folder / f"{label_field}.npy").is_file():
         present = sorted(p.stem for p in folder.glob("*.npy"))
         raise InputFileError(f"{folder}: no {label_field}.npy to read labels from; the folder has {', '.join(present)}")
@@ -180,7 +187,7 @@ def iter_npdir_chunks(
             array = _load(file)
             if array.shape[0] != coord.shape[0]:
                 raise InputFileError(f"{file}: {array.shape[0]} rows but coord.npy has {coord.shape[0]}; the folder is inconsistent")
-            if column == "rgb":
+            if column in ("rgb", "sensor_xyz"):
                 if array.ndim != 2 or array.shape[1] < 3:
                     raise InputFileError(f"{file}: shape {array.shape}, expected (N, 3) colours; the folder is damaged")
                 arrays[column] = array
@@ -199,8 +206,10 @@ def iter_npdir_chunks(
                 columns[column] = values.astype(np.int32)
             elif column in ("station", "intensity"):
                 columns[column] = values.astype(np.uint16)
-            elif column in ("return_number", "number_of_returns"):
+            elif column in ("return_number", "number_of_returns", "ring", "channel"):
                 columns[column] = values.astype(np.uint8)
+            elif column == "sensor_xyz":
+                columns[column] = np.asarray(values[:, :3], dtype=np.float64)
             elif column == "rgb":
                 # Pointcept stores colour as uint8 or as floats 0..255 (or 0..1 from some converters)
                 rgb = np.asarray(values[:, :3])

@@ -55,6 +55,9 @@ PLY_PROPERTIES: dict[str, tuple[tuple[str, str, str], ...]] = {
     "return_number": (("return_number", "uchar", "u1"),),
     "number_of_returns": (("number_of_returns", "uchar", "u1"),),
     "rgb": (("red", "uchar", "u1"), ("green", "uchar", "u1"), ("blue", "uchar", "u1")),
+    "ring": (("ring", "uchar", "u1"),),
+    "channel": (("channel", "uchar", "u1"),),
+    "sensor_xyz": (("sensor_x", "double", "<f8"), ("sensor_y", "double", "<f8"), ("sensor_z", "double", "<f8")),
 }
 PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
@@ -121,9 +124,9 @@ class PlyCloudWriter(StreamingCloudWriter):
         rows = np.empty(len(chunk), dtype=self._dtype)
         rows["x"], rows["y"], rows["z"] = chunk.xyz[:, 0], chunk.xyz[:, 1], chunk.xyz[:, 2]
         for column in self.columns or ():
-            if column == "rgb":
-                for channel, (name, _, _) in enumerate(PLY_PROPERTIES["rgb"]):
-                    rows[name] = chunk.rgb[:, channel]
+            if column in ("rgb", "sensor_xyz"):
+                for channel, (name, _, _) in enumerate(PLY_PROPERTIES[column]):
+                    rows[name] = getattr(chunk, column)[:, channel]
             elif column != "xyz":
                 rows[PLY_PROPERTIES[column][0][0]] = getattr(chunk, column)
         self._file.write(memoryview(rows).cast("B"))
@@ -281,11 +284,14 @@ def _column_sources(layout: PlyLayout, vertex: PlyElement, label_field: str | No
             raise InputFileError(f"{where}: no vertex property {label_field!r} to read labels from; the file has {', '.join(names)}")
         sources["label"] = label_field
     if ours:
-        for column in ("label", "component", "station", "intensity", "time", "return_number", "number_of_returns"):
+        for column in ("label", "component", "station", "intensity", "time", "return_number", "number_of_returns",
+                       "ring", "channel"):
             if column in names:
                 sources.setdefault(column, column)
         if {"red", "green", "blue"} <= set(names):
             sources["rgb"] = "red"
+        if {"sensor_x", "sensor_y", "sensor_z"} <= set(names):
+            sources["sensor_xyz"] = "sensor_x"
         return sources
     label = _find(names, LABEL_CANDIDATES)
     if label is not None:
@@ -398,10 +404,12 @@ def iter_ply_chunks(
                     columns[column] = values.astype(np.int32)
                 elif column == "station":
                     columns[column] = values.astype(np.uint16)
-                elif column in ("return_number", "number_of_returns"):
+                elif column in ("return_number", "number_of_returns", "ring", "channel"):
                     columns[column] = values.astype(np.uint8)
                 elif column == "rgb":
                     columns[column] = _rgb8(rows, names)
+                elif column == "sensor_xyz":
+                    columns[column] = np.column_stack([rows[f"sensor_{a}"] for a in "xyz"]).astype(np.float64)
                 else:
                     columns[column] = values.astype(np.float64)
             return PointCloud(xyz=xyz, **columns)
