@@ -24,7 +24,10 @@ from bimscan.process.summary import CloudSummary
 from bimscan.progress import progress_bar, step_line
 from bimscan.survey.recipe import AUTO_STATIONS, ScanRecipe
 from bimscan.site import DressTimings, dress_scene_timed
+from bimscan.survey.mobile import AUTO_TRAJECTORY
 from bimscan.survey.stations import PlanReport
+from bimscan.survey.trajectory import Trajectory, trajectory_path, write_trajectory
+from bimscan.survey.walk import WalkReport
 from bimscan.survey.survey import Survey, cloud_header, prepare_survey, run_survey
 from bimscan.types import BimScene, BuildDates, LabelScheme, PointCloud, Station
 
@@ -116,6 +119,8 @@ class SiteAndStations:
     stations: tuple[Station, ...]
     plan: PlanReport | None
     timings: DressTimings
+    trajectory: Trajectory | None = None
+    walk: WalkReport | None = None
 
 
 def site_and_stations(scene: BimScene, recipe: ScanRecipe, *, progress: bool = False) -> SiteAndStations:
@@ -128,8 +133,16 @@ def site_and_stations(scene: BimScene, recipe: ScanRecipe, *, progress: bool = F
     tripod spot clear in every room) or the file's checked once more. A bare site model dresses
     nothing and chooses once.
     """
-    from bimscan.survey.survey import choose_stations, require_tripod_spots
+    from bimscan.survey.survey import choose_stations, choose_trajectory, require_tripod_spots
 
+    if recipe.mobile is not None:  # a walk instead of stations, planned (or checked) on the dressed scene
+        if recipe.mobile.trajectory_from == AUTO_TRAJECTORY:
+            require_tripod_spots(scene, recipe)  # the walk goes where a tripod plan would: fail in seconds
+        dressed, timings = (scene, DressTimings()) if recipe.site.is_bare else build_site_timed(scene, recipe,
+                                                                                              progress=progress)
+        with step_line("planning the walk", enabled=progress):
+            trajectory, walk = choose_trajectory(dressed, recipe)
+        return SiteAndStations(scene=dressed, stations=(), plan=None, timings=timings, trajectory=trajectory, walk=walk)
     from_file = recipe.stations_from != AUTO_STATIONS
     stations: tuple[Station, ...] = ()
     if recipe.site.is_bare or from_file:
@@ -236,6 +249,8 @@ def scan_model(model: str | Path, out: str | Path, recipe: ScanRecipe, *,
     from bimscan.io import check_cloud_output, check_free_space
 
     check_cloud_output(out, overwrite=overwrite)
+    if recipe.mobile is not None:
+        check_mobile_output(out, overwrite=overwrite)
     say = warn or (lambda line: None)
     for warning in recipe.warnings + recipe.site.warnings:
         say(warning)
@@ -246,16 +261,34 @@ def scan_model(model: str | Path, out: str | Path, recipe: ScanRecipe, *,
         say(line)
     loaded = time.perf_counter()
     chosen = site_and_stations(scene, recipe, progress=progress)
-    survey = prepare_survey(chosen.scene, recipe, stations=chosen.stations, plan=chosen.plan)
+    survey = prepare_survey(chosen.scene, recipe, stations=chosen.stations or None, plan=chosen.plan,
+                            trajectory=chosen.trajectory, walk=chosen.walk)
     prepared = time.perf_counter()
     if survey.plan is not None and survey.plan.rooms_without_station:
         say(rooms_without_station_line(survey.plan))
     check_free_space(out, points=survey.pulses())
     result = scan_survey(survey, out, overwrite=overwrite, progress=progress)
+    if survey.trajectory is not None:
+        write_trajectory(trajectory_path(result.path), survey.trajectory)
     dressing = chosen.timings.total_s
     steps = {"load": loaded - start, "dressing": dressing, "stations": prepared - loaded - dressing,
              "scan and write": result.seconds}
     return dataclasses.replace(result, steps=steps)
+
+
+def check_mobile_output(out: str | Path, *, overwrite: bool) -> None:
+    """Raise before any work when a mobile scan cannot be written to ``out``: E57 stores one pose per
+    scan (a mobile scan's per-point beam origins and rings would be lost), and the trajectory
+    beside the cloud must not overwrite a file unless asked."""
+    from bimscan.errors import OutputError
+
+    if str(out).lower().endswith(".e57"):
+        raise OutputError(f"{out}: E57 stores one pose per scan and has no field for a mobile scan's beam origins and "
+                          "rings; write a mobile scan to .las, .laz, .ply or a folder")
+    beside = trajectory_path(out)
+    if beside.exists() and not overwrite:
+        raise OutputError(f"{beside} exists (the trajectory of a mobile scan goes there); pass --overwrite or choose "
+                          "another OUT")
 
 
 def rooms_without_station_line(plan: PlanReport) -> str:

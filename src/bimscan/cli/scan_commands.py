@@ -14,6 +14,8 @@ from bimscan.scan.device import DEFAULT_PRESET, DEFAULT_SCANNER, PRESETS, SCANNE
 from bimscan.scan.engine import AUTO_ENGINE, DEFAULT_ENGINE, ENGINES
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.sensor import REALISMS, RETURN_MODES, SensorModel
+from bimscan.scan.multibeam import LIDARS
+from bimscan.survey.platform import PLATFORM_NAMES, TRIPOD
 from bimscan.survey.recipe import AUTO_STATIONS, DEFAULT_MAX_STATION_PULSES, ScanRecipe
 
 if TYPE_CHECKING:
@@ -45,7 +47,19 @@ if TYPE_CHECKING:
               "IFC file that needed a repair, has a problem or loses an element (see 'bimscan info --help').")
 @click.option("--length-unit", type=click.Choice(list(LENGTH_UNITS)), default=None, help=LENGTH_UNIT_HELP)
 @click.option("--scanner", default=None,
-              help=f"Scanner: a name ({', '.join(SCANNERS)}; default {DEFAULT_SCANNER}) or a scanner TOML file.")
+              help=f"Scanner: a name ({', '.join([*SCANNERS, *LIDARS])}) or a scanner TOML file. Default: "
+                   f"{DEFAULT_SCANNER} on the tripod, the platform's lidar on a mobile platform.")
+@click.option("--platform", default=TRIPOD, show_default=True,
+              help=f"What carries the scanner: {', '.join(PLATFORM_NAMES)} (a person walking with multi-beam lidars), "
+                   "or a platform TOML file.")
+@click.option("--trajectory", default=None,
+              help="Mobile platforms: 'auto' (a walk planned from the model through every room a tripod plan "
+                   "reaches, back to its start; the default) or a CSV file t,x,y,z,roll,pitch,yaw (degrees).")
+@click.option("--drift", "drift_m", type=float, default=None,
+              help="Mobile platforms: SLAM drift, the position error's sigma after 10 m walked (metres; heading "
+                   "drifts alike), pinned to zero at loop closures. Default: 0 (none).")
+@click.option("--rotation-hz", type=float, default=None,
+              help="Mobile platforms: the lidar's rotation rate. Default: the scanner's (VLP-16: 10 Hz).")
 @click.option("--head-speed", "head_deg_per_s", type=float, default=None,
               help="Head rotation in deg/s, overriding the preset (fewer points per station when faster).")
 @click.option("--scheme", default=None, help=SCHEME_HELP)
@@ -80,20 +94,24 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
          scheme: str | None, engine: str, realism: str | None, sensor_file: str | None, returns: str | None,
          footprint: bool | None, beam_sample_quality: int | None, detection: bool | None, glass: bool | None,
          color: bool | None, deviations: bool | None, material_table: str | None, threads: int,
-         max_station_pulses: int, overwrite: bool, length_unit: str | None, site: SiteModel) -> None:
-    """Scan MODEL.ifc with a virtual TLS and write a labelled cloud to OUT.
+         max_station_pulses: int, overwrite: bool, length_unit: str | None, site: SiteModel, platform: str,
+         trajectory: str | None, drift_m: float | None, rotation_hz: float | None) -> None:
+    """Scan MODEL.ifc with a virtual TLS (or a mobile scanner) and write a labelled cloud to OUT.
 
     OUT's suffix picks the format: .laz, .las, .e57, .ply, or a folder (no suffix) of NumPy arrays
     in the Pointcept layout. Class ids go to LAS classification; component and station are
     extra dimensions; class names and the component table are stored with the file. With
     sensor effects on, return numbers (and colour with --rgb) are stored too. With
     --clutter/--stage the building is scanned as a site (objects added as components, elements
-    not yet built left out); stations are planned on that scene.
+    not yet built left out); stations are planned on that scene. With --platform handheld or
+    backpack the scanner walks a trajectory instead: every point carries its time, ring, lidar and
+    beam origin, and the trajectory walked is written beside OUT as OUT.trajectory.csv.
     """
     from bimscan.ifc.watchdog import prestart_worker
 
     prestart_worker()  # IfcOpenShell loads in the geometry worker while this process loads the scanner
     from bimscan.pipeline import scan_model
+    from bimscan.survey.drift import DriftModel
     from bimscan.survey.recipe import resolve_sensor
     from bimscan.toml_files import load_toml
 
@@ -108,15 +126,29 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
     sensor |= {key: value for key, value in flags.items() if value is not None}
     settings = resolve_sensor(sensor, realism=realism,
                               where=f"{sensor_file} with the sensor flags" if sensor_file else "the sensor flags")
-    recipe = ScanRecipe.resolve(preset=preset, scanner=scanner, head_deg_per_s=head_deg_per_s, noise=noise, seed=seed,
+    mobile = platform != TRIPOD
+    recipe = ScanRecipe.resolve(preset=preset, scanner=None if mobile else scanner, lidar=scanner if mobile else None,
+                                head_deg_per_s=head_deg_per_s, noise=noise, seed=seed,
                                 engine=engine, stations_from=stations, strict=strict, threads=threads,
-                                max_station_pulses=max_station_pulses, sensor=settings, site=site)
+                                max_station_pulses=max_station_pulses, sensor=settings, site=site, platform=platform,
+                                trajectory=trajectory, drift=None if drift_m is None else DriftModel(sigma_m=drift_m),
+                                rotation_hz=rotation_hz)
     result = scan_model(model, out, recipe, scheme=scheme, overwrite=overwrite, length_unit=length_unit,
                         warn=lambda line: click.echo(f"warning: {line}", err=True))
     extents = result.summary.extents()
     names = result.survey.scene.scheme.names
-    click.echo(f"{result.path}: {result.points:,} points from {len(result.survey.stations)} stations in "
+    walked = result.survey.trajectory
+    source = (f"{len(result.survey.stations)} stations" if walked is None else
+              f"a {walked.length_m():.0f} m walk of {walked.duration_s():.0f} s in {walked.n_passes} "
+              f"pass{'es' if walked.n_passes > 1 else ''}")
+    click.echo(f"{result.path}: {result.points:,} points from {source} in "
                f"{result.seconds:.1f} s ({result.points / max(result.seconds, 1e-9) / 1e6:.2f} Mpts/s)")
+    if walked is not None:
+        from bimscan.survey.trajectory import trajectory_path
+
+        walk = result.survey.walk
+        rooms = f"; rooms visited: {len(walk.rooms)}, stations of the tripod plan missed: {len(walk.missed)}" if walk else ""
+        click.echo(f"  trajectory: {trajectory_path(result.path)} ({len(walked.closures)} loop closures{rooms})")
     plan = result.survey.plan
     if plan is not None and plan.stations_per_storey:
         click.echo("  stations per storey: " + ", ".join(f"{k} {v}" for k, v in plan.stations_per_storey.items()))

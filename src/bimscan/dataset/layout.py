@@ -47,6 +47,7 @@ UNITS_DIR = "units"
 SCENES_DIR = "scenes"
 UNIT_NAME = "unit.json"
 TIMINGS_NAME = "timings.json"
+TRAJECTORY_NAME = "trajectory.csv"  # a mobile unit's walk (survey.trajectory)
 MANIFEST_FORMAT = "bimscan-dataset"
 MANIFEST_VERSION = 1
 UNIT_FORMAT = "bimscan-unit"

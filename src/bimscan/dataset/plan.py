@@ -29,6 +29,7 @@ from bimscan.dataset.layout import (
 from bimscan.dataset.spec import DatasetSpec, SceneSpec, resolve_scheme
 from bimscan.errors import BimscanError
 from bimscan.files import dump_json, file_sha256
+from bimscan.survey.mobile import AUTO_TRAJECTORY
 from bimscan.survey.recipe import AUTO_STATIONS, ScanRecipe
 
 
@@ -144,8 +145,11 @@ def scene_inputs(scene: SceneSpec, scene_file: Path) -> dict[str, Any]:
 def unit_inputs(spec: DatasetSpec, scheme: Mapping[str, Any], scene: Mapping[str, Any], config: str,
                 recipe: ScanRecipe) -> dict[str, Any]:
     """Everything a unit's bytes depend on (JSON-able); its fingerprint decides reuse."""
-    return {**scene, "config": config, "recipe": recipe.to_json(), "scheme": dict(scheme),
-            "formats": list(spec.formats), "voxel_size_m": spec.voxel_size_m, "software": f"bimscan {__version__}"}
+    inputs = {**scene, "config": config, "recipe": recipe.to_json(), "scheme": dict(scheme),
+              "formats": list(spec.formats), "voxel_size_m": spec.voxel_size_m, "software": f"bimscan {__version__}"}
+    if recipe.mobile is not None and recipe.mobile.trajectory_from != AUTO_TRAJECTORY:
+        inputs["trajectory_sha256"] = file_sha256(recipe.mobile.trajectory_from)
+    return inputs
 
 
 def site_tag(recipe: ScanRecipe) -> str:
@@ -210,7 +214,7 @@ def plan_build(spec: DatasetSpec, folder: DatasetFolder, scenes: SceneFiles, *,
                                      voxel_size_m=spec.voxel_size_m, out_dir=str(folder.root), inputs=inputs,
                                      fingerprint=key, site_tag=tag, site_key=stations_key(inputs_of_scene, recipe),
                                      length_unit=scene.length_unit)
-            scene_recipes.setdefault(tag, recipe)
+            scene_recipes.setdefault(tag, recipe.with_fields(mobile=None))  # the scene task plans tripod stations
         if inputs_of_scene is not None:
             for tag, scene_recipe in scene_recipes.items():
                 stations_file = str(folder.stations_path(scene.name, tag))

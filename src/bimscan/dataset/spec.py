@@ -24,6 +24,7 @@ A spec is one TOML file (paths inside it are relative to the file)::
     name = "duplex"
     ifc = "models/duplex.ifc"
     stations = "auto"             # or a station CSV file
+    trajectory = "auto"           # mobile configurations: a walk planned through the stations, or a CSV file
     length_unit = "mm"            # optional: the IFC's lengths in this unit, whatever it says (m, cm, mm, ft, in)
 
     [[scenes]]
@@ -43,6 +44,13 @@ A spec is one TOML file (paths inside it are relative to the file)::
     stage = "enclosed"            # optional: the construction stage (bimscan.site), a name or a table
     clutter = { density = 0.2, kinds = ["site", "people"] }   # optional: clutter on the floors
 
+    [[configs]]
+    name = "handheld"
+    platform = "handheld"         # a mobile scan (handheld, backpack or a platform file): no preset
+    lidar = "velodyne_vlp16"      # optional: the multi-beam lidar (default: the platform's)
+    rotation_hz = 10.0            # optional: its rotation rate
+    drift_m = 0.01                # optional: SLAM drift, metres per 10 m walked (bimscan.survey.drift)
+
 A spec can start from another: ``base = "other.toml"`` (relative to this file) takes every
 top-level key of that spec (its scenes and configurations too) that this file does not set; a
 key this file sets replaces the base's whole (``clutter = { density = 0.0 }`` takes clutter out,
@@ -58,7 +66,10 @@ configuration becomes one per stage, named ``<config>.<stage>`` (unit ``<scene>_
 values, names, missing IFC or station files, unknown presets, schemes (and the IFC classes their
 rules name), scanners and engines, impossible settings, unknown stages and clutter kinds. Each
 (scene, configuration) pair is one data unit ``<scene>__<config>``, scanned with the
-``ScanRecipe`` that ``DatasetSpec.recipe`` resolves for it.
+``ScanRecipe`` that ``DatasetSpec.recipe`` resolves for it. A mobile configuration walks each
+scene along its ``trajectory``: planned through the scene's stations (the tripod plan every
+configuration of the scene shares), or the scene's CSV file; the unit keeps it as
+``trajectory.csv``.
 """
 
 from __future__ import annotations
@@ -75,6 +86,9 @@ from bimscan.ifc.generate.styles import DEFAULT_STYLE
 from bimscan.scan.device import DEFAULT_SCANNER, ScanSettings
 from bimscan.scan.engine import DEFAULT_ENGINE
 from bimscan.scan.noise import NoiseModel
+from bimscan.survey.drift import DriftModel
+from bimscan.survey.mobile import AUTO_TRAJECTORY
+from bimscan.survey.platform import TRIPOD
 from bimscan.survey.recipe import AUTO_STATIONS, DEFAULT_MAX_STATION_PULSES, ScanRecipe
 from bimscan.scan.sensor import merge_sensor_tables
 from bimscan.site.model import ClutterSettings, SiteModel, StageSettings, stage_table
@@ -102,6 +116,7 @@ class SceneSpec:
     generate: GeneratedScene | None = None
     stations: str = AUTO_STATIONS  # "auto" or a station CSV file (absolute once loaded)
     length_unit: str | None = None  # read the IFC's lengths in this unit (bimscan.ifc.units.LENGTH_UNITS)
+    trajectory: str = AUTO_TRAJECTORY  # mobile configurations: "auto" or a trajectory CSV (absolute once loaded)
 
     def __post_init__(self) -> None:
         from bimscan.ifc.units import LENGTH_UNITS
@@ -124,6 +139,14 @@ class ConfigSpec:
     sensor: dict[str, Any] | None = None
     stage: StageSettings | None = None
     clutter: ClutterSettings | None = None
+    platform: str = TRIPOD
+    lidar: str | None = None
+    rotation_hz: float | None = None
+    drift_m: float | None = None
+
+    @property
+    def is_mobile(self) -> bool:
+        return self.platform != TRIPOD
 
 
 @dataclass(frozen=True)
@@ -166,10 +189,22 @@ class DatasetSpec:
     def recipe(self, scene: SceneSpec, config: ConfigSpec) -> ScanRecipe:
         """The scan recipe of the unit (scene, config): its own noise stream (the unit id), so no
         two units share a noise sequence. Raises ConfigError/ScannerSettingsError when impossible."""
-        if (config.preset is None) == (config.settings is None):
-            raise ConfigError(f"give exactly one of 'preset' (exp1..exp6 or a settings file) or 'settings' (a table), "
-                              f"not {'both' if config.preset else 'neither'}")
-        return ScanRecipe.resolve(preset=config.preset, settings=config.settings, scanner=self.scanner,
+        if config.is_mobile:
+            if config.preset is not None or config.settings is not None or config.head_deg_per_s is not None:
+                raise ConfigError(f"a mobile configuration (platform {config.platform!r}) has no TLS 'preset', "
+                                  "'settings' or 'head_deg_per_s'; give its lidar, rotation_hz and drift_m")
+            mobile = {"platform": config.platform, "lidar": config.lidar, "rotation_hz": config.rotation_hz,
+                      "trajectory": scene.trajectory,
+                      "drift": None if config.drift_m is None else DriftModel(sigma_m=config.drift_m)}
+        else:
+            if (config.preset is None) == (config.settings is None):
+                raise ConfigError(f"give exactly one of 'preset' (exp1..exp6 or a settings file) or 'settings' (a "
+                                  f"table), not {'both' if config.preset else 'neither'}")
+            if config.lidar is not None or config.rotation_hz is not None or config.drift_m is not None:
+                raise ConfigError("'lidar', 'rotation_hz' and 'drift_m' are for mobile configurations; give "
+                                  "platform = \"handheld\" or \"backpack\", or leave them out")
+            mobile = {}
+        return ScanRecipe.resolve(preset=config.preset, settings=config.settings, scanner=self.scanner, **mobile,
                                   head_deg_per_s=config.head_deg_per_s, noise=self.noise, seed=self.seed,
                                   noise_stream=unit_id(scene.name, config.name), engine=self.engine,
                                   stations_from=scene.stations, strict=self.strict, site=self.site(config),
@@ -219,8 +254,9 @@ def _config_paths(raw: Any, folder: Path) -> Any:
     if not isinstance(raw, dict):
         return raw
     out = dict(raw)
-    if isinstance(out.get("preset"), str):
-        out["preset"] = _local_path(out["preset"], folder)
+    for key in ("preset", "platform", "lidar"):
+        if isinstance(out.get(key), str):
+            out[key] = _local_path(out[key], folder)
     if isinstance(out.get("sensor"), dict):
         out["sensor"] = _local_sensor(out["sensor"], folder)
     return out
@@ -235,6 +271,8 @@ def _scene_paths(raw: Any, folder: Path) -> Any:
         out["ifc"] = str((folder / out["ifc"]).resolve())
     if isinstance(out.get("stations"), str) and out["stations"] != AUTO_STATIONS:
         out["stations"] = str((folder / out["stations"]).resolve())
+    if isinstance(out.get("trajectory"), str) and out["trajectory"] != AUTO_TRAJECTORY:
+        out["trajectory"] = str((folder / out["trajectory"]).resolve())
     return out
 
 
@@ -313,7 +351,14 @@ def _scene(raw: Any, *, base: Path, where: str) -> SceneSpec:
             raise InputFileError(f"{where}: station file {stations!r} not found (looked at {station_path}); give "
                                  "'auto' or a CSV file relative to the spec file")
         stations = str(station_path)
-    return dataclasses.replace(scene, ifc=ifc, stations=stations)
+    trajectory = scene.trajectory
+    if trajectory != AUTO_TRAJECTORY:
+        trajectory_file = (base / trajectory).resolve()
+        if not trajectory_file.is_file():
+            raise InputFileError(f"{where}: trajectory file {trajectory!r} not found (looked at {trajectory_file}); "
+                                 "give 'auto' or a CSV file relative to the spec file")
+        trajectory = str(trajectory_file)
+    return dataclasses.replace(scene, ifc=ifc, stations=stations, trajectory=trajectory)
 
 
 def check_spec(spec: DatasetSpec, *, where: str) -> None:
@@ -366,7 +411,9 @@ def _local_path(value: str, base: Path) -> str:
 def _absolute(spec: DatasetSpec, *, base: Path) -> DatasetSpec:
     """The spec with its scheme, scanner and preset files made absolute (workers run anywhere)."""
     configs = tuple(dataclasses.replace(c, preset=_local_path(c.preset, base) if c.preset else None,
-                                        sensor=_local_sensor(c.sensor, base)) for c in spec.configs)
+                                        sensor=_local_sensor(c.sensor, base),
+                                        platform=_local_path(c.platform, base),
+                                        lidar=_local_path(c.lidar, base) if c.lidar else None) for c in spec.configs)
     return dataclasses.replace(spec, scheme=_local_path(spec.scheme, base), scanner=_local_path(spec.scanner, base),
                                sensor=_local_sensor(spec.sensor, base), configs=configs)
 

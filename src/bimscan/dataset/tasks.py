@@ -27,12 +27,12 @@ from typing import TYPE_CHECKING
 
 from bimscan.dataset.executors import driver_alive, report_pulses
 from bimscan.dataset.layout import (
-    FORMAT_FILES, STATIONS_FORMAT, STATIONS_VERSION, TIMINGS_NAME, DatasetFolder, UnitRecord, read_json,
+    FORMAT_FILES, STATIONS_FORMAT, STATIONS_VERSION, TIMINGS_NAME, TRAJECTORY_NAME, DatasetFolder, UnitRecord, read_json,
     read_site_scene, write_json, write_site_scene, write_unit_record,
 )
 from bimscan.dataset.plan import SceneJob, UnitJob
 from bimscan.errors import BimscanError, DatasetError, SemanticError
-from bimscan.files import replace_path
+from bimscan.files import file_sha256, replace_path
 from bimscan.survey.recipe import AUTO_STATIONS
 
 if TYPE_CHECKING:
@@ -129,7 +129,8 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
     from bimscan.pipeline import build_site, load_scene, stream_checked
     from bimscan.process.subsample import VoxelSubsampler
     from bimscan.process.summary import CloudSummary
-    from bimscan.survey.survey import cloud_header, prepare_survey
+    from bimscan.survey.survey import choose_trajectory, cloud_header, prepare_survey
+    from bimscan.survey.trajectory import write_trajectory
 
     start = time.perf_counter()
     folder = DatasetFolder(job.out_dir)
@@ -145,7 +146,10 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
             keep_clear = stations if job.recipe.stations_from != AUTO_STATIONS else ()
             scene = stored if stored is not None else build_site(scene, job.recipe, keep_clear=keep_clear)
         site_s = time.perf_counter() - start - load_s
-        survey = prepare_survey(scene, job.recipe, stations=stations)
+        trajectory = walk = None
+        if job.recipe.mobile is not None:  # a walk through the scene's stations (or the scene's trajectory file)
+            trajectory, walk = choose_trajectory(scene, job.recipe, stations=stations)
+        survey = prepare_survey(scene, job.recipe, stations=stations, trajectory=trajectory, walk=walk)
         header = cloud_header(survey, extra_metadata={
             "unit": {"id": job.unit, "scene": job.scene, "config": job.config, "voxel_size_m": job.voxel_size_m,
                      "fingerprint": job.fingerprint}})
@@ -172,6 +176,8 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
             checksums.update(cloud.sha256)
             n_bytes += cloud.n_bytes
         files = {fmt: FORMAT_FILES[fmt] for fmt in job.formats}
+        if trajectory is not None:  # kept and verified with the clouds
+            checksums[TRAJECTORY_NAME] = file_sha256(write_trajectory(staged / TRAJECTORY_NAME, trajectory))
         record = UnitRecord(
             id=job.unit, scene=job.scene, config=job.config, fingerprint=job.fingerprint, inputs=job.inputs,
             ifc_schema=scene.schema, stations=stations, device_warnings=job.recipe.warnings, points=kept.points,

@@ -182,8 +182,10 @@ class ScanSettings:
 
 
 def _scanner_files() -> dict[str, str]:
+    """The rotating-mirror TLS files of ``scan/scanners`` (multi-beam lidars are ``scan.multibeam``'s)."""
     folder = resources.files("bimscan.scan") / "scanners"
-    return {p.name.removesuffix(".toml"): p.read_text("utf-8") for p in folder.iterdir() if p.name.endswith(".toml")}
+    texts = {p.name.removesuffix(".toml"): p.read_text("utf-8") for p in folder.iterdir() if p.name.endswith(".toml")}
+    return {name: text for name, text in texts.items() if tomllib.loads(text).get("kind") != "multibeam"}
 
 
 def _parse_scanner(data: dict, where: str) -> ScannerModel:
@@ -204,11 +206,20 @@ def load_scanner(source: str | Path | None = None) -> ScannerModel:
         return SCANNERS[DEFAULT_SCANNER]
     if isinstance(source, str) and source in SCANNERS:
         return SCANNERS[source]
+    from bimscan.scan.multibeam import LIDARS
+
+    if isinstance(source, str) and source in LIDARS:
+        raise ConfigError(f"scanner {source!r} is a multi-beam lidar for mobile scanning; use it with --platform "
+                          "handheld or backpack, or pick a TLS scanner for the tripod: " + ", ".join(SCANNERS))
     path = Path(source)
     if not path.is_file():
         raise ConfigError(f"scanner {str(source)!r} is neither a file nor a known scanner ({', '.join(SCANNERS)}); "
                           "pass a scanner TOML file")
-    return _parse_scanner(load_toml(path), str(path))
+    table = load_toml(path)
+    if table.get("kind") == "multibeam":
+        raise ConfigError(f"{path}: a multi-beam lidar for mobile scanning; use it with --platform handheld or "
+                          "backpack, or pass a TLS scanner file for the tripod")
+    return _parse_scanner(table, str(path))
 
 
 PRESETS: dict[str, ScanSettings] = {

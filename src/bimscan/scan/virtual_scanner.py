@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator
-from typing import Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numba
 import numpy as np
@@ -12,6 +12,7 @@ import numpy as np
 from bimscan.scan.asbuilt import Deviations
 from bimscan.scan.engine import FaceTables, HitSettings, LineChunk, RayEngine, make_engine
 from bimscan.scan.kernels import finish_hits, generate_rays, noise_key, station_normals
+from bimscan.scan.multibeam import finish_moving_hits, moving_rays
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan import waveform
 from bimscan.scan.device import ScannerModel, ScanSettings
@@ -19,9 +20,14 @@ from bimscan.scan.pattern import PulsePattern
 from bimscan.scan.sensor import SensorModel
 from bimscan.types import ComponentSurfaces, ComponentTable, PointCloud, SceneMesh, Station
 
+if TYPE_CHECKING:
+    from bimscan.survey.drift import DriftTrack
+    from bimscan.survey.trajectory import Trajectory
+
 DEFAULT_REFLECTANCE = 0.5
 _POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.int64)
-INTENSITY_REFERENCE_M = 5.0  # intensity falls with (5 m / range)^2 beyond 5 m
+INTENSITY_REFERENCE_M = 5.0
+MAX_MOUNTS = 4  # lidars on one platform at most (survey.platform.MAX_MOUNTS): a pass's noise keys  # intensity falls with (5 m / range)^2 beyond 5 m
 
 
 class StationRecipe(Protocol):
@@ -35,6 +41,7 @@ class StationRecipe(Protocol):
     seed: int
     noise_stream: str
     chunk_pulses: int
+    mobile: Any  # survey.mobile.MobileScan of a mobile scan, None for a tripod survey
 
 
 def registration_error(noise: NoiseModel, key: np.uint64) -> tuple[np.ndarray, np.ndarray]:
@@ -165,6 +172,76 @@ class VirtualScanner:
                 continue
             yield self._chunk_cloud((xyz, label, component, station_column, intensity, time), kept, registration,
                                     origin_world)
+
+    def scan_pass(self, trajectory: Trajectory, part: slice, pass_id: int, mount_index: int, recipe: StationRecipe,
+                  *, drift: DriftTrack | None = None, on_pulses: Callable[[int], None] | None = None,
+                  reuse_buffers: bool = False) -> Iterator[PointCloud]:
+        """Stream the labelled points of one pass of a mobile scan by one of its platform's lidars.
+
+        ``recipe.mobile`` says the platform, lidar, rotation rate and drift; ``part`` selects the
+        pass's samples of ``trajectory``. Pulses are numbered from the start of the pass and fire
+        as the lidar's firing sequence says (``scan.multibeam``); noise is drawn per pulse number
+        from the key of (seed, noise stream, pass and mount), so chunking changes nothing. The
+        drift (``survey.drift``), when given, moves every point and its beam origin.
+        """
+        mobile = recipe.mobile
+        lidar, mount = mobile.lidar, mobile.platform.mounts[mount_index]
+        self._set_threads()
+        t = np.ascontiguousarray(trajectory.t[part])
+        xyz_track = np.ascontiguousarray(trajectory.xyz[part])
+        ypr = trajectory.ypr(part)
+        total = mobile.pass_pulses(float(t[-1] - t[0]))
+        n_beams = lidar.n_beams
+        noise = recipe.noise
+        key = np.uint64(noise_key(recipe.seed, pass_id * MAX_MOUNTS + mount_index, recipe.noise_stream))
+        firing = np.asarray(lidar.firing_offset_us, dtype=np.float64) * 1e-6
+        elevation = np.radians(np.asarray(lidar.beam_elevation_deg, dtype=np.float64))
+        cos_el, sin_el = np.cos(elevation), np.sin(elevation)
+        azimuth_offset = np.radians(np.asarray(lidar.beam_azimuth_offset_deg, dtype=np.float64))
+        ring_of_beam = lidar.ring_of_beam()
+        lever = mount.lever_arm()
+        rotation = np.ascontiguousarray(mount.rotation())
+        chunk = max(n_beams, (recipe.chunk_pulses // n_beams) * n_beams)
+        centre = np.asarray(self.engine.centre, dtype=np.float64)
+        for first in range(0, total, chunk):
+            n = min(chunk, total - first)
+            if len(self._ray_buffer) < n:
+                self._ray_buffer = np.empty((n, 6), dtype=np.float32)
+            rays = self._ray_buffer[:n]
+            origin = self._work("mobile_origin", (n, 3), np.float64)
+            pulse_time = self._work("mobile_time", (n,), np.float64)
+            moving_rays(np.int64(first), np.int64(n), np.int64(n_beams), lidar.firing_cycle_us * 1e-6, float(t[0]),
+                        firing, cos_el, sin_el, azimuth_offset, 2 * math.pi * mobile.rotation_hz, t, xyz_track, ypr,
+                        lever, rotation, 2 * math.pi * mount.head_rotation_hz, centre, rays, origin, pulse_time)
+            t_hit, triangle = self.engine.cast(rays)
+            columns = self._mobile_outputs(n, reuse_buffers)
+            xyz, label, component, station_column, intensity, time, ring, sensor = columns
+            if on_pulses is not None:
+                on_pulses(n)
+            kept = finish_moving_hits(t_hit, triangle, rays, origin, pulse_time, np.int64(first), np.int64(n_beams),
+                                      ring_of_beam, self.face_component, self.face_label, self.face_brightness,
+                                      lidar.min_range_m, lidar.max_range_m, key, noise.range_sigma_m,
+                                      math.radians(noise.angle_sigma_deg), INTENSITY_REFERENCE_M, pass_id, xyz, label,
+                                      component, station_column, intensity, time, ring, sensor)
+            if kept == 0:
+                continue
+            if drift is not None:
+                drift.apply(xyz[:kept], sensor[:kept], time[:kept])
+            channel = self._work("mobile_channel", (kept,), np.uint8) if reuse_buffers else np.empty(kept, np.uint8)
+            channel[:] = mount_index
+            yield PointCloud(xyz=xyz[:kept], label=label[:kept], component=component[:kept],
+                             station=station_column[:kept], intensity=intensity[:kept], time=time[:kept],
+                             ring=ring[:kept], channel=channel, sensor_xyz=sensor[:kept])
+
+    def _mobile_outputs(self, n: int, reuse: bool) -> tuple[np.ndarray, ...]:
+        """Output columns of a mobile chunk: fresh, or views of kept buffers."""
+        if reuse:
+            return (self._work("m_xyz", (n, 3), np.float64), self._work("m_label", (n,), np.uint8),
+                    self._work("m_component", (n,), np.int32), self._work("m_station", (n,), np.uint16),
+                    self._work("m_intensity", (n,), np.uint16), self._work("m_time", (n,), np.float64),
+                    self._work("m_ring", (n,), np.uint8), self._work("m_sensor", (n, 3), np.float64))
+        return (np.empty((n, 3)), np.empty(n, np.uint8), np.empty(n, np.int32), np.empty(n, np.uint16),
+                np.empty(n, np.uint16), np.empty(n), np.empty(n, np.uint8), np.empty((n, 3)))
 
     @staticmethod
     def _chunk_cloud(columns: tuple[np.ndarray, ...], kept: int, registration: tuple[np.ndarray, np.ndarray] | None,

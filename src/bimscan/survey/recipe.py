@@ -32,6 +32,10 @@ from bimscan.scan.engine import DEFAULT_ENGINE, resolve_engine
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.sensor import SensorModel
 from bimscan.site.model import SiteModel
+from bimscan.scan.multibeam import load_lidar
+from bimscan.survey.drift import DriftModel
+from bimscan.survey.mobile import AUTO_TRAJECTORY, MobileScan
+from bimscan.survey.platform import TRIPOD, load_platform
 from bimscan.toml_files import build_dataclass, load_toml
 
 DEFAULT_CHUNK_PULSES = 1 << 20  # ~70 MB of working arrays per chunk
@@ -68,7 +72,10 @@ class ScanRecipe:
     the paper's scanner). site: what the site looks like when scanned (construction stage, clutter;
     ``bimscan.site``), dressed with ``seed``. threads (0 = all cores) and chunk_pulses change speed
     and memory only, never the output. max_station_pulses: a station that would fire more pulses is
-    refused before any work (with the number it would fire).
+    refused before any work (with the number it would fire). mobile: a mobile scan (a platform
+    walking a trajectory with multi-beam lidars, ``survey.mobile``) instead of tripod stations;
+    ``scanner``, ``settings``, ``preset`` and ``stations_from`` are then the tripod plan's, which
+    decides where the walk goes (``survey.walk``), and are not recorded.
     """
 
     scanner: ScannerModel = field(default_factory=lambda: SCANNERS[DEFAULT_SCANNER])
@@ -85,9 +92,18 @@ class ScanRecipe:
     threads: int = 0
     chunk_pulses: int = DEFAULT_CHUNK_PULSES
     max_station_pulses: int = DEFAULT_MAX_STATION_PULSES
+    mobile: MobileScan | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "noise", self.noise.resolved(self.scanner))
+        object.__setattr__(self, "noise", self.noise.resolved(self.mobile.lidar if self.mobile else self.scanner))
+        if self.mobile is not None:
+            if not self.sensor.is_paper:
+                raise ConfigError("the sensor effects beyond the paper's thin ray (--realism full and its switches) are "
+                                  "simulated for tripod scans only; leave them off for a mobile platform")
+            if self.noise.registers_with_error:
+                raise ConfigError("a mobile scan has no stations to register: give its registration error as --drift "
+                                  "(metres per 10 m walked), not as a station registration sigma")
+            self.mobile.warnings(strict=self.strict)  # raises under strict
         if not isinstance(self.sensor, SensorModel):
             raise ConfigError(f"sensor must be a SensorModel, got {type(self.sensor).__name__}")
         if self.sensor.needs_surfaces:
@@ -118,11 +134,17 @@ class ScanRecipe:
     def resolve(*, preset: str | Path | None = None, settings: ScanSettings | None = None,
                 scanner: str | Path | ScannerModel | None = None, head_deg_per_s: float | None = None,
                 realism: str | None = None, sensor: SensorModel | Mapping[str, Any] | str | Path | None = None,
-                **fields: Any) -> ScanRecipe:
+                platform: str | Path | None = None, lidar: str | Path | None = None, trajectory: str | None = None,
+                drift: DriftModel | None = None, rotation_hz: float | None = None, **fields: Any) -> ScanRecipe:
         """A recipe from what a user wrote: a preset name or settings TOML (or a settings table),
         a scanner name or TOML, a head speed override, the sensor realism (``realism`` "paper" or
         "full", and ``sensor``: a SensorModel, a table of its keys or a TOML file of them; an
         explicit ``realism`` wins over the table's); ``fields`` are the other ScanRecipe fields.
+        A mobile ``platform`` (a ``survey.platform.PLATFORMS`` name or file; None or "tripod": TLS
+        stations) makes a mobile scan: its multi-beam ``lidar`` (a ``scan.multibeam.LIDARS`` name
+        or file; default: the platform's) walked along ``trajectory`` ("auto" or a CSV file) with
+        ``drift`` at ``rotation_hz`` (default: the lidar's). ``scanner`` stays the TLS whose
+        tripod plan the walk visits.
 
         Without ``preset`` and ``settings``: the default preset. Raises ConfigError for unknown
         names, keys and missing files, ScannerSettingsError for impossible settings.
@@ -130,6 +152,15 @@ class ScanRecipe:
         if preset is not None and settings is not None:
             raise ConfigError("give a preset or explicit settings, not both")
         fields["sensor"] = resolve_sensor(sensor, realism=realism)
+        if platform is not None and platform != TRIPOD:
+            chosen = load_platform(platform)
+            fields["mobile"] = MobileScan(platform=chosen, lidar=load_lidar(lidar or chosen.default_scanner),
+                                          rotation_hz=rotation_hz, trajectory_from=trajectory or AUTO_TRAJECTORY,
+                                          drift=drift or DriftModel())
+        elif trajectory not in (None, AUTO_TRAJECTORY) or (drift is not None and not drift.is_off) or \
+                rotation_hz is not None or lidar is not None:
+            raise ConfigError("a multi-beam lidar, trajectory, drift or rotation rate needs a mobile platform "
+                              "(--platform handheld or backpack); a tripod scan has stations")
         model = scanner if isinstance(scanner, ScannerModel) else load_scanner(scanner)
         if settings is None:
             preset = DEFAULT_PRESET if preset is None else preset
@@ -143,6 +174,8 @@ class ScanRecipe:
     @cached_property
     def warnings(self) -> tuple[str, ...]:
         """Settings outside the device's limits (allowed unless ``strict``), one line each."""
+        if self.mobile is not None:
+            return tuple(self.mobile.warnings())
         return tuple(check_settings(self.settings, self.scanner))
 
     def to_json(self) -> dict[str, Any]:
@@ -161,6 +194,12 @@ class ScanRecipe:
                 document[f.name] = _json_value(value)
         if self.stations_from != AUTO_STATIONS:
             document["stations_from"] = Path(self.stations_from).name
+        if self.mobile is None:
+            del document["mobile"]  # a tripod recipe records what it did before mobile scans existed
+        else:
+            for name in ("scanner", "settings", "preset", "stations_from", "sensor"):
+                del document[name]
+            return document
         if self.sensor.is_paper:
             del document["sensor"]
             document["scanner"] = {k: v for k, v in document["scanner"].items() if k not in SENSOR_DEVICE_FIELDS}

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+
+import numpy as np
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,7 +24,10 @@ from bimscan.scan.pattern import PulsePattern
 from bimscan.scan.probe import Prober
 from bimscan.survey.recipe import AUTO_STATIONS, ScanRecipe
 from bimscan.scan.virtual_scanner import VirtualScanner
+from bimscan.survey.mobile import AUTO_TRAJECTORY
 from bimscan.survey.stations import PlanReport, plan_stations, read_stations, station_spots
+from bimscan.survey.trajectory import Trajectory, read_trajectory
+from bimscan.survey.walk import WalkReport
 from bimscan.types import BimScene, CloudHeader, PointCloud, Station
 
 
@@ -36,9 +41,16 @@ class Survey:
     recipe: ScanRecipe
     stations: tuple[Station, ...]
     plan: PlanReport | None = None
+    trajectory: Trajectory | None = None
+    walk: WalkReport | None = None
 
     def pulses(self) -> int:
         """Emitted pulses of the whole survey (for progress bars and size estimates)."""
+        if self.trajectory is not None:
+            mobile = self.recipe.mobile
+            per_mount = sum(mobile.pass_pulses(float(self.trajectory.t[p][-1] - self.trajectory.t[p][0]))
+                            for p in self.trajectory.pass_slices())
+            return per_mount * len(mobile.platform.mounts)
         return station_pulses(self.recipe) * len(self.stations)
 
 
@@ -56,6 +68,37 @@ def choose_stations(scene: BimScene, recipe: ScanRecipe, *,
     if recipe.stations_from != AUTO_STATIONS:
         return read_stations(recipe.stations_from, scene, prober, recipe.scanner), None
     return plan_stations(scene, prober, recipe.scanner)
+
+
+def choose_trajectory(scene: BimScene, recipe: ScanRecipe, *, prober: Prober | None = None,
+                      stations: tuple[Station, ...] | None = None) -> tuple[Trajectory, WalkReport | None]:
+    """The trajectory of a mobile recipe: planned from the scene (``survey.walk``: through the
+    tripod plan's ``stations``, planned here when not given) or read from its CSV file and checked
+    against the scene."""
+    from bimscan.survey.walk import plan_walk
+
+    mobile = recipe.mobile
+    prober = prober or Prober(scene.mesh, threads=recipe.threads)
+    if mobile.trajectory_from == AUTO_TRAJECTORY:
+        if not stations:
+            stations, _ = plan_stations(scene, prober, recipe.scanner)
+        return plan_walk(scene, prober, mobile.platform, stations)
+    trajectory = read_trajectory(mobile.trajectory_from)
+    check_trajectory(trajectory, scene, mobile.trajectory_from)
+    return trajectory, None
+
+
+def check_trajectory(trajectory: Trajectory, scene: BimScene, source: str | Path) -> None:
+    """Raise StationError when a trajectory leaves the model's bounds by more than 5 m (a file in
+    another coordinate system or unit) or is too short for one firing sequence."""
+    lo, hi = scene.mesh.bounds()
+    outside = np.any((trajectory.xyz < lo - 5.0) | (trajectory.xyz > hi + 5.0), axis=1)
+    if outside.any():
+        k = int(np.flatnonzero(outside)[0])
+        raise StationError(f"{source}: pose {k} (t = {trajectory.t[k]:g} s) at "
+                           f"{', '.join(f'{v:.2f}' for v in trajectory.xyz[k])} lies more than 5 m outside the model "
+                           f"(x {lo[0]:.1f}..{hi[0]:.1f}, y {lo[1]:.1f}..{hi[1]:.1f}, z {lo[2]:.1f}..{hi[2]:.1f}); give "
+                           "the trajectory in the model's coordinates, in metres")
 
 
 def require_tripod_spots(scene: BimScene, recipe: ScanRecipe) -> None:
@@ -107,17 +150,23 @@ def check_site(scene: BimScene, recipe: ScanRecipe) -> None:
 
 
 def prepare_survey(scene: BimScene, recipe: ScanRecipe, *, scanner: VirtualScanner | None = None,
-                   stations: tuple[Station, ...] | None = None, plan: PlanReport | None = None) -> Survey:
+                   stations: tuple[Station, ...] | None = None, plan: PlanReport | None = None,
+                   trajectory: Trajectory | None = None, walk: WalkReport | None = None) -> Survey:
     """Place the scanner in the scene and fix the stations (``recipe.stations_from``).
 
     ``scanner``: reuse a VirtualScanner already built over this scene with the recipe's model.
     ``stations`` given: use them as they are (chosen and checked on this scene by the caller, as
     ``pipeline.site_and_stations`` and the dataset builder do; ``plan`` is their planner's report);
-    ``recipe.stations_from`` is then not consulted.
+    ``recipe.stations_from`` is then not consulted. A mobile recipe takes ``trajectory`` (and the
+    ``walk`` report that planned it) instead, chosen by ``choose_trajectory`` when not given.
     """
     check_site(scene, recipe)
     if scanner is None or not fits(scanner, recipe):
         scanner = place_scanner(scene, recipe)
+    if recipe.mobile is not None:
+        if trajectory is None:
+            trajectory, walk = choose_trajectory(scene, recipe)
+        return Survey(scene=scene, scanner=scanner, recipe=recipe, stations=(), trajectory=trajectory, walk=walk)
     if stations is None:
         stations, plan = choose_stations(scene, recipe)
     if not stations:
@@ -132,10 +181,26 @@ def run_survey(survey: Survey, *, on_pulses: Callable[[int], None] | None = None
     on_pulses(n) is called after each chunk with the number of pulses it covered (progress).
     reuse_buffers: chunks are overwritten by the next one (see VirtualScanner.scan_station).
     """
+    if survey.trajectory is not None:
+        yield from _run_mobile(survey, on_pulses=on_pulses, reuse_buffers=reuse_buffers)
+        return
     duration = survey.recipe.settings.duration_s()
     for index, station in enumerate(survey.stations):
         yield from survey.scanner.scan_station(station, survey.recipe, time0_s=index * duration, on_pulses=on_pulses,
                                                reuse_buffers=reuse_buffers)
+
+
+def _run_mobile(survey: Survey, *, on_pulses: Callable[[int], None] | None,
+                reuse_buffers: bool) -> Iterator[PointCloud]:
+    """The mobile scan's points: pass by pass, each mount's lidar in turn, drift applied."""
+    from bimscan.survey.drift import drift_track
+
+    recipe, trajectory = survey.recipe, survey.trajectory
+    drift = None if recipe.mobile.drift.is_off else drift_track(trajectory, recipe.mobile.drift, recipe.seed)
+    for pass_id, part in enumerate(trajectory.pass_slices()):
+        for mount_index in range(len(recipe.mobile.platform.mounts)):
+            yield from survey.scanner.scan_pass(trajectory, part, pass_id, mount_index, recipe, drift=drift,
+                                                on_pulses=on_pulses, reuse_buffers=reuse_buffers)
 
 
 def cloud_origin(scene: BimScene) -> tuple[float, float, float]:
@@ -157,6 +222,14 @@ def survey_metadata(survey: Survey) -> dict[str, Any]:
     }
     if survey.scanner.deviations is not None:
         metadata["as_built"] = survey.scanner.deviations.to_json(survey.recipe.sensor)
+    if survey.trajectory is not None:
+        trajectory = survey.trajectory
+        metadata["trajectory"] = {"passes": trajectory.n_passes, "samples": len(trajectory.t),
+                                  "length_m": round(trajectory.length_m(), 6),
+                                  "duration_s": round(trajectory.duration_s(), 6),
+                                  "loop_closures_s": [round(float(t), 6) for t in trajectory.closures]}
+        if survey.walk is not None:
+            metadata["trajectory"]["rooms"] = list(survey.walk.rooms)
     return metadata
 
 

@@ -1,0 +1,312 @@
+"""Multi-beam spinning lidars (the sensors of handheld and backpack scanners), as data, and their
+fused ray kernels.
+
+A multi-beam lidar spins its head about its own axis at ``rotation_hz`` and fires its ``N`` beams
+in a fixed sequence: beam ``b`` fires ``firing_offset_us[b]`` after the start of each firing
+sequence, one sequence every ``firing_cycle_us`` (the VLP-16 fires its 16 lasers 2.304 us apart
+and starts a new sequence every 55.296 us). So pulse ``i`` of a pass is beam ``b = i mod N`` of
+sequence ``s = i div N``; it fires at ``t = s * cycle + offset[b]`` and leaves the sensor at the
+beam's elevation ``beam_elevation_deg[b]`` and at azimuth ``360 * rotation_hz * t +
+beam_azimuth_offset_deg[b]`` about the spin axis (azimuth grows counter-clockwise seen from
+above the sensor, from its +x axis). Per-point time and beam are therefore exact, and a pass of
+``T`` seconds fires ``N * floor(T / cycle)`` pulses whatever the rotation rate: a faster head
+spreads the same pulses over more turns.
+
+``LIDARS`` maps a name to a ``MultiBeamScanner`` read from the TOML files in ``scan/scanners``
+whose ``kind`` is ``"multibeam"`` (the rotating-mirror TLS files are ``bimscan.scan.device``'s).
+The kernels turn a chunk of pulses into world rays along a trajectory (``moving_rays``) and the
+engine's hits into labelled points with each pulse's beam origin (``finish_moving_hits``); both
+are Numba-parallel over fixed blocks, so outputs do not depend on thread counts or chunking.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numba as nb
+import numpy as np
+
+from bimscan.errors import ConfigError, ScannerSettingsError
+from bimscan.scan.kernels import _FAST, pulse_normals, recorded_direction
+from bimscan.scan.noise import MAX_ANGLE_SIGMA_DEG
+from bimscan.toml_files import build_dataclass, load_toml
+
+MULTIBEAM_KIND = "multibeam"
+_BLOCK = 16384  # rays per parallel block of the compaction (as kernels._BLOCK)
+
+
+@dataclass(frozen=True)
+class MultiBeamScanner:
+    """A spinning multi-beam lidar (see the module docs for the firing model).
+
+    beam_elevation_deg, beam_azimuth_offset_deg, firing_offset_us: one entry per beam, in firing
+    order (the laser ids of the datasheet). firing_cycle_us: period of one firing sequence.
+    rotation_hz_min / rotation_hz_max: the head's rotation rates; rotation_hz: the default.
+    range_accuracy_m / angle_accuracy_deg: the noise defaults (``NoiseModel.resolved``).
+    min_range_m / max_range_m: returns are recorded between these. beam_divergence_rad and
+    wavelength_nm are recorded facts (the thin-ray path does not use them).
+    """
+
+    name: str
+    kind: str = MULTIBEAM_KIND
+    description: str = ""
+    beam_elevation_deg: tuple[float, ...] = ()
+    beam_azimuth_offset_deg: tuple[float, ...] = ()
+    firing_offset_us: tuple[float, ...] = ()
+    firing_cycle_us: float = 55.296
+    rotation_hz_min: float = 5.0
+    rotation_hz_max: float = 20.0
+    rotation_hz: float = 10.0
+    range_accuracy_m: float = 0.03
+    angle_accuracy_deg: float = 0.0
+    min_range_m: float = 0.5
+    max_range_m: float = 100.0
+    beam_divergence_rad: float = 0.003
+    wavelength_nm: float = 903.0
+
+    def __post_init__(self) -> None:
+        n = len(self.beam_elevation_deg)
+        if self.kind != MULTIBEAM_KIND:
+            self._refuse(f"kind must be {MULTIBEAM_KIND!r}, got {self.kind!r}")
+        if not 1 <= n <= 256:
+            self._refuse(f"beam_elevation_deg must list 1..256 beams, got {n}")
+        if len(self.beam_azimuth_offset_deg) != n or len(self.firing_offset_us) != n:
+            self._refuse(f"beam_azimuth_offset_deg and firing_offset_us must have one entry per beam ({n}), got "
+                         f"{len(self.beam_azimuth_offset_deg)} and {len(self.firing_offset_us)}")
+        if not all(-90.0 <= e <= 90.0 for e in self.beam_elevation_deg):
+            self._refuse("every beam_elevation_deg must lie in -90..90")
+        if not (math.isfinite(self.firing_cycle_us) and self.firing_cycle_us > 0):
+            self._refuse(f"firing_cycle_us must be > 0, got {self.firing_cycle_us}")
+        if not all(0.0 <= f < self.firing_cycle_us for f in self.firing_offset_us):
+            self._refuse(f"every firing_offset_us must lie in [0, firing_cycle_us = {self.firing_cycle_us:g})")
+        if not 0 < self.rotation_hz_min <= self.rotation_hz <= self.rotation_hz_max:
+            self._refuse(f"need 0 < rotation_hz_min <= rotation_hz <= rotation_hz_max, got {self.rotation_hz_min}, "
+                         f"{self.rotation_hz}, {self.rotation_hz_max}")
+        if not 0 <= self.min_range_m < self.max_range_m:
+            self._refuse(f"need 0 <= min_range_m < max_range_m, got {self.min_range_m} and {self.max_range_m}")
+        for name in ("range_accuracy_m", "angle_accuracy_deg", "beam_divergence_rad"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                self._refuse(f"{name} must be a number >= 0, got {value}")
+        if self.angle_accuracy_deg > MAX_ANGLE_SIGMA_DEG:
+            self._refuse(f"angle_accuracy_deg must be at most {MAX_ANGLE_SIGMA_DEG:g}, got {self.angle_accuracy_deg}")
+
+    def _refuse(self, problem: str) -> None:
+        raise ScannerSettingsError(f"scanner {self.name!r}: {problem}; fix the scanner file")
+
+    @property
+    def n_beams(self) -> int:
+        return len(self.beam_elevation_deg)
+
+    @property
+    def pulse_rate_hz(self) -> float:
+        """Pulses per second (single return): beams / firing cycle."""
+        return self.n_beams / (self.firing_cycle_us * 1e-6)
+
+    def ring_of_beam(self) -> np.ndarray:
+        """(N,) uint8: each beam's ring, its rank by elevation (0 = lowest; the ROS drivers' ``ring``)."""
+        order = np.argsort(np.asarray(self.beam_elevation_deg), kind="stable")
+        ring = np.empty(self.n_beams, dtype=np.uint8)
+        ring[order] = np.arange(self.n_beams)
+        return ring
+
+    def check_rotation(self, rotation_hz: float, *, strict: bool = False) -> list[str]:
+        """Raise for an impossible rotation rate; a warning line when outside the device's rates
+        (an error under ``strict``)."""
+        if not (math.isfinite(rotation_hz) and rotation_hz > 0):
+            raise ScannerSettingsError(f"rotation_hz = {rotation_hz:g} is impossible; allowed: a number > 0")
+        if self.rotation_hz_min <= rotation_hz <= self.rotation_hz_max:
+            return []
+        line = (f"rotation_hz = {rotation_hz:g} is outside {self.name}'s rotation rates "
+                f"{self.rotation_hz_min:g}..{self.rotation_hz_max:g} Hz")
+        if strict:
+            raise ScannerSettingsError(f"outside the device's limits (--strict): {line}")
+        return [line]
+
+
+def _lidar_files() -> dict[str, dict]:
+    folder = resources.files("bimscan.scan") / "scanners"
+    tables = {p.name.removesuffix(".toml"): tomllib.loads(p.read_text("utf-8")) for p in folder.iterdir()
+              if p.name.endswith(".toml")}
+    return {name: table for name, table in tables.items() if table.get("kind") == MULTIBEAM_KIND}
+
+
+LIDARS: dict[str, MultiBeamScanner] = {
+    name: build_dataclass(MultiBeamScanner, table, where=f"built-in scanner {name}")
+    for name, table in sorted(_lidar_files().items())
+}
+
+
+def is_multibeam_file(path: str | Path) -> bool:
+    """Whether a scanner TOML file describes a multi-beam lidar (``kind = "multibeam"``)."""
+    return load_toml(path).get("kind") == MULTIBEAM_KIND
+
+
+def load_lidar(source: str | Path) -> MultiBeamScanner:
+    """A multi-beam lidar by registry name or from a TOML file (the keys of scanners/velodyne_vlp16.toml)."""
+    if isinstance(source, str) and source in LIDARS:
+        return LIDARS[source]
+    path = Path(source)
+    if not path.is_file():
+        raise ConfigError(f"scanner {str(source)!r} is neither a file nor a known multi-beam scanner "
+                          f"({', '.join(LIDARS)}); pass a scanner TOML file with kind = \"multibeam\"")
+    table = load_toml(path)
+    if table.get("kind") != MULTIBEAM_KIND:
+        raise ConfigError(f"{path}: a mobile platform needs a multi-beam scanner (kind = \"multibeam\"); this file "
+                          "describes a rotating-mirror TLS: use it with --platform tripod")
+    return build_dataclass(MultiBeamScanner, table, where=str(path))
+
+
+@nb.njit(cache=True, inline="always")
+def _rotation_zyx(yaw: float, pitch: float, roll: float) -> tuple:
+    """Rows of R = Rz(yaw) Ry(pitch) Rx(roll) (radians): the platform's body -> world rotation."""
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cr, sr = math.cos(roll), math.sin(roll)
+    return (cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr,
+            sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr,
+            -sp, cp * sr, cp * cr)
+
+
+@nb.njit(cache=True, parallel=True, fastmath=_FAST)
+def moving_rays(first_pulse: np.int64, n: np.int64, n_beams: np.int64, cycle_s: float, t0: float,
+                firing_offset_s: np.ndarray, cos_el: np.ndarray, sin_el: np.ndarray, azimuth_offset: np.ndarray,
+                rotation_rad_s: float, track_t: np.ndarray, track_xyz: np.ndarray, track_ypr: np.ndarray,
+                mount_xyz: np.ndarray, mount_rotation: np.ndarray, head_rad_s: float, centre: np.ndarray,
+                rays: np.ndarray, origin: np.ndarray, time: np.ndarray) -> None:
+    """Fill rays (n, 6) float32 (engine frame: world minus ``centre``), origin (n, 3) float64 world
+    beam origins and time (n,) float64 for pulses first_pulse .. first_pulse + n - 1 of a pass that
+    starts at ``t0``.
+
+    The platform pose at a pulse's time is interpolated linearly between the trajectory samples
+    (track_t (K,) seconds, track_xyz (K, 3) world metres, track_ypr (K, 3) yaw, pitch, roll in
+    radians, unwrapped). The sensor sits at ``mount_xyz`` in the platform's frame (x forward, y
+    left, z up), turned by ``mount_rotation`` (3, 3), and by a head turning about the platform's z
+    at ``head_rad_s`` (0: fixed mount).
+    """
+    k_last = len(track_t) - 1
+    for i in nb.prange(n):
+        p = first_pulse + i
+        s = p // n_beams
+        b = p - s * n_beams
+        local_t = s * cycle_s + firing_offset_s[b]
+        t = t0 + local_t
+        k = np.searchsorted(track_t, t, side="right") - 1
+        k = min(max(k, 0), k_last - 1) if k_last > 0 else 0
+        w = 0.0
+        if k_last > 0:
+            span = track_t[k + 1] - track_t[k]
+            w = min(max((t - track_t[k]) / span, 0.0), 1.0) if span > 0 else 0.0
+        k1 = min(k + 1, k_last)
+        px = track_xyz[k, 0] + w * (track_xyz[k1, 0] - track_xyz[k, 0])
+        py = track_xyz[k, 1] + w * (track_xyz[k1, 1] - track_xyz[k, 1])
+        pz = track_xyz[k, 2] + w * (track_xyz[k1, 2] - track_xyz[k, 2])
+        yaw = track_ypr[k, 0] + w * (track_ypr[k1, 0] - track_ypr[k, 0])
+        pitch = track_ypr[k, 1] + w * (track_ypr[k1, 1] - track_ypr[k, 1])
+        roll = track_ypr[k, 2] + w * (track_ypr[k1, 2] - track_ypr[k, 2])
+        r = _rotation_zyx(yaw, pitch, roll)
+        # the head turns the mount about the platform's z
+        head = head_rad_s * t
+        ch, sh = math.cos(head), math.sin(head)
+        # beam in the sensor frame
+        az = rotation_rad_s * local_t + azimuth_offset[b]
+        dx0 = cos_el[b] * math.cos(az)
+        dy0 = cos_el[b] * math.sin(az)
+        dz0 = sin_el[b]
+        # sensor -> mount (tilt, yaw of the mount)
+        m = mount_rotation
+        mx = m[0, 0] * dx0 + m[0, 1] * dy0 + m[0, 2] * dz0
+        my = m[1, 0] * dx0 + m[1, 1] * dy0 + m[1, 2] * dz0
+        mz = m[2, 0] * dx0 + m[2, 1] * dy0 + m[2, 2] * dz0
+        # mount -> platform (the head's turn), applied to the direction and to the lever arm
+        bx = ch * mx - sh * my
+        by = sh * mx + ch * my
+        ax = ch * mount_xyz[0] - sh * mount_xyz[1]
+        ay = sh * mount_xyz[0] + ch * mount_xyz[1]
+        az_ = mount_xyz[2]
+        # platform -> world
+        wx = r[0] * bx + r[1] * by + r[2] * mz
+        wy = r[3] * bx + r[4] * by + r[5] * mz
+        wz = r[6] * bx + r[7] * by + r[8] * mz
+        ox = px + r[0] * ax + r[1] * ay + r[2] * az_
+        oy = py + r[3] * ax + r[4] * ay + r[5] * az_
+        oz = pz + r[6] * ax + r[7] * ay + r[8] * az_
+        norm = math.sqrt(wx * wx + wy * wy + wz * wz)
+        origin[i, 0] = ox
+        origin[i, 1] = oy
+        origin[i, 2] = oz
+        rays[i, 0] = ox - centre[0]
+        rays[i, 1] = oy - centre[1]
+        rays[i, 2] = oz - centre[2]
+        rays[i, 3] = wx / norm
+        rays[i, 4] = wy / norm
+        rays[i, 5] = wz / norm
+        time[i] = t
+
+
+@nb.njit(cache=True, inline="always")
+def _keep(t: float, triangle: np.uint32, n_faces: int, min_range: float, max_range: float) -> bool:
+    return t >= min_range and t <= max_range and triangle < n_faces
+
+
+@nb.njit(cache=True, parallel=True, fastmath=_FAST)
+def finish_moving_hits(t_hit: np.ndarray, triangle: np.ndarray, rays: np.ndarray, origin: np.ndarray,
+                       pulse_time: np.ndarray, first_pulse: np.int64, n_beams: np.int64, ring_of_beam: np.ndarray,
+                       face_component: np.ndarray, face_label: np.ndarray, face_brightness: np.ndarray,
+                       min_range: float, max_range: float, key: np.uint64, range_sigma_m: float,
+                       angle_sigma_rad: float, intensity_ref_m: float, pass_id: int,
+                       xyz: np.ndarray, label: np.ndarray, component: np.ndarray, station: np.ndarray,
+                       intensity: np.ndarray, time: np.ndarray, ring: np.ndarray, sensor: np.ndarray) -> int:
+    """Turn a chunk's hits into points (``kernels.finish_hits`` with a beam origin per pulse); returns
+    how many of the first rows of the outputs were filled. Noise is drawn per pulse number of the
+    pass (the same deviates as a TLS station's pulse of that number), so chunking changes nothing."""
+    n = len(t_hit)
+    n_faces = len(face_component)
+    n_blocks = (n + _BLOCK - 1) // _BLOCK
+    counts = np.zeros(n_blocks + 1, dtype=np.int64)
+    for blk in nb.prange(n_blocks):
+        c = 0
+        for i in range(blk * _BLOCK, min(n, (blk + 1) * _BLOCK)):
+            if _keep(t_hit[i], triangle[i], n_faces, min_range, max_range):
+                c += 1
+        counts[blk + 1] = c
+    for blk in range(n_blocks):
+        counts[blk + 1] += counts[blk]
+    noisy = range_sigma_m > 0.0 or angle_sigma_rad > 0.0
+    for blk in nb.prange(n_blocks):
+        out = counts[blk]
+        for i in range(blk * _BLOCK, min(n, (blk + 1) * _BLOCK)):
+            t = t_hit[i]
+            tri = triangle[i]
+            if not _keep(t, tri, n_faces, min_range, max_range):
+                continue
+            dx, dy, dz = float(rays[i, 3]), float(rays[i, 4]), float(rays[i, 5])
+            p = first_pulse + i
+            r = float(t)
+            if noisy:
+                n_range, n_az, n_el = pulse_normals(key, p)
+                r += range_sigma_m * n_range
+                mx, my, mz = recorded_direction(dx, dy, dz, angle_sigma_rad * n_az, angle_sigma_rad * n_el)
+            else:
+                mx, my, mz = dx, dy, dz
+            xyz[out, 0] = origin[i, 0] + r * mx
+            xyz[out, 1] = origin[i, 1] + r * my
+            xyz[out, 2] = origin[i, 2] + r * mz
+            component[out] = face_component[tri]
+            label[out] = face_label[tri]
+            fall = min(1.0, intensity_ref_m / t)
+            value = abs(dx * face_brightness[tri, 0] + dy * face_brightness[tri, 1]
+                        + dz * face_brightness[tri, 2]) * fall * fall
+            intensity[out] = np.uint16(min(65535.0, max(0.0, value + 0.5)))
+            station[out] = pass_id
+            time[out] = pulse_time[i]
+            ring[out] = ring_of_beam[p % n_beams]
+            sensor[out, 0] = origin[i, 0]
+            sensor[out, 1] = origin[i, 1]
+            sensor[out, 2] = origin[i, 2]
+            out += 1
+    return counts[n_blocks]

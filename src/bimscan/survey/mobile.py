@@ -1,0 +1,51 @@
+"""What a mobile scan is: a platform carrying multi-beam lidars along a trajectory, with drift.
+
+``MobileScan`` is the mobile half of a ``ScanRecipe`` (``ScanRecipe.mobile``; None for a tripod
+survey): the platform (``survey.platform``), the lidar on each of its mounts
+(``scan.multibeam``), the lidar's rotation rate, where the trajectory comes from (``"auto"``:
+planned from the model by ``survey.walk``; else a CSV file, ``survey.trajectory``) and the
+SLAM-like drift (``survey.drift``). ``pass_pulses`` counts what a pass fires, exactly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from bimscan.scan.multibeam import MultiBeamScanner
+from bimscan.survey.drift import DriftModel
+from bimscan.survey.platform import Platform
+
+AUTO_TRAJECTORY = "auto"
+
+
+@dataclass(frozen=True)
+class MobileScan:
+    """See the module docs. rotation_hz None: the lidar's default rate."""
+
+    platform: Platform
+    lidar: MultiBeamScanner
+    rotation_hz: float | None = None
+    trajectory_from: str = AUTO_TRAJECTORY
+    drift: DriftModel = field(default_factory=DriftModel)
+
+    def __post_init__(self) -> None:
+        if self.rotation_hz is None:
+            object.__setattr__(self, "rotation_hz", self.lidar.rotation_hz)
+        self.lidar.check_rotation(self.rotation_hz)  # raises for impossible rates
+
+    def warnings(self, *, strict: bool = False) -> list[str]:
+        return self.lidar.check_rotation(self.rotation_hz, strict=strict)
+
+    def pass_pulses(self, duration_s: float) -> int:
+        """Pulses one mount fires over a pass of ``duration_s``: whole firing sequences only."""
+        sequences = int(math.floor(duration_s / (self.lidar.firing_cycle_us * 1e-6) + 1e-9))
+        return max(0, sequences) * self.lidar.n_beams
+
+    def to_json(self) -> dict[str, Any]:
+        trajectory = self.trajectory_from if self.trajectory_from == AUTO_TRAJECTORY else Path(self.trajectory_from).name
+        return {"platform": dataclasses.asdict(self.platform), "scanner": dataclasses.asdict(self.lidar),
+                "rotation_hz": self.rotation_hz, "trajectory_from": trajectory, "drift": self.drift.to_json()}

@@ -1,0 +1,116 @@
+"""Mobile platforms as data: where a walking operator carries the lidars, and how they walk.
+
+``PLATFORMS`` maps a name (``handheld``, ``backpack``) to a ``Platform`` read from
+``survey/platforms.toml``; users pass their own file with ``load_platform(path)`` (one table of
+the same keys). ``TRIPOD`` names the static platform of TLS stations, which is not a
+``Platform``: a tripod scan has stations, a mobile scan a trajectory.
+
+Frames: the platform's origin is on the floor under the operator; x points along the walk, y to
+the left, z up. A trajectory gives the origin's position and the platform's yaw, pitch and roll
+over time. A mount places one lidar: at (forward_m, lateral_m, height_m), its spin axis tilted
+``tilt_deg`` from the vertical towards the front (a rotation about y), then turned ``yaw_deg``
+about z; a motor-driven head turns the mount about the platform's z at ``head_rotation_hz``.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from bimscan.errors import ConfigError
+from bimscan.toml_files import build_dataclass, load_toml
+
+TRIPOD = "tripod"
+MAX_MOUNTS = 4  # LAS 1.4 scanner_channel numbers four scanners
+
+
+@dataclass(frozen=True)
+class Mount:
+    """One lidar on the platform (see the module docs for the frames)."""
+
+    height_m: float = 1.3
+    forward_m: float = 0.0
+    lateral_m: float = 0.0
+    tilt_deg: float = 0.0
+    yaw_deg: float = 0.0
+    head_rotation_hz: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("height_m", "forward_m", "lateral_m", "tilt_deg", "yaw_deg", "head_rotation_hz"):
+            if not math.isfinite(getattr(self, name)):
+                raise ConfigError(f"mount {name} = {getattr(self, name)} is impossible; give a finite number")
+        if not 0.0 <= self.height_m <= 5.0:
+            raise ConfigError(f"mount height_m = {self.height_m} is impossible for a walking operator; allowed: 0..5")
+        if not -180.0 <= self.tilt_deg <= 180.0 or not abs(self.head_rotation_hz) <= 10.0:
+            raise ConfigError(f"mount tilt_deg = {self.tilt_deg} or head_rotation_hz = {self.head_rotation_hz} is "
+                              "impossible; allowed: tilt -180..180 degrees, head -10..10 Hz")
+
+    def lever_arm(self) -> np.ndarray:
+        """(3,) the sensor's position in the platform frame."""
+        return np.array([self.forward_m, self.lateral_m, self.height_m])
+
+    def rotation(self) -> np.ndarray:
+        """(3, 3) sensor -> platform rotation at head angle 0: Rz(yaw) Ry(tilt)."""
+        t, y = math.radians(self.tilt_deg), math.radians(self.yaw_deg)
+        ry = np.array([[math.cos(t), 0.0, math.sin(t)], [0.0, 1.0, 0.0], [-math.sin(t), 0.0, math.cos(t)]])
+        rz = np.array([[math.cos(y), -math.sin(y), 0.0], [math.sin(y), math.cos(y), 0.0], [0.0, 0.0, 1.0]])
+        return rz @ ry
+
+
+@dataclass(frozen=True)
+class Platform:
+    """A walking operator with one to four lidars.
+
+    default_scanner: the multi-beam lidar used unless one is given. walking_speed_m_s,
+    stair_speed_m_s, max_turn_deg_per_s: how a planned walk moves (``survey.walk``).
+    body_radius_m, headroom_m: the free space the operator needs (a planned walk keeps to it).
+    """
+
+    name: str
+    description: str = ""
+    default_scanner: str = "velodyne_vlp16"
+    walking_speed_m_s: float = 1.0
+    stair_speed_m_s: float = 0.5
+    max_turn_deg_per_s: float = 60.0
+    body_radius_m: float = 0.25
+    headroom_m: float = 1.9
+    mounts: tuple[Mount, ...] = (Mount(),)
+
+    def __post_init__(self) -> None:
+        if not 1 <= len(self.mounts) <= MAX_MOUNTS:
+            raise ConfigError(f"platform {self.name!r}: give 1..{MAX_MOUNTS} mounts, got {len(self.mounts)}")
+        for name, low, high in (("walking_speed_m_s", 0.05, 5.0), ("stair_speed_m_s", 0.05, 5.0),
+                                ("max_turn_deg_per_s", 1.0, 720.0), ("body_radius_m", 0.05, 1.0),
+                                ("headroom_m", 0.5, 4.0)):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and low <= value <= high):
+                raise ConfigError(f"platform {self.name!r}: {name} = {value} is impossible; allowed: {low:g}..{high:g}")
+
+
+def _platform_tables() -> dict[str, dict]:
+    text = (resources.files("bimscan.survey") / "platforms.toml").read_text("utf-8")
+    return tomllib.loads(text)
+
+
+PLATFORMS: dict[str, Platform] = {
+    name: build_dataclass(Platform, {"name": name, **table}, where=f"platforms.toml [{name}]")
+    for name, table in _platform_tables().items()
+}
+PLATFORM_NAMES = (TRIPOD, *PLATFORMS)
+
+
+def load_platform(source: str | Path) -> Platform:
+    """A mobile platform by name (``PLATFORMS``) or from a TOML file of one platform's keys."""
+    if isinstance(source, str) and source in PLATFORMS:
+        return PLATFORMS[source]
+    path = Path(source)
+    if not path.is_file():
+        raise ConfigError(f"platform {str(source)!r} is neither a file nor a known platform "
+                          f"({', '.join(PLATFORM_NAMES)}); pass a platform TOML file")
+    table = load_toml(path)
+    return build_dataclass(Platform, {"name": path.stem, **table}, where=str(path))

@@ -1,0 +1,293 @@
+"""Mobile scans end to end: trajectories (files and planned walks), drift, the CLI and datasets."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import open3d as o3d
+import pytest
+
+from bimscan.errors import ConfigError, InputFileError, OutputError, StationError
+from bimscan.io import read_cloud, read_cloud_header
+from bimscan.pipeline import load_scene, scan_model
+from bimscan.scan.device import SCANNERS
+from bimscan.scan.probe import Prober
+from bimscan.survey.drift import REFERENCE_PATH_M, DriftModel, drift_track
+from bimscan.survey.platform import PLATFORMS, load_platform
+from bimscan.survey.recipe import ScanRecipe
+from bimscan.survey.stations import plan_stations
+from bimscan.survey.trajectory import Trajectory, read_trajectory, trajectory_path, write_trajectory
+from bimscan.survey.walk import plan_walk
+
+HANDHELD = PLATFORMS["handheld"]
+
+
+def line_trajectory(length_m: float, *, speed: float = 1.0, samples: int = 200, passes: int = 1) -> Trajectory:
+    parts = []
+    for p in range(passes):
+        s = np.linspace(0.0, length_m, samples)
+        parts.append((s / speed + p * (length_m / speed + 10.0), np.column_stack([s, np.zeros(samples), np.zeros(samples)]),
+                      np.full(samples, p)))
+    t, xyz, pass_id = (np.concatenate(c) for c in zip(*parts))
+    zeros = np.zeros(len(t))
+    return Trajectory(t=t, xyz=xyz, roll=zeros, pitch=zeros, yaw=zeros, pass_id=pass_id.astype(np.int32))
+
+
+# -- trajectory files ------------------------------------------------------------------------------
+
+def test_a_trajectory_round_trips_through_its_csv(tmp_path):
+    trajectory = line_trajectory(12.0, passes=2)
+    trajectory = Trajectory(t=trajectory.t, xyz=trajectory.xyz + [0.0, 0.0, 0.25], roll=np.radians(np.sin(trajectory.t)),
+                            pitch=trajectory.pitch, yaw=np.radians(170.0 + trajectory.t), pass_id=trajectory.pass_id)
+    path = write_trajectory(tmp_path / "walk.csv", trajectory)
+    back = read_trajectory(path)
+    assert np.abs(back.t - trajectory.t).max() < 1e-6
+    assert np.abs(back.xyz - trajectory.xyz).max() < 1e-6
+    assert np.abs(np.angle(np.exp(1j * (back.yaw - trajectory.yaw)))).max() < 1e-7
+    assert back.n_passes == 2 and np.array_equal(back.pass_id, trajectory.pass_id)
+    assert path.read_text().splitlines()[0] == "t,x,y,z,roll,pitch,yaw,pass"
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("t,x,y,z\n0,0,0,0\n1,1,0,0\n", "lacks column"),
+    ("t,x,y,z,roll,pitch,yaw\n0,0,0,0,0,0,0\n0,1,0,0,0,0,0\n", "must increase"),
+    ("t,x,y,z,roll,pitch,yaw\n0,0,0,0,0,0,0\n1,nan,0,0,0,0,0\n", "finite"),
+    ("t,x,y,z,roll,pitch,yaw\n0,0,0,0,0,0,0\n1,a,0,0,0,0,0\n", "data line 3"),
+    ("t,x,y,z,roll,pitch,yaw\n0,0,0,0,0,0,0\n", "at least 2"),
+    ("t,x,y,z,roll,pitch,yaw\n0,0,0,0,0,0,0\n90000,1,0,0,0,0,0\n", "in seconds"),
+])
+def test_a_bad_trajectory_file_gets_one_line_naming_the_problem(tmp_path, text, message):
+    path = tmp_path / "walk.csv"
+    path.write_text(text)
+    with pytest.raises(InputFileError, match=message) as caught:
+        read_trajectory(path)
+    assert "\n" not in str(caught.value) and str(path) in str(caught.value)
+
+
+# -- drift ------------------------------------------------------------------------------------------
+
+def test_drift_grows_with_the_square_root_of_the_distance_walked():
+    model = DriftModel(sigma_m=0.02, smoothing_m=0.0)
+    trajectory = line_trajectory(40.0)
+    ends = np.array([drift_track(trajectory, model, seed).offset[-1] for seed in range(600)])
+    expected = 0.02 * math.sqrt(40.0 / REFERENCE_PATH_M)
+    assert np.std(ends[:, 0]) == pytest.approx(expected, rel=0.12)
+    assert np.std(ends[:, 2]) == pytest.approx(expected * model.vertical_ratio, rel=0.12)
+    middle = np.array([drift_track(trajectory, model, seed).offset[20] for seed in range(600)])
+    assert np.std(middle[:, 0]) == pytest.approx(0.02 * math.sqrt(20.0 / REFERENCE_PATH_M), rel=0.12)
+
+
+def test_drift_is_zero_at_the_start_of_each_pass_and_at_every_loop_closure():
+    base = line_trajectory(30.0, passes=2)
+    trajectory = Trajectory(t=base.t, xyz=base.xyz, roll=base.roll, pitch=base.pitch, yaw=base.yaw,
+                            pass_id=base.pass_id, closures=np.array([15.0, 30.0]))
+    track = drift_track(trajectory, DriftModel(sigma_m=0.05), seed=4)
+    offset, yaw = track.at(np.array([0.0, 15.0, 30.0, 40.0]))
+    assert np.abs(offset[:3]).max() < 1e-12 and np.abs(yaw[:3]).max() < 1e-12
+    assert np.abs(offset[3]).max() == 0.0  # pass 1 starts at t = 40 s, pinned too
+    free, _ = track.at(np.array([7.0, 22.0]))
+    assert np.abs(free).max() > 1e-4  # between pins the error is there
+
+
+def test_drift_moves_each_sweep_rigidly_about_its_sensor():
+    track = drift_track(line_trajectory(20.0), DriftModel(sigma_m=0.05, heading_sigma_deg=1.0), seed=1)
+    rng = np.random.default_rng(0)
+    xyz = rng.uniform(-5, 5, (100, 3))
+    sensor = np.tile([1.0, 2.0, 1.5], (100, 1))
+    moved, moved_sensor = xyz.copy(), sensor.copy()
+    track.apply(moved, moved_sensor, np.full(100, 12.0))
+    before = np.linalg.norm(xyz[:, None] - xyz[None], axis=2)
+    after = np.linalg.norm(moved[:, None] - moved[None], axis=2)
+    assert np.abs(after - before).max() < 1e-9
+    assert np.abs(moved - xyz).max() > 1e-4
+
+
+def test_impossible_drift_settings_are_refused():
+    with pytest.raises(ConfigError, match="metres per 10 m"):
+        DriftModel(sigma_m=5.0)
+
+
+# -- planned walks ------------------------------------------------------------------------------------
+
+def walk_checks(scene, trajectory, report, stations):
+    """What every planned walk must be: closed loops, on walkable floor inside the building, at a
+    walking pace with realistic turns, through every station of the tripod plan."""
+    prober = Prober(scene.mesh)
+    assert report.missed == () and len(report.visited) == len(stations)
+    for part in trajectory.pass_slices():
+        xyz = trajectory.xyz[part]
+        assert np.linalg.norm(xyz[0] - xyz[-1]) < 1e-9  # back to its start
+        step = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
+        dt = np.diff(trajectory.t[part])
+        assert (step / dt).max() <= HANDHELD.walking_speed_m_s + 1e-6
+        turn = np.abs(np.diff(np.unwrap(trajectory.yaw[part]))) / dt
+        assert np.degrees(turn).max() <= HANDHELD.max_turn_deg_per_s + 1e-6
+    # every sample stands on something within a step below, has a roof overhead and is in no solid
+    feet = trajectory.xyz + [0.0, 0.0, 0.3]
+    down, _ = prober.cast(feet, np.tile([0.0, 0.0, -1.0], (len(feet), 1)))
+    assert (down <= 0.3 + 0.25).all()
+    # inside the building: a roof overhead, or on a room of the model open to the sky (a roof
+    # terrace), within half a metre of its outline
+    up, _ = prober.cast(trajectory.xyz + [0.0, 0.0, 0.5], np.tile([0.0, 0.0, 1.0], (len(feet), 1)))
+    open_sky = ~np.isfinite(up)
+    near_room = np.zeros(len(feet), dtype=bool)
+    for room in scene.spaces:
+        lo, hi = room.vertices.min(axis=0) - [0.5, 0.5, 0.6], room.vertices.max(axis=0) + 0.5
+        near_room |= ((trajectory.xyz >= lo) & (trajectory.xyz <= hi)).all(axis=1)
+    assert (~open_sky | near_room).all()
+    # in no solid but the doors the operator opens
+    chest = trajectory.xyz + [0.0, 0.0, 1.0]
+    doors = scene.components.descends_from(("IfcDoor",), parents=True)
+    for point in chest[prober.inside_solid(chest)]:
+        solid = prober.solid_containing(point)
+        assert solid is None or doors[solid], (point, scene.components.ifc_class[solid])
+    # every station's floor is passed within a metre
+    floors = np.array([[s.position[0], s.position[1], s.floor_z] for s in stations])
+    nearest = np.min(np.linalg.norm(floors[:, None, :] - trajectory.xyz[None], axis=2), axis=1)
+    assert nearest.max() < 1.0
+
+
+@pytest.fixture(scope="module")
+def office(tmp_path_factory):
+    from bimscan.ifc.generate import make_building
+
+    return make_building(tmp_path_factory.mktemp("walk") / "office.ifc", seed=4, storeys=2, style="office").path
+
+
+def planned(path):
+    scene = load_scene(path)
+    prober = Prober(scene.mesh)
+    stations, _ = plan_stations(scene, prober, SCANNERS["riegl_vz400"])
+    trajectory, report = plan_walk(scene, prober, HANDHELD, stations)
+    return scene, stations, trajectory, report
+
+
+def test_a_planned_walk_through_a_two_storey_building_climbs_its_stairs_and_closes_its_loop(office):
+    scene, stations, trajectory, report = planned(office)
+    walk_checks(scene, trajectory, report, stations)
+    assert trajectory.n_passes == 1  # the stairs join the storeys
+    storeys = {round(float(s.floor_z), 1) for s in stations}
+    assert len(storeys) >= 2 and np.ptp(trajectory.xyz[:, 2]) >= min(np.ptp(list(storeys)), 2.5)
+    assert len(trajectory.closures) >= 1
+
+
+def test_a_planned_walk_through_the_shared_duplex_visits_every_room_of_the_tripod_plan(shared_ifc):
+    scene, stations, trajectory, report = planned(shared_ifc("duplex.ifc"))
+    walk_checks(scene, trajectory, report, stations)
+    rooms = {s.room for s in stations if s.room}
+    assert set(report.rooms) == rooms
+
+
+def test_a_model_with_nowhere_to_walk_fails_in_one_line(tmp_path):
+    from tests.conftest import TinyModel
+
+    model = TinyModel()
+    model.add_box("IfcWall", origin=(0.0, 0.0, 0.0), size=(4.0, 0.2, 3.0), name="lonely wall")
+    scene = load_scene(model.write(tmp_path / "wall.ifc"))
+    with pytest.raises(StationError, match="--trajectory FILE.csv"):
+        plan_walk(scene, Prober(scene.mesh), HANDHELD, ())
+
+
+# -- scans -----------------------------------------------------------------------------------------
+
+def test_a_handheld_scan_without_noise_puts_every_point_on_the_surface_it_is_labelled_with(office, tmp_path):
+    scene, stations, trajectory, _ = planned(office)
+    first = trajectory.t[0]
+    window = (trajectory.t <= first + 12.0)  # the first twelve seconds of the walk
+    piece = Trajectory(t=trajectory.t[window], xyz=trajectory.xyz[window], roll=trajectory.roll[window],
+                       pitch=trajectory.pitch[window], yaw=trajectory.yaw[window],
+                       pass_id=np.zeros(int(window.sum()), dtype=np.int32))
+    walk = write_trajectory(tmp_path / "piece.csv", piece)
+    recipe = ScanRecipe.resolve(platform="handheld", trajectory=str(walk), noise=_no_noise())
+    result = scan_model(office, tmp_path / "hh.laz", recipe, progress=False)
+    cloud = read_cloud(result.path)
+    assert len(cloud) > 1_000_000
+    mesh = scene.mesh
+    rs = o3d.t.geometry.RaycastingScene()
+    centre = np.round(mesh.vertices.mean(axis=0))
+    rs.add_triangles(o3d.core.Tensor((mesh.vertices - centre).astype(np.float32)),
+                     o3d.core.Tensor(mesh.faces.astype(np.uint32)))
+    sample = np.random.default_rng(0).choice(len(cloud), 200_000, replace=False)
+    distance = rs.compute_distance(o3d.core.Tensor((cloud.xyz[sample] - centre).astype(np.float32))).numpy()
+    assert distance.max() < 0.01
+    # the label is the class of the component the point lies on
+    assert np.array_equal(cloud.label, scene.components.label[cloud.component])
+    own = np.empty(len(sample))
+    for c in np.unique(cloud.component[sample]):
+        faces = mesh.faces[mesh.face_component == c]
+        one = o3d.t.geometry.RaycastingScene()
+        one.add_triangles(o3d.core.Tensor((mesh.vertices - centre).astype(np.float32)),
+                          o3d.core.Tensor(faces.astype(np.uint32)))
+        mask = cloud.component[sample] == c
+        own[mask] = one.compute_distance(o3d.core.Tensor((cloud.xyz[sample][mask] - centre).astype(np.float32))).numpy()
+    assert own.max() < 0.01
+    # the cloud carries its mobile columns, and the trajectory went beside it
+    assert cloud.ring.max() == 15 and cloud.sensor_xyz is not None and set(np.unique(cloud.channel)) == {0}
+    assert read_trajectory(trajectory_path(result.path)).t[-1] == pytest.approx(piece.t[-1], abs=1e-6)
+    assert read_cloud_header(result.path).metadata["mobile"]["platform"]["name"] == "handheld"
+
+
+def _no_noise():
+    from bimscan.scan.noise import NoiseModel
+
+    return NoiseModel.off()
+
+
+def test_a_mobile_scan_is_reproducible_to_the_byte_and_drift_moves_it(office, tmp_path):
+    walk = write_trajectory(tmp_path / "short.csv", _short_walk(office))
+    outs = []
+    for name, drift in (("a", 0.02), ("b", 0.02), ("c", 0.0)):
+        recipe = ScanRecipe.resolve(platform="handheld", trajectory=str(walk), drift=DriftModel(sigma_m=drift), seed=5)
+        outs.append(scan_model(office, tmp_path / f"{name}.laz", recipe, progress=False).path.read_bytes())
+    assert outs[0] == outs[1] and outs[0] != outs[2]
+
+
+def _short_walk(path) -> Trajectory:
+    scene = load_scene(path)
+    lo, hi = scene.mesh.bounds()
+    start = np.array([lo[0] + 2.0, (lo[1] + hi[1]) / 2.0, 0.0])
+    t = np.linspace(0.0, 3.0, 31)
+    xyz = start + np.column_stack([t, np.zeros_like(t), np.zeros_like(t)])
+    return Trajectory(t=t, xyz=xyz, roll=np.zeros_like(t), pitch=np.zeros_like(t), yaw=np.zeros_like(t),
+                      pass_id=np.zeros(len(t), dtype=np.int32))
+
+
+def test_a_trajectory_outside_the_model_is_refused_before_the_scan(office, tmp_path):
+    far = _short_walk(office)
+    far = Trajectory(t=far.t, xyz=far.xyz + [500.0, 0.0, 0.0], roll=far.roll, pitch=far.pitch, yaw=far.yaw,
+                     pass_id=far.pass_id)
+    walk = write_trajectory(tmp_path / "far.csv", far)
+    with pytest.raises(StationError, match="outside the model"):
+        scan_model(office, tmp_path / "far.laz", ScanRecipe.resolve(platform="handheld", trajectory=str(walk)),
+                   progress=False)
+    assert not (tmp_path / "far.laz").exists() and not trajectory_path(tmp_path / "far.laz").exists()
+
+
+def test_a_mobile_scan_to_e57_is_refused_before_any_work(office, tmp_path):
+    with pytest.raises(OutputError, match="one pose per scan"):
+        scan_model(office, tmp_path / "hh.e57", ScanRecipe.resolve(platform="handheld"), progress=False)
+
+
+def test_the_cli_scans_with_a_handheld_and_refuses_a_drift_on_the_tripod(office, tmp_path):
+    walk = write_trajectory(tmp_path / "short.csv", _short_walk(office))
+    out = tmp_path / "hh.ply"
+    run = subprocess.run([sys.executable, "-m", "bimscan.cli.main", "scan", str(office), str(out), "--platform", "handheld",
+                          "--trajectory", str(walk), "--drift", "0.01"], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert "walk of 3 s in 1 pass" in run.stdout and trajectory_path(out).is_file()
+    bad = subprocess.run([sys.executable, "-m", "bimscan.cli.main", "scan", str(office), str(tmp_path / "t.laz"), "--drift",
+                          "0.01"], capture_output=True, text=True)
+    assert bad.returncode != 0 and "needs a mobile platform" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_a_platform_file_is_read_with_its_mounts(tmp_path):
+    path = tmp_path / "pole.toml"
+    path.write_text('description = "a lidar on a pole"\nwalking_speed_m_s = 0.8\n'
+                    '[[mounts]]\nheight_m = 2.5\ntilt_deg = 30.0\n')
+    platform = load_platform(path)
+    assert platform.name == "pole" and platform.mounts[0].height_m == 2.5
+    with pytest.raises(ConfigError, match="neither a file nor a known platform"):
+        load_platform("segway")
