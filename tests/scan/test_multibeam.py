@@ -123,11 +123,13 @@ def test_while_walking_turning_and_tilting_every_point_stays_on_the_room_and_the
     to_plane = np.minimum(np.abs(inside), np.abs(inside - ROOM)).min(axis=1)  # distance to the nearest room face
     assert to_plane.max() < 1e-4
     assert np.array_equal(cloud.label, scene.components.label[cloud.component])
-    # the beam origin is the platform pose applied to the mount's lever arm, at each pulse's time
+    # the beam origin: the platform's position at the pulse's time plus the mount's lever arm turned
+    # by the platform's orientation and the head's turn at the start of the pulse's firing sequence
     k = np.linspace(0, len(cloud) - 1, 50).astype(int)
+    cycle = VLP16.firing_cycle_us * 1e-6
     for i in k:
-        t = cloud.time[i]
-        position = trajectory.position_at(np.array([t]))[0]
+        position = trajectory.position_at(np.array([cloud.time[i]]))[0]
+        t = math.floor(cloud.time[i] / cycle + 1e-9) * cycle
         yaw = np.interp(t, trajectory.t, trajectory.yaw)
         pitch = np.interp(t, trajectory.t, trajectory.pitch)
         roll = np.interp(t, trajectory.t, trajectory.roll)

@@ -291,3 +291,47 @@ def test_a_platform_file_is_read_with_its_mounts(tmp_path):
     assert platform.name == "pole" and platform.mounts[0].height_m == 2.5
     with pytest.raises(ConfigError, match="neither a file nor a known platform"):
         load_platform("segway")
+
+
+# -- datasets --------------------------------------------------------------------------------------
+
+def test_a_dataset_spec_builds_a_mobile_unit_beside_a_tripod_one_and_keeps_its_walk(office, tmp_path):
+    from bimscan.dataset.build import build_dataset
+    from bimscan.dataset.layout import DatasetFolder, verify_unit
+    from bimscan.dataset.spec import load_spec
+
+    walk = write_trajectory(tmp_path / "walk.csv", _short_walk(office))
+    spec_path = tmp_path / "spec.toml"
+    spec_path.write_text(f'name = "m"\nformats = ["npy"]\n[[scenes]]\nname = "office"\nifc = "{office}"\n'
+                         f'trajectory = "walk.csv"\n'
+                         '[[configs]]\nname = "tls"\npreset = "exp1"\nhead_deg_per_s = 60.0\n'
+                         '[[configs]]\nname = "hh"\nplatform = "handheld"\ndrift_m = 0.01\n')
+    spec = load_spec(spec_path)
+    assert spec.scenes[0].trajectory == str(walk)
+    report = build_dataset(spec, tmp_path / "ds", executor="serial", progress=False)
+    assert [e.status for e in report.entries] == ["done", "done"] and report.failed == 0
+    folder = DatasetFolder(tmp_path / "ds")
+    unit = folder.unit_dir("office__hh")
+    assert read_trajectory(unit / "trajectory.csv").t[-1] == pytest.approx(3.0)
+    cloud = read_cloud(unit / "cloud")
+    assert cloud.ring is not None and cloud.sensor_xyz is not None
+    record = folder.read_unit("office__hh")
+    assert "trajectory.csv" in record.checksums
+    assert verify_unit(unit, expected_fingerprint=record.fingerprint) is None
+    (unit / "trajectory.csv").write_text("t,x,y,z,roll,pitch,yaw\n")  # damaged: the unit is no longer whole
+    assert "trajectory.csv" in verify_unit(unit, expected_fingerprint=record.fingerprint)
+
+
+@pytest.mark.parametrize(("config", "message"), [
+    ('platform = "handheld"\npreset = "exp1"', "no TLS 'preset'"),
+    ('preset = "exp1"\ndrift_m = 0.01', "for mobile configurations"),
+    ('platform = "segway"', "neither a file nor a known platform"),
+    ('platform = "handheld"\nlidar = "riegl_vz400"', "multi-beam"),
+])
+def test_a_bad_mobile_configuration_is_refused_when_the_spec_is_read(office, tmp_path, config, message):
+    from bimscan.dataset.spec import load_spec
+
+    spec_path = tmp_path / "spec.toml"
+    spec_path.write_text(f'[[scenes]]\nname = "office"\nifc = "{office}"\n[[configs]]\nname = "c"\n{config}\n')
+    with pytest.raises(ConfigError, match=message):
+        load_spec(spec_path)

@@ -116,12 +116,24 @@ def stats(dataset_dir: Path, out_dir: Path | None, from_clouds: bool, verify: bo
 @click.option("--size", default="1600x800", show_default=True, help=SIZE_HELP)
 @click.option("--cut", type=click.Choice(["auto", "none"]), default="auto", show_default=True,
               help="auto: open the top storey (floor plan on top, rooms from above); none: the whole cloud.")
-def render(cloud: Path, out: Path, color: str, max_points: int, size: str, cut: str) -> None:
-    """Draw CLOUD (LAS/LAZ/PLY/NumPy folder) as OUT.png: top and oblique views with a legend."""
+@click.option("--trajectory", default="auto", show_default=True,
+              help="A mobile scan's walk drawn over the top view: 'auto' (CLOUD.trajectory.csv when it is there), "
+                   "'none', or a trajectory CSV file.")
+def render(cloud: Path, out: Path, color: str, max_points: int, size: str, cut: str, trajectory: str) -> None:
+    """Draw CLOUD (LAS/LAZ/PLY/NumPy folder) as OUT.png: top and oblique views with a legend (and a
+    mobile scan's walk over the top view)."""
     from bimscan.render.cloud import render_cloud
+    from bimscan.survey.trajectory import read_trajectory, trajectory_path
 
     width, height = _size(size)
-    result = render_cloud(cloud, out, color=color, max_points=max_points, width=width, height=height, cut=cut)
+    walk = None
+    if trajectory == "auto":
+        beside = trajectory_path(cloud)
+        walk = read_trajectory(beside) if beside.is_file() else None
+    elif trajectory != "none":
+        walk = read_trajectory(trajectory)
+    result = render_cloud(cloud, out, color=color, max_points=max_points, width=width, height=height, cut=cut,
+                          trajectory=walk)
     click.echo(f"{result.path}: {result.total_points:,} points, {result.drawn_points:,} drawn, by {color}")
 
 

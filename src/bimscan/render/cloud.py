@@ -20,6 +20,7 @@ from bimscan.process.subsample import UniformSampler
 from bimscan.render.compose import UNKNOWN_RGB, Panel, check_png_output, class_color_table, compose_png
 from bimscan.render.raster import new_canvas, splat_points
 from bimscan.render.view import OBLIQUE, TOP, Camera, Section, find_section
+from bimscan.survey.trajectory import Trajectory
 from bimscan.types import CloudHeader, LabelScheme, PointCloud
 
 COLOR_MODES = ("label", "station", "intensity", "component", "height", "rgb", "returns")
@@ -163,13 +164,34 @@ def view_masks(z: np.ndarray, cut: str) -> tuple[Section | None, np.ndarray, np.
     return section, below & (z >= section.floor_z - 0.15), below
 
 
+def draw_path(image: np.ndarray, xyz: np.ndarray, camera: Camera, colors: np.ndarray, *, mark_start: bool) -> None:
+    """Draw the polyline through ``xyz`` (M, 3) over ``image`` (on top of everything, 3 px wide),
+    segment k in colour ``colors[k]``, and (``mark_start``) a black square at its start."""
+    if len(xyz) < 2:
+        return
+    sx, sy, _ = camera.project(xyz)
+    step = np.hypot(np.diff(sx), np.diff(sy))
+    counts = np.maximum(1, np.ceil(step * 2).astype(np.int64))
+    segment = np.repeat(np.arange(len(step)), counts)
+    f = (np.arange(len(segment)) - np.repeat(np.cumsum(counts) - counts, counts)) / np.repeat(counts, counts)
+    px = sx[segment] + f * (sx[segment + 1] - sx[segment])
+    py = sy[segment] + f * (sy[segment + 1] - sy[segment])
+    on_top = np.full((image.shape[0], image.shape[1]), np.inf)
+    splat_points(px, py, np.full(len(px), -1.0), np.ascontiguousarray(colors[segment]), 1, on_top, image)
+    if mark_start:
+        splat_points(sx[:1], sy[:1], np.full(1, -2.0), np.zeros((1, 3), dtype=np.uint8), 5, on_top, image)
+
+
 def render_cloud(path: str | Path, out: str | Path, *, color: str = "label", max_points: int = DEFAULT_MAX_POINTS,
-                 width: int = 1600, height: int = 800, cut: str = "auto", seed: int = 0) -> RenderResult:
+                 width: int = 1600, height: int = 800, cut: str = "auto", seed: int = 0,
+                 trajectory: Trajectory | None = None) -> RenderResult:
     """Top and oblique views of the cloud at ``path`` side by side, with a legend, as a PNG.
 
     cut: "auto" opens the top storey of a building (a floor plan on top, rooms opened from above
-    in the oblique view; see ``find_section``) or "none". The PNG is exactly width x height
-    pixels and is written atomically.
+    in the oblique view; see ``find_section``) or "none". ``trajectory``: a mobile scan's walk,
+    drawn over the top view (the part of it on the floors shown), coloured from its start to its
+    end, its start marked by a black square. The PNG is exactly width x height pixels and is
+    written atomically.
     """
     if color not in COLOR_MODES:
         raise ConfigError(f"unknown colour mode {color!r}; use one of {', '.join(COLOR_MODES)}")
@@ -182,13 +204,30 @@ def render_cloud(path: str | Path, out: str | Path, *, color: str = "label", max
     panel_w, panel_h = panel_size(width, height, panels=2)
     panels = []
     for title, (azimuth, elevation), mask in (("top view", TOP, top_mask), ("oblique view", OBLIQUE, oblique_mask)):
+        is_top = title == "top view"
         xyz = cloud.xyz[mask]
         low, high = (xyz.min(axis=0), xyz.max(axis=0)) if len(xyz) else (np.zeros(3), np.ones(3))
         camera = Camera.fit(low, high, azimuth_deg=azimuth, elevation_deg=elevation, width=panel_w, height=panel_h)
         if section is not None:
-            title += (f", z {section.floor_z - 0.15:.2f} to {section.plan_z:.2f} m" if mask is top_mask
+            title += (f", z {section.floor_z - 0.15:.2f} to {section.plan_z:.2f} m" if is_top
                       else f", below z {section.plan_z:.2f} m")
-        panels.append(Panel(title=title, image=draw_points(xyz, colors[mask], camera)))
+        image = draw_points(xyz, colors[mask], camera)
+        if trajectory is not None and is_top:
+            shown = np.ones(len(trajectory.t), dtype=bool) if section is None else (
+                (trajectory.xyz[:, 2] >= section.floor_z - 0.5) & (trajectory.xyz[:, 2] <= section.plan_z))
+            for part in trajectory.pass_slices():  # one polyline per pass, broken where it leaves the floors shown
+                index = np.arange(part.start, part.stop)[shown[part]]
+                for run in np.split(index, np.flatnonzero(np.diff(index) > 1) + 1):
+                    progress = (trajectory.t[run] - trajectory.t[0]) / max(float(np.ptp(trajectory.t)), 1e-9)
+                    if len(run):
+                        draw_path(image, trajectory.xyz[run], camera, _ramp(0.15 + 0.85 * progress),
+                                  mark_start=bool(run[0] == part.start))
+            title += ", walk drawn over it"
+        panels.append(Panel(title=title, image=image))
+    if trajectory is not None:
+        ends = _ramp(np.array([0.15, 1.0]))
+        legend = [*legend, ("walk: start (black square)", tuple(int(v) for v in ends[0])),
+                  ("walk: end", tuple(int(v) for v in ends[1]))]
     title = f"{Path(path).name}: {sample.total:,} points ({len(cloud):,} sampled), coloured by {color}"
     compose_png(panels, legend=legend, title=title, out=out, width=width, height=height)
     return RenderResult(path=Path(out), total_points=sample.total, drawn_points=len(cloud), color=color,

@@ -205,9 +205,7 @@ class VirtualScanner:
         centre = np.asarray(self.engine.centre, dtype=np.float64)
         for first in range(0, total, chunk):
             n = min(chunk, total - first)
-            if len(self._ray_buffer) < n:
-                self._ray_buffer = np.empty((n, 6), dtype=np.float32)
-            rays = self._ray_buffer[:n]
+            rays = self._work("mobile_rays", (n, 6), np.float32)
             origin = self._work("mobile_origin", (n, 3), np.float64)
             pulse_time = self._work("mobile_time", (n,), np.float64)
             moving_rays(np.int64(first), np.int64(n), np.int64(n_beams), lidar.firing_cycle_us * 1e-6, float(t[0]),

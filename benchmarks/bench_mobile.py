@@ -1,0 +1,143 @@
+"""Mobile scanning throughput: the handheld path next to the tripod path, on the same scene and engine.
+
+Run: python benchmarks/bench_mobile.py [--model MODEL.ifc] [--seconds 20] [--rounds 5]
+
+1. Planning: seconds to plan the tripod stations and the walk through them (``survey.walk``),
+   with the walk's length, duration, passes and loop closures.
+2. Scan path, side by side (interleaved rounds, best of each): rays/s of
+   - the mobile path (``VirtualScanner.scan_pass``: per-pulse poses interpolated along the walk,
+     rays, casting, noise, labels, beam origins, compaction) over the first ``--seconds`` of the
+     planned handheld walk (VLP-16 at 10 Hz on the rotating head);
+   - the tripod path (``VirtualScanner.scan_station``) of the first planned station, the VZ-400 at
+     300 kHz and 120 lines/s turning 10 deg/s (4.5M pulses, about as many);
+   - the raw engine cast of the mobile path's own rays.
+   The issue's target without HELIOS++ at hand: the mobile path at >= 80 % of the tripod path's rays/s.
+
+Default model: the shared duplex (two storeys, stairs), else a generated two-storey office.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+SHARED = HERE.parent.parent / "shared" / "data" / "ifc"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--model", type=Path)
+    parser.add_argument("--seconds", type=float, default=20.0, help="seconds of the walk scanned per round")
+    parser.add_argument("--rounds", type=int, default=5)
+    args = parser.parse_args()
+
+    from bimscan.pipeline import load_scene
+    from bimscan.scan.device import ScanSettings
+    from bimscan.scan.kernels import noise_key  # noqa: F401  (compiles the kernels before timing)
+    from bimscan.scan.multibeam import moving_rays
+    from bimscan.scan.probe import Prober
+    from bimscan.survey.platform import PLATFORMS
+    from bimscan.survey.recipe import ScanRecipe
+    from bimscan.survey.stations import plan_stations
+    from bimscan.survey.survey import place_scanner
+    from bimscan.survey.trajectory import Trajectory
+    from bimscan.survey.walk import plan_walk
+
+    with tempfile.TemporaryDirectory() as scratch:
+        model = args.model
+        if model is None:
+            model = SHARED / "duplex.ifc"
+            if not model.is_file():
+                from bimscan.ifc.generate import make_building
+
+                model = make_building(Path(scratch) / "office.ifc", seed=4, storeys=2, style="office").path
+        scene = load_scene(model)
+    mobile_recipe = ScanRecipe.resolve(platform="handheld")
+    tripod_recipe = ScanRecipe(settings=ScanSettings(pulse_freq_hz=300000, scan_freq_hz=120, head_deg_per_s=10.0),
+                               preset=None)
+    start = time.perf_counter()
+    prober = Prober(scene.mesh)
+    stations, _ = plan_stations(scene, prober, tripod_recipe.scanner)
+    planned_stations = time.perf_counter()
+    trajectory, report = plan_walk(scene, prober, PLATFORMS["handheld"], stations)
+    planned_walk = time.perf_counter()
+    print(f"model: {Path(model).name}, {scene.mesh.n_triangles:,} triangles")
+    print(f"planning: stations {planned_stations - start:.2f} s ({len(stations)}), walk {planned_walk - planned_stations:.2f} s"
+          f" ({trajectory.length_m():.0f} m, {trajectory.duration_s():.0f} s, {trajectory.n_passes} passes, "
+          f"{len(trajectory.closures)} loop closures, {len(report.rooms)} rooms)")
+
+    first = trajectory.pass_slices()[0]
+    window = np.flatnonzero(trajectory.t[first] <= trajectory.t[first][0] + args.seconds)
+    part = slice(int(window[0]), int(window[-1]) + 1)
+    piece = Trajectory(t=trajectory.t[part], xyz=trajectory.xyz[part], roll=trajectory.roll[part],
+                       pitch=trajectory.pitch[part], yaw=trajectory.yaw[part],
+                       pass_id=np.zeros(part.stop - part.start, dtype=np.int32))
+    scanner = place_scanner(scene, tripod_recipe)
+    whole = slice(0, len(piece.t))
+
+    def mobile_once() -> tuple[int, int]:
+        rays = points = 0
+        for chunk in scanner.scan_pass(piece, whole, 0, 0, mobile_recipe, reuse_buffers=True,
+                                       on_pulses=lambda n: counter.append(n)):
+            points += len(chunk)
+        rays = sum(counter)
+        counter.clear()
+        return rays, points
+
+    def tripod_once() -> tuple[int, int]:
+        points = 0
+        for chunk in scanner.scan_station(stations[0], tripod_recipe, reuse_buffers=True,
+                                          on_pulses=lambda n: counter.append(n)):
+            points += len(chunk)
+        rays = sum(counter)
+        counter.clear()
+        return rays, points
+
+    # the raw cast of the mobile path's own rays (generated once, outside the timing)
+    lidar, mount = mobile_recipe.mobile.lidar, mobile_recipe.mobile.platform.mounts[0]
+    n = mobile_recipe.mobile.pass_pulses(float(piece.t[-1] - piece.t[0]))
+    rays = np.empty((n, 6), dtype=np.float32)
+    origin = np.empty((n, 3))
+    pulse_time = np.empty(n)
+    elevation = np.radians(np.asarray(lidar.beam_elevation_deg))
+    moving_rays(np.int64(0), np.int64(n), np.int64(lidar.n_beams), lidar.firing_cycle_us * 1e-6, float(piece.t[0]),
+                np.asarray(lidar.firing_offset_us) * 1e-6, np.cos(elevation), np.sin(elevation),
+                np.radians(np.asarray(lidar.beam_azimuth_offset_deg)), 2 * math.pi * mobile_recipe.mobile.rotation_hz,
+                piece.t, piece.xyz, piece.ypr(), mount.lever_arm(), mount.rotation(),
+                2 * math.pi * mount.head_rotation_hz, np.asarray(scanner.engine.centre, dtype=np.float64), rays, origin,
+                pulse_time)
+
+    def raw_once() -> tuple[int, int]:
+        for begin in range(0, n, mobile_recipe.chunk_pulses):
+            scanner.engine.cast(rays[begin:begin + mobile_recipe.chunk_pulses])
+        return n, 0
+
+    counter: list[int] = []
+    best = {"mobile": math.inf, "tripod": math.inf, "raw": math.inf}
+    counts = {}
+    mobile_once(), tripod_once()  # compile and warm up
+    for _ in range(args.rounds):
+        for name, fn in (("mobile", mobile_once), ("tripod", tripod_once), ("raw", raw_once)):
+            t0 = time.perf_counter()
+            counts[name] = fn()
+            best[name] = min(best[name], time.perf_counter() - t0)
+    print(f"scan path, best of {args.rounds} interleaved rounds:")
+    for name, label in (("mobile", f"handheld VLP-16, {args.seconds:g} s of the walk"),
+                        ("tripod", "tripod station, VZ-400 300 kHz at 10 deg/s"),
+                        ("raw", "raw cast of the handheld rays")):
+        rays_n, points = counts[name]
+        print(f"  {label:45s} {rays_n:>10,} rays {best[name]:7.3f} s  {rays_n / best[name] / 1e6:6.2f} Mrays/s"
+              + (f"  {points:>10,} points" if points else ""))
+    ratio = (counts["mobile"][0] / best["mobile"]) / (counts["tripod"][0] / best["tripod"])
+    print(f"mobile path / tripod path rays/s: {ratio:.2f} (target >= 0.80)")
+    print(f"mobile path / raw cast of its rays: {(counts['mobile'][0] / best['mobile']) / (n / best['raw']):.2f}")
+
+
+if __name__ == "__main__":
+    main()
