@@ -335,3 +335,59 @@ def test_a_bad_mobile_configuration_is_refused_when_the_spec_is_read(office, tmp
     spec_path.write_text(f'[[scenes]]\nname = "office"\nifc = "{office}"\n[[configs]]\nname = "c"\n{config}\n')
     with pytest.raises(ConfigError, match=message):
         load_spec(spec_path)
+
+
+# -- HELIOS++ export ---------------------------------------------------------------------------------
+
+def test_the_helios_survey_of_a_mobile_scan_points_every_beam_where_bimscan_does():
+    """The exported trajectory, mount and head settings, read with HELIOS++'s conventions (CANONICAL
+    attitude Rx(roll) Ry(pitch) Rz(yaw), global mount rotations, VLP-16 beam along +Y at head
+    angle 0), give each pulse the direction and origin bimscan's kernel gives it."""
+    import xml.etree.ElementTree as ET
+
+    from scipy.spatial.transform import Rotation
+
+    from bimscan.io.helios import helios_mobile_files
+    from bimscan.scan.multibeam import moving_rays
+    from bimscan.survey.mobile import MobileScan
+    from bimscan.scan.multibeam import LIDARS
+
+    t = np.linspace(0.0, 2.0, 9)
+    walk = Trajectory(t=t, xyz=np.column_stack([t, 0.3 * t, 0.1 * t]), roll=np.radians(4.0 * np.sin(t)),
+                      pitch=np.radians(3.0 * np.cos(t)), yaw=np.radians(30.0 * t), pass_id=np.zeros(9, dtype=np.int32))
+    mobile = MobileScan(platform=HANDHELD, lidar=LIDARS["velodyne_vlp16"], rotation_hz=10.0)
+    files = helios_mobile_files(walk, mobile, scene_id="s", name="s")
+    survey = ET.fromstring(files["helios/survey.xml"]).find("survey")
+    assert survey.get("platform") == "interpolated" and survey.get("rotationSpec") == "CANONICAL"
+    mount = survey.find("scannerMount")
+    lever = np.array([float(mount.get(a)) for a in "xyz"])
+    mount_rotation = np.eye(3)
+    for rot in mount.findall("rot"):  # global rotations, in order
+        mount_rotation = Rotation.from_euler(rot.get("axis"), float(rot.get("angle_deg")), degrees=True).as_matrix() \
+            @ mount_rotation
+    settings = survey.find("leg").find("scannerSettings")
+    head_start, head_rate = float(settings.get("headRotateStart_deg")), float(settings.get("headRotatePerSec_deg"))
+    rows = np.array([[float(v) for v in line.split(",")] for line in files["helios/trajectory_mount0.trj"].decode()
+                     .splitlines() if not line.startswith("#")])
+    # bimscan's rays of the first 0.5 s
+    lidar = mobile.lidar
+    n = mobile.pass_pulses(0.5)
+    rays, origin, pulse_time = np.empty((n, 6), np.float32), np.empty((n, 3)), np.empty(n)
+    el = np.radians(np.asarray(lidar.beam_elevation_deg))
+    m = HANDHELD.mounts[0]
+    moving_rays(np.int64(0), np.int64(n), np.int64(16), lidar.firing_cycle_us * 1e-6, 0.0,
+                np.asarray(lidar.firing_offset_us) * 1e-6, np.cos(el), np.sin(el), np.zeros(16), 2 * math.pi * 10.0,
+                walk.t, walk.xyz, walk.ypr(), m.lever_arm(), m.rotation(), 2 * math.pi * m.head_rotation_hz,
+                np.zeros(3), rays, origin, pulse_time)
+    pick = np.linspace(0, n - 1, 400).astype(int)
+    for i in pick:
+        time = pulse_time[i]
+        angles = [np.interp(time, rows[:, 0], rows[:, c]) for c in (1, 2, 3)]
+        attitude = Rotation.from_euler("XYZ", angles, degrees=True).as_matrix()
+        position = np.array([np.interp(time, rows[:, 0], rows[:, c]) for c in (4, 5, 6)])
+        head = math.radians(head_start + head_rate * time)
+        elevation = el[i % 16]
+        beam = np.array([-math.cos(elevation) * math.sin(head), math.cos(elevation) * math.cos(head),
+                         math.sin(elevation)])
+        assert np.abs(attitude @ mount_rotation @ beam - rays[i, 3:]).max() < 2e-3
+        assert np.abs(position + attitude @ lever - origin[i]).max() < 2e-3

@@ -70,14 +70,21 @@ HELIOS_HELP = ("Also write HELIOS++ inputs: helios/scene.xml (one <part> per com
                                               "that name (HELIOS++ has its own definition of the device).")
 @click.option("--head-speed", "head_deg_per_s", type=float, default=None,
               help="With --helios: head rotation in deg/s, overriding the preset.")
+@click.option("--platform", default=None,
+              help="With --helios: a mobile platform (handheld, backpack or a platform file): the survey follows "
+                   "its trajectory on HELIOS++'s interpolated platform, one survey per lidar.")
+@click.option("--trajectory", default=None,
+              help="With --helios and --platform: 'auto' (planned as 'bimscan scan' plans it; the default) or a "
+                   "trajectory CSV file.")
 @click.option("--scheme", default=None, help=SCHEME_HELP)
 @click.option("--overwrite", is_flag=True, help="Replace files already in OUT_DIR.")
 @click.option("--seed", default=0, show_default=True, type=int, help="Placement seed of the site flags' clutter.")
 @site_options
 @ifc_options
 def export_obj_command(model: Path, out_dir: Path, helios: bool, stations: str | None, preset: str | None,
-                       scanner: str | None, head_deg_per_s: float | None, scheme: str | None, overwrite: bool,
-                       seed: int, site: Any, strict: bool, length_unit: str | None) -> None:
+                       scanner: str | None, head_deg_per_s: float | None, platform: str | None, trajectory: str | None,
+                       scheme: str | None, overwrite: bool, seed: int, site: Any, strict: bool,
+                       length_unit: str | None) -> None:
     """Export MODEL.ifc as OBJ: model.obj (one group per component), components/c<id>.obj
     (one file per component, as HELIOS++ wants), classes.mtl and index.csv (component id,
     GlobalId, IFC class, label); with --helios also a HELIOS++ scene and survey. With the site
@@ -90,40 +97,56 @@ def export_obj_command(model: Path, out_dir: Path, helios: bool, stations: str |
     from bimscan.pipeline import build_site, load_scene, rooms_without_station_line, site_and_stations
     from bimscan.survey.recipe import ScanRecipe
 
-    survey_options = {"--stations": stations, "--preset": preset, "--scanner": scanner, "--head-speed": head_deg_per_s}
+    survey_options = {"--stations": stations, "--preset": preset, "--scanner": scanner, "--head-speed": head_deg_per_s,
+                      "--platform": platform, "--trajectory": trajectory}
     given = [name for name, value in survey_options.items() if value is not None]
     if given and not helios:
         raise click.UsageError(f"{', '.join(given)} describe the HELIOS++ survey; add --helios")
+    mobile = platform is not None and platform != "tripod"
     # settings errors before the (slow) parse
-    recipe = ScanRecipe.resolve(preset=preset, scanner=scanner, head_deg_per_s=head_deg_per_s,
-                                stations_from=stations or "auto", seed=seed, site=site)
+    recipe = ScanRecipe.resolve(preset=preset, scanner=None if mobile else scanner, head_deg_per_s=head_deg_per_s,
+                                stations_from=stations or "auto", seed=seed, site=site, platform=platform,
+                                lidar=scanner if mobile else None, trajectory=trajectory)
     if helios:
-        from bimscan.io.helios import helios_scanner
+        from bimscan.io.helios import HELIOS_LIDARS, helios_scanner
 
-        helios_scanner(recipe.scanner)  # a scanner HELIOS++ has a definition of
+        if recipe.mobile is None:
+            helios_scanner(recipe.scanner)  # a scanner HELIOS++ has a definition of
+        elif recipe.mobile.lidar.name not in HELIOS_LIDARS:
+            raise click.UsageError(f"HELIOS++ has a definition of {', '.join(HELIOS_LIDARS)} only, not of "
+                                   f"{recipe.mobile.lidar.name}; pass --scanner velodyne_vlp16")
         for warning in recipe.warnings:
             click.echo(f"warning: {warning}", err=True)
     scene = load_scene(model, scheme=scheme, strict=strict, length_unit=length_unit)
     echo_load_report(scene)
     survey_xml = None
+    mobile_files = None
     n_legs = 0
     if helios:
-        from bimscan.io.helios import helios_scene_id, helios_survey_xml
+        from bimscan.io.helios import helios_mobile_files, helios_scene_id, helios_survey_xml
 
         chosen = site_and_stations(scene, recipe)
         scene = chosen.scene
         if chosen.plan is not None and chosen.plan.rooms_without_station:
             click.echo(f"warning: {rooms_without_station_line(chosen.plan)}", err=True)
-        survey_xml = helios_survey_xml(chosen.stations, recipe.settings, recipe.scanner,
-                                       scene_id=helios_scene_id(scene.source), name=Path(scene.source).stem)
-        n_legs = len(chosen.stations)
+        if chosen.trajectory is not None:
+            mobile_files = helios_mobile_files(chosen.trajectory, recipe.mobile, scene_id=helios_scene_id(scene.source),
+                                               name=Path(scene.source).stem)
+            n_legs = chosen.trajectory.n_passes
+        else:
+            survey_xml = helios_survey_xml(chosen.stations, recipe.settings, recipe.scanner,
+                                           scene_id=helios_scene_id(scene.source), name=Path(scene.source).stem)
+            n_legs = len(chosen.stations)
     else:
         scene = build_site(scene, recipe)
-    result = export_obj(scene, out_dir, helios=helios, helios_survey=survey_xml, overwrite=overwrite)
+    result = export_obj(scene, out_dir, helios=helios, helios_survey=survey_xml, helios_files=mobile_files,
+                        overwrite=overwrite)
     click.echo(f"{result.out_dir}: {len(result.component_files)} component files, {result.n_triangles:,} triangles; "
                f"index {result.index_csv.name}" + (f"; HELIOS++ scene {result.helios_scene}" if result.helios_scene else ""))
     if result.helios_survey is not None:
-        click.echo(f"HELIOS++ survey {result.helios_survey} ({n_legs} legs); run it with:\n"
+        more = [name for name in (mobile_files or {}) if name.endswith(".xml") and Path(name).name != "survey.xml"]
+        click.echo(f"HELIOS++ survey {result.helios_survey} ({n_legs} legs)"
+                   + (f" and {', '.join(more)} (one survey per lidar)" if more else "") + "; run it with:\n"
                    f"  helios++ {result.helios_survey} --assets {result.out_dir}")
 
 

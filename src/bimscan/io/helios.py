@@ -55,6 +55,8 @@ from bimscan.types import Station
 
 if TYPE_CHECKING:  # the scanner stage's data types, for annotations only
     from bimscan.scan.device import ScannerModel, ScanSettings
+    from bimscan.survey.mobile import MobileScan
+    from bimscan.survey.trajectory import Trajectory
 
 HELIOS_DIR = "helios"
 SCENE_FILE = "helios/scene.xml"  # relative to the export folder (HELIOS++'s --assets)
@@ -231,7 +233,109 @@ def helios_survey_xml(stations: Sequence[Station], settings: ScanSettings, scann
     return ("\n".join(lines) + "\n").encode("utf-8")
 
 
+# bimscan multi-beam lidar -> HELIOS++'s definition of it (data/scanners_tls.xml)
+HELIOS_LIDARS: dict[str, str] = {"velodyne_vlp16": "data/scanners_tls.xml#vlp16"}
+INTERPOLATED_BASE_PLATFORM = "data/platforms.xml#tripod"  # an interpolated platform needs a base; the survey's mount replaces its own
+HEAD_SAMPLE_S = 0.05  # trajectory samples of a turning mount (its head turn folded into the yaw)
+
+
+def helios_mobile_files(trajectory: Trajectory, mobile: MobileScan, *, scene_file: str = SCENE_FILE, scene_id: str,
+                        name: str) -> dict[str, bytes]:
+    """The HELIOS++ survey of a mobile scan, as files relative to the export folder: per lidar of
+    the platform, a survey on HELIOS++'s interpolated platform (``helios/survey.xml`` for the
+    first, ``helios/survey_mount<k>.xml`` for the others; HELIOS++ runs one scanner per survey)
+    and the trajectory it follows (``helios/trajectory_mount<k>.trj``), one leg per pass.
+
+    How the pieces go, from HELIOS++'s source (``XmlAssetsLoader::createInterpolatedMovingPlatform``,
+    ``InterpolatedMovingPlatform``, ``XmlUtils::createRotationFromXml``, its ``vlp16`` definition):
+
+    - trajectory columns t, roll, pitch, yaw, x, y, z (its default indices), angles in degrees
+      (``toRadians="true"``), attitude ``rotationSpec="CANONICAL"``: R = Rx(roll) Ry(pitch)
+      Rz(yaw), the same frame as bimscan's platform (x forward, z up); bimscan's Rz(yaw) Ry(pitch)
+      Rx(roll) is converted, and a mount's head turn (about the platform's z, at the mount) is
+      folded into the attitude, sampled every ``HEAD_SAMPLE_S``;
+    - the survey's ``<scannerMount>``: the mount's lever arm, then its tilt about y and its yaw
+      about z (global rotations, in that order: Rz(yaw) Ry(tilt), as bimscan's mount);
+    - HELIOS++'s VLP-16 fires all channels at once at ``pulseFreq_hz`` and its beam leaves along
+      +Y at head angle 0: one pulse per bimscan firing sequence (round(1 / cycle)), and the head
+      starts at -90 degrees, turning 360 x rotation_hz degrees per second.
+
+    ConfigError for a lidar HELIOS++ has no definition of.
+    """
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    lidar = mobile.lidar
+    asset = HELIOS_LIDARS.get(lidar.name)
+    if asset is None:
+        raise ConfigError(f"HELIOS++ survey: bimscan knows HELIOS++'s definition of {', '.join(HELIOS_LIDARS)} only, "
+                          f"not of {lidar.name!r}; export a mobile survey with --scanner velodyne_vlp16")
+    pulse_hz = int(round(1e6 / lidar.firing_cycle_us))
+    files: dict[str, bytes] = {}
+    for k, mount in enumerate(mobile.platform.mounts):
+        times, rows = [], []
+        for part in trajectory.pass_slices():
+            t = trajectory.t[part]
+            grid = np.union1d(t, np.arange(t[0], t[-1], HEAD_SAMPLE_S)) if mount.head_rotation_hz else t
+            yaw = np.interp(grid, t, np.unwrap(trajectory.yaw[part]))
+            pitch = np.interp(grid, t, trajectory.pitch[part])
+            roll = np.interp(grid, t, trajectory.roll[part])
+            head = 2 * math.pi * mount.head_rotation_hz * grid
+            attitude = (Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll]))
+                        * Rotation.from_euler("z", head[:, None]))
+            angles = attitude.as_euler("XYZ", degrees=True)  # CANONICAL: Rx(roll) Ry(pitch) Rz(yaw)
+            angles[:, 2] = np.degrees(np.unwrap(np.radians(angles[:, 2])))
+            xyz = np.column_stack([np.interp(grid, t, trajectory.xyz[part][:, axis]) for axis in range(3)])
+            times.append((float(grid[0]), float(grid[-1])))
+            rows += [f"{g:.6f},{a[0]:.6f},{a[1]:.6f},{a[2]:.6f},{p[0]:.6f},{p[1]:.6f},{p[2]:.6f}"
+                     for g, a, p in zip(grid, angles, xyz)]
+        track = f"{HELIOS_DIR}/trajectory_mount{k}.trj"
+        files[track] = ("#TIME_COLUMN: 0\n#HEADER: \"t\", \"roll\", \"pitch\", \"yaw\", \"x\", \"y\", \"z\"\n"
+                        + "\n".join(rows) + "\n").replace("-0.000000", "0.000000").encode("ascii")
+        survey = {"name": f"{name}_mount{k}", "scene": f"{scene_file}#{scene_id}", "platform": "interpolated",
+                  "basePlatform": INTERPOLATED_BASE_PLATFORM, "rotationSpec": "CANONICAL", "scanner": asset}
+        mount_xyz = {"x": _number(mount.forward_m), "y": _number(mount.lateral_m), "z": _number(mount.height_m)}
+        lines = [
+            '<?xml version="1.0" encoding="UTF-8"?>',
+            "<document>",
+            "    " + _comment(f"bimscan {__version__}: the mobile scan of bimscan scan with platform "
+                              f"{mobile.platform.name}, {lidar.name} at {mobile.rotation_hz:g} Hz, lidar {k + 1} of "
+                              f"{len(mobile.platform.mounts)}, {trajectory.n_passes} passes (one leg each). Run HELIOS++ "
+                              "on this file with the export folder as its asset folder."),
+            "    " + _comment(f"HELIOS++ fires the {lidar.n_beams} channels at once {pulse_hz} times a second; bimscan "
+                              f"fires them one after another within each {lidar.firing_cycle_us:g} us sequence."),
+            "    <survey " + " ".join(f"{key}={quoteattr(v)}" for key, v in survey.items()) + ">",
+            "        <scannerMount " + " ".join(f"{key}={quoteattr(v)}" for key, v in mount_xyz.items()) + ">",
+            f'            <rot axis="y" angle_deg="{_number(mount.tilt_deg)}" />',
+            f'            <rot axis="z" angle_deg="{_number(mount.yaw_deg)}" />',
+            "        </scannerMount>",
+        ]
+        for index, (start, stop) in enumerate(times):
+            platform = {"trajectory": track, "tIndex": "0", "rollIndex": "1", "pitchIndex": "2", "yawIndex": "3",
+                        "xIndex": "4", "yIndex": "5", "zIndex": "6", "toRadians": "true", "slopeFilterThreshold": "0.0",
+                        "syncGPSTime": "false", "tStart": _number(start), "tEnd": _number(stop),
+                        "teleportToStart": "true"}
+            if index:  # the indices are given once per trajectory file
+                for key in ("tIndex", "rollIndex", "pitchIndex", "yawIndex", "xIndex", "yIndex", "zIndex"):
+                    del platform[key]
+            turn = 360.0 * mobile.rotation_hz
+            scanner = {"active": "true", "pulseFreq_hz": str(pulse_hz), "scanFreq_hz": "0",
+                       "headRotatePerSec_deg": _number(turn), "headRotateStart_deg": _number(-HEAD_ZERO_AZIMUTH_DEG),
+                       "headRotateStop_deg": _number(-HEAD_ZERO_AZIMUTH_DEG + turn * (stop - start)),
+                       "trajectoryTimeInterval_s": _number(HEAD_SAMPLE_S)}
+            lines += [
+                "        " + _comment(f"pass {index}: t {start:.3f} to {stop:.3f} s"),
+                "        <leg>",
+                "            <platformSettings " + " ".join(f"{key}={quoteattr(v)}" for key, v in platform.items()) + " />",
+                "            <scannerSettings " + " ".join(f"{key}={quoteattr(v)}" for key, v in scanner.items()) + " />",
+                "        </leg>",
+            ]
+        lines += ["    </survey>", "</document>"]
+        files[SURVEY_FILE if k == 0 else f"{HELIOS_DIR}/survey_mount{k}.xml"] = ("\n".join(lines) + "\n").encode("utf-8")
+    return files
+
+
 __all__ = [
-    "HELIOS_SCANNERS", "HeliosScanner", "SCENE_FILE", "SURVEY_FILE", "helios_near_limit_m", "helios_scanner",
+    "HELIOS_LIDARS", "HELIOS_SCANNERS", "helios_mobile_files", "HeliosScanner", "SCENE_FILE", "SURVEY_FILE", "helios_near_limit_m", "helios_scanner",
     "helios_scene_id", "helios_scene_xml", "helios_survey_xml", "write_helios_scene",
 ]

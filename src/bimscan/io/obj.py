@@ -26,6 +26,7 @@ import csv
 import io
 import shutil
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -90,14 +91,16 @@ def _block(fmt: str, values: np.ndarray) -> str:
 
 
 def export_obj(scene: BimScene, out_dir: str | Path, *, helios: bool = False, helios_survey: bytes | None = None,
+               helios_files: Mapping[str, bytes] | None = None,
                overwrite: bool = False) -> ObjExport:
     """Write the scene as OBJ files with a component index into ``out_dir`` (created if missing).
 
     ``helios``: also the HELIOS++ scene; ``helios_survey``: the HELIOS++ survey document to
-    store beside it (needs ``helios``). Raises OutputError when ``out_dir``'s parent is missing,
+    store beside it (needs ``helios``); ``helios_files``: more HELIOS++ files by path relative to
+    ``out_dir`` (a mobile survey's surveys and trajectories, ``io.helios.helios_mobile_files``). Raises OutputError when ``out_dir``'s parent is missing,
     when an output already exists and ``overwrite`` is False, or when the disk fills up.
     """
-    if helios_survey is not None and not helios:
+    if (helios_survey is not None or helios_files) and not helios:
         raise ValueError("a HELIOS++ survey needs the HELIOS++ scene: pass helios=True")
     out_dir = Path(out_dir)
     if not out_dir.parent.is_dir():
@@ -121,6 +124,8 @@ def export_obj(scene: BimScene, out_dir: str | Path, *, helios: bool = False, he
         files = _write_all(scene, stage, helios=helios)
         if helios_survey is not None:
             (stage / SURVEY_FILE).write_bytes(helios_survey)
+        for relative, data in (helios_files or {}).items():  # a mobile survey: surveys and trajectories
+            (stage / relative).write_bytes(data)
         for name in names:
             commit_output(stage / name, out_dir / name, overwrite=True)
         done = True
@@ -138,7 +143,7 @@ def export_obj(scene: BimScene, out_dir: str | Path, *, helios: bool = False, he
         component_files={c: out_dir / "components" / f"c{c}.obj" for c in files},
         helios_scene=(out_dir / SCENE_FILE) if helios else None,
         n_triangles=mesh.n_triangles,
-        helios_survey=(out_dir / SURVEY_FILE) if helios_survey is not None else None,
+        helios_survey=(out_dir / SURVEY_FILE) if helios_survey is not None or helios_files else None,
     )
 
 
