@@ -20,6 +20,7 @@ from bimscan.survey.drift import DriftModel
 from bimscan.survey.platform import Platform
 
 AUTO_TRAJECTORY = "auto"
+UNUSED_LIDAR_FIELDS = ("beam_divergence_rad", "wavelength_nm")  # recorded facts the thin-ray scan does not use
 
 
 @dataclass(frozen=True)
@@ -46,6 +47,10 @@ class MobileScan:
         return max(0, sequences) * self.lidar.n_beams
 
     def to_json(self) -> dict[str, Any]:
+        """What a mobile scan records (and its fingerprint's input). The lidar's divergence and
+        wavelength are left out: the thin-ray scan does not use them (as a tripod recipe leaves out
+        the device facts only the sensor effects use)."""
         trajectory = self.trajectory_from if self.trajectory_from == AUTO_TRAJECTORY else Path(self.trajectory_from).name
-        return {"platform": dataclasses.asdict(self.platform), "scanner": dataclasses.asdict(self.lidar),
+        lidar = {k: v for k, v in dataclasses.asdict(self.lidar).items() if k not in UNUSED_LIDAR_FIELDS}
+        return {"platform": dataclasses.asdict(self.platform), "scanner": lidar,
                 "rotation_hz": self.rotation_hz, "trajectory_from": trajectory, "drift": self.drift.to_json()}
