@@ -187,7 +187,16 @@ def test_the_shipped_experiments_are_valid() -> None:
         assert baseline.blocks.train_columns == "scene"
         assert _config(parsed.variants[-1]).blocks.train_columns == "station"
     recipe = load_experiment(configs / "sim2real_cpu.toml")
-    assert [v.name for v in recipe.variants] == ["sim2real-recipe"] and len(recipe.holdout.ifc) == 4
+    assert [v.name for v in recipe.variants] == ["sim2real-recipe", "sim2real-handheld"]
+    assert len(recipe.holdout.ifc) == 4
+    # the handheld variant: the same recipe on the same buildings, walked with the handheld scanner
+    from bimscan.dataset.spec import load_spec
+
+    tripod, handheld = (load_spec(v.specs[0]) for v in recipe.variants)
+    assert [s.generate for s in tripod.scenes] == [s.generate for s in handheld.scenes]
+    assert [c.platform for c in handheld.configs] == ["handheld"]
+    for section in ("blocks", "input", "augment", "model", "train"):
+        assert getattr(_config(recipe.variants[0]), section) == getattr(_config(recipe.variants[1]), section)
     assert all((configs / f).is_file() for f in recipe.holdout.ifc) and recipe.holdout.clutter == 0.3
     ablation = load_experiment(configs / "sim2real_cpu_ablation.toml")
     whole, last_row = _config(recipe.variants[0]), _config(ablation.variants[-1])
