@@ -391,3 +391,22 @@ def test_the_helios_survey_of_a_mobile_scan_points_every_beam_where_bimscan_does
                          math.sin(elevation)])
         assert np.abs(attitude @ mount_rotation @ beam - rays[i, 3:]).max() < 2e-3
         assert np.abs(position + attitude @ lever - origin[i]).max() < 2e-3
+
+
+def test_a_walk_crosses_rooms_whose_storey_was_exported_without_its_floor_slab(tiny_model, tmp_path):
+    model = tiny_model("IFC4")
+    for name, x0 in (("west room", 0.0), ("east room", 6.0)):  # two rooms side by side, no floor slab
+        model.add_box("IfcSpace", origin=(x0, 0.0, 0.0), size=(5.8, 5.0, 2.8), name=name)
+    for name, origin, size in (("south", (-0.2, -0.2, 0.0), (12.2, 0.2, 2.8)), ("north", (-0.2, 5.0, 0.0), (12.2, 0.2, 2.8)),
+                               ("west", (-0.2, 0.0, 0.0), (0.2, 5.0, 2.8)), ("east", (11.8, 0.0, 0.0), (0.2, 5.0, 2.8)),
+                               ("party wall south", (5.8, 0.0, 0.0), (0.2, 2.0, 2.8)),  # a 1 m opening between
+                               ("party wall north", (5.8, 3.0, 0.0), (0.2, 2.0, 2.8))):
+        model.add_box("IfcWall", origin=origin, size=size, name=name)
+    model.add_box("IfcSlab", origin=(-0.2, -0.2, 2.8), size=(12.2, 5.4, 0.3), predefined_type="ROOF", name="roof")
+    scene = load_scene(model.write(tmp_path / "noslab.ifc"))
+    prober = Prober(scene.mesh)
+    stations, _ = plan_stations(scene, prober, SCANNERS["riegl_vz400"])
+    trajectory, report = plan_walk(scene, prober, HANDHELD, stations)
+    assert report.missed == () and set(report.rooms) == {"west room", "east room"}
+    assert trajectory.n_passes == 1 and np.abs(trajectory.xyz[:, 2]).max() < 1e-6  # on the rooms' own floor
+    assert trajectory.xyz[:, 0].min() < 5.0 and trajectory.xyz[:, 0].max() > 7.0  # through the opening

@@ -141,7 +141,7 @@ def find_tripod_spots(scene: BimScene, prober: Prober, columns: np.ndarray, *, i
     room_floors = []
     for room in rooms_of(scene):
         z0 = float(room.vertices[:, 2].min())
-        inside = _columns_in(room, columns)
+        inside = columns_in(room, columns)
         if not inside.any():
             continue
         # a level surface at a room's floor is a floor, whatever the element (not furniture)
@@ -166,7 +166,7 @@ def find_tripod_spots(scene: BimScene, prober: Prober, columns: np.ndarray, *, i
     return TripodSpots.join([spots, on_rooms])
 
 
-def _columns_in(room: Space, columns: np.ndarray) -> np.ndarray:
+def columns_in(room: Space, columns: np.ndarray) -> np.ndarray:
     """(N,) bool: columns (N, 2) xy inside the room's footprint."""
     r_lo, r_hi = room.vertices[:, :2].min(axis=0), room.vertices[:, :2].max(axis=0)
     near = np.flatnonzero((columns >= r_lo).all(axis=1) & (columns <= r_hi).all(axis=1))
@@ -184,7 +184,7 @@ def on_room_floor(scene: BimScene, floor: np.ndarray) -> np.ndarray:
     for room in rooms_of(scene):
         near = np.abs(floor[:, 2] - float(room.vertices[:, 2].min())) <= SPACE_FLOOR_TOLERANCE_M
         if near.any():
-            out[near] |= _columns_in(room, floor[near, :2])
+            out[near] |= columns_in(room, floor[near, :2])
     return out
 
 

@@ -7,8 +7,9 @@ them it follows the floors the model has:
 1. *Walkable cells.* Vertical probes on a ``grid_m`` grid meet every surface
    (``Prober.surfaces_below``). A cell is walkable on an upward-facing surface of an element a
    person walks on (anything but furniture, fittings, windows, railings and site objects; a
-   door's threshold is floor), level within ``MAX_TILT_DEG`` (stairs and ramps within ``MAX_STAIR_TILT_DEG``),
-   with the platform's ``headroom_m`` above it and a circle of its ``body_radius_m`` clear at
+   door's threshold is floor), level within ``MAX_TILT_DEG`` (stairs and ramps within
+   ``MAX_STAIR_TILT_DEG``), or on the bottom of a room (an IfcSpace) with no such surface at its
+   floor anywhere (storeys exported without their slabs); with the platform's ``headroom_m`` above it and a circle of its ``body_radius_m`` clear at
    three heights. Doors do not block: the operator opens them (door leaves and frames are
    passed through by every probe of the walk), so rooms connect through their door openings.
 2. *Steps.* Neighbouring cells (8-neighbourhood) connect where their floors differ by at most
@@ -42,7 +43,7 @@ from scipy.spatial import cKDTree
 from bimscan.errors import StationError
 from bimscan.scan.probe import Prober
 from bimscan.survey.platform import Platform
-from bimscan.survey.spots import GRID_SHIFT_M, standable_components
+from bimscan.survey.spots import GRID_SHIFT_M, SPACE_FLOOR_TOLERANCE_M, columns_in, rooms_of, standable_components
 from bimscan.survey.trajectory import Trajectory
 from bimscan.types import BimScene, Station
 
@@ -62,6 +63,7 @@ CLOSURE_RADIUS_M = 1.0
 CLOSURE_MIN_PATH_M = 20.0
 PASS_GAP_S = 10.0  # the scanner pauses between passes (carried to the next part of the building)
 MAX_THROUGH = 8  # passable surfaces one probe passes through at most
+DOORWAY_M = 0.35  # a room's own floor reaches this far past its outline (through its walls' openings)
 
 
 @dataclass(frozen=True)
@@ -136,6 +138,10 @@ def walkable_grid(scene: BimScene, prober: Prober, platform: Platform, *, grid_m
     ok = (normal_z >= limit) & (anything | passable)[component]  # a door's threshold is floor
     floor = np.column_stack([columns[line[ok]], z[ok]])
     cell = cells[line[ok]]
+    bare = _bare_room_floors(scene, columns, line, z, ok)  # rooms the model gives no floor element
+    if len(bare):
+        floor = np.concatenate([floor, np.column_stack([columns[bare[:, 0].astype(np.int64)], bare[:, 1]])])
+        cell = np.concatenate([cell, cells[bare[:, 0].astype(np.int64)]])
     up = np.broadcast_to(np.array([0.0, 0.0, 1.0]), floor.shape)
     room = _through(prober, passable, floor + [0.0, 0.0, 0.02], up) + 0.02 >= platform.headroom_m
     floor, cell = floor[room], cell[room]
@@ -151,6 +157,28 @@ def walkable_grid(scene: BimScene, prober: Prober, platform: Platform, *, grid_m
         clearance = np.minimum(clearance, nearest)
     return WalkGrid(xyz=floor[clear], cell=cell[clear], clearance=clearance[clear], origin=origin, step=step,
                     shape=(nx, ny))
+
+
+def _bare_room_floors(scene: BimScene, columns: np.ndarray, line: np.ndarray, z: np.ndarray,
+                      walkable: np.ndarray) -> np.ndarray:
+    """(K, 2) [column index, floor z] of cells on the own floor of rooms (IfcSpaces) that have no
+    walkable surface at their floor anywhere (storeys exported without their slabs): the operator
+    walks on the room's floor, as a tripod stands on it (``spots.find_tripod_spots``). A room's
+    floor reaches ``DOORWAY_M`` past its outline, into the door openings of its walls (spaces end at
+    the wall faces); the clearance check drops the cells inside the walls."""
+    found = []
+    for room in rooms_of(scene):
+        z0 = float(room.vertices[:, 2].min())
+        inside = columns_in(room, columns)
+        for shift in ((DOORWAY_M, 0.0), (-DOORWAY_M, 0.0), (0.0, DOORWAY_M), (0.0, -DOORWAY_M)):
+            inside |= columns_in(room, columns + shift)
+        if not inside.any():
+            continue
+        if (walkable & inside[line] & (np.abs(z - z0) <= SPACE_FLOOR_TOLERANCE_M)).any():
+            continue
+        index = np.flatnonzero(inside)
+        found.append(np.column_stack([index, np.full(len(index), z0)]))
+    return np.concatenate(found) if found else np.zeros((0, 2))
 
 
 def walk_graph(grid: WalkGrid, prober: Prober, passable: np.ndarray) -> coo_matrix:
@@ -353,8 +381,8 @@ def plan_walk(scene: BimScene, prober: Prober, platform: Platform, stations: tup
     if not on_walk.any():
         raise StationError(f"{scene.source}: no room of the tripod plan can be walked to (no walkable floor within 1.5 m "
                            "of any station); give the walk in a file with --trajectory FILE.csv")
-    n_parts, part = connected_components(graph, directed=False)
-    node_of = {i: int(nearest[i]) for i in np.flatnonzero(on_walk)}
+    _, part = connected_components(graph, directed=False)
+    node_of = {int(i): int(nearest[i]) for i in np.flatnonzero(on_walk)}
     parts: dict[int, list[int]] = {}
     for station_index, node in node_of.items():
         parts.setdefault(int(part[node]), []).append(station_index)
