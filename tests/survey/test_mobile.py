@@ -410,3 +410,18 @@ def test_a_walk_crosses_rooms_whose_storey_was_exported_without_its_floor_slab(t
     assert report.missed == () and set(report.rooms) == {"west room", "east room"}
     assert trajectory.n_passes == 1 and np.abs(trajectory.xyz[:, 2]).max() < 1e-6  # on the rooms' own floor
     assert trajectory.xyz[:, 0].min() < 5.0 and trajectory.xyz[:, 0].max() > 7.0  # through the opening
+
+
+def test_a_walk_goes_through_the_stations_of_a_station_file(office, tmp_path):
+    from bimscan.survey.survey import choose_trajectory
+
+    scene = load_scene(office)
+    stations, _ = plan_stations(scene, Prober(scene.mesh), SCANNERS["riegl_vz400"])
+    chosen = stations[:2]
+    path = tmp_path / "two.csv"
+    path.write_text("x,y,z\n" + "".join(f"{s.position[0]},{s.position[1]},{s.position[2]}\n" for s in chosen))
+    recipe = ScanRecipe.resolve(platform="handheld", stations_from=str(path))
+    trajectory, report = choose_trajectory(scene, recipe)
+    assert report.waypoints == 2 and report.missed == ()
+    floors = np.array([[s.position[0], s.position[1], s.floor_z] for s in chosen])
+    assert np.min(np.linalg.norm(floors[:, None] - trajectory.xyz[None], axis=2), axis=1).max() < 1.0

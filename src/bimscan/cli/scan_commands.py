@@ -53,8 +53,8 @@ if TYPE_CHECKING:
               help=f"What carries the scanner: {', '.join(PLATFORM_NAMES)} (a person walking with multi-beam lidars), "
                    "or a platform TOML file.")
 @click.option("--trajectory", default=None,
-              help="Mobile platforms: 'auto' (a walk planned from the model through every room a tripod plan "
-                   "reaches, back to its start; the default) or a CSV file t,x,y,z,roll,pitch,yaw (degrees).")
+              help="Mobile platforms: 'auto' (a walk planned from the model through the stations of --stations, "
+                   "back to its start; the default) or a CSV file t,x,y,z,roll,pitch,yaw (degrees).")
 @click.option("--drift", "drift_m", type=float, default=None,
               help="Mobile platforms: SLAM drift, the position error's sigma after 10 m walked (metres; heading "
                    "drifts alike), pinned to zero at loop closures. Default: 0 (none).")

@@ -72,16 +72,16 @@ def choose_stations(scene: BimScene, recipe: ScanRecipe, *,
 
 def choose_trajectory(scene: BimScene, recipe: ScanRecipe, *, prober: Prober | None = None,
                       stations: tuple[Station, ...] | None = None) -> tuple[Trajectory, WalkReport | None]:
-    """The trajectory of a mobile recipe: planned from the scene (``survey.walk``: through the
-    tripod plan's ``stations``, planned here when not given) or read from its CSV file and checked
-    against the scene."""
+    """The trajectory of a mobile recipe: planned from the scene (``survey.walk``) through
+    ``stations`` (when not given: the recipe's stations, planned or read from its station file) or
+    read from its CSV file and checked against the scene."""
     from bimscan.survey.walk import plan_walk
 
     mobile = recipe.mobile
     prober = prober or Prober(scene.mesh, threads=recipe.threads)
     if mobile.trajectory_from == AUTO_TRAJECTORY:
-        if not stations:
-            stations, _ = plan_stations(scene, prober, recipe.scanner)
+        if not stations:  # the waypoints: the stations a tripod survey would scan from (planned or read)
+            stations, _ = choose_stations(scene, recipe, prober=prober)
         return plan_walk(scene, prober, mobile.platform, stations)
     trajectory = read_trajectory(mobile.trajectory_from)
     check_trajectory(trajectory, scene, mobile.trajectory_from)
