@@ -26,7 +26,7 @@ from bimscan.survey.recipe import AUTO_STATIONS, ScanRecipe
 from bimscan.site import DressTimings, dress_scene_timed
 from bimscan.survey.mobile import AUTO_TRAJECTORY
 from bimscan.survey.stations import PlanReport
-from bimscan.survey.trajectory import Trajectory, trajectory_path, write_trajectory
+from bimscan.survey.trajectory import Trajectory, read_trajectory, trajectory_path, write_trajectory
 from bimscan.survey.walk import WalkReport
 from bimscan.survey.survey import Survey, cloud_header, prepare_survey, run_survey
 from bimscan.types import BimScene, BuildDates, LabelScheme, PointCloud, Station
@@ -251,6 +251,8 @@ def scan_model(model: str | Path, out: str | Path, recipe: ScanRecipe, *,
     check_cloud_output(out, overwrite=overwrite)
     if recipe.mobile is not None:
         check_mobile_output(out, overwrite=overwrite)
+        if recipe.mobile.trajectory_from != AUTO_TRAJECTORY:
+            read_trajectory(recipe.mobile.trajectory_from)  # a bad file fails now, before the (slow) parse
     say = warn or (lambda line: None)
     for warning in recipe.warnings + recipe.site.warnings:
         say(warning)
