@@ -31,12 +31,11 @@ import numba as nb
 import numpy as np
 
 from bimscan.errors import ConfigError, ScannerSettingsError
-from bimscan.scan.kernels import _FAST, pulse_normals, recorded_direction
+from bimscan.scan.kernels import _BLOCK, _FAST, _keep, pulse_normals, recorded_direction
 from bimscan.scan.noise import MAX_ANGLE_SIGMA_DEG
 from bimscan.toml_files import build_dataclass, load_toml
 
 MULTIBEAM_KIND = "multibeam"
-_BLOCK = 16384  # rays per parallel block of the compaction (as kernels._BLOCK)
 
 
 @dataclass(frozen=True)
@@ -139,11 +138,6 @@ LIDARS: dict[str, MultiBeamScanner] = {
     name: build_dataclass(MultiBeamScanner, table, where=f"built-in scanner {name}")
     for name, table in sorted(_lidar_files().items())
 }
-
-
-def is_multibeam_file(path: str | Path) -> bool:
-    """Whether a scanner TOML file describes a multi-beam lidar (``kind = "multibeam"``)."""
-    return load_toml(path).get("kind") == MULTIBEAM_KIND
 
 
 def load_lidar(source: str | Path) -> MultiBeamScanner:
@@ -262,11 +256,6 @@ def moving_rays(first_pulse: np.int64, n: np.int64, n_beams: np.int64, cycle_s: 
             rays[i, 4] = wy / norm
             rays[i, 5] = wz / norm
             time[i] = t
-
-
-@nb.njit(cache=True, inline="always")
-def _keep(t: float, triangle: np.uint32, n_faces: int, min_range: float, max_range: float) -> bool:
-    return t >= min_range and t <= max_range and triangle < n_faces
 
 
 @nb.njit(cache=True, parallel=True, fastmath=_FAST)

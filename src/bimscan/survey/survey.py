@@ -27,7 +27,7 @@ from bimscan.scan.virtual_scanner import VirtualScanner
 from bimscan.survey.mobile import AUTO_TRAJECTORY
 from bimscan.survey.stations import PlanReport, plan_stations, read_stations, station_spots
 from bimscan.survey.trajectory import Trajectory, read_trajectory
-from bimscan.survey.walk import WalkReport
+from bimscan.survey.walk import WalkReport, plan_walk
 from bimscan.types import BimScene, CloudHeader, PointCloud, Station
 
 
@@ -75,8 +75,6 @@ def choose_trajectory(scene: BimScene, recipe: ScanRecipe, *, prober: Prober | N
     """The trajectory of a mobile recipe: planned from the scene (``survey.walk``) through
     ``stations`` (when not given: the recipe's stations, planned or read from its station file) or
     read from its CSV file and checked against the scene."""
-    from bimscan.survey.walk import plan_walk
-
     mobile = recipe.mobile
     prober = prober or Prober(scene.mesh, threads=recipe.threads)
     if mobile.trajectory_from == AUTO_TRAJECTORY:

@@ -68,16 +68,14 @@ DOORWAY_M = 0.35  # a room's own floor reaches this far past its outline (throug
 
 @dataclass(frozen=True)
 class WalkReport:
-    """What a planned walk covers: waypoints (the tripod plan's stations) visited and missed, rooms
-    visited (the stations' rooms), passes, metres and seconds."""
+    """What a planned walk covers: waypoints (the tripod plan's stations) visited and missed (their
+    indices), and the rooms visited (the stations' rooms). Its passes, metres and seconds are the
+    trajectory's (``Trajectory.n_passes``, ``length_m``, ``duration_s``)."""
 
     waypoints: int
     visited: tuple[int, ...]
     missed: tuple[int, ...]
     rooms: tuple[str, ...]
-    passes: int
-    length_m: float
-    duration_s: float
 
 
 @dataclass(frozen=True)
@@ -438,6 +436,5 @@ def plan_walk(scene: BimScene, prober: Prober, platform: Platform, stations: tup
     visited = tuple(sorted(walked))
     rooms = tuple(sorted({stations[i].room for i in visited if stations[i].room}))
     report = WalkReport(waypoints=len(stations), visited=visited,
-                        missed=tuple(i for i in range(len(stations)) if i not in walked), rooms=rooms,
-                        passes=trajectory.n_passes, length_m=trajectory.length_m(), duration_s=trajectory.duration_s())
+                        missed=tuple(i for i in range(len(stations)) if i not in walked), rooms=rooms)
     return trajectory, report
