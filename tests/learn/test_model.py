@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from bimscan.learn.blocks import sample_block
+from bimscan.learn import model as model_module
 from bimscan.learn.train_config import ModelConfig
 from bimscan.learn.model import (
     MaskedBatchNorm1d, OffsetAttention, build_model, commit_batch_statistics, count_parameters,
@@ -53,6 +54,34 @@ def test_offset_attention_equals_the_reference_formula() -> None:
     expected = x + layer.act(layer.norm(layer.trans(x - attended), None))
 
     torch.testing.assert_close(layer(x, None), expected, atol=1e-5, rtol=1e-5)
+
+
+@pytest.mark.parametrize("slice_floats", [1, 2 * 64 * 7, 1 << 19])  # one query row, 7 rows, all rows at a time
+@pytest.mark.parametrize("padded", [False, True])
+def test_offset_attention_without_gradients_gives_the_layer_with_gradients(
+    slice_floats: int, padded: bool, monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # inference takes the attention a slice of query rows at a time (cache-sized); training the whole
+    monkeypatch.setattr(model_module, "ATTENTION_CACHE_FLOATS", slice_floats)
+    torch.manual_seed(5)
+    layer = OffsetAttention(16).eval()
+    x = torch.randn(2, 16, 64)
+    mask = None
+    if padded:
+        mask = torch.ones(2, 64, dtype=torch.bool)
+        mask[1, 40:] = False
+        x[1, :, 40:] = 7.0  # padding values must not matter
+
+    with torch.enable_grad():
+        whole = layer(x, mask)
+    with torch.inference_mode():
+        sliced = layer(x, mask)
+
+    torch.testing.assert_close(sliced, whole, atol=1e-5, rtol=1e-5)
+    if padded:  # the padded block's real points see what they would see alone
+        with torch.inference_mode():
+            alone = layer(x[1:, :, :40], None)
+        torch.testing.assert_close(sliced[1:, :, :40], alone, atol=1e-5, rtol=1e-5)
 
 
 @pytest.mark.parametrize("mode", ["eval", "train"])
