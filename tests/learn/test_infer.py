@@ -18,6 +18,7 @@ from bimscan.learn.train_config import DEFAULT_CLASS_NAMES, BlockConfig, EvalCon
 from bimscan.learn.data import iter_raw_chunks, list_scenes
 from bimscan.learn.density import voxel_representatives
 from bimscan.learn import infer
+from bimscan.learn import neighbours as neighbour_cells
 from bimscan.learn.infer import label_scene, spread_votes
 from bimscan.learn.metrics import compute_confusion
 from bimscan.learn.model import build_model
@@ -96,10 +97,17 @@ def test_a_pass_cap_labels_the_unseen_points_from_their_nearest_neighbours(
 
 
 @pytest.mark.parametrize("chunk", [100, 10**6])
+@pytest.mark.parametrize(("cell_m", "max_cells"), [
+    (0.0, 1 << 23),  # a k-d tree for every point
+    (0.3, 1 << 23),  # the cells around each point (1.5 voxels), the k-d tree for the few they do not settle
+    (0.05, 1 << 23),  # cells too small to settle most points: the k-d tree for many
+    (0.3, 1),  # a table over the limit: the k-d tree for all
+])
 def test_points_off_the_grid_take_the_distance_weighted_votes_of_the_nearest_representatives(
-    chunk: int, monkeypatch: pytest.MonkeyPatch,
+    chunk: int, cell_m: float, max_cells: int, monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     monkeypatch.setattr(infer, "SPREAD_CHUNK", chunk)
+    monkeypatch.setattr(neighbour_cells, "MAX_CELLS", max_cells)
     rng = np.random.default_rng(5)
     xyz = rng.random((3000, 3)) * [2.0, 1.5, 1.0]
     representatives, rep_of = voxel_representatives(xyz, 0.2)
@@ -108,7 +116,7 @@ def test_points_off_the_grid_take_the_distance_weighted_votes_of_the_nearest_rep
     votes = np.zeros((len(xyz), 5), np.float32)
     votes[representatives] = rep_votes
 
-    spread = spread_votes(rep_votes, xyz, representatives, rep_of, 3)
+    spread = spread_votes(rep_votes, xyz, representatives, rep_of, 3, cell_m=cell_m)
 
     np.testing.assert_array_equal(spread[representatives], rep_votes)
     voted = representatives[rep_votes.sum(axis=1) > 0]
@@ -122,7 +130,8 @@ def test_points_off_the_grid_take_the_distance_weighted_votes_of_the_nearest_rep
     np.testing.assert_array_equal(spread_votes(rep_votes, xyz, representatives, rep_of, 0), votes[rep_of])
     # the representatives of the next stripe lend their votes too
     near = (xyz[rep_of != np.arange(len(xyz))][:1] + [0.001, 0.0, 0.0])
-    lent = spread_votes(rep_votes, xyz, representatives, rep_of, 1, others=[(near, np.eye(5, dtype=np.float32)[:1])])
+    lent = spread_votes(rep_votes, xyz, representatives, rep_of, 1, others=[(near, np.eye(5, dtype=np.float32)[:1])],
+                        cell_m=cell_m)
     assert lent[np.flatnonzero(rep_of != np.arange(len(xyz)))[0]].argmax() == 0
 
 
