@@ -11,6 +11,12 @@ Run: python benchmarks/bench_mobile.py [--model MODEL.ifc] [--seconds 20] [--rou
    - the tripod path (``VirtualScanner.scan_station``) of the first planned station, the VZ-400 at
      300 kHz and 120 lines/s turning 10 deg/s (4.5M pulses, about as many);
    - the raw engine cast of each path's own rays (what the BVH alone costs for them).
+3. Whole surveys, side by side (interleaved rounds, best of ``--whole-rounds``): the handheld
+   walk through the whole building against the tripod survey of every station it visits, in
+   rays/s and in points/s, with the share of rays that hit. A tripod's rays that leave the
+   building (through windows, doors, over a terrace) miss, and a miss costs the engine little,
+   so rays/s favours the path with more misses; section 2 compares one station with a window
+   of the walk, this one the same building both ways.
    The issue's target without HELIOS++ at hand: the mobile path at >= 80 % of the tripod path's rays/s.
 
 Default model: the shared duplex (two storeys, stairs), else a generated two-storey office.
@@ -23,8 +29,15 @@ import math
 import tempfile
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from bimscan.scan.virtual_scanner import VirtualScanner
+    from bimscan.survey.recipe import ScanRecipe
+    from bimscan.survey.trajectory import Trajectory
+    from bimscan.types import Station
 
 HERE = Path(__file__).resolve().parent
 SHARED = HERE.parent.parent / "shared" / "data" / "ifc"
@@ -35,6 +48,7 @@ def main() -> None:
     parser.add_argument("--model", type=Path)
     parser.add_argument("--seconds", type=float, default=20.0, help="seconds of the walk scanned per round")
     parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--whole-rounds", type=int, default=3, help="rounds of the whole surveys (0: skip them)")
     args = parser.parse_args()
 
     from bimscan.pipeline import load_scene
@@ -164,6 +178,51 @@ def main() -> None:
           f"{(counts['tripod'][0] / best['tripod']) / (counts['tripod_raw'][0] / best['tripod_raw']):.2f}")
     print(f"raw cast, handheld rays / tripod rays (rays/s): "
           f"{(n / best['raw']) / (counts['tripod_raw'][0] / best['tripod_raw']):.2f}")
+    if args.whole_rounds > 0:
+        _whole_surveys(scanner, trajectory, stations, mobile_recipe, tripod_recipe, args.whole_rounds)
+
+
+def _whole_surveys(scanner: VirtualScanner, trajectory: Trajectory, stations: list[Station], mobile_recipe: ScanRecipe,
+                   tripod_recipe: ScanRecipe, rounds: int) -> None:
+    """Section 3 of the module docstring."""
+    counter: list[int] = []
+
+    def walk() -> tuple[int, int]:
+        points = 0
+        for index, piece in enumerate(trajectory.pass_slices()):
+            for chunk in scanner.scan_pass(trajectory, piece, index, 0, mobile_recipe, reuse_buffers=True,
+                                           on_pulses=counter.append):
+                points += len(chunk)
+        rays = sum(counter)
+        counter.clear()
+        return rays, points
+
+    def every_station() -> tuple[int, int]:
+        points = 0
+        for station in stations:
+            for chunk in scanner.scan_station(station, tripod_recipe, reuse_buffers=True, on_pulses=counter.append):
+                points += len(chunk)
+        rays = sum(counter)
+        counter.clear()
+        return rays, points
+
+    best = {"walk": math.inf, "stations": math.inf}
+    counts = {}
+    for _ in range(rounds):
+        for name, fn in (("walk", walk), ("stations", every_station)):
+            t0 = time.perf_counter()
+            counts[name] = fn()
+            best[name] = min(best[name], time.perf_counter() - t0)
+    print(f"whole surveys, best of {rounds} interleaved rounds:")
+    for name, label in (("walk", f"handheld walk, {trajectory.duration_s():.0f} s"),
+                        ("stations", f"tripod, all {len(stations)} stations")):
+        rays, points = counts[name]
+        print(f"  {label:45s} {rays:>11,} rays {best[name]:7.2f} s  {rays / best[name] / 1e6:6.2f} Mrays/s  "
+              f"{points / best[name] / 1e6:6.2f} Mpoints/s  {points / rays:6.1%} hit")
+    rate = {name: counts[name][0] / best[name] for name in best}
+    points_rate = {name: counts[name][1] / best[name] for name in best}
+    print(f"handheld walk / tripod survey: rays/s {rate['walk'] / rate['stations']:.2f} (target >= 0.80), "
+          f"points/s {points_rate['walk'] / points_rate['stations']:.2f}")
 
 
 if __name__ == "__main__":
