@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -12,6 +13,7 @@ from bimscan.pipeline import load_scene
 from bimscan.scan.device import load_scanner
 from bimscan.scan.multibeam import LIDARS, MultiBeamScanner, load_lidar
 from bimscan.scan.noise import NoiseModel
+from bimscan.scan.sensor import EFFECTS, MOBILE_EFFECTS, SensorModel
 from bimscan.scan.virtual_scanner import VirtualScanner
 from bimscan.survey.mobile import MobileScan
 from bimscan.survey.platform import PLATFORMS, Mount, Platform
@@ -174,8 +176,11 @@ def test_a_rotation_rate_outside_the_device_warns_and_is_refused_under_strict():
 
 
 def test_sensor_effects_and_station_registration_are_refused_for_a_mobile_scan():
-    with pytest.raises(ConfigError, match="tripod scans only"):
-        ScanRecipe.resolve(platform="handheld", realism="full")
+    full = ScanRecipe.resolve(platform="handheld", realism="full").sensor
+    assert [e for e in EFFECTS if full.on(e)] == list(MOBILE_EFFECTS)  # "full": every effect a mobile scan has
+    for effect in ("footprint", "glass", "detection"):
+        with pytest.raises(ConfigError, match=f"{effect}: simulated for tripod scans only"):
+            ScanRecipe.resolve(platform="handheld", sensor={effect: True})
     with pytest.raises(ConfigError, match="--drift"):
         ScanRecipe.resolve(platform="handheld", noise=NoiseModel(registration_sigma_m=0.01))
     with pytest.raises(ConfigError, match="needs a mobile platform"):
@@ -185,6 +190,9 @@ def test_sensor_effects_and_station_registration_are_refused_for_a_mobile_scan()
 def test_a_mobile_recipe_records_its_platform_and_lidar_and_a_tripod_recipe_is_unchanged():
     mobile = ScanRecipe.resolve(platform="handheld").to_json()
     assert mobile["mobile"]["scanner"]["name"] == "velodyne_vlp16" and "settings" not in mobile
+    assert "sensor" not in mobile  # a paper mobile scan records what it did before the sensor effects
+    coloured = ScanRecipe.resolve(platform="handheld", sensor={"color": True}).to_json()
+    assert coloured["sensor"]["color"] is True and coloured["sensor"]["footprint"] is False
     tripod = ScanRecipe.resolve().to_json()
     assert "mobile" not in tripod and tripod["scanner"]["name"] == "riegl_vz400"
 
@@ -200,3 +208,80 @@ def test_multibeam_scanner_checks_its_own_numbers():
     with pytest.raises(ScannerSettingsError, match="rotation_hz"):
         MultiBeamScanner(name="x", beam_elevation_deg=(0.0,), beam_azimuth_offset_deg=(0.0,), firing_offset_us=(0.0,),
                          rotation_hz=50.0)
+
+
+@pytest.fixture(scope="module")
+def placed(box_room_ifc):
+    """The box room and a scanner placed by the survey (with its components' surfaces)."""
+    from bimscan.survey.survey import place_scanner
+
+    scene = load_scene(box_room_ifc)
+    return scene, place_scanner(scene, ScanRecipe())
+
+
+def floor_points(cloud: PointCloud) -> np.ndarray:
+    """Mask of the points on the room's floor: the flat component lowest down (normal +z)."""
+    flat = [c for c in np.unique(cloud.component) if np.std(cloud.xyz[cloud.component == c, 2]) < 0.01]
+    floor = min(flat, key=lambda c: np.mean(cloud.xyz[cloud.component == c, 2]))
+    return cloud.component == floor
+
+
+def test_mobile_points_take_colour_and_range_noise_that_grows_with_range_and_incidence(placed):
+    scene, scanner = placed
+    track, platform = walking(0.5), upright(tilt=90.0)  # the lidar on its side: the floor at every incidence
+    noise = NoiseModel(range_sigma_m=0.005, angle_sigma_deg=0.0)
+    paper = scan(scanner, track, mobile_recipe(platform, noise=noise, seed=3))
+    coloured = scan(scanner, track, mobile_recipe(platform, noise=noise, seed=3,
+                                                  sensor=SensorModel(color=True, color_noise=0.0, ambient=0.5)))
+    for column in ("xyz", "time", "ring", "label", "component", "sensor_xyz"):  # the same pulses, the same draws
+        assert np.allclose(getattr(coloured, column), getattr(paper, column), atol=1e-9), column
+    assert paper.rgb is None and coloured.rgb is not None
+    floor = floor_points(coloured)
+    d = coloured.xyz[floor] - coloured.sensor_xyz[floor]
+    shade = 0.5 + 0.5 * np.abs(d[:, 2]) / np.linalg.norm(d, axis=1)
+    style = coloured.rgb[floor].astype(float) / shade[:, None]  # the floor's style colour, whatever the incidence
+    assert floor.sum() > 10_000 and np.ptp(shade) > 0.3
+    assert np.ptp(style, axis=0).max() < 1.0 / shade.min() + 1.0  # rounding to integers only
+
+    exact = scan(scanner, track, mobile_recipe(platform, seed=3, sensor=SensorModel(geometric_noise=True,
+                                                                                     range_noise_ppm=0.0)))
+    noisy = scan(scanner, track, mobile_recipe(platform, noise=noise, seed=3,
+                                               sensor=SensorModel(geometric_noise=True, range_noise_ppm=1000.0)))
+    assert np.array_equal(exact.time, noisy.time)
+    on_floor = floor_points(exact)
+    d = exact.xyz[on_floor] - exact.sensor_xyz[on_floor]
+    distance = np.linalg.norm(d, axis=1)
+    cos = np.maximum(np.abs(d[:, 2]) / distance, math.cos(math.radians(SensorModel().max_incidence_deg)))
+    error = np.linalg.norm(noisy.xyz[on_floor] - noisy.sensor_xyz[on_floor], axis=1) - distance
+    z = error / ((0.005 + 1e-3 * distance) / cos)
+    assert z.std() == pytest.approx(1.0, rel=0.03) and abs(z.mean()) < 4 / math.sqrt(len(z))
+    assert error[cos < 0.5].std() > 2.0 * error[cos > 0.9].std()
+
+
+def test_mobile_effects_do_not_depend_on_the_chunk_size_and_as_built_points_lie_on_the_moved_mesh(box_room_ifc):
+    import open3d as o3d
+
+    from bimscan.survey.survey import place_scanner
+
+    scene = load_scene(box_room_ifc)
+    full = mobile_recipe(upright(), seed=5, noise=NoiseModel(range_sigma_m=0.005, angle_sigma_deg=0.01),
+                         sensor=SensorModel(realism="full", waviness_m=0.002))
+    scanner = place_scanner(scene, full)
+    whole = scan(scanner, walking(0.3), full)
+    chunked = scan(scanner, walking(0.3), dataclasses.replace(full, chunk_pulses=1000))
+    for column in ("xyz", "time", "ring", "component", "sensor_xyz", "intensity", "rgb"):
+        assert np.array_equal(getattr(whole, column), getattr(chunked, column)), column
+
+    as_built = mobile_recipe(upright(), seed=5, sensor=SensorModel(deviations=True, position_tolerance_m=0.05,
+                                                                   level_tolerance_m=0.04))
+    scanner = place_scanner(scene, as_built)
+    cloud = scan(scanner, walking(0.3), as_built)
+
+    def distance(mesh) -> np.ndarray:
+        surfaces = o3d.t.geometry.RaycastingScene()
+        surfaces.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
+                               o3d.core.Tensor(mesh.faces.astype(np.uint32)))
+        return surfaces.compute_distance(o3d.core.Tensor(cloud.xyz.astype(np.float32))).numpy()
+
+    assert distance(scanner.mesh).max() < 2e-4  # on the as-built surfaces
+    assert np.median(distance(scene.mesh)) > 1e-3  # not where the IFC has them

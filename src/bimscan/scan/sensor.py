@@ -36,6 +36,11 @@ REALISMS = ("paper", "full")
 RETURN_MODES = ("first", "last", "strongest", "all")
 # The switches; None follows ``realism`` (off for paper, on for full).
 EFFECTS = ("footprint", "detection", "geometric_noise", "materials", "glass", "color", "deviations")
+# What a moving multi-beam lidar's pulses get (a mobile scan): the effects decided by each pulse's
+# own hit. The others stay with tripods: the footprint's edge test reads the tripod's scan-line
+# grid, and glass (echoes merged by the pulse length) and detection (calibrated by the datasheet's
+# reach) need facts the shipped lidar files do not give.
+MOBILE_EFFECTS = ("geometric_noise", "materials", "color", "deviations")
 MAX_BEAM_SAMPLE_QUALITY = 6  # 1 + 3 Q (Q - 1) sub-rays: 91 at 6
 MAX_RETURNS = 15  # what LAS point formats 6-10 can number
 
@@ -130,6 +135,16 @@ class SensorModel:
     def resolved(self) -> SensorModel:
         """This model with every switch decided (True/False), as recorded in metadata."""
         return dataclasses.replace(self, **{effect: self.on(effect) for effect in EFFECTS})
+
+    def for_mobile(self) -> SensorModel:
+        """This model for a mobile scan: effects outside ``MOBILE_EFFECTS`` off (``realism = "full"``
+        turns on the rest); one of them switched on by name is refused in one line."""
+        asked = [name for name in EFFECTS if name not in MOBILE_EFFECTS and getattr(self, name)]
+        if asked:
+            raise ConfigError(f"{', '.join(asked)}: simulated for tripod scans only; switch "
+                              f"{'it' if len(asked) == 1 else 'them'} off for a mobile platform (mobile scans "
+                              f"simulate {', '.join(MOBILE_EFFECTS)})")
+        return dataclasses.replace(self, **{name: False for name in EFFECTS if name not in MOBILE_EFFECTS})
 
     @property
     def is_paper(self) -> bool:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any, Protocol
@@ -212,24 +213,72 @@ class VirtualScanner:
                         firing, cos_el, sin_el, azimuth_offset, 2 * math.pi * mobile.rotation_hz, t, xyz_track, ypr,
                         lever, rotation, 2 * math.pi * mount.head_rotation_hz, centre, rays, origin, pulse_time)
             t_hit, triangle = self.engine.cast(rays)
-            columns = self._mobile_outputs(n, reuse_buffers)
-            xyz, label, component, station_column, intensity, time, ring, sensor = columns
             if on_pulses is not None:
                 on_pulses(n)
-            kept = finish_moving_hits(t_hit, triangle, rays, origin, pulse_time, np.int64(first), np.int64(n_beams),
-                                      ring_of_beam, self.face_component, self.face_label, self.face_brightness,
-                                      lidar.min_range_m, lidar.max_range_m, key, noise.range_sigma_m,
-                                      math.radians(noise.angle_sigma_deg), INTENSITY_REFERENCE_M, pass_id, xyz, label,
-                                      component, station_column, intensity, time, ring, sensor)
+            if recipe.sensor.is_paper:
+                columns = self._mobile_outputs(n, reuse_buffers)
+                xyz, label, component, station_column, intensity, time, ring, sensor = columns
+                kept = finish_moving_hits(t_hit, triangle, rays, origin, pulse_time, np.int64(first), np.int64(n_beams),
+                                          ring_of_beam, self.face_component, self.face_label, self.face_brightness,
+                                          lidar.min_range_m, lidar.max_range_m, key, noise.range_sigma_m,
+                                          math.radians(noise.angle_sigma_deg), INTENSITY_REFERENCE_M, pass_id, xyz,
+                                          label, component, station_column, intensity, time, ring, sensor)
+                cloud = PointCloud(xyz=xyz[:kept], label=label[:kept], component=component[:kept],
+                                   station=station_column[:kept], intensity=intensity[:kept], time=time[:kept],
+                                   ring=ring[:kept], sensor_xyz=sensor[:kept])
+            else:
+                cloud = self._mobile_sensor_points(recipe, first, n, rays, origin, pulse_time, t_hit, triangle, key,
+                                                   pass_id, ring_of_beam)
+                kept = len(cloud)
             if kept == 0:
                 continue
             if drift is not None:
-                drift.apply(xyz[:kept], sensor[:kept], time[:kept])
+                drift.apply(cloud.xyz, cloud.sensor_xyz, cloud.time)
             channel = self._work("mobile_channel", (kept,), np.uint8) if reuse_buffers else np.empty(kept, np.uint8)
             channel[:] = mount_index
-            yield PointCloud(xyz=xyz[:kept], label=label[:kept], component=component[:kept],
-                             station=station_column[:kept], intensity=intensity[:kept], time=time[:kept],
-                             ring=ring[:kept], channel=channel, sensor_xyz=sensor[:kept])
+            yield dataclasses.replace(cloud, channel=channel)
+
+    def _mobile_sensor_points(self, recipe: StationRecipe, first_pulse: int, n: int, rays: np.ndarray,
+                              origin: np.ndarray, pulse_time: np.ndarray, t_hit: np.ndarray, triangle: np.ndarray,
+                              key: np.uint64, pass_id: int, ring_of_beam: np.ndarray) -> PointCloud:
+        """One chunk of a mobile scan with the sensor effects a moving lidar's pulses can have alone
+        (materials, colour, geometric noise, as-built waviness: ``SensorModel.for_mobile``): the
+        tripod path's kernels, with a beam origin per pulse. One echo per pulse (no footprint, no
+        glass), so a pulse's return is its centre ray's hit; its noise draws are the paper path's."""
+        sensor, noise, lidar = recipe.sensor, recipe.noise, recipe.mobile.lidar
+        tables = self.sensor_tables(sensor)
+        pulse = first_pulse + np.arange(n, dtype=np.int64)  # the noise key's pulse numbers, as the paper path's
+        count = np.empty(n, dtype=np.int32)
+        slots = sensor.max_returns if sensor.returns == "all" else 1
+        out_t, out_energy = np.empty(n * slots), np.empty(n * slots, dtype=np.float32)
+        out_comp, out_tri = np.empty(n * slots, dtype=np.int32), np.empty(n * slots, dtype=np.uint32)
+        out_cos = np.empty(n * slots, dtype=np.float32)
+        out_number, out_count_of = np.empty(n * slots, dtype=np.uint8), np.empty(n * slots, dtype=np.uint8)
+        none_int, none_float = np.zeros(0, np.int64), np.zeros(0)
+        waveform.gather_returns(
+            0, n, t_hit, triangle, np.zeros(n, dtype=np.bool_), rays, pulse, np.zeros(n + 1, dtype=np.int64),
+            none_int, none_int, none_float, np.zeros(0, np.uint32), np.ones(1), 2, self.face_component,
+            tables.face_normal, tables.reflectance, tables.transparency, False, 0.0, lidar.min_range_m,
+            lidar.max_range_m, 0.0, key, False, 1.0, waveform.detection_constant(sensor.speckle_cells),
+            sensor.speckle_cells, waveform.MODE_CODES[sensor.returns], slots, out_t, out_comp, out_tri, out_energy,
+            out_cos, out_number, out_count_of, count)
+        n_out = int(count.sum())
+        xyz, label, component = np.empty((n_out, 3)), np.empty(n_out, np.uint8), np.empty(n_out, np.int32)
+        station, intensity, time = np.empty(n_out, np.uint16), np.empty(n_out, np.uint16), np.empty(n_out)
+        number, count_of = np.empty(n_out, np.uint8), np.empty(n_out, np.uint8)
+        rgb, source = np.empty((n_out, 3), np.uint8), np.empty(n_out, np.int64)
+        geometric = sensor.on("geometric_noise")
+        waveform.finish_returns(
+            0, n, slots, count, out_t, out_comp, out_tri, out_energy, out_cos, out_number, out_count_of, rays, pulse,
+            origin, 1, key, noise.range_sigma_m, sensor.range_noise_ppm if geometric else 0.0, geometric,
+            math.cos(math.radians(sensor.max_incidence_deg)), math.radians(noise.angle_sigma_deg), 0.0, 0.0,
+            INTENSITY_REFERENCE_M, pass_id, self.component_label, tables.face_normal, sensor.on("color"), tables.color,
+            sensor.color_noise, sensor.ambient, sensor.waviness_m if sensor.on("deviations") else 0.0,
+            sensor.waviness_wavelength_m, tables.phase, xyz, label, component, station, intensity, time, number,
+            count_of, rgb, source)
+        return PointCloud(xyz=xyz, label=label, component=component, station=station, intensity=intensity,
+                          time=pulse_time[source], ring=ring_of_beam[source % lidar.n_beams],
+                          sensor_xyz=origin[source], rgb=rgb if sensor.on("color") else None)
 
     def _mobile_outputs(self, n: int, reuse: bool) -> tuple[np.ndarray, ...]:
         """Output columns of a mobile chunk: fresh, or views of kept buffers."""
@@ -363,13 +412,13 @@ class VirtualScanner:
             rgb = out("rgb", (n_out, 3), np.uint8)
             waveform.finish_returns(
                 first, n_int, slots, count, out_t, out_comp, out_tri, out_energy, out_cos, out_number, out_count_of,
-                rays, pulse, origin_world, key, noise.range_sigma_m,
+                rays, pulse, origin_world[None, :], 0, key, noise.range_sigma_m,
                 sensor.range_noise_ppm if sensor.on("geometric_noise") else 0.0, sensor.on("geometric_noise"), min_cos,
                 math.radians(noise.angle_sigma_deg), time0_s, 1.0 / pattern.pulse_freq_hz, INTENSITY_REFERENCE_M,
                 station.id, self.component_label, tables.face_normal, sensor.on("color"), tables.color,
                 sensor.color_noise, sensor.ambient, sensor.waviness_m if sensor.on("deviations") else 0.0,
                 sensor.waviness_wavelength_m, tables.phase, xyz, label, component, station_column, intensity, time,
-                number, count_of, rgb)
+                number, count_of, rgb, self._work("source", (n_out,), np.int64))
             if registration is not None:
                 rotation, shift_m = registration
                 xyz = (xyz - origin_world) @ rotation.T + origin_world + shift_m

@@ -450,16 +450,19 @@ def gather_returns(first: int, n: int, t0: np.ndarray, tri0: np.ndarray, flagged
 @nb.njit(cache=True, parallel=True, fastmath=_FAST)
 def finish_returns(first: int, n: int, slots: int, count: np.ndarray, out_t: np.ndarray, out_comp: np.ndarray,
                    out_tri: np.ndarray, out_energy: np.ndarray, out_cos: np.ndarray, out_number: np.ndarray,
-                   out_count_of: np.ndarray, rays: np.ndarray, pulse: np.ndarray, origin_world: np.ndarray,
-                   key: np.uint64, range_sigma_m: float, range_ppm: float, geometric: bool, min_cos: float,
+                   out_count_of: np.ndarray, rays: np.ndarray, pulse: np.ndarray, origin: np.ndarray,
+                   origin_step: int, key: np.uint64, range_sigma_m: float, range_ppm: float, geometric: bool, min_cos: float,
                    angle_sigma_rad: float, time0_s: float, pulse_period_s: float, intensity_ref_m: float,
                    station_id: int, component_label: np.ndarray, face_normal: np.ndarray, color: bool,
                    component_color: np.ndarray, color_noise: float, ambient: float, waviness_m: float,
                    waviness_wavelength_m: float, component_phase: np.ndarray,
                    xyz: np.ndarray, label: np.ndarray, component: np.ndarray, station: np.ndarray,
                    intensity: np.ndarray, time: np.ndarray, return_number: np.ndarray,
-                   number_of_returns: np.ndarray, rgb: np.ndarray) -> int:
+                   number_of_returns: np.ndarray, rgb: np.ndarray, source: np.ndarray) -> int:
     """Points of the returns ``gather_returns`` kept; returns how many rows were filled.
+
+    Beams leave ``origin[r * origin_step]`` for ray r (a station's one origin: step 0; a moving
+    platform's origin per ray: step 1); ``source`` receives each point's ray index.
 
     Range sigma = (range_sigma_m + range_ppm * 1e-6 * range) / max(|cos(incidence)|, min_cos) with
     ``geometric``, else range_sigma_m; angle noise as the paper path (one draw per pulse, shared by
@@ -477,7 +480,6 @@ def finish_returns(first: int, n: int, slots: int, count: np.ndarray, out_t: np.
         totals[b + 1] = c
     for b in range(n_blocks):
         totals[b + 1] += totals[b]
-    ox, oy, oz = origin_world[0], origin_world[1], origin_world[2]
     two_pi = 2.0 * math.pi
     for b in nb.prange(n_blocks):
         out = totals[b]
@@ -487,6 +489,8 @@ def finish_returns(first: int, n: int, slots: int, count: np.ndarray, out_t: np.
                 continue
             r_index = first + local
             p = pulse[r_index]
+            o = r_index * origin_step
+            ox, oy, oz = origin[o, 0], origin[o, 1], origin[o, 2]
             dx, dy, dz = float(rays[r_index, 3]), float(rays[r_index, 4]), float(rays[r_index, 5])
             n_range, n_az, n_el = pulse_normals(key, p)
             if angle_sigma_rad > 0.0:
@@ -526,6 +530,7 @@ def finish_returns(first: int, n: int, slots: int, count: np.ndarray, out_t: np.
                 time[out] = time0_s + p * pulse_period_s
                 return_number[out] = out_number[slot]
                 number_of_returns[out] = out_count_of[slot]
+                source[out] = r_index
                 if color:
                     shade = (ambient + (1.0 - ambient) * float(out_cos[slot])) * (
                         1.0 + color_noise * draw_normal(key, p, _P_COLOR + k))

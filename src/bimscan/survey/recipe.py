@@ -97,9 +97,8 @@ class ScanRecipe:
     def __post_init__(self) -> None:
         object.__setattr__(self, "noise", self.noise.resolved(self.mobile.lidar if self.mobile else self.scanner))
         if self.mobile is not None:
-            if not self.sensor.is_paper:
-                raise ConfigError("the sensor effects beyond the paper's thin ray (--realism full and its switches) are "
-                                  "simulated for tripod scans only; leave them off for a mobile platform")
+            if isinstance(self.sensor, SensorModel):
+                object.__setattr__(self, "sensor", self.sensor.for_mobile())
             if self.noise.registers_with_error:
                 raise ConfigError("a mobile scan has no stations to register: give its registration error as --drift "
                                   "(metres per 10 m walked), not as a station registration sigma")
@@ -197,12 +196,12 @@ class ScanRecipe:
         if self.mobile is None:
             del document["mobile"]  # a tripod recipe records what it did before mobile scans existed
         else:
-            for name in ("scanner", "settings", "preset", "stations_from", "sensor"):
+            for name in ("scanner", "settings", "preset", "stations_from"):
                 del document[name]
-            return document
         if self.sensor.is_paper:
-            del document["sensor"]
-            document["scanner"] = {k: v for k, v in document["scanner"].items() if k not in SENSOR_DEVICE_FIELDS}
+            del document["sensor"]  # paper scans record what they did before the sensor effects existed
+            if self.mobile is None:
+                document["scanner"] = {k: v for k, v in document["scanner"].items() if k not in SENSOR_DEVICE_FIELDS}
         elif self.sensor.material_table is not None:  # by name and content, as station files
             table = Path(self.sensor.material_table)
             document["sensor"]["material_table"] = {"file": table.name, "sha256": file_sha256(table)}
