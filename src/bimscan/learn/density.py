@@ -121,7 +121,7 @@ def voxel_representatives(xyz: np.ndarray, grid_m: float) -> tuple[np.ndarray, n
     if voxels < 2.0**62:  # one int64 key per voxel: one sort key less
         key = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
         distances = 3 * step * step + 1  # distance <= 3 step^2
-        if voxels * distances * n < 2.0**63:
+        if voxels * distances * n < 2.0**62:  # a margin for the float product
             # voxel, distance and the point's index packed in one int64: sorting the values (a
             # vectorised sort) is several times faster than an argsort or a lexsort, and the index
             # in the low digits breaks ties by the first point as the stable sort did
