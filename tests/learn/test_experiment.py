@@ -5,6 +5,7 @@ fine-tuning a synthetic model) are never scored on a room they trained on."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 from pathlib import Path
@@ -241,6 +242,26 @@ def test_the_shipped_companion_experiments_match_the_ablation() -> None:
                 assert config.train.epochs == recipe.train.epochs, variant.name
     seeds = load_experiment(configs / "sim2real_cpu_seeds.toml")
     assert sorted({_config(v).train.seed for v in seeds.variants}) == [1, 2]
+
+
+def test_the_shipped_mix_trains_the_cpu_recipe_on_both_building_sets() -> None:
+    configs = Path(__file__).resolve().parents[2] / "configs"
+    real = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "s3dis_area6"
+    if not real.is_dir():
+        pytest.skip(f"{real} absent: the shipped experiments score on the shared S3DIS rooms")
+    shipped = load_experiment(configs / "sim2real_cpu.toml")
+    mix = load_experiment(configs / "sim2real_cpu_mix.toml")
+    (variant,) = mix.variants
+    assert [p.name for p in variant.specs] == ["sim2real_cpu_dataset.toml", "sim2real_cpu_dataset_one_storey.toml"]
+    def where(paths: tuple[str, ...]) -> list[Path]:
+        return [(configs / p).resolve() for p in paths]
+
+    assert where(mix.holdout.ifc) == where(shipped.holdout.ifc)
+    assert dataclasses.replace(mix.holdout, ifc=()) == dataclasses.replace(shipped.holdout, ifc=())  # scanned alike
+    assert where(mix.real.scenes) == where(shipped.real.scenes)
+    recipe, mixed = _config(shipped.variants[0]), _config(variant)
+    assert (mixed.model, mixed.train, mixed.blocks, mixed.input, mixed.eval) == (
+        recipe.model, recipe.train, recipe.blocks, recipe.input, recipe.eval)
 
 
 COMPANION = """\
