@@ -29,6 +29,7 @@ import math
 import tempfile
 import time
 from pathlib import Path
+from collections.abc import Callable, Iterable, Iterator
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -37,7 +38,7 @@ if TYPE_CHECKING:
     from bimscan.scan.virtual_scanner import VirtualScanner
     from bimscan.survey.recipe import ScanRecipe
     from bimscan.survey.trajectory import Trajectory
-    from bimscan.types import Station
+    from bimscan.types import PointCloud, Station
 
 HERE = Path(__file__).resolve().parent
 SHARED = HERE.parent.parent / "shared" / "data" / "ifc"
@@ -97,22 +98,12 @@ def main() -> None:
     whole = slice(0, len(piece.t))
 
     def mobile_once() -> tuple[int, int]:
-        rays = points = 0
-        for chunk in scanner.scan_pass(piece, whole, 0, 0, mobile_recipe, reuse_buffers=True,
-                                       on_pulses=lambda n: counter.append(n)):
-            points += len(chunk)
-        rays = sum(counter)
-        counter.clear()
-        return rays, points
+        return _rays_and_points(lambda on_pulses: scanner.scan_pass(piece, whole, 0, 0, mobile_recipe,
+                                                                    reuse_buffers=True, on_pulses=on_pulses))
 
     def tripod_once() -> tuple[int, int]:
-        points = 0
-        for chunk in scanner.scan_station(stations[0], tripod_recipe, reuse_buffers=True,
-                                          on_pulses=lambda n: counter.append(n)):
-            points += len(chunk)
-        rays = sum(counter)
-        counter.clear()
-        return rays, points
+        return _rays_and_points(lambda on_pulses: scanner.scan_station(stations[0], tripod_recipe, reuse_buffers=True,
+                                                                       on_pulses=on_pulses))
 
     # the raw cast of the mobile path's own rays (generated once, outside the timing)
     lidar, mount = mobile_recipe.mobile.lidar, mobile_recipe.mobile.platform.mounts[0]
@@ -153,16 +144,9 @@ def main() -> None:
             scanner.engine.cast(chunk_rays)
         return sum(len(c) for c in tripod_chunks), 0
 
-    counter: list[int] = []
-    best = {"mobile": math.inf, "tripod": math.inf, "raw": math.inf, "tripod_raw": math.inf}
-    counts = {}
     mobile_once(), tripod_once()  # compile and warm up
-    for _ in range(args.rounds):
-        for name, fn in (("mobile", mobile_once), ("tripod", tripod_once), ("raw", raw_once),
-                         ("tripod_raw", tripod_raw_once)):
-            t0 = time.perf_counter()
-            counts[name] = fn()
-            best[name] = min(best[name], time.perf_counter() - t0)
+    best, counts = _best_of(args.rounds, {"mobile": mobile_once, "tripod": tripod_once, "raw": raw_once,
+                                          "tripod_raw": tripod_raw_once})
     print(f"scan path, best of {args.rounds} interleaved rounds:")
     for name, label in (("mobile", f"handheld VLP-16, {args.seconds:g} s of the walk"),
                         ("tripod", "tripod station, VZ-400 300 kHz at 10 deg/s"),
@@ -185,34 +169,18 @@ def main() -> None:
 def _whole_surveys(scanner: VirtualScanner, trajectory: Trajectory, stations: list[Station], mobile_recipe: ScanRecipe,
                    tripod_recipe: ScanRecipe, rounds: int) -> None:
     """Section 3 of the module docstring."""
-    counter: list[int] = []
 
-    def walk() -> tuple[int, int]:
-        points = 0
+    def walk(on_pulses: Callable[[int], None]) -> Iterator[PointCloud]:
         for index, piece in enumerate(trajectory.pass_slices()):
-            for chunk in scanner.scan_pass(trajectory, piece, index, 0, mobile_recipe, reuse_buffers=True,
-                                           on_pulses=counter.append):
-                points += len(chunk)
-        rays = sum(counter)
-        counter.clear()
-        return rays, points
+            yield from scanner.scan_pass(trajectory, piece, index, 0, mobile_recipe, reuse_buffers=True,
+                                         on_pulses=on_pulses)
 
-    def every_station() -> tuple[int, int]:
-        points = 0
+    def every_station(on_pulses: Callable[[int], None]) -> Iterator[PointCloud]:
         for station in stations:
-            for chunk in scanner.scan_station(station, tripod_recipe, reuse_buffers=True, on_pulses=counter.append):
-                points += len(chunk)
-        rays = sum(counter)
-        counter.clear()
-        return rays, points
+            yield from scanner.scan_station(station, tripod_recipe, reuse_buffers=True, on_pulses=on_pulses)
 
-    best = {"walk": math.inf, "stations": math.inf}
-    counts = {}
-    for _ in range(rounds):
-        for name, fn in (("walk", walk), ("stations", every_station)):
-            t0 = time.perf_counter()
-            counts[name] = fn()
-            best[name] = min(best[name], time.perf_counter() - t0)
+    best, counts = _best_of(rounds, {"walk": lambda: _rays_and_points(walk),
+                                     "stations": lambda: _rays_and_points(every_station)})
     print(f"whole surveys, best of {rounds} interleaved rounds:")
     for name, label in (("walk", f"handheld walk, {trajectory.duration_s():.0f} s"),
                         ("stations", f"tripod, all {len(stations)} stations")):
@@ -223,6 +191,26 @@ def _whole_surveys(scanner: VirtualScanner, trajectory: Trajectory, stations: li
     points_rate = {name: counts[name][1] / best[name] for name in best}
     print(f"handheld walk / tripod survey: rays/s {rate['walk'] / rate['stations']:.2f} (target >= 0.80), "
           f"points/s {points_rate['walk'] / points_rate['stations']:.2f}")
+
+
+def _rays_and_points(scan: Callable[[Callable[[int], None]], Iterable[PointCloud]]) -> tuple[int, int]:
+    """(pulses fired, points kept) of one scan; ``scan(on_pulses)`` streams its chunks."""
+    fired = []
+    points = sum(len(chunk) for chunk in scan(fired.append))
+    return sum(fired), points
+
+
+def _best_of(rounds: int, runs: dict[str, Callable[[], tuple[int, int]]]
+             ) -> tuple[dict[str, float], dict[str, tuple[int, int]]]:
+    """Best wall seconds of each run over ``rounds`` interleaved rounds, and each run's counts."""
+    best = dict.fromkeys(runs, math.inf)
+    counts = {}
+    for _ in range(rounds):
+        for name, run in runs.items():
+            start = time.perf_counter()
+            counts[name] = run()
+            best[name] = min(best[name], time.perf_counter() - start)
+    return best, counts
 
 
 if __name__ == "__main__":

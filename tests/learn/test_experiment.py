@@ -93,6 +93,14 @@ def _config(variant: object) -> _Sections:
     return _Sections(training_sections(variant))  # type: ignore[arg-type]
 
 
+def _shipped_configs(why: str) -> Path:
+    """The project's configs folder; the test skips (saying ``why``) without the shared S3DIS rooms."""
+    real = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "s3dis_area6"
+    if not real.is_dir():
+        pytest.skip(f"{real} absent: {why}")
+    return Path(__file__).resolve().parents[2] / "configs"
+
+
 @pytest.fixture
 def experiment_dir(tmp_path: Path) -> Path:
     (tmp_path / "spec.toml").write_text(SPEC, encoding="utf-8")
@@ -175,10 +183,7 @@ def test_real_scenes_on_the_command_line_replace_those_of_the_file(experiment_di
 
 
 def test_the_shipped_experiments_are_valid() -> None:
-    configs = Path(__file__).resolve().parents[2] / "configs"
-    real = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "s3dis_area6"
-    if not real.is_dir():
-        pytest.skip(f"{real} absent: the shipped experiments score on the shared S3DIS rooms")
+    configs = _shipped_configs("the shipped experiments score on the shared S3DIS rooms")
     for name in ("sim2real_cpu_ablation.toml", "sim2real_table2.toml"):
         parsed = load_experiment(configs / name)
         assert [v.name for v in parsed.variants][0] == "paper-baseline"
@@ -207,10 +212,7 @@ def test_the_shipped_experiments_are_valid() -> None:
 
 
 def test_the_shipped_label_efficiency_experiment_is_valid() -> None:
-    configs = Path(__file__).resolve().parents[2] / "configs"
-    real = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "s3dis_area6"
-    if not real.is_dir():
-        pytest.skip(f"{real} absent: the label-efficiency experiment trains and scores on the shared S3DIS rooms")
+    configs = _shipped_configs("the label-efficiency experiment trains and scores on the shared S3DIS rooms")
     parsed = load_experiment(configs / "finetune_cpu.toml")
     variants = {v.name: v for v in parsed.variants}
     assert list(variants) == ["synthetic-only", "real-only-12", "finetune-1", "finetune-3", "finetune-12"]
@@ -223,10 +225,7 @@ def test_the_shipped_label_efficiency_experiment_is_valid() -> None:
 
 def test_the_shipped_companion_experiments_match_the_ablation() -> None:
     """The data rows, the seed spread and the scale rows train the ablation's model and schedule."""
-    configs = Path(__file__).resolve().parents[2] / "configs"
-    real = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "s3dis_area6"
-    if not real.is_dir():
-        pytest.skip(f"{real} absent: the shipped experiments score on the shared S3DIS rooms")
+    configs = _shipped_configs("the shipped experiments score on the shared S3DIS rooms")
     ablation = load_experiment(configs / "sim2real_cpu_ablation.toml")
     recipe = _config(ablation.variants[-1])
     for name in ("sim2real_cpu_data.toml", "sim2real_cpu_seeds.toml", "sim2real_cpu_scale.toml",
@@ -245,10 +244,7 @@ def test_the_shipped_companion_experiments_match_the_ablation() -> None:
 
 
 def test_the_shipped_mix_trains_the_cpu_recipe_on_both_building_sets() -> None:
-    configs = Path(__file__).resolve().parents[2] / "configs"
-    real = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "s3dis_area6"
-    if not real.is_dir():
-        pytest.skip(f"{real} absent: the shipped experiments score on the shared S3DIS rooms")
+    configs = _shipped_configs("the shipped experiments score on the shared S3DIS rooms")
     shipped = load_experiment(configs / "sim2real_cpu.toml")
     mix = load_experiment(configs / "sim2real_cpu_mix.toml")
     (variant,) = mix.variants

@@ -168,9 +168,11 @@ class OffsetAttention(nn.Module):
             # float32 too: the columns of the softmax are not yet L1-normalised, so a column sum
             # (up to N = 8192 queries) times large values would overflow float16 before the division
             attended = torch.bmm(values.float(), attention) / (1e-9 + column_sum)  # (B, D, N): j sums over i
-        attended = attended.to(x.dtype)
-        offset = self.act(self.norm(self.trans(x - attended), mask))
-        return x + offset
+        return self._offset(x, attended, mask)
+
+    def _offset(self, x: torch.Tensor, attended: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+        """The layer's output from its input and the normalised attended values: x + LBR(x - x_v A)."""
+        return x + self.act(self.norm(self.trans(x - attended.to(x.dtype)), mask))
 
     def _forward_rows(self, x: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
         """The same layer without gradients, ``ATTENTION_CACHE_FLOATS`` of attention at a time.
@@ -203,9 +205,7 @@ class OffsetAttention(nn.Module):
                 energy = torch.bmm(rows, qf) if bias is None else torch.baddbmm(bias, rows, qf)
                 total.baddbmm_(carried[:, :, start:start + step], torch.softmax(energy, dim=-1))
             attended = total[:, :channels] / (1e-9 + total[:, channels:])
-        attended = attended.to(x.dtype)
-        offset = self.act(self.norm(self.trans(x - attended), mask))
-        return x + offset
+        return self._offset(x, attended, mask)
 
 
 class PCTSegmentation(nn.Module):

@@ -247,13 +247,15 @@ class VirtualScanner:
         glass), so a pulse's return is its centre ray's hit; its noise draws are the paper path's."""
         sensor, noise, lidar = recipe.sensor, recipe.noise, recipe.mobile.lidar
         tables = self.sensor_tables(sensor)
-        pulse = first_pulse + np.arange(n, dtype=np.int64)  # the noise key's pulse numbers, as the paper path's
-        count = np.empty(n, dtype=np.int32)
+        pulse = self._work("pulse", (n,), np.int64)
+        pulse[:] = np.arange(first_pulse, first_pulse + n)  # the noise key's pulse numbers, as the paper path's
+        count = self._work("count", (n,), np.int32)
         slots = sensor.max_returns if sensor.returns == "all" else 1
-        out_t, out_energy = np.empty(n * slots), np.empty(n * slots, dtype=np.float32)
-        out_comp, out_tri = np.empty(n * slots, dtype=np.int32), np.empty(n * slots, dtype=np.uint32)
-        out_cos = np.empty(n * slots, dtype=np.float32)
-        out_number, out_count_of = np.empty(n * slots, dtype=np.uint8), np.empty(n * slots, dtype=np.uint8)
+        n_slots = n * slots  # the gathered returns: scratch shared with the tripod path's
+        out_t, out_energy = self._work("t", (n_slots,), np.float64), self._work("energy", (n_slots,), np.float32)
+        out_comp, out_tri = self._work("comp", (n_slots,), np.int32), self._work("tri", (n_slots,), np.uint32)
+        out_cos = self._work("cos", (n_slots,), np.float32)
+        out_number, out_count_of = self._work("number", (n_slots,), np.uint8), self._work("of", (n_slots,), np.uint8)
         none_int, none_float = np.zeros(0, np.int64), np.zeros(0)
         waveform.gather_returns(
             0, n, t_hit, triangle, np.zeros(n, dtype=np.bool_), rays, pulse, np.zeros(n + 1, dtype=np.int64),
@@ -266,7 +268,7 @@ class VirtualScanner:
         xyz, label, component = np.empty((n_out, 3)), np.empty(n_out, np.uint8), np.empty(n_out, np.int32)
         station, intensity, time = np.empty(n_out, np.uint16), np.empty(n_out, np.uint16), np.empty(n_out)
         number, count_of = np.empty(n_out, np.uint8), np.empty(n_out, np.uint8)
-        rgb, source = np.empty((n_out, 3), np.uint8), np.empty(n_out, np.int64)
+        rgb, source = np.empty((n_out, 3), np.uint8), self._work("source", (n_out,), np.int64)
         geometric = sensor.on("geometric_noise")
         waveform.finish_returns(
             0, n, slots, count, out_t, out_comp, out_tri, out_energy, out_cos, out_number, out_count_of, rays, pulse,
