@@ -93,6 +93,48 @@ def test_a_split_level_keeps_its_own_floor_and_a_scene_without_layers_falls_back
     assert len(floor_of(scatter).floor_under(scatter)) == 2_000
 
 
+def test_a_furnished_storey_over_a_thin_slab_gets_its_floor_and_the_ceiling_under_it_is_none():
+    """A house: the upper floor 0.25 m over the ceiling under it (one run of dense bins), and
+    most of it hidden by beds and cupboards (a quarter of the footprint shows)."""
+    rng = np.random.default_rng(3)
+    size = (12.0, 8.0)
+    parts = [_plane(rng, (0, 12), (0, 8), 0.0, 40_000), _plane(rng, (0, 12), (0, 8), 2.8, 40_000)]
+    for x0 in np.arange(0.0, 12.0, 2.0):  # upper storey: per 2 m strip, 0.5 m of floor shows and a bed hides the rest
+        parts.append(_plane(rng, (x0, x0 + 0.5), (0, 8), 3.05, 3_000))
+        parts.append(_plane(rng, (x0 + 0.5, x0 + 2.0), (0, 8), 3.6, 6_000))
+    parts.append(_plane(rng, (0, 12), (0, 8), 5.85, 40_000))  # the upper ceiling
+    for base, top in ((0.0, 2.8), (3.05, 5.85)):
+        for x, y in (((0, size[0]), (0, 0.05)), ((0, size[0]), (size[1] - 0.05, size[1])), ((0, 0.05), (0, size[1])),
+                     ((size[0] - 0.05, size[0]), (0, size[1]))):
+            parts.append(_wall(rng, x, y, (base, top), 8_000))
+    xyz = np.concatenate(parts)
+    floor_map = floor_of(xyz)
+    assert np.allclose(floor_map.scene_floors, [0.0, 3.05], atol=0.06)
+    floor = floor_map.floor_under(xyz)
+    lower_ceiling = np.abs(xyz[:, 2] - 2.8) < 0.02
+    upper = xyz[:, 2] > 3.0
+    assert np.allclose(floor[lower_ceiling], 0.0, atol=0.06)  # a ceiling is no floor, however thin the slab over it
+    assert np.allclose(floor[upper], 3.05, atol=0.06)  # beds, ceiling and walls upstairs stand on the upper floor
+
+
+def test_a_roof_terrace_is_a_floor_and_a_ceiling_over_lamps_is_not():
+    rng = np.random.default_rng(4)
+    parts = [_plane(rng, (0, 12), (0, 8), 0.0, 40_000), _plane(rng, (0, 12), (0, 8), 2.8, 40_000),
+             _plane(rng, (0, 6), (0, 8), 3.2, 20_000)]  # the roof's top over half the storey, seen from a roof station
+    for x in np.arange(7.0, 12.0, 2.0):  # lamps hanging under the ceiling of the other half
+        for y in np.arange(1.0, 8.0, 2.0):
+            parts.append(_plane(rng, (x, x + 0.6), (y, y + 0.6), 2.6, 300))
+    parts.append(_wall(rng, (0, 12), (0, 0.05), (0.0, 2.8), 10_000))
+    xyz = np.concatenate(parts)
+    floor_map = floor_of(xyz)
+    assert np.allclose(floor_map.scene_floors, [0.0, 3.2], atol=0.06)
+    floor = floor_map.floor_under(xyz)
+    ceiling = np.abs(xyz[:, 2] - 2.8) < 0.02
+    roof = np.abs(xyz[:, 2] - 3.2) < 0.02
+    assert np.allclose(floor[ceiling], 0.0, atol=0.06)
+    assert np.allclose(floor[roof], 3.2, atol=0.06)
+
+
 @pytest.mark.skipif(not SHARED_REAL.is_dir(), reason="the shared real rooms are absent (../shared/data/real)")
 def test_real_rooms_get_their_floor_under_every_point():
     from bimscan.learn.data import iter_scene_chunks, list_scenes

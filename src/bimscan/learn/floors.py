@@ -8,27 +8,38 @@ get their floors the same way.
 
 Model. The scene is cut into square tiles of ``TILE_M`` (in xy) and, inside a tile, into cells
 of ``CELL_M`` and height bins of ``BIN_M``: a cell-bin is *occupied* when a point falls in it
-(counts of points do not matter, so the scan's density does not). In each tile a *layer* is a
-height where at least ``DENSE_FRACTION`` of the tile's occupied cells hold points (two adjacent
-bins together, so a surface on a bin boundary counts once): a floor, a ceiling, a slab's
-underside, a large table. Going up the layers of a tile, a layer is a *ceiling* when nothing is
-above it (a roof or the top storey's ceiling), or when the next layer lies within ``SLAB_M``
-above it with (almost) nothing between them (the two faces of a slab: the lower one is the
-ceiling under it); every other layer is a *floor*, and a floor less than ``STOREY_M`` above the
-previous floor of its tile, or covering less than ``FLOOR_FRACTION`` of it, is not one (a table, a
-landing, a beam's underside). A point's floor
-is the highest floor of its tile at most ``ABOVE_TOLERANCE_M`` above it (the floor's own points
-lie on it); a point below every floor takes the lowest. Tiles without a floor (a floor hidden
-under furniture, a tile of wall only) take the floors of the whole scene, found the same way
-from all tiles at once.
+(counts of points do not matter, so the scan's density does not). In each cell, a run of
+adjacent occupied bins is a *surface*, and the empty heights between surfaces tell which way each
+faces, as the scanner's rays did: a gap taller than ``AIR_M`` is room air, a shorter one a slab's
+inside (with its ceiling void) or the room under a table. A surface *faces up* (a floor's top)
+when room air is over it up to the next surface and either a slab's underside or nothing scanned
+lies under it (a ground floor), or when nothing is over it but a ceiling lies just under it (a
+roof terrace). It *faces down* (a ceiling, a slab's underside) when room air is under it. A
+surface with nothing over it and no ceiling under it tells nothing: the terrain outside, or a
+ceiling over the scanner's blind cone or over a lamp.
+
+In a tile, a *candidate* floor is a height where at least ``UPWARD_FRACTION`` of the tile's
+occupied cells face up (two adjacent bins together) and at least ``DENSE_FRACTION`` hold points.
+It is a floor when its cells face up ``SIDE_RATIO`` times as often as down; going up, a floor
+less than ``STOREY_M`` above the previous one, or covering less than ``FLOOR_FRACTION`` of the
+tile, is not one (a table, a bed, a landing). The whole scene's floors are found the same way
+from all tiles at once (a storey above covering at least ``SCENE_FLOOR_FRACTION`` of the scene:
+upper storeys are smaller, and their furniture hides much of their floor). A tile's candidate
+within ``SCENE_MATCH_M`` of a scene floor needs only to face up more often than down; one away
+from every scene floor is a floor of its own (a split level) only when it covers most of its
+tile, what stands on it rises from it (walls, furniture, seen within ``NEAR_M`` to ``FAR_M``
+above it, against below it), and the scene's floor under it is hidden in its tile (a table
+stands over a floor that shows). A point's floor is the highest floor of its tile at most
+``ABOVE_TOLERANCE_M`` above it (the floor's own points lie on it); a point below every floor
+takes the lowest. Tiles without a floor (a floor hidden under furniture, a tile of wall only)
+take the scene's floors, and a tile's floors are completed by the scene floors it does not show.
 
 A point's *storey* is the scene floor nearest its own floor (``storey_of``): blocks of the network
 are cut per storey, so a column of a five-storey building is five blocks of one storey each, as
 a single room is one.
 
 This is the "nearest dominant upward-facing horizontal surface below it in its column": dominant
-is the coverage test, upward-facing the slab and roof tests (a slab's top is seen from above,
-its underside from below, with the slab's inside empty between them).
+is the coverage test, upward-facing the air over it and the slab or ground under it.
 """
 
 from __future__ import annotations
@@ -43,16 +54,18 @@ TILE_M = 2.0
 CELL_M = 0.25
 BIN_M = 0.05
 DENSE_FRACTION = 0.2
-FLOOR_FRACTION = 0.35  # a floor above another covers at least this share of its column
-SLAB_M = 1.0  # a slab (with a ceiling void) is thinner than this; a storey is taller
+FLOOR_FRACTION = 0.35  # a floor above another covers at least this share of its tile
+SCENE_FLOOR_FRACTION = 0.15  # ... or of the whole scene's footprint (upper storeys are smaller, and furnished)
+AIR_M = 1.2  # an empty height over this is room air; a slab with its ceiling void is thinner
 STOREY_M = 2.3  # floors of one tile at least this far apart (lower: a table, a landing, a beam's underside)
 ABOVE_TOLERANCE_M = 0.15  # a floor's own points lie on it (noise, finishes)
-BETWEEN_FRACTION = 0.05  # "nothing between" the two faces of a slab: under this share of the layer's cells
-NEAR_M, FAR_M = 0.1, 0.6  # the bands beside a layer where what stands on it, or hangs under it, shows
-SIDE_RATIO = 1.5  # one band this much fuller than the other tells which way a layer faces
-SCENE_MATCH_M = 0.3  # a tile's layer that its sides do not explain is a floor this close to one of the scene's
+UPWARD_FRACTION = 0.05  # a candidate floor: at least this share of the column's cells face up at its height
+NEAR_M, FAR_M = 0.1, 0.6  # the bands beside a split level where what stands on it, or under it, shows
+SIDE_RATIO = 1.5  # one way this much more often than the other tells which way a layer faces
+SCENE_MATCH_M = 0.15  # a tile's candidate this close to a scene floor is that floor (finishes, a slab's tolerance)
 LOCAL_FLOOR_FRACTION = 0.5  # a tile's floor at no floor of the scene (a split level) covers half a tile
 _CELLS_PER_TILE = int(round(TILE_M / CELL_M))
+_NOTHING = 1 << 30  # the gap from a cell's highest (lowest) occupied bin upward (downward)
 _BIN_BITS = 20  # height bins of one key (1 m / BIN_M * 2**20 m: any building)
 _CELL_BITS = 21
 
@@ -79,6 +92,8 @@ class _Column:
     coverage: np.ndarray
     occupied: np.ndarray
     footprint: int
+    upward: np.ndarray  # per bin, the cell-bins with room air above them and none below (see _column)
+    downward: np.ndarray  # per bin, the cell-bins with room air below them
 
 
 class FloorMapBuilder:
@@ -207,6 +222,8 @@ def _tile_columns(keys: np.ndarray) -> dict[int, _Column]:
 
 
 def _column(cell: np.ndarray, bins: np.ndarray) -> _Column:
+    """The summary of one tile's occupied cell-bins (``cell`` ascending, ``bins`` ascending
+    within a cell, as occupancy keys sort)."""
     low = int(bins.min())
     height = int(bins.max()) - low + 2
     _, cell_id = np.unique(cell, return_inverse=True)
@@ -214,18 +231,40 @@ def _column(cell: np.ndarray, bins: np.ndarray) -> _Column:
     pairs = pairs[(pairs % height) < height - 1]
     coverage = np.bincount(pairs % height, minlength=height)[:height - 1]
     occupied = np.bincount(bins - low, minlength=height)[:height - 1]
-    return _Column(low=low, coverage=coverage, occupied=occupied, footprint=int(cell_id.max()) + 1)
+    # a cell's runs of adjacent occupied bins are its surfaces (a surface's noise spans a few
+    # bins); the empty height above and below each, up to the next one in its cell
+    same_cell = cell_id[1:] == cell_id[:-1]
+    starts = np.flatnonzero(np.r_[True, ~(same_cell & (np.diff(bins) == 1))])
+    ends = np.r_[starts[1:], len(bins)] - 1
+    bottom, top, run_cell = bins[starts], bins[ends], cell_id[starts]
+    next_same = run_cell[1:] == run_cell[:-1]
+    gap_up = np.r_[np.where(next_same, bottom[1:] - top[:-1], _NOTHING), _NOTHING]
+    gap_down = np.r_[_NOTHING, np.where(next_same, bottom[1:] - top[:-1], _NOTHING)]
+    air = int(round(AIR_M / BIN_M))
+    # seen from below: room air under it (a ceiling, a slab's underside)
+    faces_down = (gap_down > air) & (gap_down != _NOTHING)
+    # seen from above: room air over it up to a ceiling, and under it a slab's underside or
+    # nothing scanned (a ground floor); or nothing over it and a ceiling close under it (a roof
+    # terrace over the top storey). Nothing over it and no ceiling under it tells nothing: the
+    # terrain outside, a ceiling over the scanner's blind cone, or over a beam or a lamp
+    ceiling_under = np.r_[False, faces_down[:-1] & next_same]
+    faces_up = (gap_up > air) & (((gap_up != _NOTHING) & ((gap_down <= air) | (gap_down == _NOTHING)))
+                                 | ((gap_up == _NOTHING) & (gap_down <= air) & ceiling_under))
+    upward = np.bincount(top[faces_up] - low, minlength=height)[:height - 1]
+    downward = np.bincount(bottom[faces_down] - low, minlength=height)[:height - 1]
+    return _Column(low=low, coverage=coverage, occupied=occupied, footprint=int(cell_id.max()) + 1,
+                   upward=upward, downward=downward)
 
 
 def _sum(columns: list[_Column]) -> _Column:
     """The column of disjoint columns together (the whole scene of its tiles)."""
     low = min(c.low for c in columns)
     high = max(c.low + len(c.coverage) for c in columns)
-    coverage, occupied = np.zeros(high - low, np.int64), np.zeros(high - low, np.int64)
+    sums = {name: np.zeros(high - low, np.int64) for name in ("coverage", "occupied", "upward", "downward")}
     for c in columns:
-        coverage[c.low - low:c.low - low + len(c.coverage)] += c.coverage
-        occupied[c.low - low:c.low - low + len(c.occupied)] += c.occupied
-    return _Column(low=low, coverage=coverage, occupied=occupied, footprint=sum(c.footprint for c in columns))
+        for name, total in sums.items():
+            total[c.low - low:c.low - low + len(c.coverage)] += getattr(c, name)
+    return _Column(low=low, footprint=sum(c.footprint for c in columns), **sums)
 
 
 def floor_map_of_tiles(tiles: dict[int, _Column], *, origin: np.ndarray) -> FloorMap:
@@ -255,51 +294,65 @@ def floor_map_of_tiles(tiles: dict[int, _Column], *, origin: np.ndarray) -> Floo
 
 
 def _layers(column: _Column) -> list[int]:
-    """The layers of a column: one per run of dense bins, its best-covered bin (relative to ``low``)."""
-    coverage = column.coverage
-    dense = coverage >= max(DENSE_FRACTION * column.footprint, 3)
+    """The candidate floors of a column: one per run of bins where upward-facing cells are
+    common (two adjacent bins together, as ``coverage``), its bin (relative to ``low``) with
+    the most of them and enough coverage; a slab's two faces are apart by their facing, however
+    thin the slab."""
+    upward = column.upward[:-1] + column.upward[1:] if len(column.upward) > 1 else column.upward.copy()
+    many = upward >= max(UPWARD_FRACTION * column.footprint, 3)
     layers, b = [], 0
-    while b < len(dense):
-        if dense[b]:
+    while b < len(many):
+        if many[b]:
             e = b
-            while e + 1 < len(dense) and dense[e + 1]:
+            while e + 1 < len(many) and many[e + 1]:
                 e += 1
-            layers.append(b + int(np.argmax(coverage[b:e + 1])))
+            best = b + int(np.argmax(upward[b:e + 1]))
+            if column.coverage[best] >= max(DENSE_FRACTION * column.footprint, 3):
+                layers.append(best)
             b = e + 1
         else:
             b += 1
     return layers
 
 
+def _split_level(column: _Column, layer: int, scene_floors: np.ndarray) -> bool:
+    """Whether a tile's layer off the scene's floors is a floor of its own (a split level): it
+    covers most of its tile, what stands on it (walls, furniture) rises from it more than
+    anything stands under it (a table's legs, the chairs at it), and the scene's floor under it
+    is hidden in its tile (a table stands over a floor that shows)."""
+    near, far = int(round(NEAR_M / BIN_M)), int(round(FAR_M / BIN_M))
+    above = column.occupied[layer + 2 + near:layer + 2 + far].sum()
+    below = column.occupied[max(layer - far, 0):max(layer - near, 0)].sum()
+    if column.coverage[layer] < LOCAL_FLOOR_FRACTION * max(column.footprint, _CELLS_PER_TILE**2) or \
+            not above > SIDE_RATIO * below + 2:
+        return False
+    z = column.low + layer + 1  # in bins
+    for floor in scene_floors / BIN_M:
+        under = int(round(floor)) - column.low - 1  # the scene floor's layer bin in this column
+        if 0 < z - floor < STOREY_M / BIN_M and 0 <= under < len(column.coverage) and \
+                column.coverage[max(under - 1, 0):under + 2].max() >= DENSE_FRACTION * column.footprint:
+            return False
+    return True
+
+
 def _floors(column: _Column, *, scene_floors: np.ndarray | None) -> np.ndarray:
-    """The floors (ascending, metres) of a column (see the module docs). A layer whose sides do
-    not tell which way it faces is decided by the scene's floors when given (a floor within
-    ``SCENE_MATCH_M`` of one), else by the slab and roof tests."""
-    layers = _layers(column)
-    coverage, occupied, low, footprint = column.coverage, column.occupied, column.low, column.footprint
+    """The floors (ascending, metres) of a column (see the module docs): of a tile when
+    ``scene_floors`` is given (a layer whose cells do not tell which way it faces is a floor when
+    it lies within ``SCENE_MATCH_M`` of one of them), else of the whole scene."""
+    coverage, footprint = column.coverage, column.footprint
+    share = FLOOR_FRACTION if scene_floors is not None else SCENE_FLOOR_FRACTION
     out: list[float] = []
-    slab_bins, near, far = int(round(SLAB_M / BIN_M)), int(round(NEAR_M / BIN_M)), int(round(FAR_M / BIN_M))
-    for i, layer in enumerate(layers):
-        z = (low + layer + 1) * BIN_M  # the boundary of the layer's two bins
-        if occupied[layer + 3:].sum() == 0:
-            continue  # a roof, or the top storey's ceiling: nothing above it
-        # what stands on a floor (walls, furniture) rises from it; what a ceiling closes hangs below it
-        above = occupied[layer + 2 + near:layer + 2 + far].sum()
-        below = occupied[max(layer - far, 0):max(layer - near, 0)].sum()
-        if below > SIDE_RATIO * above + 2:
-            continue  # a ceiling: the room is under it
-        nxt = layers[i + 1] if i + 1 < len(layers) else None
-        if nxt is not None and nxt - layer <= slab_bins and \
-                occupied[layer + 2:nxt - 1].sum() <= BETWEEN_FRACTION * coverage[layer]:
-            continue  # the underside of a slab whose top is the next layer (the floor above counts as "above" it)
+    for layer in _layers(column):
+        z = (column.low + layer + 1) * BIN_M  # the boundary of the layer's two bins
+        window = slice(max(layer - 1, 0), layer + 3)  # the layer's bins and one either side (noise)
+        up, down = int(column.upward[window].sum()), int(column.downward[window].sum())
         near_scene = scene_floors is not None and bool(len(scene_floors)) and \
             np.abs(scene_floors - z).min() <= SCENE_MATCH_M
-        if scene_floors is not None and not near_scene and \
-                coverage[layer] < LOCAL_FLOOR_FRACTION * max(footprint, _CELLS_PER_TILE**2):
-            continue  # a floor of its own (a split level) covers most of its tile; a table does not
-        if not above > SIDE_RATIO * below + 2 and scene_floors is not None and not near_scene:
-            continue  # the sides do not tell, and no floor of the scene is there
-        if out and (z - out[-1] < STOREY_M - 1e-9 or coverage[layer] < FLOOR_FRACTION * footprint):
-            continue  # a storey above: its floor spans most of the column (a beam's underside a strip)
+        if not (up > SIDE_RATIO * down + 2 or (near_scene and up > down)):
+            continue  # a ceiling (room air under it), or nothing tells and no floor of the scene is there
+        if scene_floors is not None and not near_scene and not _split_level(column, layer, scene_floors):
+            continue  # a table, a counter, a bed: not a floor of its own
+        if out and (z - out[-1] < STOREY_M - 1e-9 or coverage[layer] < share * footprint):
+            continue  # a storey above: its floor spans much of the column (a beam's underside a strip)
         out.append(z)
     return np.asarray(out, dtype=np.float64)
