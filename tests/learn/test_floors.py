@@ -149,3 +149,26 @@ def test_real_rooms_get_their_floor_under_every_point():
         height = xyz[:, 2] - floor_of(xyz).floor_under(xyz)
         assert abs(np.median(height[label == slab])) < 0.08, source.name
         assert 2.3 < np.median(height[label == covering]) < 3.2, source.name
+
+
+def test_a_scanned_two_storey_house_gets_each_storeys_floor(tmp_path):
+    """bimscan's own tripod scan of a furnished two-storey house: nearly every point takes the floor
+    of the storey it is in (the floors the stations stood on), the upper storey's included."""
+    import json
+
+    from bimscan.ifc.generate import make_building
+    from bimscan.pipeline import scan_model
+    from bimscan.survey.recipe import ScanRecipe
+
+    model = make_building(tmp_path / "house.ifc", seed=303, storeys=2, style="residential").path
+    out = tmp_path / "scan"
+    scan_model(model, out, ScanRecipe.resolve(preset="exp1", head_deg_per_s=60.0), progress=False)
+    meta = json.loads((out / "meta.json").read_text())
+    xyz = np.load(out / "coord.npy").astype(np.float64)
+    station_floors = np.array([s["floor_z"] for s in meta["stations"]]) - meta["origin_m"][2]
+    levels, count = np.unique(np.round(station_floors, 1), return_counts=True)
+    storeys = levels[count >= 2]  # a landing's single station is no storey
+    assert len(storeys) == 2
+    truth = storeys[np.maximum(np.searchsorted(storeys, xyz[:, 2] + 0.15, side="right") - 1, 0)]
+    found = floor_of(xyz).floor_under(xyz)
+    assert np.mean(np.abs(found - truth) < 0.3) > 0.95

@@ -306,7 +306,8 @@ def _layers(column: _Column) -> list[int]:
             e = b
             while e + 1 < len(many) and many[e + 1]:
                 e += 1
-            best = b + int(np.argmax(upward[b:e + 1]))
+            # the most upward faces; of equals (a surface in one bin counts in two pairs), the best covered
+            best = b + int(np.argmax(upward[b:e + 1] * (column.footprint + 1) + column.coverage[b:e + 1]))
             if column.coverage[best] >= max(DENSE_FRACTION * column.footprint, 3):
                 layers.append(best)
             b = e + 1
