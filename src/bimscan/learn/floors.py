@@ -65,7 +65,7 @@ SIDE_RATIO = 1.5  # one way this much more often than the other tells which way 
 SCENE_MATCH_M = 0.15  # a tile's candidate this close to a scene floor is that floor (finishes, a slab's tolerance)
 LOCAL_FLOOR_FRACTION = 0.5  # a tile's floor at no floor of the scene (a split level) covers half a tile
 _CELLS_PER_TILE = int(round(TILE_M / CELL_M))
-_NOTHING = 1 << 30  # the gap from a cell's highest (lowest) occupied bin upward (downward)
+_NOTHING = 1 << 30  # the "gap" over a cell's highest surface and under its lowest: nothing scanned
 _BIN_BITS = 20  # height bins of one key (1 m / BIN_M * 2**20 m: any building)
 _CELL_BITS = 21
 
@@ -92,8 +92,8 @@ class _Column:
     coverage: np.ndarray
     occupied: np.ndarray
     footprint: int
-    upward: np.ndarray  # per bin, the cell-bins with room air above them and none below (see _column)
-    downward: np.ndarray  # per bin, the cell-bins with room air below them
+    upward: np.ndarray  # per bin, the cells' surfaces facing up whose top is in it (see _column)
+    downward: np.ndarray  # per bin, the cells' surfaces facing down whose bottom is in it
 
 
 class FloorMapBuilder:
@@ -337,9 +337,9 @@ def _split_level(column: _Column, layer: int, scene_floors: np.ndarray) -> bool:
 
 
 def _floors(column: _Column, *, scene_floors: np.ndarray | None) -> np.ndarray:
-    """The floors (ascending, metres) of a column (see the module docs): of a tile when
-    ``scene_floors`` is given (a layer whose cells do not tell which way it faces is a floor when
-    it lies within ``SCENE_MATCH_M`` of one of them), else of the whole scene."""
+    """The floors (ascending, metres, relative to the map's origin) of a column (see the module
+    docs): of a tile when ``scene_floors`` is given (a candidate within ``SCENE_MATCH_M`` of one
+    needs only to face up more often than down), else of the whole scene."""
     coverage, footprint = column.coverage, column.footprint
     share = FLOOR_FRACTION if scene_floors is not None else SCENE_FLOOR_FRACTION
     out: list[float] = []
