@@ -238,8 +238,8 @@ def _column(cell: np.ndarray, bins: np.ndarray) -> _Column:
     ends = np.r_[starts[1:], len(bins)] - 1
     bottom, top, run_cell = bins[starts], bins[ends], cell_id[starts]
     next_same = run_cell[1:] == run_cell[:-1]
-    gap_up = np.r_[np.where(next_same, bottom[1:] - top[:-1], _NOTHING), _NOTHING]
-    gap_down = np.r_[_NOTHING, np.where(next_same, bottom[1:] - top[:-1], _NOTHING)]
+    gap = np.where(next_same, bottom[1:] - top[:-1], _NOTHING)  # between each run and the next
+    gap_up, gap_down = np.r_[gap, _NOTHING], np.r_[_NOTHING, gap]
     air = int(round(AIR_M / BIN_M))
     # seen from below: room air under it (a ceiling, a slab's underside)
     faces_down = (gap_down > air) & (gap_down != _NOTHING)
