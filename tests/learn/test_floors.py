@@ -21,6 +21,13 @@ def _wall(rng, x, y, z, n):
     return np.column_stack([rng.uniform(*x, n), rng.uniform(*y, n), rng.uniform(*z, n)])
 
 
+def _outer_walls(rng, size, z, n=8_000):
+    """The four walls around a (sx, sy) footprint, from z[0] to z[1]."""
+    sx, sy = size
+    return [_wall(rng, x, y, z, n) for x, y in (((0, sx), (0, 0.05)), ((0, sx), (sy - 0.05, sy)), ((0, 0.05), (0, sy)),
+                                                  ((sx - 0.05, sx), (0, sy)))]
+
+
 def building(rng, *, storeys=3, storey_m=3.6, ceiling_m=2.8, size=(12.0, 8.0), table=True):
     """Points of a building scanned inside: per storey a floor, a ceiling under the next slab,
     the walls between them, and (optionally) a big table; returns points and the floor of each."""
@@ -30,8 +37,7 @@ def building(rng, *, storeys=3, storey_m=3.6, ceiling_m=2.8, size=(12.0, 8.0), t
         base = k * storey_m
         parts.append(_plane(rng, (0, sx), (0, sy), base, 40_000))
         parts.append(_plane(rng, (0, sx), (0, sy), base + ceiling_m, 40_000))
-        for x, y in (((0, sx), (0, 0.05)), ((0, sx), (sy - 0.05, sy)), ((0, 0.05), (0, sy)), ((sx - 0.05, sx), (0, sy))):
-            parts.append(_wall(rng, x, y, (base, base + ceiling_m), 8_000))
+        parts.extend(_outer_walls(rng, size, (base, base + ceiling_m)))
         if table:
             parts.append(_plane(rng, (1.0, 4.0), (1.0, 3.5), base + 0.75, 8_000))  # a big table
         floors.append(base)
@@ -104,9 +110,7 @@ def test_a_furnished_storey_over_a_thin_slab_gets_its_floor_and_the_ceiling_unde
         parts.append(_plane(rng, (x0 + 0.5, x0 + 2.0), (0, 8), 3.6, 6_000))
     parts.append(_plane(rng, (0, 12), (0, 8), 5.85, 40_000))  # the upper ceiling
     for base, top in ((0.0, 2.8), (3.05, 5.85)):
-        for x, y in (((0, size[0]), (0, 0.05)), ((0, size[0]), (size[1] - 0.05, size[1])), ((0, 0.05), (0, size[1])),
-                     ((size[0] - 0.05, size[0]), (0, size[1]))):
-            parts.append(_wall(rng, x, y, (base, top), 8_000))
+        parts.extend(_outer_walls(rng, size, (base, top)))
     xyz = np.concatenate(parts)
     floor_map = floor_of(xyz)
     assert np.allclose(floor_map.scene_floors, [0.0, 3.05], atol=0.06)
