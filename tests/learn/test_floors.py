@@ -121,6 +121,29 @@ def test_a_furnished_storey_over_a_thin_slab_gets_its_floor_and_the_ceiling_unde
     assert np.allclose(floor[upper], 3.05, atol=0.06)  # beds, ceiling and walls upstairs stand on the upper floor
 
 
+def test_a_slab_seen_from_both_sides_gives_its_top_as_the_floor():
+    """A timber floor 0.3 m thick over a suspended ceiling 0.2 m under it: from below, the rays reach
+    the slab's underside past the ceiling in some places; from above, the floor shows in others (a
+    tripod sees little of a floor). Both look like a surface with room air over it and a ceiling just
+    under it; the floor is the slab's top."""
+    rng = np.random.default_rng(5)
+    size = (12.0, 8.0)
+    parts = [_plane(rng, (0, 12), (0, 8), 0.0, 40_000), _plane(rng, (0, 12), (0, 8), 2.6, 40_000)]  # floor, ceiling
+    for x0 in np.arange(0.0, 12.0, 3.0):  # per 3 m: the underside shows over 1 m, the floor top over 1.2 m
+        parts.append(_plane(rng, (x0, x0 + 1.0), (0, 8), 2.9, 4_000))
+        parts.append(_plane(rng, (x0 + 1.6, x0 + 2.8), (0, 8), 3.2, 4_000))
+    parts.append(_plane(rng, (0, 12), (0, 8), 6.0, 40_000))  # the upper ceiling
+    for base, top in ((0.0, 2.6), (3.2, 6.0)):
+        parts.extend(_outer_walls(rng, size, (base, top)))
+    xyz = np.concatenate(parts)
+    floor_map = floor_of(xyz)
+    assert np.allclose(floor_map.scene_floors, [0.0, 3.2], atol=0.06)
+    floor = floor_map.floor_under(xyz)
+    upper = xyz[:, 2] > 3.1
+    assert np.allclose(floor[upper], 3.2, atol=0.06)
+    assert np.allclose(floor[np.abs(xyz[:, 2] - 2.9) < 0.02], 0.0, atol=0.06)  # the underside is the storey below's
+
+
 def test_a_roof_terrace_is_a_floor_and_a_ceiling_over_lamps_is_not():
     rng = np.random.default_rng(4)
     parts = [_plane(rng, (0, 12), (0, 8), 0.0, 40_000), _plane(rng, (0, 12), (0, 8), 2.8, 40_000),

@@ -508,8 +508,8 @@ def name_tile_cache(
     per_station: bool = False,
 ) -> str:
     """File name of a scene's cached tiles: a digest of everything the tiles depend on."""
-    recipe = {  # version: what collecting does (6: floors found by the way surfaces face)
-        "version": 6, "scene": _fingerprint(source.path), "name": source.name, "kind": source.kind,
+    recipe = {  # version: what collecting does (7: a slab seen from both sides gives its top as the floor)
+        "version": 7, "scene": _fingerprint(source.path), "name": source.name, "kind": source.kind,
         "label_field": source.label_field, "mapping": None if source.mapping is None else asdict(source.mapping),
         "blocks": asdict(blocks), "class_names": list(class_names), "seed": seed, "grid_m": grid_m,
         "per_station": per_station,

@@ -16,13 +16,20 @@ when room air is over it up to the next surface and either a slab's underside or
 lies under it (a ground floor), or when nothing is over it but a ceiling lies just under it (a
 roof terrace). It *faces down* (a ceiling, a slab's underside) when room air is under it. A
 surface with nothing over it and no ceiling under it tells nothing: the terrain outside, or a
-ceiling over the scanner's blind cone or over a lamp.
+ceiling over the scanner's blind cone or over a lamp. Nothing scanned under a surface counts
+for facing up only in the bottom storey (within ``STOREY_M`` of the lowest floor): higher up a
+floor stands on a slab, and a surface over nothing is a ceiling over a tripod's blind cone or
+over a floor hidden by furniture.
 
 In a tile, a *candidate* floor is a height where at least ``UPWARD_FRACTION`` of the tile's
 occupied cells face up (two adjacent bins together) and at least ``DENSE_FRACTION`` hold points.
 It is a floor when its cells face up ``SIDE_RATIO`` times as often as down; going up, a floor
 less than ``STOREY_M`` above the previous one, or covering less than ``FLOOR_FRACTION`` of the
-tile, is not one (a table, a bed, a landing). The whole scene's floors are found the same way
+tile, is not one (a table, a bed, a landing). Except: a candidate at most ``SLAB_M`` over the
+previous floor, covering as much and facing up nearly as often (within ``SIDE_RATIO``), takes its
+place. The two are one slab seen from both sides: its top where the floor shows, its underside
+where rays from below passed a suspended ceiling and the floor over it is hidden (an underside
+over a ceiling void looks like a floor on a slab). The floor is the slab's top. The whole scene's floors are found the same way
 from all tiles at once (a storey above covering at least ``SCENE_FLOOR_FRACTION`` of the scene:
 upper storeys are smaller, and their furniture hides much of their floor). A tile's candidate
 within ``SCENE_MATCH_M`` of a scene floor needs only to face up more often than down; one away
@@ -57,6 +64,7 @@ DENSE_FRACTION = 0.2
 FLOOR_FRACTION = 0.35  # a floor above another covers at least this share of its tile
 SCENE_FLOOR_FRACTION = 0.15  # ... or of the whole scene's footprint (upper storeys are smaller, and furnished)
 AIR_M = 1.2  # an empty height over this is room air; a slab with its ceiling void is thinner
+SLAB_M = 0.4  # a slab's top over its underside, finishes included (a seat, a bed stands higher)
 STOREY_M = 2.3  # floors of one tile at least this far apart (lower: a table, a landing, a beam's underside)
 ABOVE_TOLERANCE_M = 0.15  # a floor's own points lie on it (noise, finishes)
 UPWARD_FRACTION = 0.05  # a candidate floor: at least this share of the column's cells face up at its height
@@ -93,6 +101,7 @@ class _Column:
     occupied: np.ndarray
     footprint: int
     upward: np.ndarray  # per bin, the cells' surfaces facing up whose top is in it (see _column)
+    upward_on_nothing: np.ndarray  # ... of those, the ones with nothing scanned under them (a ground floor)
     downward: np.ndarray  # per bin, the cells' surfaces facing down whose bottom is in it
 
 
@@ -251,16 +260,19 @@ def _column(cell: np.ndarray, bins: np.ndarray) -> _Column:
     faces_up = (gap_up > air) & (((gap_up != _NOTHING) & ((gap_down <= air) | (gap_down == _NOTHING)))
                                  | ((gap_up == _NOTHING) & (gap_down <= air) & ceiling_under))
     upward = np.bincount(top[faces_up] - low, minlength=height)[:height - 1]
+    on_nothing = faces_up & (gap_down == _NOTHING)
+    upward_on_nothing = np.bincount(top[on_nothing] - low, minlength=height)[:height - 1]
     downward = np.bincount(bottom[faces_down] - low, minlength=height)[:height - 1]
     return _Column(low=low, coverage=coverage, occupied=occupied, footprint=int(cell_id.max()) + 1,
-                   upward=upward, downward=downward)
+                   upward=upward, upward_on_nothing=upward_on_nothing, downward=downward)
 
 
 def _sum(columns: list[_Column]) -> _Column:
     """The column of disjoint columns together (the whole scene of its tiles)."""
     low = min(c.low for c in columns)
     high = max(c.low + len(c.coverage) for c in columns)
-    sums = {name: np.zeros(high - low, np.int64) for name in ("coverage", "occupied", "upward", "downward")}
+    sums = {name: np.zeros(high - low, np.int64)
+            for name in ("coverage", "occupied", "upward", "upward_on_nothing", "downward")}
     for c in columns:
         for name, total in sums.items():
             total[c.low - low:c.low - low + len(c.coverage)] += getattr(c, name)
@@ -343,17 +355,36 @@ def _floors(column: _Column, *, scene_floors: np.ndarray | None) -> np.ndarray:
     coverage, footprint = column.coverage, column.footprint
     share = FLOOR_FRACTION if scene_floors is not None else SCENE_FLOOR_FRACTION
     out: list[float] = []
+    out_up: list[int] = []  # each floor's upward faces and coverage (see SLAB_M)
+    out_coverage: list[int] = []
     for layer in _layers(column):
         z = (column.low + layer + 1) * BIN_M  # the boundary of the layer's two bins
         window = slice(max(layer - 1, 0), layer + 3)  # the layer's bins and one either side (noise)
         up, down = int(column.upward[window].sum()), int(column.downward[window].sum())
+        bottom = scene_floors[:1] if scene_floors is not None else out[:1]  # the lowest floor known
+        if len(bottom) and z - bottom[0] >= STOREY_M - 1e-9:
+            # nothing scanned under a surface makes it a floor only in the bottom storey (a
+            # ground floor, a split level over a crawl space): higher up, a floor stands on a
+            # slab, and a surface over nothing is a ceiling over a tripod's blind cone or over a
+            # floor hidden by furniture
+            up -= int(column.upward_on_nothing[window].sum())
         near_scene = scene_floors is not None and bool(len(scene_floors)) and \
             np.abs(scene_floors - z).min() <= SCENE_MATCH_M
         if not (up > SIDE_RATIO * down + 2 or (near_scene and up > down)):
             continue  # a ceiling (room air under it), or nothing tells and no floor of the scene is there
         if scene_floors is not None and not near_scene and not _split_level(column, layer, scene_floors):
             continue  # a table, a counter, a bed: not a floor of its own
-        if out and (z - out[-1] < STOREY_M - 1e-9 or coverage[layer] < share * footprint):
+        if out and z - out[-1] < STOREY_M - 1e-9:
+            # one slab seen twice: its top where its floor shows, its underside where the floor
+            # over it is hidden and rays from below reach the underside past a suspended ceiling
+            # (which makes the underside look like a floor on a slab): the floor is the top
+            if z - out[-1] <= SLAB_M + 1e-9 and SIDE_RATIO * up >= out_up[-1] and \
+                    coverage[layer] >= out_coverage[-1] and (len(out) == 1 or coverage[layer] >= share * footprint):
+                out[-1], out_up[-1], out_coverage[-1] = z, up, int(coverage[layer])
+            continue  # else a table, a bed, a landing on the floor below
+        if out and coverage[layer] < share * footprint:
             continue  # a storey above: its floor spans much of the column (a beam's underside a strip)
         out.append(z)
+        out_up.append(up)
+        out_coverage.append(int(coverage[layer]))
     return np.asarray(out, dtype=np.float64)
