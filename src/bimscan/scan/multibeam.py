@@ -187,6 +187,15 @@ def moving_rays(first_pulse: np.int64, n: np.int64, n_beams: np.int64, cycle_s: 
     """
     k_last = len(track_t) - 1
     first_sequence = first_pulse // n_beams
+    # each beam's direction in the sensor frame at the start of its sequence's spin (its firing
+    # offset's turn and its azimuth offset): a pulse's direction is then that turned by the
+    # sequence's spin and pose, with no trigonometry per pulse
+    beam = np.empty((n_beams, 3))
+    for b in range(n_beams):
+        turn = rotation_rad_s * firing_offset_s[b] + azimuth_offset[b]
+        beam[b, 0] = cos_el[b] * math.cos(turn)
+        beam[b, 1] = cos_el[b] * math.sin(turn)
+        beam[b, 2] = sin_el[b]
     for q in nb.prange(n // n_beams):
         s = first_sequence + q
         t_seq = t0 + s * cycle_s
@@ -208,7 +217,7 @@ def moving_rays(first_pulse: np.int64, n: np.int64, n_beams: np.int64, cycle_s: 
         lx = r[0] * ax + r[1] * ay + r[2] * az_
         ly = r[3] * ax + r[4] * ay + r[5] * az_
         lz = r[6] * ax + r[7] * ay + r[8] * az_
-        # sensor -> world rotation of this sequence: R_platform R_head R_mount
+        # sensor -> world rotation of this sequence: R_platform R_head R_mount R_spin
         a00 = ch * m[0, 0] - sh * m[1, 0]
         a01 = ch * m[0, 1] - sh * m[1, 1]
         a02 = ch * m[0, 2] - sh * m[1, 2]
@@ -225,24 +234,24 @@ def moving_rays(first_pulse: np.int64, n: np.int64, n_beams: np.int64, cycle_s: 
         w20 = r[6] * a00 + r[7] * a10 + r[8] * a20
         w21 = r[6] * a01 + r[7] * a11 + r[8] * a21
         w22 = r[6] * a02 + r[7] * a12 + r[8] * a22
+        spin = rotation_rad_s * (s * cycle_s)
+        cs, ss = math.cos(spin), math.sin(spin)
+        v00, v01 = w00 * cs + w01 * ss, w01 * cs - w00 * ss
+        v10, v11 = w10 * cs + w11 * ss, w11 * cs - w10 * ss
+        v20, v21 = w20 * cs + w21 * ss, w21 * cs - w20 * ss
         for b in range(n_beams):
             i = q * n_beams + b
-            local_t = s * cycle_s + firing_offset_s[b]
-            t = t0 + local_t
+            t = t0 + (s * cycle_s + firing_offset_s[b])
             kk = k
             while kk < k_last - 1 and track_t[kk + 1] <= t:  # a sample may fall inside the sequence
                 kk += 1
             kk1 = min(kk + 1, k_last)
             span = track_t[kk1] - track_t[kk]
             wt = min(max((t - track_t[kk]) / span, 0.0), 1.0) if span > 0 else 0.0
-            az = rotation_rad_s * local_t + azimuth_offset[b]
-            dx0 = cos_el[b] * math.cos(az)
-            dy0 = cos_el[b] * math.sin(az)
-            dz0 = sin_el[b]
-            wx = w00 * dx0 + w01 * dy0 + w02 * dz0
-            wy = w10 * dx0 + w11 * dy0 + w12 * dz0
-            wz = w20 * dx0 + w21 * dy0 + w22 * dz0
-            norm = math.sqrt(wx * wx + wy * wy + wz * wz)
+            # rotations only: the direction stays a unit vector (to 1e-15)
+            wx = v00 * beam[b, 0] + v01 * beam[b, 1] + w02 * beam[b, 2]
+            wy = v10 * beam[b, 0] + v11 * beam[b, 1] + w12 * beam[b, 2]
+            wz = v20 * beam[b, 0] + v21 * beam[b, 1] + w22 * beam[b, 2]
             ox = track_xyz[kk, 0] + wt * (track_xyz[kk1, 0] - track_xyz[kk, 0]) + lx
             oy = track_xyz[kk, 1] + wt * (track_xyz[kk1, 1] - track_xyz[kk, 1]) + ly
             oz = track_xyz[kk, 2] + wt * (track_xyz[kk1, 2] - track_xyz[kk, 2]) + lz
@@ -252,9 +261,9 @@ def moving_rays(first_pulse: np.int64, n: np.int64, n_beams: np.int64, cycle_s: 
             rays[i, 0] = ox - centre[0]
             rays[i, 1] = oy - centre[1]
             rays[i, 2] = oz - centre[2]
-            rays[i, 3] = wx / norm
-            rays[i, 4] = wy / norm
-            rays[i, 5] = wz / norm
+            rays[i, 3] = wx
+            rays[i, 4] = wy
+            rays[i, 5] = wz
             time[i] = t
 
 
@@ -284,7 +293,9 @@ def finish_moving_hits(t_hit: np.ndarray, triangle: np.ndarray, rays: np.ndarray
     noisy = range_sigma_m > 0.0 or angle_sigma_rad > 0.0
     for blk in nb.prange(n_blocks):
         out = counts[blk]
+        beam = (first_pulse + blk * _BLOCK) % n_beams - 1  # counted along, not divided per pulse
         for i in range(blk * _BLOCK, min(n, (blk + 1) * _BLOCK)):
+            beam = beam + 1 if beam + 1 < n_beams else 0
             t = t_hit[i]
             tri = triangle[i]
             if not _keep(t, tri, n_faces, min_range, max_range):
@@ -309,7 +320,7 @@ def finish_moving_hits(t_hit: np.ndarray, triangle: np.ndarray, rays: np.ndarray
             intensity[out] = np.uint16(min(65535.0, max(0.0, value + 0.5)))
             station[out] = pass_id
             time[out] = pulse_time[i]
-            ring[out] = ring_of_beam[p % n_beams]
+            ring[out] = ring_of_beam[beam]
             sensor[out, 0] = origin[i, 0]
             sensor[out, 1] = origin[i, 1]
             sensor[out, 2] = origin[i, 2]
