@@ -28,6 +28,21 @@ def _outer_walls(rng, size, z, n=8_000):
                                                   ((sx - 0.05, sx), (0, sy)))]
 
 
+def _two_storeys(rng, *, ceiling_m, period_m, strips, upper_floor_m, upper_ceiling_m, size=(12.0, 8.0)):
+    """Points of a two-storey box scanned inside: the ground floor at 0 and its ceiling, in every
+    ``period_m`` across x the upper storey's ``strips`` ((start, stop) within the period, height,
+    points) where its floor or what hides it shows, the upper ceiling, and both storeys' walls."""
+    sx, sy = size
+    parts = [_plane(rng, (0, sx), (0, sy), 0.0, 40_000), _plane(rng, (0, sx), (0, sy), ceiling_m, 40_000)]
+    for x0 in np.arange(0.0, sx, period_m):
+        for start, stop, z, n in strips:
+            parts.append(_plane(rng, (x0 + start, x0 + stop), (0, sy), z, n))
+    parts.append(_plane(rng, (0, sx), (0, sy), upper_ceiling_m, 40_000))
+    for base, top in ((0.0, ceiling_m), (upper_floor_m, upper_ceiling_m)):
+        parts.extend(_outer_walls(rng, size, (base, top)))
+    return np.concatenate(parts)
+
+
 def building(rng, *, storeys=3, storey_m=3.6, ceiling_m=2.8, size=(12.0, 8.0), table=True):
     """Points of a building scanned inside: per storey a floor, a ceiling under the next slab,
     the walls between them, and (optionally) a big table; returns points and the floor of each."""
@@ -103,15 +118,9 @@ def test_a_furnished_storey_over_a_thin_slab_gets_its_floor_and_the_ceiling_unde
     """A house: the upper floor 0.25 m over the ceiling under it (one run of dense bins), and
     most of it hidden by beds and cupboards (a quarter of the footprint shows)."""
     rng = np.random.default_rng(3)
-    size = (12.0, 8.0)
-    parts = [_plane(rng, (0, 12), (0, 8), 0.0, 40_000), _plane(rng, (0, 12), (0, 8), 2.8, 40_000)]
-    for x0 in np.arange(0.0, 12.0, 2.0):  # upper storey: per 2 m strip, 0.5 m of floor shows and a bed hides the rest
-        parts.append(_plane(rng, (x0, x0 + 0.5), (0, 8), 3.05, 3_000))
-        parts.append(_plane(rng, (x0 + 0.5, x0 + 2.0), (0, 8), 3.6, 6_000))
-    parts.append(_plane(rng, (0, 12), (0, 8), 5.85, 40_000))  # the upper ceiling
-    for base, top in ((0.0, 2.8), (3.05, 5.85)):
-        parts.extend(_outer_walls(rng, size, (base, top)))
-    xyz = np.concatenate(parts)
+    # upper storey: per 2 m strip, 0.5 m of floor shows and a bed hides the rest
+    xyz = _two_storeys(rng, ceiling_m=2.8, period_m=2.0, strips=[(0.0, 0.5, 3.05, 3_000), (0.5, 2.0, 3.6, 6_000)],
+                       upper_floor_m=3.05, upper_ceiling_m=5.85)
     floor_map = floor_of(xyz)
     assert np.allclose(floor_map.scene_floors, [0.0, 3.05], atol=0.06)
     floor = floor_map.floor_under(xyz)
@@ -127,15 +136,9 @@ def test_a_slab_seen_from_both_sides_gives_its_top_as_the_floor():
     tripod sees little of a floor). Both look like a surface with room air over it and a ceiling just
     under it; the floor is the slab's top."""
     rng = np.random.default_rng(5)
-    size = (12.0, 8.0)
-    parts = [_plane(rng, (0, 12), (0, 8), 0.0, 40_000), _plane(rng, (0, 12), (0, 8), 2.6, 40_000)]  # floor, ceiling
-    for x0 in np.arange(0.0, 12.0, 3.0):  # per 3 m: the underside shows over 1 m, the floor top over 1.2 m
-        parts.append(_plane(rng, (x0, x0 + 1.0), (0, 8), 2.9, 4_000))
-        parts.append(_plane(rng, (x0 + 1.6, x0 + 2.8), (0, 8), 3.2, 4_000))
-    parts.append(_plane(rng, (0, 12), (0, 8), 6.0, 40_000))  # the upper ceiling
-    for base, top in ((0.0, 2.6), (3.2, 6.0)):
-        parts.extend(_outer_walls(rng, size, (base, top)))
-    xyz = np.concatenate(parts)
+    # per 3 m: the underside shows over 1 m, the floor top over 1.2 m
+    xyz = _two_storeys(rng, ceiling_m=2.6, period_m=3.0, strips=[(0.0, 1.0, 2.9, 4_000), (1.6, 2.8, 3.2, 4_000)],
+                       upper_floor_m=3.2, upper_ceiling_m=6.0)
     floor_map = floor_of(xyz)
     assert np.allclose(floor_map.scene_floors, [0.0, 3.2], atol=0.06)
     floor = floor_map.floor_under(xyz)
