@@ -277,27 +277,40 @@ def finish_hits(t_hit: np.ndarray, triangle: np.ndarray, rays: np.ndarray, pulse
             tri = triangle[i]
             if not _keep(t, tri, n_faces, min_range, max_range):
                 continue
-            dx, dy, dz = float(rays[i, 3]), float(rays[i, 4]), float(rays[i, 5])
             p = pulse[i]
-            r = float(t)
-            if noisy:
-                n_range, n_az, n_el = _pulse_normals(key, p)
-                r += range_sigma_m * n_range
-                mx, my, mz = recorded_direction(dx, dy, dz, angle_sigma_rad * n_az, angle_sigma_rad * n_el)
-            else:
-                mx, my, mz = dx, dy, dz
-            xyz[out, 0] = ox + r * mx
-            xyz[out, 1] = oy + r * my
-            xyz[out, 2] = oz + r * mz
-            # per-triangle tables, so no lookup waits on another: component, label, and the unit
-            # normal scaled by 65535 * reflectance (|d . n| * that = the unscaled intensity)
+            rx, ry, rz, value = hit_point(t, tri, rays, i, p, key, noisy, range_sigma_m, angle_sigma_rad,
+                                          intensity_ref_m, face_brightness)
+            xyz[out, 0] = ox + rx
+            xyz[out, 1] = oy + ry
+            xyz[out, 2] = oz + rz
             component[out] = face_component[tri]
             label[out] = face_label[tri]
-            fall = min(1.0, intensity_ref_m / t)
-            value = abs(dx * face_brightness[tri, 0] + dy * face_brightness[tri, 1]
-                        + dz * face_brightness[tri, 2]) * fall * fall
-            intensity[out] = np.uint16(min(65535.0, max(0.0, value + 0.5)))
+            intensity[out] = value
             station[out] = station_id
             time[out] = time0_s + p * pulse_period_s
             out += 1
     return counts[n_blocks]
+
+
+@nb.njit(cache=True, inline="always")
+def hit_point(t: float, tri: np.uint32, rays: np.ndarray, i: int, p: np.int64, key: np.uint64, noisy: bool,
+              range_sigma_m: float, angle_sigma_rad: float, intensity_ref_m: float,
+              face_brightness: np.ndarray) -> tuple[float, float, float, np.uint16]:
+    """What ray ``i`` of pulse ``p``, kept with true range ``t`` on triangle ``tri``, records: its
+    point relative to the beam origin (measured range along the recorded direction, see
+    ``finish_hits``) and its intensity. The paper path's per-hit work, the tripod's and a moving
+    lidar's alike."""
+    dx, dy, dz = float(rays[i, 3]), float(rays[i, 4]), float(rays[i, 5])
+    r = float(t)
+    if noisy:
+        n_range, n_az, n_el = _pulse_normals(key, p)
+        r += range_sigma_m * n_range
+        mx, my, mz = recorded_direction(dx, dy, dz, angle_sigma_rad * n_az, angle_sigma_rad * n_el)
+    else:
+        mx, my, mz = dx, dy, dz
+    # a per-triangle table, so no lookup waits on another: the unit normal scaled by
+    # 65535 * reflectance (|d . n| * that = the unscaled intensity)
+    fall = min(1.0, intensity_ref_m / t)
+    value = abs(dx * face_brightness[tri, 0] + dy * face_brightness[tri, 1]
+                + dz * face_brightness[tri, 2]) * fall * fall
+    return r * mx, r * my, r * mz, np.uint16(min(65535.0, max(0.0, value + 0.5)))

@@ -31,7 +31,7 @@ import numba as nb
 import numpy as np
 
 from bimscan.errors import ConfigError, ScannerSettingsError
-from bimscan.scan.kernels import _BLOCK, _FAST, _keep, pulse_normals, recorded_direction
+from bimscan.scan.kernels import _BLOCK, _FAST, _keep, hit_point
 from bimscan.scan.noise import MAX_ANGLE_SIGMA_DEG
 from bimscan.toml_files import build_dataclass, load_toml
 
@@ -300,24 +300,14 @@ def finish_moving_hits(t_hit: np.ndarray, triangle: np.ndarray, rays: np.ndarray
             tri = triangle[i]
             if not _keep(t, tri, n_faces, min_range, max_range):
                 continue
-            dx, dy, dz = float(rays[i, 3]), float(rays[i, 4]), float(rays[i, 5])
-            p = first_pulse + i
-            r = float(t)
-            if noisy:
-                n_range, n_az, n_el = pulse_normals(key, p)
-                r += range_sigma_m * n_range
-                mx, my, mz = recorded_direction(dx, dy, dz, angle_sigma_rad * n_az, angle_sigma_rad * n_el)
-            else:
-                mx, my, mz = dx, dy, dz
-            xyz[out, 0] = origin[i, 0] + r * mx
-            xyz[out, 1] = origin[i, 1] + r * my
-            xyz[out, 2] = origin[i, 2] + r * mz
+            rx, ry, rz, value = hit_point(t, tri, rays, i, first_pulse + i, key, noisy, range_sigma_m,
+                                          angle_sigma_rad, intensity_ref_m, face_brightness)
+            xyz[out, 0] = origin[i, 0] + rx
+            xyz[out, 1] = origin[i, 1] + ry
+            xyz[out, 2] = origin[i, 2] + rz
             component[out] = face_component[tri]
             label[out] = face_label[tri]
-            fall = min(1.0, intensity_ref_m / t)
-            value = abs(dx * face_brightness[tri, 0] + dy * face_brightness[tri, 1]
-                        + dz * face_brightness[tri, 2]) * fall * fall
-            intensity[out] = np.uint16(min(65535.0, max(0.0, value + 0.5)))
+            intensity[out] = value
             station[out] = pass_id
             time[out] = pulse_time[i]
             ring[out] = ring_of_beam[beam]
