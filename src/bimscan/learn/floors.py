@@ -29,9 +29,10 @@ tile, is not one (a table, a bed, a landing). Except: a candidate at most ``SLAB
 previous floor, covering as much and facing up nearly as often (within ``SIDE_RATIO``), takes its
 place. The two are one slab seen from both sides: its top where the floor shows, its underside
 where rays from below passed a suspended ceiling and the floor over it is hidden (an underside
-over a ceiling void looks like a floor on a slab). The floor is the slab's top. The whole scene's floors are found the same way
-from all tiles at once (a storey above covering at least ``SCENE_FLOOR_FRACTION`` of the scene:
-upper storeys are smaller, and their furniture hides much of their floor). A tile's candidate
+over a ceiling void looks like a floor on a slab). The floor is the slab's top. The whole
+scene's floors are found the same way from all tiles at once (a storey above covering at least
+``SCENE_FLOOR_FRACTION`` of the scene: upper storeys are smaller, and their furniture hides much
+of their floor). A tile's candidate
 within ``SCENE_MATCH_M`` of a scene floor needs only to face up more often than down; one away
 from every scene floor is a floor of its own (a split level) only when it covers most of its
 tile, what stands on it rises from it (walls, furniture, seen within ``NEAR_M`` to ``FAR_M``
