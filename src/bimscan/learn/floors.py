@@ -32,12 +32,11 @@ where rays from below passed a suspended ceiling and the floor over it is hidden
 over a ceiling void looks like a floor on a slab). The floor is the slab's top. The whole
 scene's floors are found the same way from all tiles at once (a storey above covering at least
 ``SCENE_FLOOR_FRACTION`` of the scene: upper storeys are smaller, and their furniture hides much
-of their floor). A tile's candidate
-within ``SCENE_MATCH_M`` of a scene floor needs only to face up more often than down; one away
-from every scene floor is a floor of its own (a split level) only when it covers most of its
-tile, what stands on it rises from it (walls, furniture, seen within ``NEAR_M`` to ``FAR_M``
-above it, against below it), and the scene's floor under it is hidden in its tile (a table
-stands over a floor that shows). A point's floor is the highest floor of its tile at most
+of their floor). A tile's candidate within ``SCENE_MATCH_M`` of a scene floor needs only to face
+up more often than down; one away from every scene floor is a floor of its own (a split level)
+only when it covers most of its tile, what stands on it rises from it (walls, furniture, seen
+within ``NEAR_M`` to ``FAR_M`` above it, against below it), and the scene's floor under it is
+hidden in its tile (a table stands over a floor that shows). A point's floor is the highest floor of its tile at most
 ``ABOVE_TOLERANCE_M`` above it (the floor's own points lie on it); a point below every floor
 takes the lowest. Tiles without a floor (a floor hidden under furniture, a tile of wall only)
 take the scene's floors, and a tile's floors are completed by the scene floors it does not show.
@@ -356,8 +355,7 @@ def _floors(column: _Column, *, scene_floors: np.ndarray | None) -> np.ndarray:
     coverage, footprint = column.coverage, column.footprint
     share = FLOOR_FRACTION if scene_floors is not None else SCENE_FLOOR_FRACTION
     out: list[float] = []
-    out_up: list[int] = []  # each floor's upward faces and coverage (see SLAB_M)
-    out_coverage: list[int] = []
+    last_up = last_coverage = 0  # the last floor's upward faces and coverage (see SLAB_M)
     for layer in _layers(column):
         z = (column.low + layer + 1) * BIN_M  # the boundary of the layer's two bins
         window = slice(max(layer - 1, 0), layer + 3)  # the layer's bins and one either side (noise)
@@ -379,13 +377,12 @@ def _floors(column: _Column, *, scene_floors: np.ndarray | None) -> np.ndarray:
             # one slab seen twice: its top where its floor shows, its underside where the floor
             # over it is hidden and rays from below reach the underside past a suspended ceiling
             # (which makes the underside look like a floor on a slab): the floor is the top
-            if z - out[-1] <= SLAB_M + 1e-9 and SIDE_RATIO * up >= out_up[-1] and \
-                    coverage[layer] >= out_coverage[-1] and (len(out) == 1 or coverage[layer] >= share * footprint):
-                out[-1], out_up[-1], out_coverage[-1] = z, up, int(coverage[layer])
+            if z - out[-1] <= SLAB_M + 1e-9 and SIDE_RATIO * up >= last_up and \
+                    coverage[layer] >= last_coverage and (len(out) == 1 or coverage[layer] >= share * footprint):
+                out[-1], last_up, last_coverage = z, up, int(coverage[layer])
             continue  # else a table, a bed, a landing on the floor below
         if out and coverage[layer] < share * footprint:
             continue  # a storey above: its floor spans much of the column (a beam's underside a strip)
         out.append(z)
-        out_up.append(up)
-        out_coverage.append(int(coverage[layer]))
+        last_up, last_coverage = up, int(coverage[layer])
     return np.asarray(out, dtype=np.float64)
