@@ -259,7 +259,15 @@ def finish_hits(t_hit: np.ndarray, triangle: np.ndarray, rays: np.ndarray, pulse
     n = len(t_hit)
     n_faces = len(face_component)
     n_blocks = (n + _BLOCK - 1) // _BLOCK
-    counts = kept_offsets(t_hit, triangle, n_faces, min_range, max_range)
+    counts = np.zeros(n_blocks + 1, dtype=np.int64)
+    for b in nb.prange(n_blocks):
+        c = 0
+        for i in range(b * _BLOCK, min(n, (b + 1) * _BLOCK)):
+            if _keep(t_hit[i], triangle[i], n_faces, min_range, max_range):
+                c += 1
+        counts[b + 1] = c
+    for b in range(n_blocks):
+        counts[b + 1] += counts[b]
     noisy = range_sigma_m > 0.0 or angle_sigma_rad > 0.0
     ox, oy, oz = origin_world[0], origin_world[1], origin_world[2]
     for b in nb.prange(n_blocks):
@@ -282,26 +290,6 @@ def finish_hits(t_hit: np.ndarray, triangle: np.ndarray, rays: np.ndarray, pulse
             time[out] = time0_s + p * pulse_period_s
             out += 1
     return counts[n_blocks]
-
-
-@nb.njit(cache=True, parallel=True)
-def kept_offsets(t_hit: np.ndarray, triangle: np.ndarray, n_faces: int, min_range: float,
-                 max_range: float) -> np.ndarray:
-    """(blocks + 1,) int64: where each block of ``_BLOCK`` hits starts writing its kept points
-    (see ``_keep``); the last entry is how many are kept. Fixed blocks, so the order of the points
-    never depends on the thread count."""
-    n = len(t_hit)
-    n_blocks = (n + _BLOCK - 1) // _BLOCK
-    counts = np.zeros(n_blocks + 1, dtype=np.int64)
-    for b in nb.prange(n_blocks):
-        c = 0
-        for i in range(b * _BLOCK, min(n, (b + 1) * _BLOCK)):
-            if _keep(t_hit[i], triangle[i], n_faces, min_range, max_range):
-                c += 1
-        counts[b + 1] = c
-    for b in range(n_blocks):
-        counts[b + 1] += counts[b]
-    return counts
 
 
 @nb.njit(cache=True, inline="always")

@@ -31,7 +31,7 @@ import numba as nb
 import numpy as np
 
 from bimscan.errors import ConfigError, ScannerSettingsError
-from bimscan.scan.kernels import _BLOCK, _FAST, _keep, hit_point, kept_offsets
+from bimscan.scan.kernels import _BLOCK, _FAST, _keep, hit_point
 from bimscan.scan.noise import MAX_ANGLE_SIGMA_DEG
 from bimscan.toml_files import build_dataclass, load_toml
 
@@ -281,7 +281,15 @@ def finish_moving_hits(t_hit: np.ndarray, triangle: np.ndarray, rays: np.ndarray
     n = len(t_hit)
     n_faces = len(face_component)
     n_blocks = (n + _BLOCK - 1) // _BLOCK
-    counts = kept_offsets(t_hit, triangle, n_faces, min_range, max_range)
+    counts = np.zeros(n_blocks + 1, dtype=np.int64)
+    for blk in nb.prange(n_blocks):
+        c = 0
+        for i in range(blk * _BLOCK, min(n, (blk + 1) * _BLOCK)):
+            if _keep(t_hit[i], triangle[i], n_faces, min_range, max_range):
+                c += 1
+        counts[blk + 1] = c
+    for blk in range(n_blocks):
+        counts[blk + 1] += counts[blk]
     noisy = range_sigma_m > 0.0 or angle_sigma_rad > 0.0
     for blk in nb.prange(n_blocks):
         out = counts[blk]
