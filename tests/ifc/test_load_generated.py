@@ -10,6 +10,7 @@ import pytest
 
 from bimscan.ifc.generate import make_building
 from bimscan.ifc.generate.layout import BuildingPlan, plan_building, planned_elements, storey_name
+from bimscan.ifc.generate.styles import STYLES
 from bimscan.pipeline import load_scene
 from bimscan.types import BimScene
 
@@ -51,15 +52,16 @@ def test_generated_buildings_load_with_the_planned_elements_labels_bounds_and_ro
         np.testing.assert_allclose(boxes, planned_boxes, atol=1e-3)
 
 
-def up_from(scene: BimScene, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Distance and IFC class of the first surface straight above each point (Open3D BVH)."""
+def up_from(scene: BimScene, points: np.ndarray, direction=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
+    """Distance and IFC class of the first surface straight above each point (or along
+    ``direction``; Open3D BVH)."""
     import open3d as o3d
 
     raycaster = o3d.t.geometry.RaycastingScene()
     raycaster.add_triangles(
         o3d.core.Tensor(scene.mesh.vertices.astype(np.float32)), o3d.core.Tensor(scene.mesh.faces.astype(np.uint32))
     )
-    rays = np.hstack([points, np.tile([0.0, 0.0, 1.0], (len(points), 1))]).astype(np.float32)
+    rays = np.hstack([points, np.tile(direction, (len(points), 1))]).astype(np.float32)
     hit = raycaster.cast_rays(o3d.core.Tensor(rays))
     t, face = hit["t_hit"].numpy(), hit["primitive_ids"].numpy()
     assert np.isfinite(t).all()
@@ -124,3 +126,35 @@ def test_a_suspended_ceiling_hides_the_beams_and_an_exposed_soffit_is_the_slab(t
     t, classes = looking_up(building.plan, load_scene(building.path))["rooms"]
     assert set(classes) <= {"IfcSlab", "IfcBeam"} and "IfcSlab" in set(classes)
     assert t[classes == "IfcSlab"] == pytest.approx(building.plan.soffit_m - 2.12, abs=1e-3)
+
+
+def test_a_rectangular_home_gets_an_attic_under_a_gable_roof_that_rises_at_its_pitch(tmp_path) -> None:
+    seed = first_seed("residential", 1, lambda p: p.roof is not None)
+    building = make_building(tmp_path / "house.ifc", seed=seed, storeys=1, style="residential")
+    plan, roof, scene = building.plan, building.plan.roof, load_scene(tmp_path / "house.ifc")
+    low, high = STYLES["residential"].roof_pitch_deg
+    assert plan.shape == "rectangle" and low <= roof.pitch_deg <= high
+    assert [s.name for s in scene.spaces if s.storey == storey_name(1)] == ["Attic Room"]
+    # Straight up from the attic floor, across the depth: the roof's underside, on the pitch.
+    x = plan.width_m / 2
+    ys = np.linspace(plan.exterior_wall_m + 0.2, plan.depth_m - plan.exterior_wall_m - 0.2, 9)
+    start = plan.roof_base_m + 0.05
+    t, classes = up_from(scene, np.array([[x, y, start] for y in ys]))
+    assert set(classes) == {"IfcSlab"}
+    from_facade = np.minimum(ys, plan.depth_m - ys)
+    expected = roof.knee_m + from_facade * np.tan(np.radians(roof.pitch_deg)) - 0.05
+    np.testing.assert_allclose(t, expected, atol=1e-3)
+    # Along the ridge, under it, the gable walls close both ends.
+    middle = np.array([[x, plan.depth_m / 2, plan.roof_base_m + roof.ridge_m(plan.depth_m) - 0.1]])
+    for sign in (-1.0, 1.0):
+        t, hit = up_from(scene, middle, direction=(sign, 0.0, 0.0))
+        assert hit.tolist() == ["IfcWall"] and t[0] == pytest.approx(x - plan.exterior_wall_m, abs=1e-3)
+    assert scene.mesh.bounds()[1][2] == pytest.approx(building.height_m, abs=1e-3)
+
+
+def test_only_rectangular_homes_get_gable_roofs() -> None:
+    plans = [plan_building(seed=seed, storeys=1, style=style) for style in STYLES for seed in range(30)]
+    gabled = [p for p in plans if p.roof is not None]
+    assert gabled and all(p.style == "residential" and p.shape == "rectangle" for p in gabled)
+    homes = [p for p in plans if p.style == "residential" and p.shape == "rectangle"]
+    assert len(gabled) < len(homes)  # the style's odds leave some flat

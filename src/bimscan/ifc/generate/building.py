@@ -7,7 +7,8 @@ authored with ``ifcopenshell.api``: project, site, building, storeys in metres; 
 along a rectilinear outline and interior walls, with door and window openings cut by
 IfcOpeningElements and filled with parametric doors and windows (one IfcDoorType or
 IfcWindowType per size, occurrences mapping its body); a column grid with beams under every
-slab; floor, base and roof slabs; a half-turn stair (flights, landing, railings) through a slab
+slab; floor, base and roof slabs (or, over rectangular homes, an attic under a gable roof:
+knee and gable walls, two pitched roof slabs); a half-turn stair (flights, landing, railings) through a slab
 opening; ceiling coverings cut around columns and downstand beams; furniture; and one IfcSpace
 per room for station planning. Shapes the api has no function for (stair flights, furniture,
 railings, coverings of several pieces) are built with IfcOpenShell's ShapeBuilder, as the api
@@ -47,7 +48,9 @@ from ifcopenshell.util.shape_builder import ShapeBuilder
 from bimscan.files import atomic_output
 from bimscan.errors import ConfigError, OutputError
 from bimscan.ifc.generate.layout import (
+    ATTIC_NAME,
     FURNITURE_TYPES,
+    GABLE_PARTS,
     ROOF_SLAB_NAME,
     STAIR_GUARD_NAME,
     BeamPlan,
@@ -55,6 +58,7 @@ from bimscan.ifc.generate.layout import (
     CeilingPlan,
     FurniturePlan,
     OpeningPlan,
+    RoofPlan,
     RoomPlan,
     StairPlan,
     StoreyPlan,
@@ -87,10 +91,12 @@ class GeneratedBuilding:
 
     placed: exact IFC class -> number of instances placed with body geometry (IfcSpace and
         IfcOpeningElement excluded), e.g. {"IfcWall": 40, "IfcSlab": 5, ...}.
-    rooms_per_storey: IfcSpace count per storey, bottom up.
-    storey_elevations_m: floor slab top of each storey, world Z in metres.
+    rooms_per_storey: IfcSpace count per IfcBuildingStorey, bottom up (an attic under a gable
+        roof is the last, with one).
+    storey_elevations_m: floor slab top of each IfcBuildingStorey, world Z in metres.
     footprint_m: (xmin, ymin, xmax, ymax) of the exterior walls' outer faces, metres.
-    height_m: top of the roof slab, world Z in metres (ground floor slab top at 0).
+    height_m: top of the building (flat roof slab or gable ridge), world Z in metres (ground
+        floor slab top at 0).
     plan: the plan the file was authored from (``layout.planned_elements(plan)`` lists what it holds).
     """
 
@@ -164,8 +170,8 @@ def build_building_model(
         storeys=storeys,
         style=style,
         placed=author.count_placed(),
-        rooms_per_storey=tuple(len(s.rooms) for s in plan.storeys),
-        storey_elevations_m=tuple(s.elevation_m for s in plan.storeys),
+        rooms_per_storey=tuple(len(s.rooms) for s in plan.storeys) + ((1,) if plan.roof is not None else ()),
+        storey_elevations_m=tuple(s.elevation_m for s in plan.storeys) + ((plan.roof_base_m,) if plan.roof else ()),
         footprint_m=(0.0, 0.0, plan.width_m, plan.depth_m),
         height_m=plan.height_m,
         plan=plan,
@@ -225,6 +231,11 @@ def _translate(matrix: np.ndarray, local: Sequence[float]) -> np.ndarray:
 
 
 Box = tuple[float, float, float, float, float, float]  # x, y, z, size_x, size_y, size_z (metres)
+
+
+def _mm(value: float) -> float:
+    """Round to a tenth of a millimetre: the file holds tidy numbers and no float noise."""
+    return round(float(value), 4)
 
 
 def _closed(points: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
@@ -342,6 +353,17 @@ class _Author:
             items.append(model.createIfcExtrudedAreaSolid(profile, position, up, sz))
         return model.createIfcShapeRepresentation(self.body, "Body", "SweptSolid", items)
 
+    def _section_body(self, section: Sequence[tuple[float, float]], length: float) -> ifcopenshell.entity_instance:
+        """A polygon in the local YZ plane ((y, z) pairs, metres) extruded ``length`` along local X."""
+        model = self.model
+        points = [model.createIfcCartesianPoint([_mm(y), _mm(z)]) for y, z in _closed(list(section))]
+        profile = model.createIfcArbitraryClosedProfileDef("AREA", None, model.createIfcPolyline(points))
+        # Profile X -> local Y, profile Y -> local Z; the extrusion runs along local X.
+        position = model.createIfcAxis2Placement3D(model.createIfcCartesianPoint([0.0, 0.0, 0.0]),
+                                                   self._direction((1.0, 0.0, 0.0)), self._direction((0.0, 1.0, 0.0)))
+        solid = model.createIfcExtrudedAreaSolid(profile, position, self._direction((0.0, 0.0, 1.0)), _mm(length))
+        return model.createIfcShapeRepresentation(self.body, "Body", "SweptSolid", [solid])
+
     def _direction(self, xyz: tuple[float, float, float]) -> ifcopenshell.entity_instance:
         if xyz not in self._directions:
             self._directions[xyz] = self.model.createIfcDirection(list(xyz))
@@ -377,18 +399,58 @@ class _Author:
         for storey, storey_plan in zip(storeys, plan.storeys):
             self.add_storey(storey, storey_plan)
         top = plan.storeys[-1]
-        self._element(
-            "IfcSlab",
-            name=ROOF_SLAB_NAME,
-            predefined_type="ROOF",
-            representation=self._slab_body(_closed(plan.outline_m), plan.slab_m),
-            matrix=_frame((0.0, 0.0, plan.height_m - plan.slab_m)),
-            container=storeys[-1],
-        )
+        if plan.roof is None:
+            self._element(
+                "IfcSlab",
+                name=ROOF_SLAB_NAME,
+                predefined_type="ROOF",
+                representation=self._slab_body(_closed(plan.outline_m), plan.slab_m),
+                matrix=_frame((0.0, 0.0, plan.roof_base_m - plan.slab_m)),
+                container=storeys[-1],
+            )
         if plan.stair is not None:
             self.add_guard(storeys[-1], plan.stair, top.elevation_m)
+        if plan.roof is not None:
+            self.add_attic(building, plan.roof)
         self._contain_all()
         self._assign_types()
+
+    def add_attic(self, building: ifcopenshell.entity_instance, roof: RoofPlan) -> None:
+        """The storey over the top slab: its floor, knee and gable walls, the two roof planes and
+        one space. Every part is a section in the YZ plane extruded along X."""
+        plan = self.plan
+        index = len(plan.storeys)
+        z = plan.roof_base_m
+        storey = self._element("IfcBuildingStorey", name=storey_name(index), matrix=_frame((0, 0, z)), whole=building)
+        storey.Elevation = z
+        storey.LongName = ATTIC_NAME
+        self._element(
+            "IfcSlab",
+            name=floor_slab_name(index),
+            predefined_type="FLOOR",
+            representation=self._slab_body(_closed(plan.outline_m), plan.slab_m),
+            matrix=_frame((0.0, 0.0, z - plan.slab_m)),
+            container=storey,
+        )
+        d, w, e = plan.depth_m, plan.width_m, plan.exterior_wall_m
+        knee, ridge, thick = roof.knee_m, roof.ridge_m(d), roof.vertical_thickness_m()
+        rise = math.tan(math.radians(roof.pitch_deg))  # per metre in Y
+        gable = [(0.0, 0.0), (d, 0.0), (d, knee), (d / 2, ridge), (0.0, knee)]
+        sections = {  # name -> (section (y, z above the attic floor), x start, length along X)
+            "Wall gable west": (gable, 0.0, e),
+            "Wall gable east": (gable, w - e, e),
+            "Wall knee south": ([(0.0, 0.0), (e, 0.0), (e, knee + e * rise), (0.0, knee)], e, w - 2 * e),
+            "Wall knee north": ([(d - e, 0.0), (d, 0.0), (d, knee), (d - e, knee + e * rise)], e, w - 2 * e),
+            "Roof slab south": ([(0.0, knee), (d / 2, ridge), (d / 2, ridge + thick), (0.0, knee + thick)], 0.0, w),
+            "Roof slab north": ([(d / 2, ridge), (d, knee), (d, knee + thick), (d / 2, ridge + thick)], 0.0, w),
+        }
+        for name, (section, x0, length) in sections.items():
+            ifc_class, predefined, _ = GABLE_PARTS[name]
+            self._element(ifc_class, name=name, predefined_type=predefined, matrix=_frame((x0, 0.0, z)),
+                          representation=self._section_body(section, length), container=storey)
+        room = plan.attic_room
+        assert room is not None
+        self.add_space(storey, room, z)
 
     def add_storey(self, storey: ifcopenshell.entity_instance, sp: StoreyPlan) -> None:
         plan = self.plan

@@ -266,6 +266,29 @@ class StoreyPlan:
 
 
 @dataclass(frozen=True)
+class RoofPlan:
+    """A gable roof over an attic (the storey above the top storey's slab).
+
+    The ridge runs along X over the middle of the depth. Both roof planes rise at ``pitch_deg``
+    from ``knee_m`` above the attic floor at the facades' outer faces (no eaves overhang), and
+    are ``thickness_m`` thick across the plane. Gable walls close both ends; knee walls carry
+    the long facades up to the roof.
+    """
+
+    pitch_deg: float
+    knee_m: float
+    thickness_m: float
+
+    def ridge_m(self, depth_m: float) -> float:
+        """Attic floor to the roof's underside at the ridge."""
+        return round(self.knee_m + depth_m / 2 * math.tan(math.radians(self.pitch_deg)), 6)
+
+    def vertical_thickness_m(self) -> float:
+        """The roof's thickness measured plumb."""
+        return round(self.thickness_m / math.cos(math.radians(self.pitch_deg)), 6)
+
+
+@dataclass(frozen=True)
 class BuildingPlan:
     """A whole seeded building. All lengths in metres, heights above the storey's floor.
 
@@ -274,6 +297,7 @@ class BuildingPlan:
     bay_south_m, bay_north_m: per bay, Y of the inner face of its south and north facade.
     columns, beams: the same on every storey. ``beam_bottom_m`` equals ``soffit_m`` where the
     building has no beams.
+    roof: the gable roof over an attic, or None for a flat roof slab.
     """
 
     seed: int
@@ -304,11 +328,28 @@ class BuildingPlan:
     beams: tuple[BeamPlan, ...]
     stair: StairPlan | None
     storeys: tuple[StoreyPlan, ...]
+    roof: RoofPlan | None = None
+
+    @property
+    def roof_base_m(self) -> float:
+        """Top of the slab over the top storey (world Z): the flat roof's top, or the attic floor."""
+        return round(len(self.storeys) * self.storey_height_m, 6)
 
     @property
     def height_m(self) -> float:
-        """Top of the roof slab (world Z)."""
-        return round(len(self.storeys) * self.storey_height_m, 6)
+        """Top of the building (world Z): the flat roof slab's top, or the gable roof's ridge."""
+        if self.roof is None:
+            return self.roof_base_m
+        return round(self.roof_base_m + self.roof.ridge_m(self.depth_m) + self.roof.vertical_thickness_m(), 6)
+
+    @property
+    def attic_room(self) -> RoomPlan | None:
+        """The attic's one room (its IfcSpace), between the facades' inner faces, up to the ridge."""
+        if self.roof is None:
+            return None
+        e = self.exterior_wall_m
+        rect = Rect(e, e, _r(self.width_m - e), _r(self.depth_m - e))
+        return RoomPlan(ATTIC_NAME, "room", rect, False, self.roof.ridge_m(self.depth_m))
 
     @property
     def soffit_m(self) -> float:
@@ -358,6 +399,15 @@ def floor_slab_name(storey: int) -> str:
 
 
 ROOF_SLAB_NAME = "Roof slab"
+ATTIC_NAME = "Attic"
+GABLE_PARTS = {  # element name -> (IFC class, predefined type, spc5 label) of a gable roof's attic
+    "Wall gable west": ("IfcWall", "SOLIDWALL", "Wall&Column"),
+    "Wall gable east": ("IfcWall", "SOLIDWALL", "Wall&Column"),
+    "Wall knee south": ("IfcWall", "SOLIDWALL", "Wall&Column"),
+    "Wall knee north": ("IfcWall", "SOLIDWALL", "Wall&Column"),
+    "Roof slab south": ("IfcSlab", "ROOF", "Slab"),
+    "Roof slab north": ("IfcSlab", "ROOF", "Slab"),
+}
 STAIR_GUARD_NAME = "Stair void guard"
 
 
@@ -404,9 +454,14 @@ def planned_elements(plan: BuildingPlan) -> tuple[PlannedElement, ...]:
             add(names["landing"], "IfcSlab", "LANDING", "Slab")
             add(names["handrail"], "IfcRailing", "HANDRAIL", "Others")
         if k == top:
-            add(ROOF_SLAB_NAME, "IfcSlab", "ROOF", "Slab")
+            if plan.roof is None:
+                add(ROOF_SLAB_NAME, "IfcSlab", "ROOF", "Slab")
             if plan.stair is not None:
                 add(STAIR_GUARD_NAME, "IfcRailing", "GUARDRAIL", "Others")
+    if plan.roof is not None:
+        attic = len(plan.storeys)
+        out.append(PlannedElement(attic, floor_slab_name(attic), "IfcSlab", "FLOOR", "Slab"))
+        out.extend(PlannedElement(attic, name, *part) for name, part in GABLE_PARTS.items())
     return tuple(out)
 
 
@@ -527,6 +582,7 @@ def plan_building(*, seed: int, storeys: int, style: str = "office") -> Building
                                    stair=stair is not None)
     if south_d == [south] * m and north_d == [north] * m:
         shape = "rectangle"
+    roof = _plan_roof(np.random.default_rng([seed, key, 3]), table, rectangle=shape == "rectangle")
 
     ca = _r(e + max(south_d) + tc / 2)  # south corridor wall centre line
     cb = _r(ca + tc + corridor)  # north corridor wall centre line
@@ -575,11 +631,24 @@ def plan_building(*, seed: int, storeys: int, style: str = "office") -> Building
         beams=tuple(beams),
         stair=stair,
         storeys=(),
+        roof=roof,
     )
     storey_plans = tuple(
         _plan_storey(plan, table, index=k, rng=np.random.default_rng([seed, key, 1, k])) for k in range(storeys)
     )
     return replace(plan, storeys=storey_plans)
+
+
+def _plan_roof(rng: np.random.Generator, table: BuildingStyle, *, rectangle: bool) -> RoofPlan | None:
+    """The gable roof of the style's odds over a rectangular footprint, else None (flat). Its own
+    random stream: the rest of the building does not depend on the roof."""
+    kind = _pick(rng, table.roofs)
+    pitch = round(_draw(rng, table.roof_pitch_deg), 1)
+    knee = _cm(_draw(rng, table.knee_wall_m))
+    thickness = _cm(_draw(rng, table.roof_m))
+    if kind != "gable" or not rectangle:
+        return None
+    return RoofPlan(pitch_deg=pitch, knee_m=knee, thickness_m=thickness)
 
 
 def _bay_depths(
