@@ -297,6 +297,19 @@ def test_a_generated_scene_follows_its_seed_and_one_edited_by_hand_is_made_again
     assert len(third.notes) == 1 and "was changed since it was generated" in third.notes[0]
 
 
+def test_a_scene_made_by_an_older_generator_is_made_again(tmp_path: Path, session_env: Path) -> None:
+    spec = _small_spec(tmp_path)
+    assert build_dataset(load_spec(spec), tmp_path / "out", executor="serial", progress=False).ok
+    scene, record = tmp_path / "out" / "scenes" / "good.ifc", tmp_path / "out" / "scenes" / "good.generated.json"
+    current = scene.read_bytes()
+    scene.write_bytes(current + b"/* what an older generator made */\n")  # the record vouches for these bytes,
+    old = json.loads(record.read_text()) | {"sha256": _sha256(scene), "generator": 1}  # under another version
+    record.write_text(json.dumps(old))
+    again = build_dataset(load_spec(spec), tmp_path / "out", executor="serial", progress=False)
+    assert scene.read_bytes() == current and again.notes == ()
+    assert json.loads(record.read_text())["generator"] > 1 and again.reused == 1  # same building, unit kept
+
+
 @pytest.mark.parametrize("edit", [
     lambda t: t.replace("head_deg_per_s = 360.0", "head_deg_per_s = nan"),
     lambda t: t.replace("head_deg_per_s = 360.0", "head_deg_per_s = inf"),

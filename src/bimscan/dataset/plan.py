@@ -28,6 +28,7 @@ from bimscan.dataset.layout import (
 )
 from bimscan.dataset.spec import DatasetSpec, SceneSpec, resolve_scheme
 from bimscan.errors import BimscanError
+from bimscan.ifc.generate.styles import GENERATOR_VERSION
 from bimscan.files import dump_json, file_sha256
 from bimscan.survey.mobile import AUTO_TRAJECTORY
 from bimscan.survey.recipe import AUTO_STATIONS, ScanRecipe
@@ -97,7 +98,8 @@ def generate_scenes(spec: DatasetSpec, folder: DatasetFolder) -> SceneFiles:
     """The IFC file of every scene, writing generated buildings that are missing or stale.
 
     A generated scene is kept only when ``scenes/<scene>.generated.json`` says it was made with
-    the spec's options by this software and the file still has the checksum recorded then;
+    the spec's options by this software and generator version and the file still has the
+    checksum recorded then;
     otherwise it is made again (a scene edited by hand is reported: scan your own model as an
     ``ifc = ...`` scene instead).
     """
@@ -112,7 +114,8 @@ def generate_scenes(spec: DatasetSpec, folder: DatasetFolder) -> SceneFiles:
             continue
         path = folder.generated_scene_path(scene.name)
         record_path = folder.generated_record_path(scene.name)
-        wanted = {"generate": dataclasses.asdict(scene.generate), "software": f"bimscan {__version__}"}
+        wanted = {"generate": dataclasses.asdict(scene.generate), "software": f"bimscan {__version__}",
+                  "generator": GENERATOR_VERSION}
         record = read_json(record_path) if record_path.is_file() else {}
         current = {k: record.get(k) for k in wanted} == wanted
         if path.is_file() and current and file_sha256(path) == record.get("sha256"):

@@ -30,6 +30,9 @@ from typing import Literal
 
 MIN_STOREYS = 1
 MAX_STOREYS = 10
+# Bumped whenever the same options make a different building: dataset builds record it and make
+# their generated scenes again when it changed (2: attics under gable roofs).
+GENERATOR_VERSION = 2
 
 # -- fixed dimensions (metres) -------------------------------------------------------------
 
