@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import ifcopenshell
@@ -55,6 +57,27 @@ def test_make_building_writes_the_chosen_style_and_says_so(
     model = ifcopenshell.open(str(out))
     assert model.by_type("IfcProject")[0].Name == f"bimscan {style} building"
     assert bool(model.by_type("IfcColumn")) == (style != "residential")
+
+
+def test_the_summary_says_which_roof_the_building_has(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from bimscan.ifc.generate.layout import plan_building
+
+    home = next(seed for seed in range(50) if plan_building(seed=seed, storeys=1, style="residential").roof)
+    assert main(["make-building", str(tmp_path / "home.ifc"), "--seed", str(home), "--storeys", "1",
+                 "--style", "residential"]) == 0
+    assert main(["make-building", str(tmp_path / "office.ifc"), "--seed", "3", "--storeys", "1"]) == 0
+    home_line, office_line = capsys.readouterr().out.splitlines()
+    assert "attic under a" in home_line and "deg gable roof" in home_line
+    assert "flat roof" in office_line
+    storeys = ifcopenshell.open(str(tmp_path / "home.ifc")).by_type("IfcBuildingStorey")
+    assert sorted(s.LongName or "" for s in storeys) == ["", "Attic"]
+
+
+def test_the_command_line_loads_without_ifcopenshell() -> None:
+    # Every command's --help and argument errors come before any IFC work: starting the CLI must
+    # not pay for IfcOpenShell (the style table is plain data).
+    code = "import sys, bimscan.cli.main; sys.exit(int('ifcopenshell' in sys.modules))"
+    assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0
 
 
 def test_an_unknown_style_gives_a_one_line_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
