@@ -21,7 +21,9 @@ if TYPE_CHECKING:
 
 _AUTHORING = ("GeneratedBuilding", "build_building_model", "check_building_options", "make_building")
 
-__all__ = ["DEFAULT_STYLE", "STYLES", *_AUTHORING]
+__all__ = [
+    "DEFAULT_STYLE", "STYLES", "GeneratedBuilding", "build_building_model", "check_building_options", "make_building",
+]
 
 
 def __getattr__(name: str) -> Any:
