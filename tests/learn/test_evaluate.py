@@ -59,6 +59,59 @@ def test_each_scene_is_scored_on_every_point_with_mean_and_pooled_rows(
     assert "IoU per class" in files.markdown.read_text(encoding="utf-8")
 
 
+def _components(ifc_classes: list[str], labels: list[int]):
+    from bimscan.types import ComponentTable
+
+    n = len(ifc_classes)
+    text = lambda values: np.array(values, dtype=str)  # noqa: E731
+    return ComponentTable(global_id=text([f"g{i}" for i in range(n)]), ifc_class=text(ifc_classes),
+                          predefined_type=text([""] * n), name=text([f"c{i}" for i in range(n)]),
+                          storey=text([""] * n), parent_class=text([""] * n), label=np.array(labels, dtype=np.uint8))
+
+
+@pytest.mark.parametrize("name", ["scene.laz", "scene"])  # LAZ, NumPy folder
+def test_a_bimscan_cloud_is_also_scored_per_ifc_class(tmp_path: Path, trained_run: Path,
+                                                      room: Callable[..., PointCloud], name: str) -> None:
+    from bimscan.io import open_cloud_writer
+    from bimscan.semantics.scheme import load_scheme
+    from bimscan.types import CloudHeader
+
+    cloud = room(42, points_per_m2=30)
+    rng = np.random.default_rng(0)
+    # components 0-4 carry the points of their own class; some wall points lie on a column (5);
+    # some Others points on no component (-1: as a scan's clutter outside the model)
+    component = cloud.label.astype(np.int32)
+    component[(cloud.label == 0) & (rng.random(len(cloud)) < 0.3)] = 5
+    component[(cloud.label == 4) & (rng.random(len(cloud)) < 0.3)] = -1
+    components = _components(["IfcWall", "IfcBeam", "IfcCovering", "IfcSlab", "IfcFurniture", "IfcColumn"],
+                             [0, 1, 2, 3, 4, 0])
+    with open_cloud_writer(tmp_path / name, header=CloudHeader(scheme=load_scheme(), components=components)) as out:
+        out.write(PointCloud(xyz=cloud.xyz, label=cloud.label, component=component))
+
+    (result,) = evaluate_checkpoint(trained_run / "run" / "last.pt", [tmp_path / name], device="cpu")
+
+    elements = result.elements
+    assert elements is not None
+    rows = {(c, t): counts for c, t, counts in zip(elements.ifc_class, elements.truth, elements.counts, strict=True)}
+    assert set(rows) == {("IfcWall", "Wall&Column"), ("IfcColumn", "Wall&Column"), ("IfcBeam", "Beam"),
+                         ("IfcCovering", "Covering"), ("IfcSlab", "Slab"), ("IfcFurniture", "Others"),
+                         ("(no component)", "")}
+    for (ifc_class, _), counts in rows.items():  # every point counted once, on its own component
+        index = {"IfcWall": 0, "IfcBeam": 1, "IfcCovering": 2, "IfcSlab": 3, "IfcFurniture": 4, "IfcColumn": 5}
+        assert counts.sum() == (component == index.get(ifc_class, -1)).sum()
+    # the rows of one labelled class add up to that class's row of the confusion matrix
+    confusion = result.labels.confusion
+    np.testing.assert_array_equal(rows[("IfcWall", "Wall&Column")] + rows[("IfcColumn", "Wall&Column")], confusion[0])
+    np.testing.assert_array_equal(rows[("IfcFurniture", "Others")] + rows[("(no component)", "")], confusion[4])
+    np.testing.assert_array_equal(rows[("IfcSlab", "Slab")], confusion[3])
+    files = write_evaluation([result], tmp_path / "eval", result.class_names)
+    assert files.elements is not None and files.elements in files.paths()
+    table = list(csv.reader(files.elements.read_text(encoding="utf-8").splitlines()))
+    assert table[0][:4] == ["scene", "ifc_class", "labelled", "points"] and len(table) == 1 + 2 * len(rows)
+    markdown = files.markdown.read_text(encoding="utf-8")
+    assert "Where each IFC class's points went" in markdown and "| IfcColumn | Wall&Column |" in markdown
+
+
 def test_a_scene_without_ground_truth_is_refused(tmp_path: Path, trained_run: Path,
                                                  room: Callable[..., PointCloud]) -> None:
     cloud = room(40, points_per_m2=10)

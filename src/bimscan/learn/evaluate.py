@@ -10,7 +10,10 @@ each class per scene and over all points. Files written by ``write_evaluation``:
 - ``evaluation.json``: per scene and for ``mean`` and ``all points``, the five metrics, IoU,
   accuracy (recall) and support per class name, and the confusion matrix (rows = ground truth,
   columns = prediction, counts); NaN (an absent class) is written as null;
-- ``confusion.csv`` (counts) and ``confusion.png`` (row-normalised): the pooled matrix.
+- ``confusion.csv`` (counts) and ``confusion.png`` (row-normalised): the pooled matrix;
+- for bimscan clouds (whose points carry the component they lie on): ``elements.csv``, where the
+  points of each IFC class went (per scene and over all points), and the same over all points
+  as a last table in ``evaluation.md``.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ import numpy as np
 
 from bimscan.errors import LearnError
 from bimscan.files import dump_json, write_atomic
+from bimscan.io import read_cloud_header
 from bimscan.learn.checkpoint import load_trained_model
 from bimscan.learn.data import list_scenes
 from bimscan.learn.infer import SceneLabels, label_scene
@@ -35,9 +39,60 @@ from bimscan.learn.metrics import METRIC_NAMES, SegmentationMetrics, compute_met
 from bimscan.learn.model import pick_device
 from bimscan.learn.plots import plot_confusion
 from bimscan.learn.train_config import EvalConfig
+from bimscan.types import CloudHeader
 
 HEADINGS = {"oa": "OA", "miou": "mIoU", "macc": "mAcc", "fwiou": "FWIoU", "kappa": "κ"}
 CONFUSION_AXES = "rows: ground truth, columns: prediction"
+NO_COMPONENT = "(no component)"
+ELEMENT_TABLE_MIN_SHARE = 0.005  # evaluation.md lists the IFC classes holding at least this share of the points
+
+
+@dataclass(frozen=True)
+class ElementBreakdown:
+    """Where the points of each IFC class went, in a bimscan cloud (its points carry component ids).
+
+    One row per (IFC class, the class its components carry in the scene's labels): ``ifc_class``
+    and ``truth`` name it, ``counts`` (R, C) int64 holds its points per predicted class (the
+    checkpoint's classes). Points on no component are the row (``NO_COMPONENT``, "").
+    """
+
+    ifc_class: tuple[str, ...]
+    truth: tuple[str, ...]
+    counts: np.ndarray
+
+    @staticmethod
+    def of(element_counts: np.ndarray, header: CloudHeader) -> ElementBreakdown:
+        """Group a scene's per-component counts ((E + 1, C), last row: no component) by IFC class."""
+        components = header.components
+        assert components is not None
+        names = header.scheme.names
+        keys = [(str(c), names.get(int(label), str(int(label))))
+                for c, label in zip(components.ifc_class, components.label, strict=True)] + [(NO_COMPONENT, "")]
+        return _grouped(keys, element_counts)
+
+    @property
+    def points(self) -> np.ndarray:
+        return self.counts.sum(axis=1)
+
+
+def _grouped(keys: Sequence[tuple[str, str]], counts: np.ndarray) -> ElementBreakdown:
+    """Rows of ``counts`` summed by key, sorted by key; keys without points are dropped."""
+    rows: dict[tuple[str, str], np.ndarray] = {}
+    for key, row in zip(keys, np.asarray(counts, dtype=np.int64), strict=True):
+        rows[key] = rows[key] + row if key in rows else row.copy()
+    kept = sorted(k for k, row in rows.items() if row.sum() > 0)
+    width = counts.shape[1]
+    return ElementBreakdown(tuple(k[0] for k in kept), tuple(k[1] for k in kept),
+                            np.array([rows[k] for k in kept], dtype=np.int64).reshape(len(kept), width))
+
+
+def pool_elements(results: Sequence[SceneEvaluation]) -> ElementBreakdown | None:
+    """The scenes' breakdowns summed row by row (None when no scene has one)."""
+    found = [r.elements for r in results if r.elements is not None]
+    if not found:
+        return None
+    keys = [key for b in found for key in zip(b.ifc_class, b.truth, strict=True)]
+    return _grouped(keys, np.concatenate([b.counts for b in found]))
 
 
 @dataclass(frozen=True)
@@ -51,6 +106,7 @@ class SceneEvaluation:
     metrics: SegmentationMetrics
     class_names: tuple[str, ...]
     evaluation: EvalConfig  # how the scene was labelled
+    elements: ElementBreakdown | None = None  # bimscan clouds: where each IFC class's points went
 
 
 def evaluate_checkpoint(
@@ -72,18 +128,25 @@ def evaluate_checkpoint(
     sources = list_scenes(scenes, label_field=label_field, mapping=mapping)
     results = []
     for source in sources:
+        header = read_cloud_header(source.path) if source.kind != "s3dis" else None
+        components = header.components if header is not None else None
         labels = label_scene(
             trained.model, source, class_names=trained.class_names, blocks=trained.config.blocks,
             evaluation=evaluation, device=torch_device, amp=trained.config.train.amp, seed=seed,
             max_passes=max_passes, work_dir=work_dir, inputs=trained.config.input, warn=warn,
+            elements=0 if components is None else len(components.ifc_class),
         )
         if labels.labelled == 0:
             raise LearnError(
                 f"{source.path}: no point has a ground-truth class among {', '.join(trained.class_names)}; "
                 "evaluation needs labels (check --label-field/--mapping, or use 'bimscan predict')"
             )
+        elements = None
+        if header is not None and labels.element_counts is not None:
+            elements = ElementBreakdown.of(labels.element_counts, header)
         results.append(SceneEvaluation(
             source.name, source.path, labels, compute_metrics(labels.confusion), trained.class_names, evaluation,
+            elements,
         ))
     return results
 
@@ -224,6 +287,45 @@ def _scene_mean(values: Sequence[np.ndarray]) -> np.ndarray:
     return np.where(count > 0, total / np.maximum(count, 1), np.nan)
 
 
+def format_elements_markdown(breakdown: ElementBreakdown, class_names: Sequence[str], *,
+                             min_share: float = ELEMENT_TABLE_MIN_SHARE) -> str:
+    """Where each IFC class's points went, as Markdown (percent of the row's points, one decimal),
+    largest first; rows under ``min_share`` of all points are left out (and counted below)."""
+    points = breakdown.points
+    total = max(int(points.sum()), 1)
+    lines = ["| IFC class | labelled | points | share | " + " | ".join(c.replace("|", "\\|") for c in class_names)
+             + " | right |", "|---|---|---:|---:|" + "---:|" * (len(class_names) + 1)]
+    order = np.argsort(-points, kind="stable")
+    shown = [int(i) for i in order if points[i] >= min_share * total]
+    for i in shown:
+        row = breakdown.counts[i] / max(int(points[i]), 1)
+        truth = breakdown.truth[i]
+        right = _percent(float(row[list(class_names).index(truth)])) if truth in class_names else "-"
+        lines.append(f"| {breakdown.ifc_class[i]} | {truth or '-'} | {int(points[i]):,} | "
+                     f"{100 * points[i] / total:.1f} | " + " | ".join(_percent(float(v)) for v in row)
+                     + f" | {right} |")
+    text = "\n".join(lines) + "\n"
+    left = len(points) - len(shown)
+    if left:
+        text += (f"\n{left} more row(s) under {100 * min_share:g} % of the points each "
+                 f"({int(points.sum() - points[shown].sum()):,} points; all in elements.csv).\n")
+    return text
+
+
+def format_elements_csv(results: Sequence[SceneEvaluation], class_names: Sequence[str]) -> str:
+    """Per scene with a breakdown, then over all points: IFC class, its labelled class, points and
+    the points per predicted class."""
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(["scene", "ifc_class", "labelled", "points", *(f"predicted_{c}" for c in class_names)])
+    pooled = pool_elements(results)
+    rows = [(r.scene, r.elements) for r in results if r.elements is not None]
+    for scene, breakdown in rows + ([("all points", pooled)] if pooled is not None else []):
+        for ifc_class, truth, counts in zip(breakdown.ifc_class, breakdown.truth, breakdown.counts, strict=True):
+            writer.writerow([scene, ifc_class, truth, int(counts.sum()), *(int(v) for v in counts)])
+    return buffer.getvalue()
+
+
 def format_confusion_csv(confusion: np.ndarray, class_names: Sequence[str]) -> str:
     """A (C, C) confusion matrix of counts as CSV: the header names the predicted classes, the
     first column the ground-truth classes."""
@@ -244,22 +346,31 @@ class EvaluationFiles:
     json: Path
     confusion_table: Path
     confusion_plot: Path
+    elements: Path | None = None  # bimscan clouds only
 
     def paths(self) -> tuple[Path, ...]:
-        """Every file, in the order of the fields."""
-        return (self.markdown, self.table, self.json, self.confusion_table, self.confusion_plot)
+        """Every file written, in the order of the fields."""
+        files = (self.markdown, self.table, self.json, self.confusion_table, self.confusion_plot, self.elements)
+        return tuple(p for p in files if p is not None)
 
 
 def write_evaluation(results: Sequence[SceneEvaluation], out_dir: Path, class_names: Sequence[str], *,
                      title: str = "") -> EvaluationFiles:
     """Write ``evaluation.md``, ``evaluation.csv``, ``evaluation.json``, ``confusion.csv`` and
     ``confusion.png`` (titled ``title``, default "Confusion, all points") into ``out_dir``
-    (created if missing)."""
+    (created if missing), and ``elements.csv`` when a scene is a bimscan cloud."""
     out_dir.mkdir(parents=True, exist_ok=True)
+    elements = pool_elements(results)
     files = EvaluationFiles(out_dir / "evaluation.md", out_dir / "evaluation.csv", out_dir / "evaluation.json",
-                            out_dir / "confusion.csv", out_dir / "confusion.png")
+                            out_dir / "confusion.csv", out_dir / "confusion.png",
+                            out_dir / "elements.csv" if elements is not None else None)
     pooled = pool_confusion(results) if results else np.zeros((len(class_names),) * 2, np.int64)
-    write_atomic(files.markdown, format_markdown(results).encode("utf-8"))
+    markdown = format_markdown(results)
+    if elements is not None and files.elements is not None:
+        markdown += ("\nWhere each IFC class's points went, all points (percent of its points; 'right': the "
+                     "class its components are labelled):\n\n" + format_elements_markdown(elements, class_names))
+        write_atomic(files.elements, format_elements_csv(results, class_names).encode("utf-8"))
+    write_atomic(files.markdown, markdown.encode("utf-8"))
     write_atomic(files.table, format_csv(results, class_names).encode("utf-8"))
     write_atomic(files.json, dump_json(evaluation_document(results, class_names)))
     write_atomic(files.confusion_table, format_confusion_csv(pooled, class_names).encode("utf-8"))

@@ -58,7 +58,7 @@ from bimscan.types import PointCloud
 
 SPREAD_CHUNK = 262_144  # points interpolated at a time (see spread_votes)
 SPREAD_CELLS = 1.5  # voxels per cell of the vote-spreading grid (bimscan.learn.neighbours)
-RECORD = np.dtype([("xyz", "<f8", (3,)), ("label", "u1"), ("index", "<i8")])
+RECORD = np.dtype([("xyz", "<f8", (3,)), ("label", "u1"), ("index", "<i8"), ("component", "<i4")])
 MIN_PADDED = 16  # blocks smaller than N run padded to a power of two at least this
 BUILDING_EXTENT_M = 2_000.0  # wider than this, or taller than BUILDING_HEIGHT_M: likely not metres
 BUILDING_HEIGHT_M = 300.0
@@ -71,7 +71,9 @@ class SceneLabels:
     ``confusion`` (C, C) int64 against the scene's ground truth (all zero without labels);
     ``lower``/``upper`` (3,) float64 metres bound the points; ``nearest_filled`` counts points
     no block pass saw (only with ``max_passes``), labelled from their nearest neighbour;
-    ``network_points``: the points that went through the network (the representatives).
+    ``network_points``: the points that went through the network (the representatives);
+    ``element_counts`` (E + 1, C) int64: predictions per component id of the scene's points
+    (row E: points without a component), when asked for ``elements`` = E, else None.
     """
 
     name: str
@@ -85,6 +87,7 @@ class SceneLabels:
     upper: np.ndarray
     seconds: float
     network_points: int = 0
+    element_counts: np.ndarray | None = None
 
 
 def _seed(*parts: int) -> np.random.SeedSequence:
@@ -147,7 +150,7 @@ def label_scene(
     evaluation: EvalConfig | None = None, inputs: InputConfig | None = None, device: torch.device | str = "cpu",
     amp: str = "off", seed: int = 0, use_labels: bool = True, work_dir: Path | None = None,
     on_labels: Callable[[np.ndarray, np.ndarray], None] | None = None, chunk_points: int = CHUNK_POINTS,
-    max_passes: int = 0, warn: Callable[[str], None] | None = None,
+    max_passes: int = 0, warn: Callable[[str], None] | None = None, elements: int = 0,
 ) -> SceneLabels:
     """Predict a class for every point of ``source`` (see the module docstring).
 
@@ -159,12 +162,15 @@ def label_scene(
     (default: the system's temporary folder). ``max_passes`` > 0 caps the groups per block
     (points left out take their nearest voted neighbour's class). ``warn`` receives one line
     when the scene's extent looks like another unit than metres (default: a Python warning).
+    ``elements`` > 0: the scene's points carry component ids (a bimscan cloud's ``component``)
+    of that many components; the predictions are counted per component (``element_counts``).
     """
     evaluation = evaluation or EvalConfig()
     inputs = inputs or InputConfig(grid_m=0.0, features=("xyz",))
     return _Labeller(model, source, class_names=class_names, blocks=blocks, evaluation=evaluation, inputs=inputs,
                      device=torch.device(device), amp=amp, seed=seed, use_labels=use_labels, on_labels=on_labels,
-                     max_passes=max_passes).run(work_dir=work_dir, chunk_points=chunk_points, warn=warn)
+                     max_passes=max_passes, elements=elements).run(work_dir=work_dir, chunk_points=chunk_points,
+                                                                   warn=warn)
 
 
 @dataclass
@@ -195,7 +201,9 @@ class _Labeller:
     use_labels: bool
     on_labels: Callable[[np.ndarray, np.ndarray], None] | None
     max_passes: int
+    elements: int = 0
     confusion: np.ndarray = field(init=False)
+    element_counts: np.ndarray | None = field(init=False, default=None)
     labelled: int = 0
     nearest_filled: int = 0
     block_count: int = 0
@@ -205,6 +213,8 @@ class _Labeller:
         started = time.perf_counter()
         classes = len(self.class_names)
         self.confusion = np.zeros((classes, classes), dtype=np.int64)
+        if self.elements > 0:
+            self.element_counts = np.zeros((self.elements + 1, classes), dtype=np.int64)
         self.stride = self.evaluation.stride_for(self.blocks.size_m)
         self.k = int(round(self.blocks.size_m / self.stride))
         self.runner = BlockRunner(self.model, device=self.device, batch_size=self.evaluation.batch_size, amp=self.amp)
@@ -220,6 +230,7 @@ class _Labeller:
             name=self.source.name, points=sum(counts.values()), labelled=self.labelled, confusion=self.confusion,
             blocks=self.block_count, passes=self.runner.passes, nearest_filled=self.nearest_filled, lower=lower,
             upper=upper, seconds=time.perf_counter() - started, network_points=self.network_points,
+            element_counts=self.element_counts,
         )
 
     # -- 1. the scene into stripe files ---------------------------------------------------------
@@ -246,6 +257,7 @@ class _Labeller:
             records["xyz"] = chunk.xyz
             records["label"] = chunk.label if self.use_labels and chunk.label is not None else IGNORE_LABEL
             records["index"] = np.arange(total, total + n, dtype=np.int64)
+            records["component"] = chunk.component if chunk.component is not None else -1
             total += n
             lower = np.minimum(lower, chunk.xyz.min(axis=0))
             upper = np.maximum(upper, chunk.xyz.max(axis=0))
@@ -388,6 +400,12 @@ class _Labeller:
         truth = records["label"]
         self.labelled += int((truth != IGNORE_LABEL).sum())
         self.confusion += compute_confusion(truth, prediction, num_classes=len(self.class_names))
+        if self.element_counts is not None:
+            component = records["component"].astype(np.int64)
+            component[(component < 0) | (component >= self.elements)] = self.elements  # no component
+            classes = len(self.class_names)
+            self.element_counts += np.bincount(component * classes + prediction, minlength=self.element_counts.size
+                                               ).reshape(self.element_counts.shape)
         if self.on_labels is not None:
             self.on_labels(records["index"], prediction)
 

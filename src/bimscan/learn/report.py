@@ -67,6 +67,8 @@ def format_report(experiment: Experiment, results: Sequence[VariantResult]) -> s
                 row = r.holdout["buildings"].get(name)  # type: ignore[index]
                 cells.append("-" if row is None else f"{_pct(row['oa'])} / {_pct(row['miou'])}")
             lines.append(f"| {name} | " + " | ".join(cells) + " |")
+        lines += ["", "Where each IFC class's points went (per building and pooled): "
+                  "`variants/<variant>/.../holdout/elements.csv`, pooled in its `evaluation.md`."]
     lines += ["", "Variants:", ""]
     for r in results:
         how = []
