@@ -7,10 +7,10 @@ authored with ``ifcopenshell.api``: project, site, building, storeys in metres; 
 along a rectilinear outline and interior walls, with door and window openings cut by
 IfcOpeningElements and filled with parametric doors and windows (one IfcDoorType or
 IfcWindowType per size, occurrences mapping its body); a column grid with beams under every
-slab; floor, base and roof slabs (or, over rectangular homes, an attic under a gable roof:
-knee and gable walls, two pitched roof slabs); a half-turn stair (flights, landing, railings) through a slab
-opening; ceiling coverings cut around columns and downstand beams; furniture; and one IfcSpace
-per room for station planning. Shapes the api has no function for (stair flights, furniture,
+slab; floor, base and roof slabs (or, over most rectangular homes, an attic under a gable roof:
+knee and gable walls, two pitched roof slabs); a half-turn stair (flights, landing, railings)
+through a slab opening; ceiling coverings cut around columns and downstand beams; furniture;
+and one IfcSpace per room for station planning. Shapes the api has no function for (stair flights, furniture,
 railings, coverings of several pieces) are built with IfcOpenShell's ShapeBuilder, as the api
 itself does.
 
@@ -171,7 +171,8 @@ def build_building_model(
         style=style,
         placed=author.count_placed(),
         rooms_per_storey=tuple(len(s.rooms) for s in plan.storeys) + ((1,) if plan.roof is not None else ()),
-        storey_elevations_m=tuple(s.elevation_m for s in plan.storeys) + ((plan.roof_base_m,) if plan.roof else ()),
+        storey_elevations_m=tuple(s.elevation_m for s in plan.storeys)
+        + ((plan.roof_base_m,) if plan.roof is not None else ()),
         footprint_m=(0.0, 0.0, plan.width_m, plan.depth_m),
         height_m=plan.height_m,
         plan=plan,
