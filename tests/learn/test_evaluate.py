@@ -63,7 +63,10 @@ def _components(ifc_classes: list[str], labels: list[int]):
     from bimscan.types import ComponentTable
 
     n = len(ifc_classes)
-    text = lambda values: np.array(values, dtype=str)  # noqa: E731
+
+    def text(values: list[str]) -> np.ndarray:
+        return np.array(values, dtype=str)
+
     return ComponentTable(global_id=text([f"g{i}" for i in range(n)]), ifc_class=text(ifc_classes),
                           predefined_type=text([""] * n), name=text([f"c{i}" for i in range(n)]),
                           storey=text([""] * n), parent_class=text([""] * n), label=np.array(labels, dtype=np.uint8))
@@ -96,8 +99,8 @@ def test_a_bimscan_cloud_is_also_scored_per_ifc_class(tmp_path: Path, trained_ru
     assert set(rows) == {("IfcWall", "Wall&Column"), ("IfcColumn", "Wall&Column"), ("IfcBeam", "Beam"),
                          ("IfcCovering", "Covering"), ("IfcSlab", "Slab"), ("IfcFurniture", "Others"),
                          ("(no component)", "")}
+    index = {"IfcWall": 0, "IfcBeam": 1, "IfcCovering": 2, "IfcSlab": 3, "IfcFurniture": 4, "IfcColumn": 5}
     for (ifc_class, _), counts in rows.items():  # every point counted once, on its own component
-        index = {"IfcWall": 0, "IfcBeam": 1, "IfcCovering": 2, "IfcSlab": 3, "IfcFurniture": 4, "IfcColumn": 5}
         assert counts.sum() == (component == index.get(ifc_class, -1)).sum()
     # the rows of one labelled class add up to that class's row of the confusion matrix
     confusion = result.labels.confusion
