@@ -114,7 +114,7 @@ def list_scenes(
     return scenes
 
 
-def _stored_header(source: SceneSource) -> CloudHeader | None:
+def stored_header(source: SceneSource) -> CloudHeader | None:
     """The CloudHeader bimscan stored with the scene, or None (foreign files, text, S3DIS)."""
     return read_cloud_header(source.path)
 
@@ -133,7 +133,7 @@ def build_scene_label_table(
         )
     names = None
     if source.label_field is None:
-        header = header if header is not None else _stored_header(source)
+        header = header if header is not None else stored_header(source)
         if header is not None:
             names = header.scheme.names
     return build_label_table(class_names=class_names, mapping=source.mapping, source_names=names)
@@ -167,7 +167,7 @@ def iter_scene_chunks(
     has no ground truth: LearnError once the stream ends (before any result is used), unless a
     label field or a mapping says where its labels are.
     """
-    header = _stored_header(source)
+    header = stored_header(source)
     table = build_scene_label_table(source, class_names=class_names, header=header)
     asprs = _reads_asprs_classification(source, header)
     classified = False

@@ -30,9 +30,8 @@ import numpy as np
 
 from bimscan.errors import LearnError
 from bimscan.files import dump_json, write_atomic
-from bimscan.io import read_cloud_header
 from bimscan.learn.checkpoint import load_trained_model
-from bimscan.learn.data import list_scenes
+from bimscan.learn.data import list_scenes, stored_header
 from bimscan.learn.infer import SceneLabels, label_scene
 from bimscan.learn.mapping import LabelMapping
 from bimscan.learn.metrics import METRIC_NAMES, SegmentationMetrics, compute_metrics
@@ -128,7 +127,7 @@ def evaluate_checkpoint(
     sources = list_scenes(scenes, label_field=label_field, mapping=mapping)
     results = []
     for source in sources:
-        header = read_cloud_header(source.path) if source.kind != "s3dis" else None
+        header = stored_header(source)
         components = header.components if header is not None else None
         labels = label_scene(
             trained.model, source, class_names=trained.class_names, blocks=trained.config.blocks,

@@ -36,10 +36,11 @@ of their floor). A tile's candidate within ``SCENE_MATCH_M`` of a scene floor ne
 up more often than down; one away from every scene floor is a floor of its own (a split level)
 only when it covers most of its tile, what stands on it rises from it (walls, furniture, seen
 within ``NEAR_M`` to ``FAR_M`` above it, against below it), and the scene's floor under it is
-hidden in its tile (a table stands over a floor that shows). A point's floor is the highest floor of its tile at most
-``ABOVE_TOLERANCE_M`` above it (the floor's own points lie on it); a point below every floor
-takes the lowest. Tiles without a floor (a floor hidden under furniture, a tile of wall only)
-take the scene's floors, and a tile's floors are completed by the scene floors it does not show.
+hidden in its tile (a table stands over a floor that shows). A point's floor is the highest
+floor of its tile at most ``ABOVE_TOLERANCE_M`` above it (the floor's own points lie on it); a
+point below every floor takes the lowest. Tiles without a floor (a floor hidden under furniture,
+a tile of wall only) take the scene's floors, and a tile's floors are completed by the scene
+floors it does not show.
 
 A point's *storey* is the scene floor nearest its own floor (``storey_of``): blocks of the network
 are cut per storey, so a column of a five-storey building is five blocks of one storey each, as
