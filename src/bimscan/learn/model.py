@@ -148,26 +148,22 @@ class OffsetAttention(nn.Module):
         if not torch.is_grad_enabled():
             return self._forward_rows(x, mask)
         q = self.qk(x)  # (B, D/4, N)
+        values = self.v(x)
         # energy, softmax and column sums in float32 even under AMP: float16 energies overflow
-        # (max 65504) and 1e-9 + 0 is 0 in float16, so padded columns would divide 0 by 0
+        # (max 65504) and 1e-9 + 0 is 0 in float16, so padded columns would divide 0 by 0; the
+        # attended values too: the columns of the softmax are not yet L1-normalised, so a column
+        # sum (up to N = 8192 queries) times large values would overflow float16 before the division
         with torch.autocast(device_type=x.device.type, enabled=False):
             qf = q.float()
-            energy = torch.bmm(qf.transpose(1, 2), qf)  # (B, N_query, N_key)
-            if mask is not None:
-                energy.masked_fill_(~mask[:, None, :], float("-inf"))  # padded keys get no weight
-            attention = torch.softmax(energy, dim=-1)
+            carried, key_bias = _carried_and_key_bias(values, mask)
+            rows = qf.transpose(1, 2)
+            # the key mask rides in the product (no pass of its own over the N x N energy, nor
+            # over its gradient): the two passes cost a padded batch 26 % of a training step
+            energy = torch.bmm(rows, qf) if key_bias is None else torch.baddbmm(key_bias, rows, qf)
+            attention = torch.softmax(energy, dim=-1)  # (B, N_query, N_key)
             del energy  # not needed by backward: free it before the next N x N tensor
-            if mask is None:
-                column_sum = attention.sum(dim=1, keepdim=True)  # (B, 1, N_key)
-            else:  # padded queries do not count in the L1 either
-                column_sum = torch.bmm(mask[:, None, :].float(), attention)
-        values = self.v(x)
-        if mask is not None:
-            values = values.masked_fill(~mask[:, None, :], 0.0)  # padded queries send nothing
-        with torch.autocast(device_type=x.device.type, enabled=False):
-            # float32 too: the columns of the softmax are not yet L1-normalised, so a column sum
-            # (up to N = 8192 queries) times large values would overflow float16 before the division
-            attended = torch.bmm(values.float(), attention) / (1e-9 + column_sum)  # (B, D, N): j sums over i
+            total = torch.bmm(carried, attention)  # (B, D + 1, N): j sums over i, the column sums last
+            attended = total[:, :-1] / (1e-9 + total[:, -1:])
         return self._offset(x, attended, mask)
 
     def _offset(self, x: torch.Tensor, attended: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
@@ -179,33 +175,44 @@ class OffsetAttention(nn.Module):
 
         The whole (B, N, N) attention is memory traffic, not arithmetic, at the network's
         width (D/4 = 8 channels of energy): written by one product, read and written by the
-        mask and the softmax, read by two more products. Here query rows are taken a slice at
-        a time, small enough to stay in the processor's cache through energy, softmax and the
-        product with the values, and the column sums ride along as one more row of the values
-        (the mask's). The same sums in another order: float32 rounding apart, the same result
-        (3.3x faster on the CPU recipe's batches of 16 x 1024 points, 2 cores).
+        softmax, read by the product with the values. Here query rows are taken a slice at a
+        time, small enough to stay in the processor's cache through energy, softmax and the
+        product with the values. The same sums in another order: float32 rounding apart, the
+        same result (3.3x faster on the CPU recipe's batches of 16 x 1024 points, 2 cores).
+        Training keeps the whole attention: autograd needs it, and a sliced backward that
+        computes it again measured slower on the CPU recipe's steps.
         """
         q = self.qk(x)
         values = self.v(x)
         with torch.autocast(device_type=x.device.type, enabled=False):
             qf = q.float()
             rows_first = qf.transpose(1, 2).contiguous()  # (B, N, D/4)
-            batch, channels, n = values.shape
-            if mask is None:
-                carried = torch.cat([values.float(), values.new_ones(batch, 1, n, dtype=torch.float32)], dim=1)
-                bias = None
-            else:
-                carried = torch.cat([values.float().masked_fill(~mask[:, None, :], 0.0),
-                                     mask[:, None, :].float()], dim=1)  # padded queries send nothing, count nothing
-                bias = qf.new_zeros(batch, 1, n).masked_fill_(~mask[:, None, :], float("-inf"))  # nor get weight as keys
+            carried, key_bias = _carried_and_key_bias(values, mask)
+            batch, _, n = carried.shape
             step = max(1, min(n, ATTENTION_CACHE_FLOATS // max(1, batch * n)))
-            total = qf.new_zeros(batch, channels + 1, n)
+            total = qf.new_zeros(carried.shape)
             for start in range(0, n, step):
                 rows = rows_first[:, start:start + step]
-                energy = torch.bmm(rows, qf) if bias is None else torch.baddbmm(bias, rows, qf)
+                energy = torch.bmm(rows, qf) if key_bias is None else torch.baddbmm(key_bias, rows, qf)
                 total.baddbmm_(carried[:, :, start:start + step], torch.softmax(energy, dim=-1))
-            attended = total[:, :channels] / (1e-9 + total[:, channels:])
+            attended = total[:, :-1] / (1e-9 + total[:, -1:])
         return self._offset(x, attended, mask)
+
+
+def _carried_and_key_bias(values: torch.Tensor, mask: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """What the attention sums over the queries, and what it adds to the energy of each key.
+
+    carried (B, D + 1, N) float32: the values, with one more row that counts each query, so the
+    product with the attention gives the attended values and the column sums (the L1) at once.
+    Padded queries send nothing and count nothing (zero columns). key_bias (B, 1, N): -inf at
+    padded keys, so they get no weight (None without padding).
+    """
+    batch, _, n = values.shape
+    if mask is None:
+        return torch.cat([values.float(), values.new_ones(batch, 1, n, dtype=torch.float32)], dim=1), None
+    padded = ~mask[:, None, :]
+    carried = torch.cat([values.float().masked_fill(padded, 0.0), mask[:, None, :].float()], dim=1)
+    return carried, values.new_zeros(batch, 1, n, dtype=torch.float32).masked_fill_(padded, float("-inf"))
 
 
 class PCTSegmentation(nn.Module):
