@@ -1,6 +1,6 @@
 """PCT throughput in blocks/s at N = 8192 points per block: training steps and inference.
 
-Run: python benchmarks/bench_learn.py [--full-cpu] [--steps K]
+Run: python benchmarks/bench_learn.py [--full-cpu] [--steps K] [--baseline-src OLD/src]
 
 Rows, measured side by side in one run:
 
@@ -11,6 +11,11 @@ Rows, measured side by side in one run:
   2 cores (PERFORMANCE.md), so off by default.
 - CUDA, full model, when a GPU is visible: AMP float16 with GradScaler as in training, and
   bfloat16; the same functions the training loop and the block runner call.
+- CPU, the CPU recipe's network and inputs (configs/sim2real_cpu.toml: 55k parameters, 10 input
+  channels) at its batch, 4 blocks of 1024 points: one training step with no block padded and
+  with every block padded as the recipe's point dropout pads them (each block loses a random
+  share up to AugmentConfig's dropout_max; padded points are masked), and their ratio. With ``--baseline-src`` the same two rows for the network module
+  (``bimscan/learn/model.py``) of another checkout, interleaved, and the ratios between them.
 - Block sampling (TileDataset, data side) in blocks/s of one loader process, XYZ only and with the
   recipe's augmentations and features: what a GPU waits for unless enough workers feed it.
 
@@ -21,16 +26,22 @@ pick kernels). Peak memory: CUDA max allocated, or the process's peak RSS on CPU
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import resource
 import sys
 import time
+import tomllib
 from collections.abc import Callable
+from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 import torch
 
+from bimscan.learn import model as model_module
 from bimscan.learn.blocks import pad_block
-from bimscan.learn.train_config import ModelConfig, load_train_config
+from bimscan.learn.features import input_channels
+from bimscan.learn.train_config import AugmentConfig, ModelConfig, load_train_config
 from bimscan.learn.data import TileDataset, TileSet
 from bimscan.learn.infer import BlockRunner
 from bimscan.learn.model import build_model, count_parameters
@@ -39,12 +50,12 @@ from bimscan.learn.train import WeightEMA, finish_step, run_micro_batch
 N = 8192
 BATCH = 2
 FULL = ModelConfig()
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+RECIPE_POINTS = 1024
 
 
 def tiny_model_config() -> ModelConfig:
-    from pathlib import Path
-
-    config, _ = load_train_config(Path(__file__).resolve().parents[1] / "configs" / "train_tiny_cpu.toml")
+    config, _ = load_train_config(CONFIGS / "train_tiny_cpu.toml")
     return config.model
 
 
@@ -118,10 +129,65 @@ def measure(name: str, config: ModelConfig, device: torch.device, amp: str, repe
     }
 
 
+def recipe_network() -> tuple[ModelConfig, int, int]:
+    """The CPU recipe's model config, input channels and batch size, read from its experiment file."""
+    with open(CONFIGS / "sim2real_cpu.toml", "rb") as handle:
+        data = tomllib.load(handle)
+    model = {key: tuple(value) if isinstance(value, list) else value for key, value in data["model"].items()}
+    return ModelConfig(**model), input_channels(tuple(data["input"]["features"])), int(data["train"]["batch_size"])
+
+
+def load_model_module(src: Path) -> ModuleType:
+    """``bimscan/learn/model.py`` of another checkout, as a module of its own (the rest of bimscan is this one's)."""
+    path = src / "bimscan" / "learn" / "model.py"
+    if not path.is_file():
+        raise SystemExit(f"--baseline-src {src}: no bimscan/learn/model.py there; give the src folder of a checkout")
+    spec = importlib.util.spec_from_file_location("baseline_model", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def recipe_steps(modules: dict[str, ModuleType], repeats: int) -> dict[tuple[str, str], float]:
+    """Best seconds per training step of the recipe's network, per (checkout, batch), interleaved."""
+    config, channels, batch = recipe_network()
+    rng = np.random.default_rng(0)
+    xyz = torch.from_numpy(rng.standard_normal((batch, RECIPE_POINTS, channels)).astype(np.float32))
+    label = torch.from_numpy(rng.integers(0, 5, (batch, RECIPE_POINTS)))
+    dropped = rng.uniform(0.0, AugmentConfig().dropout_max, batch)  # as augment_points draws it per block
+    padded = torch.from_numpy(np.arange(RECIPE_POINTS)[None, :] < np.round(RECIPE_POINTS * (1.0 - dropped))[:, None])
+    masks = {"no block padded": torch.ones(batch, RECIPE_POINTS, dtype=torch.bool), "every block padded": padded}
+    best: dict[tuple[str, str], float] = {}
+    for _ in range(repeats):
+        for checkout, module in modules.items():
+            for kind, mask in masks.items():
+                torch.manual_seed(0)
+                model = module.build_model(5, config, in_dim=channels)
+                optimizer = torch.optim.Adam(model.parameters(), lr=5e-3)
+                scaler = torch.amp.GradScaler("cpu", enabled=False)  # a no-op on the CPU, as in training
+                target = label.masked_fill(~mask, 255)
+
+                def step() -> None:  # run_micro_batch and finish_step, with the checkout's own BatchNorm commit
+                    model.train()
+                    run_micro_batch(model, xyz, target, mask, scaler=scaler, amp="off", accumulation=1)
+                    with module.flush_denormals():
+                        optimizer.step()
+                        optimizer.zero_grad(set_to_none=True)
+                        module.commit_batch_statistics(model)
+
+                step()  # warm-up
+                start = time.perf_counter()
+                for _ in range(5):
+                    step()
+                seconds = (time.perf_counter() - start) / 5
+                best[(checkout, kind)] = min(best.get((checkout, kind), float("inf")), seconds)
+    return best
+
+
 def sampling_rate(repeats: int = 200, *, recipe: bool = False) -> float:
     """Blocks/s of one loader process: the paper's block (XYZ), or the recipe's (augmentations,
     then height, normals and shape from the block's points: what the GPU run waits for)."""
-    from bimscan.learn.train_config import AugmentConfig, InputConfig
+    from bimscan.learn.train_config import InputConfig
 
     rng = np.random.default_rng(0)
     points = 16384
@@ -143,6 +209,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--full-cpu", action="store_true", help="also time the full model on the CPU (slow)")
     parser.add_argument("--steps", type=int, default=3, help="timed repetitions per row (after a warm-up)")
+    parser.add_argument("--baseline-src", type=Path,
+                        help="the src folder of an earlier checkout: its network module's recipe steps beside these")
     args = parser.parse_args()
     print(f"torch {torch.__version__}, {torch.get_num_threads()} CPU threads, N = {N}, batch {BATCH}", file=sys.stderr)
     rows = [measure("tiny", tiny_model_config(), torch.device("cpu"), "off", args.steps)]
@@ -164,6 +232,20 @@ def main() -> None:
         for r in rows[1:]:
             print(f"{r['row']} on {r['device']} ({r['amp']}) / tiny on cpu: training {r['train_bps'] / base['train_bps']:.1f}x, "
                   f"inference {r['infer_bps'] / base['infer_bps']:.1f}x")
+    modules = {"this checkout": model_module}
+    if args.baseline_src:
+        modules["baseline"] = load_model_module(args.baseline_src.resolve())
+    steps = recipe_steps(modules, max(3, args.steps))
+    config, channels, batch = recipe_network()
+    print(f"\nthe CPU recipe's training step (batch {batch} x {RECIPE_POINTS} points, {channels} input channels, "
+          f"embed {config.embed_dim}), best of {max(3, args.steps)} interleaved rounds of 5 steps:")
+    for checkout in modules:
+        full, padded = steps[(checkout, "no block padded")], steps[(checkout, "every block padded")]
+        print(f"  {checkout:<14} no block padded {full:.3f} s, every block padded {padded:.3f} s: "
+              f"padded / unpadded {padded / full:.2f}")
+    if "baseline" in modules:
+        for kind in ("no block padded", "every block padded"):
+            print(f"  {kind}: baseline / this checkout {steps[('baseline', kind)] / steps[('this checkout', kind)]:.2f}x")
     print(f"\nblock sampling, one loader process (TileDataset, 8192 of 16384 cached points): "
           f"{sampling_rate():.0f} blocks/s XYZ only, {sampling_rate(20, recipe=True):.1f} blocks/s with the recipe's "
           f"augmentations and features (each DataLoader worker adds one such process)")
