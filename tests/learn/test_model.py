@@ -101,6 +101,28 @@ def test_padded_points_do_not_change_outputs_at_valid_points(mode: str) -> None:
     torch.testing.assert_close(masked[:, :90], plain, atol=2e-5, rtol=1e-4)
 
 
+def test_padded_points_do_not_change_the_gradients() -> None:
+    # training pads every recipe block (point dropout): the masked attention's backward must give
+    # every weight the gradient the unpadded blocks give it, whatever the padding holds
+    torch.manual_seed(2)
+    plain_model = build_model(5, TINY)
+    padded_model = build_model(5, TINY)
+    padded_model.load_state_dict(plain_model.state_dict())
+    xyz = torch.randn(2, 90, 3)
+    label = torch.randint(0, 5, (2, 90))
+    padded = torch.cat([xyz, torch.full((2, 38, 3), 4.0)], dim=1)
+    padded_label = torch.cat([label, torch.full((2, 38), 255)], dim=1)
+    mask = torch.zeros(2, 128, dtype=torch.bool)
+    mask[:, :90] = True
+
+    compute_loss(plain_model.train()(xyz), label, None)[0].backward()
+    compute_loss(padded_model.train()(padded, mask), padded_label, None)[0].backward()
+
+    for (name, plain), padded_parameter in zip(plain_model.named_parameters(), padded_model.parameters(), strict=True):
+        assert torch.isfinite(padded_parameter.grad).all(), name
+        torch.testing.assert_close(padded_parameter.grad, plain.grad, atol=1e-5, rtol=1e-4, msg=name)
+
+
 @pytest.mark.parametrize(("dtype", "tolerance"), [(torch.float16, 5e-3), (torch.bfloat16, 5e-2)])
 def test_mixed_precision_keeps_padded_blocks_finite_and_close_to_float32(dtype: torch.dtype, tolerance: float) -> None:
     # CUDA training autocasts the same way; CPU autocast runs the same code on this machine
