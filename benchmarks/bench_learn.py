@@ -212,6 +212,9 @@ def main() -> None:
     parser.add_argument("--baseline-src", type=Path,
                         help="the src folder of an earlier checkout: its network module's recipe steps beside these")
     args = parser.parse_args()
+    modules = {"this checkout": model_module}
+    if args.baseline_src:  # before any timing: a wrong path fails at once
+        modules["baseline"] = load_model_module(args.baseline_src.resolve())
     print(f"torch {torch.__version__}, {torch.get_num_threads()} CPU threads, N = {N}, batch {BATCH}", file=sys.stderr)
     rows = [measure("tiny", tiny_model_config(), torch.device("cpu"), "off", args.steps)]
     if args.full_cpu:
@@ -232,9 +235,6 @@ def main() -> None:
         for r in rows[1:]:
             print(f"{r['row']} on {r['device']} ({r['amp']}) / tiny on cpu: training {r['train_bps'] / base['train_bps']:.1f}x, "
                   f"inference {r['infer_bps'] / base['infer_bps']:.1f}x")
-    modules = {"this checkout": model_module}
-    if args.baseline_src:
-        modules["baseline"] = load_model_module(args.baseline_src.resolve())
     steps = recipe_steps(modules, max(3, args.steps))
     config, channels, batch = recipe_network()
     print(f"\nthe CPU recipe's training step (batch {batch} x {RECIPE_POINTS} points, {channels} input channels, "
