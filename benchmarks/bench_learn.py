@@ -30,7 +30,6 @@ import importlib.util
 import resource
 import sys
 import time
-import tomllib
 from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
@@ -41,11 +40,12 @@ import torch
 from bimscan.learn import model as model_module
 from bimscan.learn.blocks import pad_block
 from bimscan.learn.features import input_channels
-from bimscan.learn.train_config import AugmentConfig, ModelConfig, load_train_config
+from bimscan.learn.train_config import AugmentConfig, InputConfig, ModelConfig, TrainConfig, load_train_config
 from bimscan.learn.data import TileDataset, TileSet
 from bimscan.learn.infer import BlockRunner
 from bimscan.learn.model import build_model, count_parameters
 from bimscan.learn.train import WeightEMA, finish_step, run_micro_batch
+from bimscan.toml_files import build_dataclass, load_toml
 
 N = 8192
 BATCH = 2
@@ -130,11 +130,14 @@ def measure(name: str, config: ModelConfig, device: torch.device, amp: str, repe
 
 
 def recipe_network() -> tuple[ModelConfig, int, int]:
-    """The CPU recipe's model config, input channels and batch size, read from its experiment file."""
-    with open(CONFIGS / "sim2real_cpu.toml", "rb") as handle:
-        data = tomllib.load(handle)
-    model = {key: tuple(value) if isinstance(value, list) else value for key, value in data["model"].items()}
-    return ModelConfig(**model), input_channels(tuple(data["input"]["features"])), int(data["train"]["batch_size"])
+    """The CPU recipe's model config, input channels and batch size, read from its experiment file
+    by the config parser the experiment uses (its shared sections; no data paths are checked)."""
+    path = CONFIGS / "sim2real_cpu.toml"
+    data = load_toml(path)
+    model = build_dataclass(ModelConfig, data["model"], where=f"{path} [model]")
+    inputs = build_dataclass(InputConfig, data["input"], where=f"{path} [input]")
+    train = build_dataclass(TrainConfig, data["train"], where=f"{path} [train]")
+    return model, input_channels(inputs.features), train.batch_size
 
 
 def load_model_module(src: Path) -> ModuleType:
@@ -187,8 +190,6 @@ def recipe_steps(modules: dict[str, ModuleType], repeats: int) -> dict[tuple[str
 def sampling_rate(repeats: int = 200, *, recipe: bool = False) -> float:
     """Blocks/s of one loader process: the paper's block (XYZ), or the recipe's (augmentations,
     then height, normals and shape from the block's points: what the GPU run waits for)."""
-    from bimscan.learn.train_config import InputConfig
-
     rng = np.random.default_rng(0)
     points = 16384
     tiles = TileSet(

@@ -311,15 +311,15 @@ def format_elements_markdown(breakdown: ElementBreakdown, class_names: Sequence[
     return text
 
 
-def format_elements_csv(results: Sequence[SceneEvaluation], class_names: Sequence[str]) -> str:
-    """Per scene with a breakdown, then over all points: IFC class, its labelled class, points and
-    the points per predicted class."""
+def format_elements_csv(results: Sequence[SceneEvaluation], pooled: ElementBreakdown,
+                        class_names: Sequence[str]) -> str:
+    """Per scene with a breakdown, then over all points (``pooled``, :func:`pool_elements`): IFC
+    class, its labelled class, points and the points per predicted class."""
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(["scene", "ifc_class", "labelled", "points", *(f"predicted_{c}" for c in class_names)])
-    pooled = pool_elements(results)
     rows = [(r.scene, r.elements) for r in results if r.elements is not None]
-    for scene, breakdown in rows + ([("all points", pooled)] if pooled is not None else []):
+    for scene, breakdown in rows + [("all points", pooled)]:
         for ifc_class, truth, counts in zip(breakdown.ifc_class, breakdown.truth, breakdown.counts, strict=True):
             writer.writerow([scene, ifc_class, truth, int(counts.sum()), *(int(v) for v in counts)])
     return buffer.getvalue()
@@ -365,10 +365,10 @@ def write_evaluation(results: Sequence[SceneEvaluation], out_dir: Path, class_na
                             out_dir / "elements.csv" if elements is not None else None)
     pooled = pool_confusion(results) if results else np.zeros((len(class_names),) * 2, np.int64)
     markdown = format_markdown(results)
-    if elements is not None and files.elements is not None:
+    if elements is not None and files.elements is not None:  # the one implies the other; the type checker needs both
         markdown += ("\nWhere each IFC class's points went, all points (percent of its points; 'right': the "
                      "class its components are labelled):\n\n" + format_elements_markdown(elements, class_names))
-        write_atomic(files.elements, format_elements_csv(results, class_names).encode("utf-8"))
+        write_atomic(files.elements, format_elements_csv(results, elements, class_names).encode("utf-8"))
     write_atomic(files.markdown, markdown.encode("utf-8"))
     write_atomic(files.table, format_csv(results, class_names).encode("utf-8"))
     write_atomic(files.json, dump_json(evaluation_document(results, class_names)))

@@ -58,7 +58,8 @@ from bimscan.types import PointCloud
 
 SPREAD_CHUNK = 262_144  # points interpolated at a time (see spread_votes)
 SPREAD_CELLS = 1.5  # voxels per cell of the vote-spreading grid (bimscan.learn.neighbours)
-RECORD = np.dtype([("xyz", "<f8", (3,)), ("label", "u1"), ("index", "<i8"), ("component", "<i4")])
+RECORD = np.dtype([("xyz", "<f8", (3,)), ("label", "u1"), ("index", "<i8")])
+RECORD_WITH_COMPONENT = np.dtype(RECORD.descr + [("component", "<i4")])  # when predictions are counted per component
 MIN_PADDED = 16  # blocks smaller than N run padded to a power of two at least this
 BUILDING_EXTENT_M = 2_000.0  # wider than this, or taller than BUILDING_HEIGHT_M: likely not metres
 BUILDING_HEIGHT_M = 300.0
@@ -204,6 +205,7 @@ class _Labeller:
     elements: int = 0
     confusion: np.ndarray = field(init=False)
     element_counts: np.ndarray | None = field(init=False, default=None)
+    record: np.dtype = field(init=False, default=RECORD)  # a stripe file's record
     labelled: int = 0
     nearest_filled: int = 0
     block_count: int = 0
@@ -215,6 +217,7 @@ class _Labeller:
         self.confusion = np.zeros((classes, classes), dtype=np.int64)
         if self.elements > 0:
             self.element_counts = np.zeros((self.elements + 1, classes), dtype=np.int64)
+            self.record = RECORD_WITH_COMPONENT
         self.stride = self.evaluation.stride_for(self.blocks.size_m)
         self.k = int(round(self.blocks.size_m / self.stride))
         self.runner = BlockRunner(self.model, device=self.device, batch_size=self.evaluation.batch_size, amp=self.amp)
@@ -253,11 +256,12 @@ class _Labeller:
                 raise LearnError(f"{self.source.path}: some points have non-finite coordinates; filter them out first")
             if origin is None:
                 origin = chunk.xyz.min(axis=0)
-            records = np.empty(n, dtype=RECORD)
+            records = np.empty(n, dtype=self.record)
             records["xyz"] = chunk.xyz
             records["label"] = chunk.label if self.use_labels and chunk.label is not None else IGNORE_LABEL
             records["index"] = np.arange(total, total + n, dtype=np.int64)
-            records["component"] = chunk.component if chunk.component is not None else -1
+            if self.element_counts is not None:
+                records["component"] = chunk.component if chunk.component is not None else -1
             total += n
             lower = np.minimum(lower, chunk.xyz.min(axis=0))
             upper = np.maximum(upper, chunk.xyz.max(axis=0))
@@ -275,7 +279,7 @@ class _Labeller:
         return counts, lower, upper, origin
 
     def _read(self, stripe: int) -> np.ndarray:
-        return np.fromfile(self.folder / f"{stripe}.bin", dtype=RECORD)
+        return np.fromfile(self.folder / f"{stripe}.bin", dtype=self.record)
 
     # -- 2. floors --------------------------------------------------------------------------------
 
