@@ -169,7 +169,7 @@ def test_export_obj_with_helios_writes_the_survey_of_the_scan_it_would_make(box_
     assert main(["export-obj", str(box_room_ifc), str(out), "--helios", "--stations", str(stations),
                  "--preset", "exp1", "--head-speed", "60"]) == 0
     report = capsys.readouterr().out
-    assert f"helios++ {out / 'helios' / 'survey.xml'} --assets {out}" in report
+    assert f"cd {out} && helios++ helios/survey.xml --assets ." in report
     scene = ET.parse(out / "helios" / "scene.xml").getroot().find("scene")
     survey = parse_survey((out / "helios" / "survey.xml").read_bytes()).find("survey")
     assert survey.get("scene") == f"helios/scene.xml#{scene.get('id')}"

@@ -54,8 +54,9 @@ def info(model: Path, as_json: bool, scheme: str | None, no_cache: bool, strict:
 
 HELIOS_HELP = ("Also write HELIOS++ inputs: helios/scene.xml (one <part> per component file) and helios/survey.xml "
                "(the stations and scan settings of 'bimscan scan' with the same options, one leg per station). Run "
-               "them with: helios++ OUT_DIR/helios/survey.xml --assets OUT_DIR (HELIOS++ resolves the relative file "
-               "paths only through --assets, not from the current folder).")
+               "them from inside OUT_DIR: cd OUT_DIR && helios++ helios/survey.xml --assets . (HELIOS++ finds the "
+               "scene's files only through --assets, and a mobile survey's trajectory file only from the current "
+               "folder).")
 
 
 @click.command("export-obj")
@@ -147,7 +148,7 @@ def export_obj_command(model: Path, out_dir: Path, helios: bool, stations: str |
         more = [name for name in (mobile_files or {}) if name.endswith(".xml") and Path(name).name != "survey.xml"]
         click.echo(f"HELIOS++ survey {result.helios_survey} ({n_legs} legs)"
                    + (f" and {', '.join(more)} (one survey per lidar)" if more else "") + "; run it with:\n"
-                   f"  helios++ {result.helios_survey} --assets {result.out_dir}")
+                   f"  cd {result.out_dir} && helios++ {result.helios_survey.relative_to(result.out_dir)} --assets .")
 
 
 COMMANDS: list[click.Command] = [info, export_obj_command]
