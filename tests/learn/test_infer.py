@@ -304,6 +304,25 @@ def _varied(labels: np.ndarray) -> np.ndarray:
     return labels
 
 
+def test_the_wide_shape_reaches_inference_with_its_own_neighbourhood(tmp_path: Path,
+                                                                     room: Callable[..., PointCloud]) -> None:
+    """``shape_wide`` is computed over ``wide_neighbours`` at inference as in training: the probe's
+    labels change with the neighbourhood."""
+    from bimscan.learn.features import input_channels
+
+    cloud = room(3, size_m=(5.0, 4.0), points_per_m2=40)
+    write_text_cloud(tmp_path / "room.txt", cloud)
+    inputs = InputConfig(grid_m=0.1, features=("xyz", "shape_wide"), wide_neighbours=64)
+    assert input_channels(inputs.features) == 6
+    model = LinearProbe(6).eval()
+    wide, _ = _ordered(model, tmp_path / "room.txt", inputs=inputs)
+    _varied(wide)
+    narrower, _ = _ordered(model, tmp_path / "room.txt", inputs=dataclasses.replace(inputs, wide_neighbours=8))
+    assert (wide != narrower).mean() > 0.05
+    with pytest.raises(ConfigError, match="wide_neighbours"):
+        dataclasses.replace(inputs, wide_neighbours=2)
+
+
 def test_a_scene_moved_far_away_gets_the_same_labels(tmp_path: Path, room: Callable[..., PointCloud]) -> None:
     """Columns, voxels and floors count from the scene itself: georeferenced coordinates (a site
     hundreds of kilometres from its origin) change nothing."""

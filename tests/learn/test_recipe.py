@@ -142,6 +142,42 @@ def test_shape_features_tell_planes_lines_and_scatter_apart() -> None:
     assert local_geometry(points[:2], neighbours=16)[1].shape == (2, 3)
 
 
+def test_wide_shape_tells_a_wall_from_a_cabinet_side() -> None:
+    """At the recipe's 32 neighbours a cabinet's side looks much like a wall; at 128 its top and front
+    join its neighbourhood and it is no plane, while the wall stays one."""
+    rng = np.random.default_rng(2)
+    density = 40  # points per square metre: about a recipe block's (1024 points in a 3 m column)
+
+    def patch(area_m2: float) -> tuple[np.ndarray, int]:
+        count = int(area_m2 * density)
+        return rng.random(count), count
+
+    u, n = patch(18.0)
+    wall = np.column_stack([np.zeros(n), u * 6, rng.random(n) * 3])  # 6 x 3 m at x = 0
+    u, n = patch(0.54)
+    side = np.column_stack([np.full(n, 5.0), u * 0.6, rng.random(n) * 0.9])  # a cabinet 0.8 wide, 0.6 deep, 0.9 tall
+    u, n = patch(0.48)
+    top = np.column_stack([5.0 + u * 0.8, rng.random(n) * 0.6, np.full(n, 0.9)])
+    u, n = patch(0.72)
+    front = np.column_stack([5.0 + u * 0.8, np.full(n, 0.6), rng.random(n) * 0.9])
+    points = np.concatenate([wall, side, top, front])
+    _, narrow = local_geometry(points, neighbours=32)
+    _, wide = local_geometry(points, neighbours=128)
+    on_wall = np.zeros(len(points), dtype=bool)
+    on_wall[:len(wall)] = (np.abs(wall[:, 1] - 3) < 1) & (np.abs(wall[:, 2] - 1.5) < 0.5)
+    on_side = np.zeros(len(points), dtype=bool)
+    on_side[len(wall):len(wall) + len(side)] = True
+    planarity_narrow, planarity_wide = narrow[:, 1], wide[:, 1]
+    assert np.median(planarity_narrow[on_side]) > 0.5 * np.median(planarity_narrow[on_wall])
+    assert np.median(planarity_wide[on_wall]) > 0.8
+    assert np.median(planarity_wide[on_side]) < 0.25 * np.median(planarity_wide[on_wall])
+    extra = extra_features(points, features=("xyz", "shape", "shape_wide"), height_m=None, height_scale_m=3.0,
+                           neighbours=32, wide_neighbours=128)
+    assert np.allclose(extra[:, :3], narrow) and np.allclose(extra[:, 3:], wide)
+    with pytest.raises(ValueError, match="wide_neighbours"):
+        extra_features(points, features=("xyz", "shape_wide"), height_m=None, height_scale_m=3.0, neighbours=16)
+
+
 def test_class_weights_and_the_weighted_loss() -> None:
     label = np.r_[np.zeros(800), np.ones(200), np.full(0, 2), np.full(100, 3)].astype(np.uint8)
     inverse = class_weights_from_labels(label, classes=4, mode="inverse")

@@ -593,6 +593,7 @@ class TileDataset:
             label, chosen, height = label[kept], chosen[kept], height[kept] * z_scale  # a taller storey
             lower, upper = xyz.min(axis=0), xyz.max(axis=0)
         extra = extra_features(xyz, features=self.inputs.features, height_m=height,
-                               height_scale_m=self.inputs.height_scale_m, neighbours=self.inputs.normal_neighbours)
+                               height_scale_m=self.inputs.height_scale_m, neighbours=self.inputs.normal_neighbours,
+                               wide_neighbours=self.inputs.wide_neighbours)
         block = pad_block(xyz, label, chosen, points=self.points, lower=lower, upper=upper, extra=extra)
         return {"xyz": block.xyz, "label": block.label, "mask": block.mask}

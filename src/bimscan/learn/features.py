@@ -18,13 +18,17 @@
   (l2 - l3) / l1 and scattering l3 / l1 (they sum to 1). A wall or a slab is planar, a chair
   leg or a cable linear, a plant or a heap of clutter scattered: what a normal alone does not
   say. Computed with the normals from one neighbour search.
+- ``shape_wide``: the same three features over the ``wide_neighbours`` nearest (about a metre
+  across in a recipe block): a second scale, as in Weinmann et al.'s multi-scale features. A
+  wall stays planar at the wide scale; a cabinet's side, whose neighbourhood there takes in its
+  top and front, does not.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-FEATURE_CHANNELS = {"xyz": 3, "height": 1, "normals": 3, "shape": 3}
+FEATURE_CHANNELS = {"xyz": 3, "height": 1, "normals": 3, "shape": 3, "shape_wide": 3}
 
 
 def input_channels(features: tuple[str, ...]) -> int:
@@ -64,11 +68,12 @@ def estimate_normals(xyz: np.ndarray, *, neighbours: int) -> np.ndarray:
 
 def extra_features(
     xyz: np.ndarray, *, features: tuple[str, ...], height_m: np.ndarray | None, height_scale_m: float, neighbours: int,
+    wide_neighbours: int = 0,
 ) -> np.ndarray | None:
     """(M, E) float32 channels after xyz for (M, 3) points, or None for XYZ only.
 
     ``height_m``: (M,) metres above the floor under each point (needed with ``height``); only
-    the differences of ``xyz`` matter.
+    the differences of ``xyz`` matter. ``wide_neighbours``: the neighbourhood of ``shape_wide``.
     """
     parts = []
     geometry = None
@@ -81,4 +86,8 @@ def extra_features(
             if geometry is None:
                 geometry = local_geometry(xyz, neighbours=neighbours)
             parts.append(geometry[0] if name == "normals" else geometry[1])
+        elif name == "shape_wide":
+            if wide_neighbours < 3:
+                raise ValueError("the shape_wide feature needs wide_neighbours >= 3")
+            parts.append(local_geometry(xyz, neighbours=wide_neighbours)[1])
     return np.concatenate(parts, axis=1) if parts else None

@@ -386,7 +386,8 @@ class _Labeller:
         for group in groups:
             extra = extra_features(points[group], features=self.inputs.features,
                                    height_m=None if heights is None else heights[group],
-                                   height_scale_m=self.inputs.height_scale_m, neighbours=self.inputs.normal_neighbours)
+                                   height_scale_m=self.inputs.height_scale_m, neighbours=self.inputs.normal_neighbours,
+                                   wide_neighbours=self.inputs.wide_neighbours)
             self.runner.add(pad_block(points[group], None, members[group], points=padded_size(len(group), blocks.points),
                                       lower=box_lower, upper=box_upper, extra=extra), weight)
         self.block_count += 1

@@ -131,8 +131,8 @@ class InputConfig:
     first, optionally ``height`` (above the floor under the point, :mod:`bimscan.learn.floors`,
     / ``height_scale_m``),
     ``normals`` (PCA of ``normal_neighbours`` neighbours among the block's points) and
-    ``shape`` (linearity, planarity, scattering of the same neighbourhood)
-    (:mod:`bimscan.learn.features`). Defaults: the sim-to-real recipe measured in
+    ``shape`` (linearity, planarity, scattering of the same neighbourhood) and ``shape_wide``
+    (the same over ``wide_neighbours`` neighbours) (:mod:`bimscan.learn.features`). Defaults: the sim-to-real recipe measured in
     docs/results/sim2real.md; the paper's baseline is ``grid_m = 0.0``, ``features = ["xyz"]``.
     """
 
@@ -140,6 +140,7 @@ class InputConfig:
     features: tuple[str, ...] = ("xyz", "height", "normals", "shape")
     height_scale_m: float = 3.0
     normal_neighbours: int = 32
+    wide_neighbours: int = 128
 
     def __post_init__(self) -> None:
         if not self.grid_m >= 0 or self.grid_m > 1.0:
@@ -153,6 +154,8 @@ class InputConfig:
             raise ConfigError(f"height_scale_m must be positive, got {self.height_scale_m}")
         if not 3 <= self.normal_neighbours <= 128:
             raise ConfigError(f"normal_neighbours must be in 3..128, got {self.normal_neighbours}")
+        if not 3 <= self.wide_neighbours <= 512:
+            raise ConfigError(f"wide_neighbours must be in 3..512, got {self.wide_neighbours}")
 
 
 @dataclass(frozen=True)
