@@ -201,8 +201,9 @@ def helios_survey_xml(stations: Sequence[Station], settings: ScanSettings, scann
         '<?xml version="1.0" encoding="UTF-8"?>',
         "<document>",
         "    " + _comment(f"bimscan {__version__}: the survey of bimscan scan with scanner {scanner.name}, "
-                          f"{len(stations)} stations. Run HELIOS++ on this file from inside the export folder with it as its "
-                          "asset folder (--assets .): it finds the scene and the component files only there."),
+                          f"{len(stations)} stations. Run HELIOS++ on this file from inside the export folder "
+                          "with it as its asset folder (--assets .): it finds the scene and the component files "
+                          "only there."),
         "    " + _comment(f"Beam origin = leg + tripod mount {TRIPOD_MOUNT_Z_M:g} m + scanner beam origin "
                           f"{helios.beam_origin_z_m:g} m: each leg stands {beam_above_leg:g} m below the bimscan "
                           f"station. HELIOS++ head angle 0 = azimuth {HEAD_ZERO_AZIMUTH_DEG:g} deg."),
@@ -302,8 +303,8 @@ def helios_mobile_files(trajectory: Trajectory, mobile: MobileScan, *, scene_fil
             "    " + _comment(f"bimscan {__version__}: the mobile scan of bimscan scan with platform "
                               f"{mobile.platform.name}, {lidar.name} at {mobile.rotation_hz:g} Hz, lidar {k + 1} of "
                               f"{len(mobile.platform.mounts)}, {trajectory.n_passes} passes (one leg each). Run HELIOS++ "
-                              "on this file from inside the export folder with --assets . (it opens the trajectory file from "
-                              "the current folder)."),
+                              "on this file from inside the export folder with --assets . (it opens the trajectory "
+                              "file from the current folder)."),
             "    " + _comment(f"HELIOS++ fires the {lidar.n_beams} channels at once {pulse_hz} times a second; bimscan "
                               f"fires them one after another within each {lidar.firing_cycle_us:g} us sequence."),
             "    <survey " + " ".join(f"{key}={quoteattr(v)}" for key, v in survey.items()) + ">",

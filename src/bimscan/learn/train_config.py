@@ -129,11 +129,11 @@ class InputConfig:
     ``grid_m``: density normalisation, one point per voxel of this size before blocking
     (:mod:`bimscan.learn.density`); 0 = off (the paper: raw points). ``features``: ``xyz``
     first, optionally ``height`` (above the floor under the point, :mod:`bimscan.learn.floors`,
-    / ``height_scale_m``),
-    ``normals`` (PCA of ``normal_neighbours`` neighbours among the block's points) and
-    ``shape`` (linearity, planarity, scattering of the same neighbourhood) and ``shape_wide``
-    (the same over ``wide_neighbours`` neighbours) (:mod:`bimscan.learn.features`). Defaults: the sim-to-real recipe measured in
-    docs/results/sim2real.md; the paper's baseline is ``grid_m = 0.0``, ``features = ["xyz"]``.
+    / ``height_scale_m``), ``normals`` (PCA of ``normal_neighbours`` neighbours among the
+    block's points), ``shape`` (linearity, planarity, scattering of the same neighbourhood) and
+    ``shape_wide`` (the same over ``wide_neighbours`` neighbours) (:mod:`bimscan.learn.features`).
+    Defaults: the sim-to-real recipe measured in docs/results/sim2real.md; the paper's baseline
+    is ``grid_m = 0.0``, ``features = ["xyz"]``.
     """
 
     grid_m: float = 0.05
