@@ -250,17 +250,17 @@ def test_denormals_are_flushed_for_the_network_only(
     model = build_model(5, ModelConfig(embed_dim=8, attention_layers=1, fuse_dim=16, head_dims=(16,), dropout=0.0),
                         in_dim=6).eval()  # xyz and normals
     seen: dict[str, list[bool]] = {"features": [], "network": []}
-    geometry, forward = features.local_geometry, model.forward
+    geometry, forward = features.local_geometry_scales, model.forward
 
-    def spy_geometry(xyz: np.ndarray, *, neighbours: int) -> tuple[np.ndarray, np.ndarray]:
+    def spy_geometry(xyz: np.ndarray, scales: tuple[int, ...]) -> list[tuple[np.ndarray, np.ndarray]]:
         seen["features"].append(denormals_kept())
-        return geometry(xyz, neighbours=neighbours)
+        return geometry(xyz, scales)
 
     def spy_forward(xyz: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
         seen["network"].append(denormals_kept())
         return forward(xyz, mask)
 
-    monkeypatch.setattr(features, "local_geometry", spy_geometry)
+    monkeypatch.setattr(features, "local_geometry_scales", spy_geometry)
     monkeypatch.setattr(model, "forward", spy_forward)
     label_scene(model, list_scenes([scene[0]])[0], class_names=DEFAULT_CLASS_NAMES, blocks=BLOCKS,
                 inputs=InputConfig(grid_m=0.0, features=("xyz", "normals")))

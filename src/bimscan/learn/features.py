@@ -42,13 +42,23 @@ def local_geometry(xyz: np.ndarray, *, neighbours: int) -> tuple[np.ndarray, np.
     Returns (M, 3) float32 unit normals (n_z >= 0) and (M, 3) float32 linearity, planarity,
     scattering; zeros for both when M < 3 (and shape zeros where a neighbourhood is one point).
     """
+    return local_geometry_scales(xyz, (neighbours,))[0]
+
+
+def local_geometry_scales(xyz: np.ndarray, scales: tuple[int, ...]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """:func:`local_geometry` at each neighbourhood size of ``scales``, from one neighbour search
+    (the largest; a smaller scale takes the nearest of those)."""
     m = len(xyz)
     if m < 3:
-        return np.zeros((m, 3), dtype=np.float32), np.zeros((m, 3), dtype=np.float32)
+        return [(np.zeros((m, 3), dtype=np.float32), np.zeros((m, 3), dtype=np.float32)) for _ in scales]
     from scipy.spatial import cKDTree
 
-    k = min(neighbours, m)
-    _, index = cKDTree(xyz).query(xyz, k=k, workers=-1)  # parallel; the same result
+    _, nearest = cKDTree(xyz).query(xyz, k=min(max(scales), m), workers=-1)  # parallel; the same result
+    return [_geometry(xyz, nearest[:, :min(k, m)]) for k in scales]
+
+
+def _geometry(xyz: np.ndarray, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Normals and shape of each point from its neighbours ``index`` (M, k), nearest first."""
     patch = xyz[index]  # (M, k, 3)
     patch = patch - patch.mean(axis=1, keepdims=True)
     covariance = np.matmul(patch.transpose(0, 2, 1), patch)  # a batched matmul: twice einsum's speed
@@ -75,19 +85,22 @@ def extra_features(
     ``height_m``: (M,) metres above the floor under each point (needed with ``height``); only
     the differences of ``xyz`` matter. ``wide_neighbours``: the neighbourhood of ``shape_wide``.
     """
+    scales = []  # one neighbour search serves both neighbourhoods
+    if "normals" in features or "shape" in features:
+        scales.append(neighbours)
+    if "shape_wide" in features:
+        if wide_neighbours < 3:
+            raise ValueError("the shape_wide feature needs wide_neighbours >= 3")
+        scales.append(wide_neighbours)
+    geometry = dict(zip(scales, local_geometry_scales(xyz, tuple(scales)))) if scales else {}
     parts = []
-    geometry = None
     for name in features[1:]:
         if name == "height":
             if height_m is None:
                 raise ValueError("the height feature needs each point's height above its floor")
             parts.append((np.asarray(height_m, dtype=np.float64)[:, None] / height_scale_m).astype(np.float32))
         elif name in ("normals", "shape"):
-            if geometry is None:
-                geometry = local_geometry(xyz, neighbours=neighbours)
-            parts.append(geometry[0] if name == "normals" else geometry[1])
+            parts.append(geometry[neighbours][0] if name == "normals" else geometry[neighbours][1])
         elif name == "shape_wide":
-            if wide_neighbours < 3:
-                raise ValueError("the shape_wide feature needs wide_neighbours >= 3")
-            parts.append(local_geometry(xyz, neighbours=wide_neighbours)[1])
+            parts.append(geometry[wide_neighbours][1])
     return np.concatenate(parts, axis=1) if parts else None
