@@ -165,11 +165,11 @@ def test_matching_min_range_is_a_scanner_file_setting(tmp_path):
 def test_export_obj_with_helios_writes_the_survey_of_the_scan_it_would_make(box_room_ifc, tmp_path, capsys):
     stations = tmp_path / "stations.csv"
     stations.write_text("x,y,height,heading_deg\n2,2,1.7,0\n6,4,1.7,90\n")
-    out = tmp_path / "export"
+    out = tmp_path / "my export"  # the printed command quotes a folder with a space for the shell
     assert main(["export-obj", str(box_room_ifc), str(out), "--helios", "--stations", str(stations),
                  "--preset", "exp1", "--head-speed", "60"]) == 0
     report = capsys.readouterr().out
-    assert f"cd {out} && helios++ helios/survey.xml --assets ." in report
+    assert f"cd '{out}' && helios++ helios/survey.xml --assets ." in report
     scene = ET.parse(out / "helios" / "scene.xml").getroot().find("scene")
     survey = parse_survey((out / "helios" / "survey.xml").read_bytes()).find("survey")
     assert survey.get("scene") == f"helios/scene.xml#{scene.get('id')}"

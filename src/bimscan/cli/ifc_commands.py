@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shlex
 from pathlib import Path
 from typing import Any
 
@@ -148,7 +149,8 @@ def export_obj_command(model: Path, out_dir: Path, helios: bool, stations: str |
         more = [name for name in (mobile_files or {}) if name.endswith(".xml") and Path(name).name != "survey.xml"]
         click.echo(f"HELIOS++ survey {result.helios_survey} ({n_legs} legs)"
                    + (f" and {', '.join(more)} (one survey per lidar)" if more else "") + "; run it with:\n"
-                   f"  cd {result.out_dir} && helios++ {result.helios_survey.relative_to(result.out_dir)} --assets .")
+                   f"  cd {shlex.quote(str(result.out_dir))} && helios++ "
+                   f"{shlex.quote(str(result.helios_survey.relative_to(result.out_dir)))} --assets .")
 
 
 COMMANDS: list[click.Command] = [info, export_obj_command]
