@@ -285,17 +285,17 @@ def test_training_flushes_denormals_for_the_network_only(
     from bimscan.learn.model import PCTSegmentation
 
     seen: dict[str, list[bool]] = {"features": [], "network": []}
-    geometry, forward = features.local_geometry, PCTSegmentation.forward
+    geometry, forward = features.local_geometry_scales, PCTSegmentation.forward
 
-    def spy_geometry(xyz: np.ndarray, *, neighbours: int) -> tuple[np.ndarray, np.ndarray]:
+    def spy_geometry(xyz: np.ndarray, scales: tuple[int, ...]) -> list[tuple[np.ndarray, np.ndarray]]:
         seen["features"].append(denormals_kept())
-        return geometry(xyz, neighbours=neighbours)
+        return geometry(xyz, scales)
 
     def spy_forward(self: PCTSegmentation, xyz: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
         seen["network"].append(denormals_kept())
         return forward(self, xyz, mask)
 
-    monkeypatch.setattr(features, "local_geometry", spy_geometry)
+    monkeypatch.setattr(features, "local_geometry_scales", spy_geometry)
     monkeypatch.setattr(PCTSegmentation, "forward", spy_forward)
     _run(tiny_config(tmp_path, **room_files, epochs=1))
     assert seen["features"] and all(seen["features"])  # the recipe's normals and shape, training and validation
