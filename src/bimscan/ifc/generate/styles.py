@@ -21,6 +21,10 @@ Sources of the ranges (docs/guide/generated-buildings.md has the table):
   two-storey AC20-FZK-Haus sample (a 30-degree gable over an attic storey).
 * Doors 0.9 x 2.1 m, stairs with 0.28 m goings and risers near 0.17 m, slabs 0.16-0.35 m, walls
   0.1-0.45 m thick, column grids 5-8 m: common building practice.
+* Interior walls 0.1-0.3 m between their faces: drywall partitions (a 50-100 mm metal stud and
+  one or two 12.5 mm boards a face) are 0.1-0.15 m; masonry ones are a unit of 115, 175 or 240 mm
+  (the DIN 4172 widths) and 10-15 mm of plaster a face, 0.14-0.27 m, the load-bearing ones the
+  thicker (the AC20-FZK-Haus's interior walls measure about 0.25 m on its scan).
 """
 
 from __future__ import annotations
@@ -31,8 +35,8 @@ from typing import Literal
 MIN_STOREYS = 1
 MAX_STOREYS = 10
 # Bumped whenever the same options make a different building: dataset builds record it and make
-# their generated scenes again when it changed (2: attics under gable roofs).
-GENERATOR_VERSION = 2
+# their generated scenes again when it changed (2: attics under gable roofs; 3: interior walls up to 0.3 m thick).
+GENERATOR_VERSION = 3
 
 # -- fixed dimensions (metres) -------------------------------------------------------------
 
@@ -135,8 +139,8 @@ STYLES: dict[str, BuildingStyle] = {
         ceiling_height_m=(2.5, 3.2),
         slab_m=(0.2, 0.3),
         exterior_wall_m=(0.25, 0.4),
-        corridor_wall_m=(0.12, 0.2),
-        partition_m=(0.1, 0.15),
+        corridor_wall_m=(0.12, 0.3),
+        partition_m=(0.1, 0.25),
         corridor_m=(1.6, 2.4),
         strip_m=(3.0, 6.5),
         wing_m=(7.0, 12.0),
@@ -178,8 +182,8 @@ STYLES: dict[str, BuildingStyle] = {
         ceiling_height_m=(2.4, 2.75),
         slab_m=(0.16, 0.22),
         exterior_wall_m=(0.3, 0.45),
-        corridor_wall_m=(0.15, 0.24),
-        partition_m=(0.1, 0.12),
+        corridor_wall_m=(0.15, 0.3),
+        partition_m=(0.1, 0.27),
         corridor_m=(1.1, 1.5),
         strip_m=(3.0, 5.0),
         wing_m=(5.5, 7.5),
@@ -220,8 +224,8 @@ STYLES: dict[str, BuildingStyle] = {
         ceiling_height_m=(2.8, 3.7),
         slab_m=(0.25, 0.35),
         exterior_wall_m=(0.25, 0.35),
-        corridor_wall_m=(0.15, 0.25),
-        partition_m=(0.1, 0.15),
+        corridor_wall_m=(0.15, 0.3),
+        partition_m=(0.1, 0.25),
         corridor_m=(2.0, 3.0),
         strip_m=(4.5, 7.5),
         wing_m=(9.0, 14.0),
