@@ -472,3 +472,17 @@ def test_a_variant_training_on_every_scored_room_by_name_is_refused(rooms_dir: P
     (rooms_dir / "exp.toml").write_text(text, encoding="utf-8")
     with pytest.raises(ConfigError, match="trains on every scored scene"):
         run_experiment(load_experiment(rooms_dir / "exp.toml"), rooms_dir / "out", log=lambda t: None)
+
+
+def test_the_holdout_models_are_scanned_with_the_given_sensor_settings(rooms_dir: Path) -> None:
+    from bimscan.learn.experiment import _holdout_spec
+
+    (rooms_dir / "house.ifc").write_text("ISO-10303-21;\n", encoding="utf-8")
+    holdout = '[holdout]\nifc = ["house.ifc"]\nrealism = "paper"\nsensor = { glass = true }\n\n[rooms]'
+    (rooms_dir / "exp.toml").write_text(ROOMS_EXPERIMENT.replace("[rooms]", holdout, 1), encoding="utf-8")
+    (config,) = _holdout_spec(load_experiment(rooms_dir / "exp.toml")).configs
+    assert (config.realism, config.sensor) == ("paper", {"glass": True})
+    (rooms_dir / "exp.toml").write_text(ROOMS_EXPERIMENT.replace("[rooms]", holdout.replace("glass", "glas"), 1))
+    with pytest.raises(ConfigError, match="glas") as caught:
+        load_experiment(rooms_dir / "exp.toml")
+    assert "\n" not in str(caught.value)

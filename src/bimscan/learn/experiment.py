@@ -10,8 +10,9 @@ One TOML file (loaded like every config, :func:`bimscan.toml_files.build_datacla
   ``label_field``, ``mapping``; ``--real`` replaces its scenes);
 - ``[rooms]``: real labelled scenes variants may train on (a scene set; the variants name them);
 - ``[holdout]``: IFC models scanned once with the given settings (``ifc``, ``preset``,
-  ``head_deg_per_s``, ``clutter``, ``stage``, ``seed``), never trained on: every variant is
-  also scored on them, whole buildings beside the real rooms;
+  ``head_deg_per_s``, ``clutter``, ``stage``, ``seed``, ``realism``, ``sensor``: a dataset
+  configuration's), never trained on: every variant is also scored on them, whole buildings
+  beside the real rooms;
 - the training sections shared by all variants (``[blocks]``, ``[input]``, ``[augment]``,
   ``[model]``, ``[train]``, ``[eval]``, as in a training TOML, :mod:`bimscan.learn.train_config`);
 - ``[[variants]]``: ``name``, ``description``, ``data`` (synthetic: dataset specs to build, or
@@ -108,6 +109,8 @@ class HoldoutTable:
     clutter: float = 0.0
     stage: str = "finished"
     seed: int = 0
+    realism: str | None = None  # the scans' sensor realism and settings, as a dataset configuration's
+    sensor: dict[str, Any] | None = None
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -599,6 +602,10 @@ def _holdout_spec(experiment: Experiment) -> DatasetSpec | None:
         config["head_deg_per_s"] = holdout.head_deg_per_s
     if holdout.clutter:
         config["clutter"] = {"density": holdout.clutter}
+    if holdout.realism is not None:
+        config["realism"] = holdout.realism
+    if holdout.sensor:
+        config["sensor"] = dict(holdout.sensor)
     return parse_spec({"name": f"{experiment.name}-holdout", "seed": holdout.seed, "formats": ["npy"],
                        "scenes": [{"name": n, "ifc": str(resolve_path(folder, p).resolve())}
                                   for n, p in zip(names, holdout.ifc, strict=True)],
