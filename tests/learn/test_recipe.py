@@ -257,6 +257,27 @@ def test_grid_station_tiles_do_not_depend_on_chunking(tmp_path: Path) -> None:
     assert sum(len(c) for c in cells) > 1.5 * len(np.unique(np.concatenate(cells), axis=0))
 
 
+def test_both_train_columns_cut_every_station_scan_per_station_and_merged(tmp_path: Path) -> None:
+    from bimscan.learn.train import DistributedContext, _collect_tiles
+    from bimscan.learn.train_config import DataConfig, TrainRunConfig
+
+    room = make_room(5, size_m=(3.0, 3.0), origin=(0.5, 0.5), points_per_m2=60)  # inside one 4 m column
+    _write_station_scan(tmp_path / "scan", room, (room.xyz[:, 0] > 2.0).astype(np.uint16))  # two stations
+    write_text_cloud(tmp_path / "room.txt", room)  # no stations recorded: a real room
+    sources = list_scenes([tmp_path / "scan", tmp_path / "room.txt"])
+    ctx = DistributedContext(1, 0, 0, torch.device("cpu"), False)
+    counts = {}
+    for columns in ("scene", "station", "both"):
+        blocks = BlockConfig(size_m=4.0, points=64, min_points=16, cache_points=100_000, train_columns=columns)
+        config = TrainRunConfig(data=DataConfig(train=("a",)), blocks=blocks)
+        tiles = _collect_tiles(sources, config=config, cache_dir=tmp_path / "cache", ctx=ctx, columns=columns)
+        names = np.array(tiles.scene_names)[tiles.scene]
+        counts[columns] = [int(np.sum(names == s.name)) for s in sources]
+    assert counts["scene"] == [1, 1] and counts["station"] == [2, 1]
+    # both: the station scan's two stations apart and merged; the real room's one column once, not twice
+    assert counts["both"] == [3, 1]
+
+
 def test_too_many_stations_for_station_columns_is_a_clear_error(tmp_path: Path) -> None:
     from bimscan.errors import LearnError
 

@@ -311,28 +311,34 @@ def resolve_scene_set(scenes: SceneSet, *, base: Path) -> list[SceneSource]:
 
 def _collect_tiles(
     sources: list[SceneSource], *, config: TrainRunConfig, cache_dir: Path, ctx: DistributedContext,
-    per_station: bool = False,
+    columns: str = "scene",
 ) -> TileSet:
-    """Tiles of every scene. Under DDP each process reads every P-th scene into the on-disk
-    tile cache, then all read the whole cache: one pass over the data, spread over processes."""
+    """Tiles of every scene, cut as ``columns`` says (``[blocks] train_columns``: "scene",
+    "station" or "both"). Under DDP each process reads every P-th scene into the on-disk tile
+    cache, then all read the whole cache: one pass over the data, spread over processes."""
+    cuts = {"scene": (False,), "station": (True,), "both": (True, False)}[columns]
+
+    def tiles_of(source: SceneSource, per_station: bool, *, build: bool = True) -> TileSet:
+        return load_or_collect_tiles(
+            source, blocks=config.blocks, class_names=config.data.class_names, seed=config.train.seed,
+            cache_dir=cache_dir, build=build, grid_m=config.input.grid_m, per_station=per_station,
+        )
+
     mine = [s for i, s in enumerate(sources) if i % ctx.world == ctx.rank]
-    built: dict[Path, TileSet] = {}
-    with progress_bar(total=len(mine), desc="reading scenes", unit="scene", enabled=ctx.is_main) as bar:
+    built: dict[tuple[Path, bool], TileSet] = {}
+    with progress_bar(total=len(mine) * len(cuts), desc="reading scenes", unit="scene", enabled=ctx.is_main) as bar:
         for source in mine:
-            built[source.path] = load_or_collect_tiles(
-                source, blocks=config.blocks, class_names=config.data.class_names, seed=config.train.seed,
-                cache_dir=cache_dir, grid_m=config.input.grid_m, per_station=per_station,
-            )
-            bar.update(1)
+            for per_station in cuts:
+                built[source.path, per_station] = tiles_of(source, per_station)
+                bar.update(1)
     if ctx.world > 1:
         dist.barrier()
-    parts = [
-        built[source.path] if source.path in built else load_or_collect_tiles(
-            source, blocks=config.blocks, class_names=config.data.class_names, seed=config.train.seed,
-            cache_dir=cache_dir, build=False, grid_m=config.input.grid_m, per_station=per_station,
-        )
-        for source in sources
-    ]
+    parts: list[TileSet] = []
+    for source in sources:
+        own = [built[source.path, p] if (source.path, p) in built else tiles_of(source, p, build=False) for p in cuts]
+        if len(own) == 2 and np.array_equal(own[0].key, own[1].key):
+            own = own[:1]  # no stations recorded (a real room, a mobile scan): its scene's columns once
+        parts.extend(own)
     return TileSet.concatenate(parts)
 
 
@@ -487,7 +493,7 @@ def _train(
             "leave val out"
         )
     train_tiles = _collect_tiles(train_sources, config=config, cache_dir=cache_dir, ctx=ctx,
-                                 per_station=config.blocks.train_columns == "station")
+                                 columns=config.blocks.train_columns)
     train_set = TileDataset(train_tiles, points=config.blocks.points, seed=settings.seed, inputs=config.input,
                             augment=config.augment)
     val_set = None if val_tiles is None else TileDataset(
@@ -553,7 +559,7 @@ def _train(
     if ctx.is_main and not resume:
         emit(
             f"training PCT ({parameters:,} parameters) on {len(train_set)} blocks from "
-            f"{len(train_tiles.scene_names)} scenes, validating on {0 if val_set is None else len(val_set)} blocks; "
+            f"{len(set(train_tiles.scene_names))} scenes, validating on {0 if val_set is None else len(val_set)} blocks; "
             f"global batch {sampler.global_batch} = {settings.batch_size} x {ctx.world} process(es) x "
             f"{settings.accumulation_steps} accumulation, {sampler.steps_per_epoch} steps/epoch, device {ctx.device}"
         )

@@ -104,9 +104,10 @@ class BlockConfig:
     cache_points: int = 16384
     # training columns of scenes that record stations: "station" (each station's points apart: what
     # one tripod saw, one face of each wall, like a real scan of one room, not both faces of a wall
-    # and the room behind it; part of the sim-to-real recipe) or "scene" (all stations merged, the
-    # paper); evaluation always reads whole scenes
-    train_columns: Literal["scene", "station"] = "station"
+    # and the room behind it; part of the sim-to-real recipe), "scene" (all stations merged, the
+    # paper) or "both" (every column both ways: single-room scans and merged whole buildings);
+    # evaluation always reads whole scenes
+    train_columns: Literal["scene", "station", "both"] = "station"
 
     def __post_init__(self) -> None:
         if not self.size_m > 0:
