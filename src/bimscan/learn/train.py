@@ -337,7 +337,7 @@ def _collect_tiles(
     for source in sources:
         own = [built[source.path, p] if (source.path, p) in built else tiles_of(source, p, build=False) for p in cuts]
         if len(own) == 2 and np.array_equal(own[0].key, own[1].key):
-            own = own[:1]  # no stations recorded (a real room, a mobile scan): its scene's columns once
+            own = own[:1]  # no stations recorded (a real room) or one: its scene's columns once
         parts.extend(own)
     return TileSet.concatenate(parts)
 
