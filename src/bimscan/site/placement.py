@@ -378,7 +378,11 @@ class RoomPlacer:
             return None
         window = self._centres[j0:j1 + 1, i0:i1 + 1]
         local = _rotate2(window.reshape(-1, 2) - pose.centre, -pose.yaw)
-        under = ((np.abs(local[:, 0]) <= w / 2) & (np.abs(local[:, 1]) <= d / 2)).reshape(window.shape[:2])
+        # at least half a cell each way: a board a few centimetres deep still covers the row of cells
+        # along its length (else only the cell at its centre was checked, and a wall board could
+        # reach across a door's keep-out)
+        half_w, half_d = max(w, room.cell_m) / 2, max(d, room.cell_m) / 2
+        under = ((np.abs(local[:, 0]) <= half_w) & (np.abs(local[:, 1]) <= half_d)).reshape(window.shape[:2])
         if not under.any():  # smaller than a cell: the cell holding its centre
             j, i = self._cell_of(pose.centre)
             under = np.zeros(window.shape[:2], dtype=bool)
