@@ -270,12 +270,13 @@ def test_both_train_columns_cut_every_station_scan_per_station_and_merged(tmp_pa
     for columns in ("scene", "station", "both"):
         blocks = BlockConfig(size_m=4.0, points=64, min_points=16, cache_points=100_000, train_columns=columns)
         config = TrainRunConfig(data=DataConfig(train=("a",)), blocks=blocks)
-        tiles = _collect_tiles(sources, config=config, cache_dir=tmp_path / "cache", ctx=ctx, columns=columns)
+        tiles = _collect_tiles(sources, config=config, cache_dir=tmp_path / columns, ctx=ctx, columns=columns)
         names = np.array(tiles.scene_names)[tiles.scene]
         counts[columns] = [int(np.sum(names == s.name)) for s in sources]
     assert counts["scene"] == [1, 1] and counts["station"] == [2, 1]
     # both: the station scan's two stations apart and merged; the real room's one column once, not twice
     assert counts["both"] == [3, 1]
+    assert len(list((tmp_path / "both").glob("*.npz"))) == 3  # the real room read once, not cut twice
 
 
 def test_too_many_stations_for_station_columns_is_a_clear_error(tmp_path: Path) -> None:

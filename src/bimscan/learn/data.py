@@ -376,6 +376,13 @@ def _column_x(ix: np.ndarray) -> np.ndarray:
     return (ix + half) % _STATION_SHIFT - half
 
 
+def station_count(tiles: TileSet) -> int:
+    """How many stations a per-station tile set's columns come from (1 for a scene without
+    stations: its per-station columns are its merged ones)."""
+    ix, _ = decode_column_key(tiles.key)
+    return max(1, len(np.unique((ix - _column_x(ix)) // _STATION_SHIFT)))
+
+
 def _column_y(iy: np.ndarray) -> np.ndarray:
     """The column y index without its per-storey shift."""
     half = _STOREY_SHIFT // 2

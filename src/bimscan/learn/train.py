@@ -44,7 +44,7 @@ from bimscan.learn.checkpoint import (
 )
 from bimscan.learn.train_config import IGNORE_LABEL, SceneSet, TrainConfig, TrainRunConfig, dump_config, parse_config
 from bimscan.toml_files import resolve_path
-from bimscan.learn.data import SceneSource, TileDataset, TileSet, list_scenes, load_or_collect_tiles
+from bimscan.learn.data import SceneSource, TileDataset, TileSet, list_scenes, load_or_collect_tiles, station_count
 from bimscan.learn.features import input_channels
 from bimscan.learn.mapping import load_label_mapping
 from bimscan.learn.metrics import METRIC_NAMES, compute_metrics
@@ -316,7 +316,6 @@ def _collect_tiles(
     """Tiles of every scene, cut as ``columns`` says (``[blocks] train_columns``: "scene",
     "station" or "both"). Under DDP each process reads every P-th scene into the on-disk tile
     cache, then all read the whole cache: one pass over the data, spread over processes."""
-    cuts = {"scene": (False,), "station": (True,), "both": (True, False)}[columns]
 
     def tiles_of(source: SceneSource, per_station: bool, *, build: bool = True) -> TileSet:
         return load_or_collect_tiles(
@@ -324,21 +323,23 @@ def _collect_tiles(
             cache_dir=cache_dir, build=build, grid_m=config.input.grid_m, per_station=per_station,
         )
 
+    def cut(source: SceneSource, *, build: bool = True) -> list[TileSet]:
+        if columns == "scene":
+            return [tiles_of(source, False, build=build)]
+        apart = tiles_of(source, True, build=build)
+        if columns == "station" or station_count(apart) == 1:
+            return [apart]  # a scene of one station or none (a real room): its merged columns are these
+        return [apart, tiles_of(source, False, build=build)]
+
     mine = [s for i, s in enumerate(sources) if i % ctx.world == ctx.rank]
-    built: dict[tuple[Path, bool], TileSet] = {}
-    with progress_bar(total=len(mine) * len(cuts), desc="reading scenes", unit="scene", enabled=ctx.is_main) as bar:
+    built: dict[Path, list[TileSet]] = {}
+    with progress_bar(total=len(mine), desc="reading scenes", unit="scene", enabled=ctx.is_main) as bar:
         for source in mine:
-            for per_station in cuts:
-                built[source.path, per_station] = tiles_of(source, per_station)
-                bar.update(1)
+            built[source.path] = cut(source)
+            bar.update(1)
     if ctx.world > 1:
         dist.barrier()
-    parts: list[TileSet] = []
-    for source in sources:
-        own = [built[source.path, p] if (source.path, p) in built else tiles_of(source, p, build=False) for p in cuts]
-        if len(own) == 2 and np.array_equal(own[0].key, own[1].key):
-            own = own[:1]  # no stations recorded (a real room) or one: its scene's columns once
-        parts.extend(own)
+    parts = [tiles for source in sources for tiles in (built.get(source.path) or cut(source, build=False))]
     return TileSet.concatenate(parts)
 
 
@@ -559,7 +560,8 @@ def _train(
     if ctx.is_main and not resume:
         emit(
             f"training PCT ({parameters:,} parameters) on {len(train_set)} blocks from "
-            f"{len(set(train_tiles.scene_names))} scenes, validating on {0 if val_set is None else len(val_set)} blocks; "
+            f"{len(set(train_tiles.scene_names))} scenes, validating on "
+            f"{0 if val_set is None else len(val_set)} blocks; "
             f"global batch {sampler.global_batch} = {settings.batch_size} x {ctx.world} process(es) x "
             f"{settings.accumulation_steps} accumulation, {sampler.steps_per_epoch} steps/epoch, device {ctx.device}"
         )
