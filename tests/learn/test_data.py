@@ -46,6 +46,25 @@ def test_dataset_folder_expands_to_its_done_units_preferring_the_numpy_folder(tm
     ]
 
 
+def test_a_unit_folder_is_its_cloud_the_numpy_folder_first(tmp_path: Path) -> None:
+    both, laz_only, no_cloud = (tmp_path / "units" / name for name in ("a__exp1", "b__exp1", "c__exp1"))
+    for unit in (both, laz_only, no_cloud):
+        unit.mkdir(parents=True)
+        (unit / "unit.json").write_text("{}")
+    (both / "cloud").mkdir()
+    (both / "cloud" / "coord.npy").write_bytes(b"")
+    for unit in (both, laz_only):
+        (unit / "cloud.laz").write_bytes(b"")
+
+    scenes = list_scenes([both, laz_only], label_field="label")
+
+    assert [(s.name, s.kind, s.path.relative_to(tmp_path).as_posix(), s.label_field) for s in scenes] == [
+        ("a__exp1", "npy", "units/a__exp1/cloud", "label"), ("b__exp1", "laz", "units/b__exp1/cloud.laz", "label"),
+    ]
+    with pytest.raises(InputFileError, match="not a scene"):
+        list_scenes([no_cloud])
+
+
 def test_dataset_without_finished_units_is_refused(tmp_path: Path) -> None:
     _write_manifest(tmp_path, [{"id": "a", "status": "pending", "files": {}}])
 

@@ -136,6 +136,16 @@ class ManifestEntry:
         return path
 
 
+def unit_folder_cloud(folder: str | Path) -> Path | None:
+    """The cloud to read of a unit folder (``units/<scene>__<config>/``, by ``READ_ORDER``), None
+    when ``folder`` is not one (no ``unit.json``, or no cloud beside it)."""
+    folder = Path(folder)
+    if not (folder / UNIT_NAME).is_file():
+        return None
+    files = (folder / FORMAT_FILES[name] for name in READ_ORDER if name in FORMAT_FILES)
+    return next((path for path in files if path.exists()), None)
+
+
 @dataclass(frozen=True)
 class Manifest:
     """``manifest.json``: every unit of the dataset, in spec order."""

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bimscan.dataset.layout import DatasetFolder
+from bimscan.dataset.layout import DatasetFolder, unit_folder_cloud
 from bimscan.errors import InputFileError, LearnError
 from bimscan.files import atomic_output
 from bimscan.io import CLOUD_FORMATS, input_format, iter_cloud_chunks, read_cloud_header
@@ -80,7 +80,8 @@ def _dataset_units(path: Path) -> list[tuple[str, Path]]:
 def list_scenes(
     paths: Sequence[str | Path], *, label_field: str | None = None, mapping: LabelMapping | None = None,
 ) -> list[SceneSource]:
-    """Expand user paths into scenes: datasets into their done units, S3DIS areas into rooms.
+    """Expand user paths into scenes: datasets into their done units (a unit folder is its cloud),
+    S3DIS areas into rooms.
 
     ``label_field`` names the field holding the labels: a LAS/LAZ dimension, a PLY property, a
     NumPy folder's ``<name>.npy``, a column named in a text cloud's header line. S3DIS rooms have
@@ -96,6 +97,8 @@ def list_scenes(
         if path.is_dir() and DatasetFolder(path).is_dataset():
             for unit_id, unit_path in _dataset_units(path):
                 scenes.append(SceneSource(unit_path, input_format(unit_path), unit_id, label_field, mapping))
+        elif path.is_dir() and (cloud := unit_folder_cloud(path)) is not None:  # one unit of a dataset
+            scenes.append(SceneSource(cloud, input_format(cloud), path.name, label_field, mapping))
         elif (kind := _scene_format(path)) is not None:
             name = path.name if path.is_dir() else path.stem
             scenes.append(SceneSource(path, kind, name, None if kind == "s3dis" else label_field, mapping))
@@ -104,8 +107,8 @@ def list_scenes(
                 scenes.append(SceneSource(room, "s3dis", f"{room.parent.name}/{room.name}", None, mapping))
         else:
             suffixes = "/".join(suffix for suffixes in CLOUD_FORMATS.values() for suffix in suffixes if suffix)
-            raise InputFileError(f"{path}: not a scene; pass a {suffixes} cloud, a bimscan NumPy cloud folder or "
-                                 "dataset folder, or an S3DIS room/area folder")
+            raise InputFileError(f"{path}: not a scene; pass a {suffixes} cloud, a bimscan NumPy cloud folder, "
+                                 "dataset folder or unit folder, or an S3DIS room/area folder")
     if label_field is not None and scenes and all(s.kind == "s3dis" for s in scenes):
         raise LearnError(
             f"label field {label_field!r} cannot apply to S3DIS rooms: their labels are the annotation file "
