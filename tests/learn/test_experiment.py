@@ -491,3 +491,25 @@ def test_the_holdout_models_are_scanned_with_the_given_sensor_settings(rooms_dir
     with pytest.raises(ConfigError, match="glas") as caught:
         load_experiment(rooms_dir / "exp.toml")
     assert "\n" not in str(caught.value)
+
+
+def test_a_variant_training_on_the_holdout_is_refused_before_any_work(rooms_dir: Path) -> None:
+    (rooms_dir / "house.ifc").write_text("ISO-10303-21;\n", encoding="utf-8")
+    (rooms_dir / "out" / "holdout").mkdir(parents=True)
+    (rooms_dir / "houses.toml").write_text(
+        'name = "houses"\n\n[[scenes]]\nname = "house"\nifc = "house.ifc"\n\n[[configs]]\nname = "exp1"\npreset = "exp1"\n',
+        encoding="utf-8")
+    scans = rooms_dir / "scans"  # another run's scans of the house: a built dataset folder
+    scans.mkdir()
+    (scans / "dataset.json").write_text(json.dumps({"spec": {"scenes": [
+        {"name": "villa", "ifc": str(rooms_dir / "house.ifc")}, {"name": "gen", "ifc": None}]}}), encoding="utf-8")
+    holdout = '[holdout]\nifc = ["house.ifc"]\n\n[rooms]'
+    for data, message in (('"out/holdout"', "trains on the holdout scans"),
+                          ('"houses.toml"', "trains on holdout model .*house.ifc .*scene 'house' of houses.toml"),
+                          ('"scans"', "trains on holdout model .*house.ifc .*scene 'villa' of .*scans")):
+        text = ROOMS_EXPERIMENT.replace("[rooms]", holdout, 1).replace('data = "synthetic.txt"', f"data = {data}", 1)
+        (rooms_dir / "exp.toml").write_text(text, encoding="utf-8")
+        with pytest.raises(ConfigError, match=message) as caught:
+            run_experiment(load_experiment(rooms_dir / "exp.toml"), rooms_dir / "out", log=lambda t: None)
+        assert "\n" not in str(caught.value)
+        assert sorted(p.name for p in (rooms_dir / "out").iterdir()) == ["holdout"]  # nothing built, nothing trained

@@ -11,8 +11,8 @@ One TOML file (loaded like every config, :func:`bimscan.toml_files.build_datacla
 - ``[rooms]``: real labelled scenes variants may train on (a scene set; the variants name them);
 - ``[holdout]``: IFC models scanned once with the given settings (``ifc``, ``preset``,
   ``head_deg_per_s``, ``clutter``, ``stage``, ``seed``, ``realism``, ``sensor``: a dataset
-  configuration's), never trained on: every variant is also scored on them, whole buildings
-  beside the real rooms;
+  configuration's), never trained on (a variant whose data holds one is refused): every
+  variant is also scored on them, whole buildings beside the real rooms;
 - the training sections shared by all variants (``[blocks]``, ``[input]``, ``[augment]``,
   ``[model]``, ``[train]``, ``[eval]``, as in a training TOML, :mod:`bimscan.learn.train_config`);
 - ``[[variants]]``: ``name``, ``description``, ``data`` (synthetic: dataset specs to build, or
@@ -51,7 +51,7 @@ import json
 import math
 import re
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
@@ -432,6 +432,7 @@ def run_experiment(experiment: Experiment, out_dir: str | Path, *,
     emit = log or (lambda text: print(text, file=sys.stderr, flush=True))
     out = Path(out_dir).resolve()
     out.mkdir(parents=True, exist_ok=True)
+    _check_holdout_unseen(experiment, out)
     _check_same_experiment(experiment, out)
     _build_datasets(experiment, out, emit)
     holdout = _build_holdout(experiment, out, emit)
@@ -567,6 +568,45 @@ def _check_same_data(experiment: Experiment, out: Path) -> None:
         else:
             folder.mkdir(parents=True, exist_ok=True)
             write_atomic(record, (digest + "\n").encode("utf-8"))
+
+
+def _check_holdout_unseen(experiment: Experiment, out: Path) -> None:
+    """Refuse a variant that trains on a holdout model: OUT/holdout's scans, or the same IFC file
+    in one of its dataset specs or built dataset folders (another scan of the same building)."""
+    if not experiment.holdout.ifc:
+        return
+    holdout_models = {(experiment.path.parent / p).resolve() for p in experiment.holdout.ifc}  # as _holdout_spec
+    holdout_scans = (out / "holdout").resolve()
+    for variant in experiment.variants:
+        for folder in variant.folders:
+            resolved = Path(folder).resolve()
+            if resolved == holdout_scans or holdout_scans in resolved.parents:
+                raise ConfigError(f"variant {variant.name!r} trains on the holdout scans ({folder}); the holdout is "
+                                  "never trained on: take them out of its data, or drop [holdout]")
+        for source, scene, ifc in _trained_models(variant):
+            if Path(ifc).resolve() in holdout_models:
+                raise ConfigError(f"variant {variant.name!r} trains on holdout model {ifc} (scene {scene!r} of "
+                                  f"{source}); the holdout is never trained on: take it out of the data or of "
+                                  "[holdout] ifc")
+
+
+def _trained_models(variant: Variant) -> Iterator[tuple[str, str, str]]:
+    """(where, scene name, IFC path) of every IFC scene in a variant's dataset specs and built
+    dataset folders (their dataset.json); generated buildings and clouds name no IFC file."""
+    from bimscan.dataset.layout import DatasetFolder, read_json
+    from bimscan.dataset.spec import load_spec
+
+    for spec_path in variant.specs:
+        for scene in load_spec(spec_path).scenes:
+            if scene.ifc is not None:
+                yield spec_path.name, scene.name, scene.ifc
+    for folder in variant.folders:
+        info = DatasetFolder(folder).info_path
+        if info.is_file():
+            scenes = read_json(info).get("spec", {}).get("scenes", [])
+            for scene in scenes if isinstance(scenes, list) else []:
+                if isinstance(scene, dict) and isinstance(scene.get("ifc"), str):
+                    yield str(folder), str(scene.get("name")), scene["ifc"]
 
 
 def _build_datasets(experiment: Experiment, out: Path, emit: Callable[[str], None]) -> None:
