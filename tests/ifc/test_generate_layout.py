@@ -226,7 +226,11 @@ def test_storey_and_ceiling_heights_lie_in_the_style_ranges_and_beams_keep_headr
         assert plan.beam_bottom_m == plan.soffit_m
     for storey in plan.storeys:
         for room in storey.rooms:
-            assert room.height_m == (plan.ceiling_height_m if room.has_ceiling else plan.soffit_m)
+            if room.kind == "hall":  # through the storey above, to the slab over it
+                assert not room.has_ceiling and storey.index < len(plan.storeys) - 1
+                assert room.height_m == pytest.approx(plan.storey_height_m + plan.soffit_m)
+            else:
+                assert room.height_m == (plan.ceiling_height_m if room.has_ceiling else plan.soffit_m)
 
 
 @settings(max_examples=60, deadline=None)
@@ -339,8 +343,47 @@ def test_planned_elements_name_every_element_once_per_storey_with_its_label() ->
         assert ("IfcWall", "Wall&Column") in labels and ("IfcSlab", "Slab") in labels
         assert all(label == "Others" for cls, label in labels if cls in ("IfcDoor", "IfcWindow", "IfcFurniture"))
         counts = Counter(e.ifc_class for e in elements)
-        assert counts["IfcColumn"] == 3 * len(plan.columns) and counts["IfcBeam"] == 3 * len(plan.beams)
+        assert counts["IfcColumn"] == sum(len(plan.storey_columns(k)) for k in range(3))
+        assert counts["IfcBeam"] == sum(len(plan.storey_beams(k)) for k in range(3))
+        if plan.hall is None:
+            assert counts["IfcColumn"] == 3 * len(plan.columns) and counts["IfcBeam"] == 3 * len(plan.beams)
         assert counts["IfcCovering"] == sum(len(s.ceilings) for s in plan.storeys)
+
+
+def test_a_double_height_hall_is_one_room_through_two_storeys_with_nothing_over_it() -> None:
+    plans = [plan_building(seed=seed, storeys=storeys, style=style)
+             for style in STYLES for seed in range(16) for storeys in (2, 3)]
+    halls = [p for p in plans if p.hall is not None]
+    assert {p.style for p in halls} >= {"office", "residential"}
+    assert not any(p.hall for p in plans if len(p.storeys) == 1)
+    for plan in halls:
+        hall, inside = plan.hall, (lambda r: r.overlaps(plan.hall.rect, margin_m=-0.01))
+        assert 0 <= hall.storey < len(plan.storeys) - 1 and hall.rect.area >= 20.0
+        below, above = plan.storeys[hall.storey], plan.storeys[hall.storey + 1]
+        (room,) = [r for r in below.rooms if inside(r.rect)]
+        assert (room.kind, room.rect, room.has_ceiling) == ("hall", hall.rect, False)
+        assert room.height_m == pytest.approx(plan.storey_height_m + plan.soffit_m)
+        assert not any(inside(r.rect) for r in above.rooms) and not any(inside(f.rect) for f in above.furniture)
+        assert not any(inside(r) for c in [*below.ceilings, *above.ceilings] for r in c.rects)
+        assert not any(inside(b.rect) for _, b in plan.storey_beams(hall.storey))
+        assert len(plan.storey_beams(hall.storey + 1)) == len(plan.beams)
+        assert not any(inside(c) for _, c, _ in plan.storey_columns(hall.storey + 1))
+        for _, column, height in plan.storey_columns(hall.storey):
+            assert height == pytest.approx(plan.storey_height_m + plan.soffit_m if inside(column) else plan.soffit_m)
+        # the storey above keeps the hall's facade windows: its upper row
+        assert _windows_along(above, hall.rect) == _windows_along(below, hall.rect) > 0
+
+
+def _windows_along(storey: StoreyPlan, rect: Rect) -> int:
+    """Windows in the storey's facades whose near edge lies along ``rect``."""
+    count = 0
+    for wall in storey.walls:
+        if wall.exterior and wall.footprint.overlaps(rect, margin_m=0.5):
+            for o in wall.openings:
+                at = (wall.start[0] if wall.along_x else wall.start[1]) + o.offset_m
+                lo, hi = (rect.x0, rect.x1) if wall.along_x else (rect.y0, rect.y1)
+                count += o.kind == "window" and lo - 0.01 <= at <= hi
+    return count
 
 
 def test_subtracting_rectangles_leaves_the_area_outside_the_holes() -> None:

@@ -21,7 +21,8 @@ def first_seed(style: str, storeys: int, wanted) -> int:
 
 @pytest.mark.parametrize(
     "style, seed, storeys",
-    [("office", 0, 2), ("office", 5, 1), ("residential", 1, 2), ("residential", 3, 1), ("site", 2, 1), ("site", 7, 1)],
+    [("office", 0, 2), ("office", 1, 2), ("office", 5, 1), ("residential", 1, 2), ("residential", 3, 1), ("site", 2, 1),
+     ("site", 7, 1)],  # office 1 at 2 storeys: a double-height hall
 )
 def test_generated_buildings_load_with_the_planned_elements_labels_bounds_and_rooms(style, seed, storeys, tmp_path):
     building = make_building(tmp_path / "b.ifc", seed=seed, storeys=storeys, style=style)
@@ -158,3 +159,23 @@ def test_only_rectangular_homes_get_gable_roofs() -> None:
     assert gabled and all(p.style == "residential" and p.shape == "rectangle" for p in gabled)
     homes = [p for p in plans if p.style == "residential" and p.shape == "rectangle"]
     assert len(gabled) < len(homes)  # the style's odds leave some flat
+
+
+def test_a_double_height_hall_rises_through_the_storey_above_to_the_slab_over_it(tmp_path) -> None:
+    seed = first_seed("office", 2, lambda p: p.hall is not None)
+    building = make_building(tmp_path / "hall.ifc", seed=seed, storeys=2)
+    plan, scene = building.plan, load_scene(building.path, strict=True)
+    hall = plan.hall.rect
+    assert scene.failed == () and scene.report.clean
+    space = next(s for s in scene.spaces if s.storey == storey_name(0) and np.allclose(
+        np.r_[s.vertices.min(0)[:2], s.vertices.max(0)[:2]], [hall.x0, hall.y0, hall.x1, hall.y1], atol=1e-3))
+    assert np.ptp(space.vertices[:, 2]) == pytest.approx(plan.storey_height_m + plan.soffit_m, abs=1e-3)
+    # Straight up from the hall, above doors and furniture, clear of columns: past the upper
+    # storey's floor (cut open) to the roof slab or the beams under it; never a covering.
+    spots = [(x, hall.centre[1], 2.12) for x in np.linspace(hall.x0 + 0.3, hall.x1 - 0.3, 9)
+             if not any(c.x0 - 0.05 <= x <= c.x1 + 0.05 for c in plan.columns)]
+    t, classes = up_from(scene, np.array(spots))
+    assert set(classes) <= {"IfcSlab", "IfcBeam"} and "IfcSlab" in set(classes)
+    top = plan.storey_height_m + plan.soffit_m - 2.12
+    np.testing.assert_allclose(t[classes == "IfcSlab"], top, atol=1e-3)
+    np.testing.assert_allclose(t[classes == "IfcBeam"], top - plan.beam_depth_m, atol=1e-3)

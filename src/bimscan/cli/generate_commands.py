@@ -36,7 +36,8 @@ def make_building_command(out: Path, seed: int, storeys: int, style: str) -> Non
     A seeded corridor block of the chosen style, rectangular or L, U, T shaped or notched:
     exterior and interior walls with doors and windows (punched or in bands), columns and
     beams, floor/roof slabs, ceilings, a stair, furniture, one IfcSpace per room; most
-    rectangular residential buildings get an attic under a gable roof.
+    rectangular residential buildings get an attic under a gable roof, and some buildings of two
+    storeys or more a double-height hall.
     OUT is replaced if it exists; it is written atomically.
     """
     from bimscan.ifc.generate import make_building
@@ -47,6 +48,9 @@ def make_building_command(out: Path, seed: int, storeys: int, style: str) -> Non
     rooms = "+".join(str(n) for n in building.rooms_per_storey)
     counts = ", ".join(f"{cls} {n}" for cls, n in building.placed.items())
     roof = "flat roof" if plan.roof is None else f"attic under a {plan.roof.pitch_deg:g} deg gable roof"
+    if plan.hall is not None:
+        roof += (f", a double-height hall of {plan.hall.rect.area:.0f} m2 through storeys {plan.hall.storey}-"
+                 f"{plan.hall.storey + 1}")
     click.echo(
         f"wrote {out}: {style} seed {seed}, {building.storeys} storeys, {sum(building.rooms_per_storey)} rooms "
         f"({rooms}), {plan.shape} {x1 - x0:.1f} x {y1 - y0:.1f} x {building.height_m:.2f} m, storey "

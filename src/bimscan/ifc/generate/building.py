@@ -58,6 +58,7 @@ from bimscan.ifc.generate.layout import (
     CeilingPlan,
     FurniturePlan,
     OpeningPlan,
+    Rect,
     RoofPlan,
     RoomPlan,
     StairPlan,
@@ -465,12 +466,14 @@ class _Author:
             container=storey,
         )
         if sp.index > 0 and plan.stair is not None:
-            self.add_slab_opening(slab, plan.stair, z)
+            self.add_slab_opening(slab, plan.stair.opening, z, name="Stair opening")
+        if plan.hall is not None and sp.index == plan.hall.storey + 1:
+            self.add_slab_opening(slab, plan.hall.rect, z, name="Hall opening")
         for wall in sp.walls:
             self.add_wall(storey, wall, z)
-        for i, rect in enumerate(plan.columns):
-            self.add_column(storey, rect.centre, z, name=column_name(sp.index, i))
-        for i, beam in enumerate(plan.beams):
+        for i, rect, height in plan.storey_columns(sp.index):
+            self.add_column(storey, rect.centre, z, name=column_name(sp.index, i), height_m=height)
+        for i, beam in plan.storey_beams(sp.index):
             self.add_beam(storey, beam, z + plan.soffit_m, name=beam_name(sp.index, i))
         for room in sp.rooms:
             self.add_space(storey, room, z)
@@ -604,10 +607,10 @@ class _Author:
             for occurrence in occurrences:
                 api.type.assign_type(self.model, related_objects=[occurrence], relating_type=relating)
 
-    def add_slab_opening(self, slab: ifcopenshell.entity_instance, stair: StairPlan, z: float) -> None:
-        rect = stair.opening
+    def add_slab_opening(self, slab: ifcopenshell.entity_instance, rect: Rect, z: float, *, name: str) -> None:
+        """Cut ``rect`` (plan) out of the floor slab whose top is at ``z``."""
         void = api.root.create_entity(
-            self.model, ifc_class="IfcOpeningElement", predefined_type="OPENING", name="Stair opening"
+            self.model, ifc_class="IfcOpeningElement", predefined_type="OPENING", name=name
         )
         body = self._slab_body(_rect_polyline(rect.width, rect.depth), self.plan.slab_m + 0.2)
         void.Representation = self.model.createIfcProductDefinitionShape(None, None, [body])
@@ -615,11 +618,11 @@ class _Author:
         self._place(void, _frame((rect.x0, rect.y0, z - self.plan.slab_m - 0.1)), slab)
 
     def add_column(self, storey: ifcopenshell.entity_instance, centre: tuple[float, float], z: float, *,
-                   name: str) -> None:
+                   name: str, height_m: float) -> None:
         plan = self.plan
         profile = self._profile("column", plan.column_m, plan.column_m)
         body = api.geometry.add_profile_representation(
-            self.model, context=self.body, profile=profile, depth=plan.soffit_m
+            self.model, context=self.body, profile=profile, depth=height_m
         )
         self._element(
             "IfcColumn", name=name, predefined_type="COLUMN", representation=body,

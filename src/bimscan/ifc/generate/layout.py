@@ -45,6 +45,7 @@ from bimscan.ifc.generate.styles import (
     ENTRANCE_WIDTH_M,
     FINISH_CEILING_M,
     FINISH_ODDS,
+    HALL_MIN_M2,
     LANDING_DEPTH_M,
     MAX_SPAN_M,
     MAX_STOREYS,
@@ -73,8 +74,8 @@ from bimscan.ifc.generate.styles import (
 
 __all__ = [
     "LANDING_DEPTH_M", "MAX_STOREYS", "MIN_STOREYS", "BeamPlan", "BuildingPlan", "CeilingPlan", "FurniturePlan",
-    "OpeningPlan", "PlannedElement", "Rect", "RoomPlan", "StairPlan", "StoreyPlan", "WallPlan", "plan_building",
-    "planned_elements",
+    "HallPlan", "OpeningPlan", "PlannedElement", "Rect", "RoomPlan", "StairPlan", "StoreyPlan", "WallPlan",
+    "plan_building", "planned_elements",
 ]
 
 OpeningKind = Literal["door", "window"]
@@ -254,6 +255,16 @@ class StairPlan:
 
 
 @dataclass(frozen=True)
+class HallPlan:
+    """A double-height hall: the side section ``rect`` (its clear extent) of storey ``storey`` is
+    one room up to the slab over the storey above; that storey's floor slab has an opening over
+    it, nothing stands on that floor there, and no beam crosses it at that level."""
+
+    storey: int
+    rect: Rect
+
+
+@dataclass(frozen=True)
 class StoreyPlan:
     """Everything placed on one storey; its floor slab top is at ``elevation_m``."""
 
@@ -295,9 +306,10 @@ class BuildingPlan:
     outline_m: the outer faces of the exterior walls, a counter-clockwise rectilinear polygon.
     grid_x_m: X of the column grid lines, west to east; the bays lie between them.
     bay_south_m, bay_north_m: per bay, Y of the inner face of its south and north facade.
-    columns, beams: the same on every storey. ``beam_bottom_m`` equals ``soffit_m`` where the
-    building has no beams.
+    columns, beams: the same on every storey, less those a hall leaves out (``storey_columns``,
+    ``storey_beams``). ``beam_bottom_m`` equals ``soffit_m`` where the building has no beams.
     roof: the gable roof over an attic, or None for a flat roof slab.
+    hall: a double-height hall, or None.
     """
 
     seed: int
@@ -329,6 +341,7 @@ class BuildingPlan:
     stair: StairPlan | None
     storeys: tuple[StoreyPlan, ...]
     roof: RoofPlan | None = None
+    hall: HallPlan | None = None
 
     @property
     def roof_base_m(self) -> float:
@@ -365,6 +378,32 @@ class BuildingPlan:
 
     def beam_rects(self) -> list[Rect]:
         return [b.rect for b in self.beams]
+
+    def storey_columns(self, index: int) -> list[tuple[int, Rect, float]]:
+        """(number, rect, height) of the columns standing on storey ``index``: up to the slab
+        above, those in the hall through the storey above (where none stands on the hall's
+        opening)."""
+        hall = self.hall
+        out = []
+        for i, rect in enumerate(self.columns):
+            in_hall = hall is not None and rect.overlaps(hall.rect, margin_m=-0.01)
+            if in_hall and hall.storey + 1 == index:
+                continue
+            tall = in_hall and hall.storey == index
+            out.append((i, rect, _r(self.storey_height_m + self.soffit_m) if tall else self.soffit_m))
+        return out
+
+    def storey_beams(self, index: int) -> list[tuple[int, BeamPlan]]:
+        """(number, beam) of the beams under the slab over storey ``index``: all, but those that
+        would cross the hall's opening in that slab."""
+        hall = self.hall
+        if hall is None or hall.storey != index:
+            return list(enumerate(self.beams))
+        def crosses(beam: BeamPlan) -> bool:
+            part = beam.rect.intersection(hall.rect)
+            return part is not None and part.area > 1e-4
+
+        return [(i, b) for i, b in enumerate(self.beams) if not crosses(b)]
 
 
 @dataclass(frozen=True)
@@ -439,9 +478,9 @@ def planned_elements(plan: BuildingPlan) -> tuple[PlannedElement, ...]:
             add(f"Wall {wall.name}", "IfcWall", "SOLIDWALL" if wall.exterior else "PARTITIONING", "Wall&Column")
             for o in wall.openings:
                 add(o.name.capitalize(), "IfcDoor" if o.kind == "door" else "IfcWindow", o.kind.upper(), "Others")
-        for i in range(len(plan.columns)):
+        for i, _, _ in plan.storey_columns(k):
             add(column_name(k, i), "IfcColumn", "COLUMN", "Wall&Column")
-        for i in range(len(plan.beams)):
+        for i, _ in plan.storey_beams(k):
             add(beam_name(k, i), "IfcBeam", "BEAM", "Beam")
         for ceiling in sp.ceilings:
             add(ceiling.name, "IfcCovering", "CEILING", "Covering")
@@ -633,10 +672,23 @@ def plan_building(*, seed: int, storeys: int, style: str = "office") -> Building
         storeys=(),
         roof=roof,
     )
+    plan = replace(plan, hall=_plan_hall(np.random.default_rng([seed, key, 4]), plan, table, storeys=storeys))
     storey_plans = tuple(
         _plan_storey(plan, table, index=k, rng=np.random.default_rng([seed, key, 1, k])) for k in range(storeys)
     )
     return replace(plan, storeys=storey_plans)
+
+
+def _plan_hall(rng: np.random.Generator, plan: BuildingPlan, table: BuildingStyle, *, storeys: int) -> HallPlan | None:
+    """A double-height hall with the style's odds in a building of two storeys or more: a side
+    section no beam along X crosses, at least ``HALL_MIN_M2``, on any storey but the top one."""
+    if storeys < 2 or rng.random() >= table.hall_odds:
+        return None
+    candidates = [s.rect for s in _sections(plan) if not s.crossed and s.rect.area >= HALL_MIN_M2]
+    if not candidates:
+        return None
+    rect = candidates[int(rng.integers(len(candidates)))]
+    return HallPlan(int(rng.integers(storeys - 1)), rect)
 
 
 def _plan_roof(rng: np.random.Generator, table: BuildingStyle, *, rectangle: bool) -> RoofPlan | None:
@@ -1031,12 +1083,13 @@ class _StoreyDraft:
     open_areas: set[str] = field(default_factory=set)
     inner_walls: list[tuple[str, tuple[float, float], tuple[float, float], float]] = field(default_factory=list)
     openings: dict[str, list[OpeningPlan]] = field(default_factory=dict)  # per wall name, in the wall's frame
+    hall_above: Rect | None = None  # the hall of the storey below, open through this storey (no room, windows)
     _rooms_made: int = 0
     _openings_made: int = 0
 
-    def room(self, kind: RoomKind, rect: Rect, ceiling: bool) -> RoomPlan:
+    def room(self, kind: RoomKind, rect: Rect, ceiling: bool, *, height_m: float | None = None) -> RoomPlan:
         self._rooms_made += 1
-        height = self.plan.ceiling_height_m if ceiling else self.plan.soffit_m
+        height = height_m if height_m is not None else self.plan.ceiling_height_m if ceiling else self.plan.soffit_m
         made = RoomPlan(f"{self.index}.{self._rooms_made:02d}", kind,
                         Rect(_r(rect.x0), _r(rect.y0), _r(rect.x1), _r(rect.y1)), ceiling, _r(height))
         self.rooms.append(made)
@@ -1112,6 +1165,15 @@ def _add_rooms(draft: _StoreyDraft) -> RoomPlan:
             x, t, ya, yb = section.west_wall
             draft.inner_walls.append((f"section {section.side} {section.bays[0]}", (x, min(ya, yb)),
                                       (x, max(ya, yb)), t))
+        hall = plan.hall
+        if hall is not None and rect == hall.rect and draft.index in (hall.storey, hall.storey + 1):
+            if draft.index == hall.storey:  # one room, no ceiling, up to the slab over the storey above
+                made = draft.room("hall", rect, False, height_m=_r(plan.storey_height_m + plan.soffit_m))
+                draft.open_areas.add(made.number)
+                draft.strip_rooms.append((made, section.side))
+            else:
+                draft.hall_above = rect
+            continue
         cuts: list[float] | None = None
         if rect.depth <= ROOM_M[1] + 1e-9 and not section.crossed and rng.random() >= table.open_plan_odds:
             inside = [(x, c) for x, c in snap if rect.x0 < x < rect.x1]
@@ -1167,13 +1229,14 @@ def _add_windows(draft: _StoreyDraft, exterior: list[WallPlan], corridor: RoomPl
     sill = _cm(_draw(rng, table.window_sill_m))
     head = math.floor(min(table.window_head_m, plan.ceiling_height_m - WALL_ABOVE_OPENING_M) * 100 + 1e-6) / 100
     band_windows = plan.window_style == "band"
+    # the rooms, and the hall of the storey below where it rises through this one (its upper windows)
+    lit = [(made.rect, made is corridor) for made in draft.rooms if made.kind != "stairwell"]
+    if draft.hall_above is not None:
+        lit.append((draft.hall_above, False))
     for wall in exterior:
         fp = wall.footprint
         along_x = wall.along_x
-        for made in draft.rooms:
-            if made.kind == "stairwell":
-                continue
-            r = made.rect
+        for r, is_corridor in lit:
             if along_x:
                 touching = abs(r.y0 - fp.y1) < 1e-6 or abs(r.y1 - fp.y0) < 1e-6
                 lo, hi = max(r.x0, fp.x0), min(r.x1, fp.x1)
@@ -1183,7 +1246,7 @@ def _add_windows(draft: _StoreyDraft, exterior: list[WallPlan], corridor: RoomPl
             if not touching or hi - lo < 0.5:
                 continue
             start = wall.start[0] if along_x else wall.start[1]
-            if made is corridor and not along_x and wall.start[0] > plan.width_m / 2 and draft.index == 0:
+            if is_corridor and not along_x and wall.start[0] > plan.width_m / 2 and draft.index == 0:
                 mid = (ca + cb) / 2
                 draft.opening(wall.name, "door", mid - ENTRANCE_WIDTH_M / 2 - start, ENTRANCE_WIDTH_M, 0.0,
                               ENTRANCE_HEIGHT_M)

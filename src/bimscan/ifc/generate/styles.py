@@ -35,11 +35,13 @@ from typing import Literal
 MIN_STOREYS = 1
 MAX_STOREYS = 10
 # Bumped whenever the same options make a different building: dataset builds record it and make
-# their generated scenes again when it changed (2: attics under gable roofs; 3: interior walls up to 0.3 m thick).
-GENERATOR_VERSION = 3
+# their generated scenes again when it changed (2: attics under gable roofs; 3: interior walls up to 0.3 m thick;
+# 4: double-height halls).
+GENERATOR_VERSION = 4
 
 # -- fixed dimensions (metres) -------------------------------------------------------------
 
+HALL_MIN_M2 = 20.0  # a double-height hall's floor area at least (an entrance hall, an atrium, a gallery)
 STAIR_GOING_M = 0.28  # tread depth; risers follow from the storey height
 STAIR_RISER_M = 0.17  # target riser height
 STAIR_GAP_M = 0.1  # gap between the two flights of the half-turn stair
@@ -78,7 +80,7 @@ RoofKind = Literal["flat", "gable"]
 # against: perimeter columns stand inside the facade, touching it; embedded: half inside the
 # facade wall; setback: free-standing a little way in from the facade.
 ColumnSetting = Literal["against", "embedded", "setback"]
-RoomKind = Literal["office", "room", "open-plan", "corridor", "stairwell", "store"]
+RoomKind = Literal["office", "room", "open-plan", "hall", "corridor", "stairwell", "store"]
 Range = tuple[float, float]
 
 
@@ -123,6 +125,7 @@ class BuildingStyle:
     windows: dict[WindowStyle, float]
     column_settings: dict[ColumnSetting, float]
     open_plan_odds: float  # a side section of a storey is one open-plan area instead of rooms
+    hall_odds: float  # a building of two or more storeys has a double-height hall (one side section, two storeys)
     exposed_room_odds: float  # an office or room has no ceiling covering (when the building has them)
     secondary_beam_odds: float  # beams also run at the middle of every bay
     corridor_beam_odds: float  # beams cross the corridor (else its ceiling is flat)
@@ -167,6 +170,7 @@ STYLES: dict[str, BuildingStyle] = {
         windows={"band": 0.5, "punched": 0.5},
         column_settings={"embedded": 0.45, "against": 0.35, "setback": 0.2},
         open_plan_odds=0.2,
+        hall_odds=0.4,
         exposed_room_odds=0.05,
         secondary_beam_odds=0.6,
         corridor_beam_odds=0.3,
@@ -210,6 +214,7 @@ STYLES: dict[str, BuildingStyle] = {
         windows={"punched": 1.0},
         column_settings={"against": 1.0},
         open_plan_odds=0.1,
+        hall_odds=0.2,
         exposed_room_odds=0.0,
         secondary_beam_odds=0.0,
         corridor_beam_odds=0.0,
@@ -252,6 +257,7 @@ STYLES: dict[str, BuildingStyle] = {
         windows={"band": 0.5, "punched": 0.5},
         column_settings={"setback": 0.5, "against": 0.3, "embedded": 0.2},
         open_plan_odds=0.7,
+        hall_odds=0.4,
         exposed_room_odds=1.0,
         secondary_beam_odds=0.3,
         corridor_beam_odds=1.0,
