@@ -94,10 +94,11 @@ def evaluate(
     """Score CHECKPOINT on labelled SCENE... (every point): OA, mIoU, mAcc, FWIoU, kappa per scene.
 
     SCENE: clouds (.las .laz .ply .txt ...), NumPy cloud folders, bimscan dataset folders or
-    their unit folders (units/<scene>__<config>), S3DIS rooms or areas. Prints the table (as the paper's Table 3) and the IoU per class in
-    Markdown; with --out also writes evaluation.md/.csv/.json (per-class IoU, accuracy, support
-    and confusion matrix per scene) and the pooled confusion matrix as confusion.csv/.png, and
-    for bimscan clouds elements.csv: where each IFC class's points went.
+    their unit folders (units/<scene>__<config>), S3DIS rooms or areas. Prints the table (as
+    the paper's Table 3) and the IoU per class in Markdown; with --out also writes
+    evaluation.md/.csv/.json (per-class IoU, accuracy, support and confusion matrix per scene)
+    and the pooled confusion matrix as confusion.csv/.png, and for bimscan clouds elements.csv:
+    where each IFC class's points went.
     """
     from bimscan.learn.evaluate import evaluate_checkpoint, format_markdown, write_evaluation
     from bimscan.learn.mapping import load_label_mapping

@@ -603,7 +603,8 @@ def _trained_models(variant: Variant) -> Iterator[tuple[str, str, str]]:
     for folder in variant.folders:
         info = DatasetFolder(folder).info_path
         if info.is_file():
-            scenes = read_json(info).get("spec", {}).get("scenes", [])
+            spec = read_json(info).get("spec")
+            scenes = spec.get("scenes") if isinstance(spec, dict) else None
             for scene in scenes if isinstance(scenes, list) else []:
                 if isinstance(scene, dict) and isinstance(scene.get("ifc"), str):
                     yield str(folder), str(scene.get("name")), scene["ifc"]
