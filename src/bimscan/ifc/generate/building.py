@@ -9,7 +9,8 @@ IfcOpeningElements and filled with parametric doors and windows (one IfcDoorType
 IfcWindowType per size, occurrences mapping its body); a column grid with beams under every
 slab; floor, base and roof slabs (or, over most rectangular homes, an attic under a gable roof:
 knee and gable walls, two pitched roof slabs); a half-turn stair (flights, landing, railings)
-through a slab opening; ceiling coverings cut around columns and downstand beams; furniture;
+through a slab opening; a double-height hall under an opening in the floor above it (some
+multi-storey buildings); ceiling coverings cut around columns and downstand beams; furniture;
 and one IfcSpace per room for station planning. Shapes the api has no function for (stair flights, furniture,
 railings, coverings of several pieces) are built with IfcOpenShell's ShapeBuilder, as the api
 itself does.

@@ -14,7 +14,10 @@ notch. A strip is split into *sections* where its depth changes; a section holds
 rooms) side by side, each with a door to the corridor, or one open-plan area. A half-turn stair
 stands at the west end of the north strip (when there is more than one storey; a store fills
 the strip behind it where the strip is deeper than the stair), the entrance at the east end of
-the corridor.
+the corridor. With the style's odds a building of two storeys or more has a double-height hall
+(``HallPlan``): one side section is a single room through its storey and the one above, whose
+floor is cut open over it (``BuildingPlan.storey_columns`` and ``storey_beams`` say which
+columns rise through both storeys and which beams the opening leaves out).
 
 Structure (styles with a column grid): columns on every grid line at both corridor walls and
 at the facades (touching the facade, half inside it, or set back from it), plus rows of
