@@ -42,23 +42,37 @@ class SceneMesh:
     vertices: (V, 3) float64, world coordinates in metres, Z up.
     faces: (F, 3) int32, indices into ``vertices``.
     face_component: (F,) int32, the dense component id of each triangle.
+    face_transparency: (F,) float32 in [0, 1], the transparency of each triangle's own surface
+    style in the model (a window's pane and its frame told apart), NaN where the triangle has no
+    style; None when the mesh carries no per-triangle styles (a model built in memory, clutter).
     """
 
     vertices: np.ndarray
     faces: np.ndarray
     face_component: np.ndarray
+    face_transparency: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         _check("vertices", self.vertices, "float64", (None, 3))
         _check("faces", self.faces, "int32", (None, 3))
         _check("face_component", self.face_component, "int32", (None,))
-        _check_rows("SceneMesh", len(self.faces), face_component=self.face_component)
+        _check("face_transparency", self.face_transparency, "float32", (None,))
+        _check_rows("SceneMesh", len(self.faces), face_component=self.face_component,
+                    face_transparency=self.face_transparency)
+        if self.face_transparency is not None and np.any((self.face_transparency < 0) | (self.face_transparency > 1)):
+            raise ValueError("face_transparency must lie in [0, 1] (NaN: no style)")
         if len(self.faces) and (self.faces.min() < 0 or self.faces.max() >= len(self.vertices)):
             raise ValueError("faces index vertices out of range")
 
     @property
     def n_triangles(self) -> int:
         return int(len(self.faces))
+
+    def face_transparency_with(self, added: int) -> np.ndarray | None:
+        """``face_transparency`` followed by ``added`` triangles without a style (NaN); None stays None."""
+        if self.face_transparency is None:
+            return None
+        return np.concatenate([self.face_transparency, np.full(added, np.nan, dtype=np.float32)])
 
     @cached_property
     def _bounds(self) -> tuple[np.ndarray, np.ndarray]:

@@ -138,6 +138,7 @@ def test_a_stored_dressed_scene_reads_back_as_the_scene_dressed_again(tmp_path, 
     assert (tmp_path / "a.site.npz").read_bytes() == (tmp_path / "b.site.npz").read_bytes()  # same scene, same bytes
     back = read_site_scene(tmp_path / "a.site.npz", scene, "key-1")
     assert back.mesh.vertices.tobytes() == dressed.mesh.vertices.tobytes()
+    assert back.mesh.face_transparency.tobytes() == dressed.mesh.face_transparency.tobytes()
     assert back.components.rows() == dressed.components.rows() and back.site == dressed.site
     assert dict(back.components.class_ancestry) == dict(dressed.components.class_ancestry)
     assert read_site_scene(tmp_path / "a.site.npz", scene, "key-2") is None  # dressed from something else

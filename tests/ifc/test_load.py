@@ -91,6 +91,7 @@ def test_cached_load_equals_a_fresh_parse_and_skips_the_parse(shared_ifc, privat
     cached_seconds = time.perf_counter() - start
     assert np.array_equal(cached.mesh.vertices, fresh.mesh.vertices)
     assert np.array_equal(cached.mesh.faces, fresh.mesh.faces)
+    assert np.array_equal(cached.mesh.face_transparency, fresh.mesh.face_transparency, equal_nan=True)
     assert cached.components.rows() == fresh.components.rows()
     assert [s.name for s in cached.spaces] == [s.name for s in fresh.spaces]
     assert all(np.array_equal(a.vertices, b.vertices) for a, b in zip(cached.spaces, fresh.spaces))

@@ -29,6 +29,16 @@ def test_a_duplex_window_takes_its_sash_colour_and_its_glazing_transparency(shar
     assert surfaces.transparency[1] == 0.0
 
 
+def test_a_duplex_windows_glazing_triangles_are_transparent_and_its_sash_triangles_are_not(shared_ifc):
+    # duplex.ifc: the window's items carry style 'Glass' (transparency 0.9) or 'Sash' (0); IfcOpenShell
+    # resolves them per triangle
+    parsed = load_ifc(shared_ifc("duplex.ifc"))
+    window = int(np.flatnonzero(parsed.components.global_id == "1hOSvn6df7F8_7GcBWlR72")[0])
+    alpha = parsed.mesh.face_transparency[parsed.mesh.face_component == window]
+    assert set(np.round(alpha.astype(np.float64), 6).tolist()) == {0.9, 0.0}
+    assert 0 < (alpha > 0).sum() < (alpha == 0).sum()  # the panes are a few large triangles, the sash many
+
+
 def test_an_fzk_haus_slab_is_concrete_grey_and_names_its_material(shared_ifc):
     # AC20-FZK-Haus.ifc: style 'Beton' #34486 IFCCOLOURRGB(0.549019607843, 0.552941176471, 0.494117647059)
     surfaces = surfaces_of(shared_ifc("AC20-FZK-Haus.ifc"), ["1pPHnf7cXCpPsNEnQf8_6B"])

@@ -43,15 +43,15 @@ def component_named(scene, name: str) -> int:
     return int(np.flatnonzero(scene.components.name == name)[0])
 
 
-def style(model, element, *, rgb, transparency=0.0, name="style"):
-    """Give ``element``'s body a surface style (colour and transparency)."""
+def style(model, element, *, rgb, transparency=0.0, name="style", item=0):
+    """Give ``element``'s body (its ``item``-th item) a surface style (colour and transparency)."""
     import ifcopenshell.api.style  # noqa: F401
 
     created = model.api.run("style.add_style", model.file, name=name)
     model.api.run("style.add_surface_style", model.file, style=created, ifc_class="IfcSurfaceStyleShading",
                   attributes={"SurfaceColour": {"Name": None, "Red": rgb[0], "Green": rgb[1], "Blue": rgb[2]},
                               "Transparency": transparency})
-    model.api.run("style.assign_item_style", model.file, item=element.Representation.Representations[0].Items[0],
+    model.api.run("style.assign_item_style", model.file, item=element.Representation.Representations[0].Items[item],
                   style=created)
 
 
@@ -305,6 +305,64 @@ def test_as_built_draws_follow_the_tolerance_sigmas():
     assert np.array_equal(deviations.shift_m, again.shift_m)
     other = sample_deviations(mesh, np.array([f"gid{i}" for i in range(n)]), sensor, seed=2)
     assert not np.allclose(deviations.shift_m, other.shift_m)
+
+
+@pytest.fixture(scope="module")
+def framed_window_scene(tiny_model, tmp_path_factory):
+    """One window of two items 3 m in front of the scanner: a glazed pane (transparency 0.9, z 1.2-2.0)
+    over a sill without a style (z 1.0-1.2, 0.1 m deep); a wall 6 m away."""
+    model = tiny_model("IFC4")
+    window = model.add_box("IfcWindow", origin=(3.0, -0.5, 1.2), size=(0.02, 1.0, 0.8), name="window")
+    f = model.file
+    profile = f.createIfcRectangleProfileDef("AREA", None, f.createIfcAxis2Placement2D(
+        f.createIfcCartesianPoint((0.05, 0.5)), None), 0.1, 1.0)
+    sill = f.createIfcExtrudedAreaSolid(profile, f.createIfcAxis2Placement3D(f.createIfcCartesianPoint((0.0, 0.0, -0.2)),
+                                                                           None, None),
+                                        f.createIfcDirection((0.0, 0.0, 1.0)), 0.2)
+    body = window.Representation.Representations[0]
+    body.Items = (*body.Items, sill)
+    style(model, window, rgb=(0.2, 0.4, 0.9), transparency=0.9, name="glazing", item=0)
+    model.add_box("IfcWall", origin=(6.0, -4.0, 0.0), size=(0.2, 8.0, 3.0), name="wall")
+    return load_scene(model.write(tmp_path_factory.mktemp("framed") / "framed.ifc"))
+
+
+def test_the_parse_keeps_each_triangles_style_transparency(framed_window_scene):
+    scene = framed_window_scene
+    window, wall = component_named(scene, "window"), component_named(scene, "wall")
+    alpha = scene.mesh.face_transparency
+    corners = scene.mesh.vertices[scene.mesh.faces]  # (F, 3, 3)
+    of_window = scene.mesh.face_component == window
+    pane = of_window & (corners[:, :, 2] > 1.2 - 1e-9).all(axis=1) & (corners[:, :, 0] < 3.02 + 1e-9).all(axis=1)
+    sill = of_window & ~pane
+    assert pane.sum() == 12 and sill.sum() == 12  # two boxes
+    np.testing.assert_allclose(alpha[pane], 0.9, atol=1e-6)
+    assert np.isnan(alpha[sill]).all() and np.isnan(alpha[scene.mesh.face_component == wall]).all()
+    assert scene.surfaces.transparency[window] == pytest.approx(0.9)  # the component: its highest
+
+
+def test_glass_passes_the_beam_through_a_windows_pane_but_not_its_frame(framed_window_scene):
+    window, wall = component_named(framed_window_scene, "window"), component_named(framed_window_scene, "wall")
+    opaque = scan(framed_window_scene, SensorModel(**ONLY), WINDOW_SETTINGS)
+    clear = scan(framed_window_scene, SensorModel(**ONLY, glass=True, glass_return_probability=0.0), WINDOW_SETTINGS)
+    at_window = opaque.component == window
+    pane = at_window & (opaque.xyz[:, 2] > 1.2 + 1e-3)
+    sill = at_window & (opaque.xyz[:, 2] < 1.2 - 1e-3)
+    assert pane.sum() > 1000 and sill.sum() > 200
+    through = np.isin(clear.time, opaque.time[pane])
+    assert through.sum() == pane.sum() and (clear.component[through] == wall).all()  # every pane pulse passes
+    kept = clear.component == window
+    assert np.isin(opaque.time[sill], clear.time[kept]).all()  # the sill stays where it was
+    assert (clear.xyz[kept, 2] < 1.2 + 1e-3).all()  # and nothing of the pane does
+
+
+def test_glazing_faces_pass_only_the_styled_panes_of_a_component_that_tells_them_apart():
+    from bimscan.scan.surfaces import glazing_faces
+
+    component = np.array([0, 0, 0, 1, 1, 2])  # a window (pane, frame, unstyled), a glass plate, a wall
+    style = np.array([0.9, 0.0, np.nan, np.nan, np.nan, 0.0], dtype=np.float32)
+    alpha = glazing_faces(np.array([0.9, 0.8, 0.0]), component, style)
+    np.testing.assert_allclose(alpha, [0.9, 0.0, 0.0, 0.8, 0.8, 0.0])  # the plate: glass by its name, whole
+    np.testing.assert_allclose(glazing_faces(np.array([0.9, 0.8, 0.0]), component, None), [0.9, 0.9, 0.9, 0.8, 0.8, 0.0])
 
 
 @pytest.fixture(scope="module")

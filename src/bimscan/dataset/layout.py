@@ -55,7 +55,7 @@ UNIT_VERSION = 4
 STATIONS_FORMAT = "bimscan-stations"
 STATIONS_VERSION = 1
 SITE_FORMAT = "bimscan-site-scene"
-SITE_VERSION = 3
+SITE_VERSION = 4  # 4: each triangle's style transparency
 _SURFACE_COLUMNS = ("color", "transparency", "style", "material")
 _SITE_COLUMNS = ("global_id", "ifc_class", "predefined_type", "name", "storey", "parent_class", "label")
 STATUSES = ("done", "failed", "pending")
@@ -354,6 +354,8 @@ def write_site_scene(path: Path, scene: BimScene, key: str) -> None:
     arrays = {"vertices": scene.mesh.vertices, "faces": scene.mesh.faces, "face_component": scene.mesh.face_component,
               **{f"component_{c}": getattr(scene.components, c) for c in _SITE_COLUMNS},
               "meta": np.frombuffer(dump_json(meta), dtype=np.uint8)}
+    if scene.mesh.face_transparency is not None:
+        arrays["face_transparency"] = scene.mesh.face_transparency
     if scene.surfaces is not None:
         arrays |= {f"surface_{c}": getattr(scene.surfaces, c) for c in _SURFACE_COLUMNS}
     with atomic_output(path) as temp, zipfile.ZipFile(temp, "w", zipfile.ZIP_STORED) as archive:
@@ -371,7 +373,8 @@ def read_site_scene(path: Path, base: BimScene, key: str) -> BimScene | None:
             meta = json.loads(arrays["meta"].tobytes())
             if meta.get("format") != SITE_FORMAT or meta.get("version") != SITE_VERSION or meta.get("key") != key:
                 return None
-            mesh = SceneMesh(vertices=arrays["vertices"], faces=arrays["faces"], face_component=arrays["face_component"])
+            mesh = SceneMesh(vertices=arrays["vertices"], faces=arrays["faces"], face_component=arrays["face_component"],
+                             face_transparency=arrays["face_transparency"] if "face_transparency" in arrays.files else None)
             table = ComponentTable(**{c: arrays[f"component_{c}"] for c in _SITE_COLUMNS},
                                    class_ancestry={k: tuple(v) for k, v in meta["class_ancestry"].items()})
             surfaces = (ComponentSurfaces(**{c: arrays[f"surface_{c}"] for c in _SURFACE_COLUMNS})

@@ -46,7 +46,8 @@ def load_parsed(key: str) -> ParsedModel | None:
     try:
         meta = json.loads(meta_path.read_text("utf-8"))
         with np.load(arrays_path, allow_pickle=False) as arrays:
-            mesh = SceneMesh(vertices=arrays["vertices"], faces=arrays["faces"], face_component=arrays["face_component"])
+            mesh = SceneMesh(vertices=arrays["vertices"], faces=arrays["faces"], face_component=arrays["face_component"],
+                             face_transparency=arrays["face_transparency"] if "face_transparency" in arrays else None)
             table = ComponentTable(
                 **{c: arrays[f"component_{c}"] for c in _TABLE_COLUMNS},
                 label=np.zeros(len(arrays["component_global_id"]), dtype=np.uint8),
@@ -89,6 +90,8 @@ def store_parsed(key: str, parsed: ParsedModel) -> None:
             "space_vertices": np.concatenate([s.vertices for s in spaces]) if spaces else np.empty((0, 3)),
             "space_faces": np.concatenate([s.faces for s in spaces]) if spaces else np.empty((0, 3), np.int32),
         }
+        if parsed.mesh.face_transparency is not None:
+            arrays["face_transparency"] = parsed.mesh.face_transparency
         if parsed.surfaces is not None:
             arrays |= {f"surface_{c}": getattr(parsed.surfaces, c) for c in ("color", "transparency", "style", "material")}
         meta = {

@@ -47,8 +47,9 @@ from bimscan.types import ParsedModel
 # Bumped whenever what the parse produces changes, so stale cache entries are never used.
 # 2: repairs and load report, STEP ids of components, failure causes, length-unit handling;
 # 3: component surface styles and materials (ifc/materials.py); 4: bodies in "Design" and
-# upper-case "MODEL" contexts (ArchiCAD, AutoCAD exports).
-LOADER_VERSION = 4
+# upper-case "MODEL" contexts (ArchiCAD, AutoCAD exports); 5: each triangle's surface-style
+# transparency (a window's pane apart from its frame).
+LOADER_VERSION = 5
 
 
 def load_ifc(path: str | Path, *, use_cache: bool = True, threads: int | None = None, strict: bool = False,

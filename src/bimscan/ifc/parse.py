@@ -50,6 +50,8 @@ from bimscan.types import (
 )
 
 Emit = Callable[[str, Any], None]
+# One element's triangles: vertices (V, 3) float64, faces (F, 3) int32, each face's style transparency (F,) float32.
+Shape = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 # Representation identifiers that are never the element's solid body.
 _NON_BODY_IDENTIFIERS = {
@@ -123,7 +125,7 @@ def parse_model(request: ParseRequest, emit: Emit = lambda kind, payload: None) 
             if extent > GUESS_MM_ABOVE_M:  # placements looked small, the geometry is not
                 factor, unit_m, unit_issue = factor * 0.001, 0.001, _mm_words(extent, "the geometry")
         if factor != 1.0:
-            mesh = SceneMesh(vertices=mesh.vertices * factor, faces=mesh.faces, face_component=mesh.face_component)
+            mesh = replace(mesh, vertices=mesh.vertices * factor)
         if unit_issue:
             problems.append(step.Problem("length-unit", 0, 0, unit_issue))
         storeys = _storeys(model, ifcopenshell.util.unit.calculate_unit_scale(model) * factor)
@@ -535,7 +537,7 @@ def _triangulate(model: Any, elements: list[Any], request: ParseRequest, emit: E
 
     settings = ifcopenshell.geom.settings()
     settings.set("use-world-coords", True)
-    shapes: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    shapes: dict[int, Shape] = {}
     reasons: dict[int, str] = {}
     emit("phase", phase)
     emit("pending", [e.id() for e in elements])
@@ -552,9 +554,9 @@ def _triangulate(model: Any, elements: list[Any], request: ParseRequest, emit: E
             while started:
                 shape = iterator.get()
                 _inject_fault(shape.id)
-                vertices, faces = _shape_arrays(shape.geometry)
-                if len(faces):
-                    shapes[shape.id] = (vertices, faces)
+                arrays = _shape_arrays(shape.geometry)
+                if len(arrays[1]):
+                    shapes[shape.id] = arrays
                 finished.append(shape.id)
                 if time.monotonic() - last > _DONE_EVERY_S:
                     emit("done", finished)
@@ -578,13 +580,13 @@ def _triangulate(model: Any, elements: list[Any], request: ParseRequest, emit: E
         _inject_fault(step_id)
         try:
             shape = ifcopenshell.geom.create_shape(settings, element)
-            vertices, faces = _shape_arrays(shape.geometry)
-            reason = "geometry produced no triangles" if not len(faces) else ""
+            arrays = _shape_arrays(shape.geometry)
+            reason = "geometry produced no triangles" if not len(arrays[1]) else ""
         except Exception as exc:  # IfcOpenShell raises RuntimeError or its own errors per element
-            reason, faces = _short_reason(exc), np.empty((0, 3), np.int32)
+            reason = _short_reason(exc)
         emit("done", [step_id])
         if not reason:
-            shapes[step_id] = (vertices, faces)
+            shapes[step_id] = arrays
             continue
         cause, reason = _failure_cause(model, element, scan, reason)
         failed.append(FailedElement(global_id=_global_id(element), ifc_class=element.is_a(), reason=reason,
@@ -632,27 +634,49 @@ def _short_reason(exc: Exception) -> str:
     return text if len(text) <= 300 else text[:297] + "..."
 
 
-def _shape_arrays(geometry: Any) -> tuple[np.ndarray, np.ndarray]:
+def _shape_arrays(geometry: Any) -> Shape:
     vertices = np.frombuffer(geometry.verts_buffer, dtype=np.float64).reshape(-1, 3)
     faces = np.frombuffer(geometry.faces_buffer, dtype=np.int32).reshape(-1, 3)
     if len(faces) and (faces.min() < 0 or faces.max() >= len(vertices) or not np.isfinite(vertices).all()):
-        return vertices[:0], faces[:0]
-    return vertices.copy(), faces.copy()
+        return vertices[:0], faces[:0], np.zeros(0, np.float32)
+    return vertices.copy(), faces.copy(), _face_transparency(geometry, len(faces))
 
 
-def _merge(components: list[Any], shapes: dict[int, tuple[np.ndarray, np.ndarray]]) -> SceneMesh:
-    vertices, faces, face_component = [], [], []
+def _face_transparency(geometry: Any, n_faces: int) -> np.ndarray:
+    """(F,) float32: the transparency of each triangle's surface style, as IfcOpenShell resolved it
+    per item (a window's glazing and its frame are separate items), NaN for a triangle without one.
+    IfcOpenShell's own defaults (a semi-transparent IfcWindow, say) are not the model's: NaN too."""
+    out = np.full(n_faces, np.nan, dtype=np.float32)
+    try:
+        ids = np.asarray(geometry.material_ids, dtype=np.int64)
+        styles = geometry.materials
+        alpha = np.array([float(s.transparency) if s.instance_id() > 0 and s.has_transparency() else np.nan
+                          for s in styles], dtype=np.float64)
+    except (AttributeError, RuntimeError, TypeError, ValueError):  # another IfcOpenShell: no per-item styles
+        return out
+    if len(ids) != n_faces or not len(alpha):
+        return out
+    valid = (ids >= 0) & (ids < len(alpha))
+    with np.errstate(invalid="ignore"):
+        out[valid] = np.clip(alpha[ids[valid]], 0.0, 1.0)
+    return out
+
+
+def _merge(components: list[Any], shapes: dict[int, Shape]) -> SceneMesh:
+    vertices, faces, face_component, face_transparency = [], [], [], []
     offset = 0
     for cid, element in enumerate(components):
-        v, f = shapes[element.id()]
+        v, f, alpha = shapes[element.id()]
         vertices.append(v)
         faces.append(f + offset)
         face_component.append(np.full(len(f), cid, dtype=np.int32))
+        face_transparency.append(alpha)
         offset += len(v)
     return SceneMesh(
         vertices=np.ascontiguousarray(np.concatenate(vertices), dtype=np.float64),
         faces=np.ascontiguousarray(np.concatenate(faces), dtype=np.int32),
         face_component=np.concatenate(face_component),
+        face_transparency=np.concatenate(face_transparency).astype(np.float32),
     )
 
 
@@ -749,7 +773,7 @@ def _spaces(model: Any, request: ParseRequest, emit: Emit, factor: float, *, lin
     for space in spaces:
         if space.id() not in shapes:
             continue  # a room without usable geometry only costs the station planner a hint
-        v, f = shapes[space.id()]
+        v, f, _ = shapes[space.id()]
         name = " ".join(filter(None, (_text(_attribute(space, "Name", "")), _text(_attribute(space, "LongName", "")))))
         out.append(Space(global_id=_global_id(space), name=name or _global_id(space), storey=_storey_of(space),
                          vertices=v * factor if factor != 1.0 else v, faces=f))

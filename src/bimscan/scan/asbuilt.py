@@ -127,4 +127,5 @@ def apply_deviations(mesh: SceneMesh, deviations: Deviations) -> SceneMesh:
     component = (unique % max(len(deviations.global_id), 1)).astype(np.int64)
     moved = deviations.transform(mesh.vertices[vertex], component)
     return SceneMesh(vertices=np.ascontiguousarray(moved, dtype=np.float64),
-                     faces=inverse.reshape(-1, 3).astype(np.int32), face_component=mesh.face_component)
+                     faces=inverse.reshape(-1, 3).astype(np.int32), face_component=mesh.face_component,
+                     face_transparency=mesh.face_transparency)

@@ -138,3 +138,23 @@ def surface_table(surfaces: ComponentSurfaces | None, ifc_class: np.ndarray,
     color = np.where(np.isnan(facts.color), fallback, facts.color).astype(np.float32)
     return SurfaceTable(category=names, reflectance=reflectance.reshape(n), transparency=transparency.astype(np.float32),
                         color=color)
+
+
+def glazing_faces(component_transparency: np.ndarray, face_component: np.ndarray,
+                  face_style_transparency: np.ndarray | None) -> np.ndarray:
+    """(F,) float64: how much of the beam each triangle passes.
+
+    A component passes its transparency (``SurfaceTable.transparency``) on every triangle, unless
+    the model styles some of its triangles transparent and others not (a window's glazing apart
+    from its frame and sash, as IfcOpenShell resolves each item's style): then only those pass it
+    and the rest are opaque. ``face_style_transparency`` (F,): each triangle's own style
+    transparency, NaN without a style (``SceneMesh.face_transparency``; None: not known).
+    """
+    alpha = np.asarray(component_transparency, dtype=np.float64)[face_component]
+    if face_style_transparency is None or not len(alpha):
+        return alpha
+    with np.errstate(invalid="ignore"):
+        pane = np.asarray(face_style_transparency) > 0.0  # NaN (no style): not a pane
+    has_panes = np.zeros(len(component_transparency), dtype=bool)
+    has_panes[face_component[pane]] = True
+    return np.where(has_panes[face_component] & ~pane, 0.0, alpha)

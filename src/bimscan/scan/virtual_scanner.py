@@ -260,7 +260,7 @@ class VirtualScanner:
         waveform.gather_returns(
             0, n, t_hit, triangle, np.zeros(n, dtype=np.bool_), rays, pulse, np.zeros(n + 1, dtype=np.int64),
             none_int, none_int, none_float, np.zeros(0, np.uint32), np.ones(1), 2, self.face_component,
-            tables.face_normal, tables.reflectance, tables.transparency, False, 0.0, lidar.min_range_m,
+            tables.face_normal, tables.reflectance, tables.face_transparency, False, 0.0, lidar.min_range_m,
             lidar.max_range_m, 0.0, key, False, 1.0, waveform.detection_constant(sensor.speckle_cells),
             sensor.speckle_cells, waveform.MODE_CODES[sensor.returns], slots, out_t, out_comp, out_tri, out_energy,
             out_cos, out_number, out_count_of, count)
@@ -306,7 +306,7 @@ class VirtualScanner:
 
     def sensor_tables(self, sensor: SensorModel) -> waveform.SensorTables:
         """Per-component and per-triangle tables of the sensor kernels for ``sensor`` (built once)."""
-        from bimscan.scan.surfaces import PAPER_REFLECTANCE, load_material_table, surface_table
+        from bimscan.scan.surfaces import PAPER_REFLECTANCE, glazing_faces, load_material_table, surface_table
 
         cache_key = (sensor.needs_surfaces, sensor.on("materials"), sensor.on("glass"), sensor.material_table)
         if cache_key not in self._sensor_tables:
@@ -324,10 +324,12 @@ class VirtualScanner:
                 color = table.color.astype(np.float64)
             phase = self.deviations.phase if self.deviations is not None else np.zeros(n)
             normals = self.mesh.face_normals().astype(np.float32)
+            face_transparency = np.ascontiguousarray(
+                glazing_faces(transparency, self.face_component, self.mesh.face_transparency))
             self._sensor_tables[cache_key] = waveform.SensorTables(
-                reflectance=reflectance, transparency=transparency, color=color, phase=np.asarray(phase, dtype=np.float64),
-                face_normal=np.ascontiguousarray(normals),
-                transparent_face=np.ascontiguousarray(transparency[self.face_component] > 0.0))
+                reflectance=reflectance, face_transparency=face_transparency, color=color,
+                phase=np.asarray(phase, dtype=np.float64), face_normal=np.ascontiguousarray(normals),
+                transparent_face=face_transparency > 0.0)
         return self._sensor_tables[cache_key]
 
     def _work(self, name: str, shape: tuple[int, ...], dtype: type) -> np.ndarray:
@@ -399,7 +401,7 @@ class VirtualScanner:
             waveform.gather_returns(
                 first, n_int, t0, tri0, flagged, rays, pulse, extra_offsets, e_sub, e_layer, e_t, e_tri, weight,
                 (n_sub + 1) * (layers + 1) + 1, self.face_component, tables.face_normal, tables.reflectance,
-                tables.transparency, glass, sensor.glass_return_probability, device.min_range_m, device.max_range_m,
+                tables.face_transparency, glass, sensor.glass_return_probability, device.min_range_m, device.max_range_m,
                 device.range_resolution_m, key, sensor.on("detection"), reach_scale, detect_a, sensor.speckle_cells,
                 mode, slots, out_t, out_comp, out_tri, out_energy, out_cos, out_number, out_count_of, count)
             n_out = int(count.sum())

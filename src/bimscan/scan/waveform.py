@@ -265,7 +265,7 @@ def gather_returns(first: int, n: int, t0: np.ndarray, tri0: np.ndarray, flagged
                    pulse: np.ndarray, extra_offsets: np.ndarray, e_sub: np.ndarray, e_layer: np.ndarray,
                    e_t: np.ndarray, e_tri: np.ndarray, sub_weight: np.ndarray, max_echoes: int,
                    face_component: np.ndarray, face_normal: np.ndarray, reflectance: np.ndarray,
-                   transparency: np.ndarray, glass: bool, glass_probability: float, min_range: float,
+                   face_transparency: np.ndarray, glass: bool, glass_probability: float, min_range: float,
                    max_range: float, resolution_m: float, key: np.uint64, detect: bool, reach_scale: float,
                    detect_a: float, speckle_cells: int, mode: int, slots: int,
                    out_t: np.ndarray, out_comp: np.ndarray, out_tri: np.ndarray, out_energy: np.ndarray,
@@ -300,7 +300,7 @@ def gather_returns(first: int, n: int, t0: np.ndarray, tri0: np.ndarray, flagged
             dx, dy, dz = float(rays[r, 3]), float(rays[r, 4]), float(rays[r, 5])
             base = local * slots
             if not flagged[r] and extra_offsets[r] == extra_offsets[r + 1] and not (
-                    glass and tri0[r] < len(face_component) and transparency[face_component[tri0[r]]] > 0.0):
+                    glass and tri0[r] < len(face_component) and face_transparency[tri0[r]] > 0.0):
                 # the common case: one opaque hit of the whole footprint, one echo, one return
                 count[local] = 0
                 c = _surface(float(t0[r]), tri0[r], face_component, min_range, max_range)
@@ -339,7 +339,7 @@ def gather_returns(first: int, n: int, t0: np.ndarray, tri0: np.ndarray, flagged
                     else:
                         cosi = abs(dx * face_normal[tri_hit, 0] + dy * face_normal[tri_hit, 1]
                                    + dz * face_normal[tri_hit, 2])
-                        if glass and transparency[c] > 0.0:
+                        if glass and face_transparency[tri_hit] > 0.0:
                             if draw_uniform(key, p, _P_GLASS + sub * 64 + layer) < glass_probability:
                                 et[ne] = t_hit
                                 ee[ne] = weight * reflectance[c] * cosi
@@ -347,7 +347,7 @@ def gather_returns(first: int, n: int, t0: np.ndarray, tri0: np.ndarray, flagged
                                 etri[ne] = tri_hit
                                 ecos[ne] = cosi
                                 ne += 1
-                            weight *= transparency[c]
+                            weight *= face_transparency[tri_hit]
                         else:
                             et[ne] = t_hit
                             ee[ne] = weight * reflectance[c] * cosi
@@ -545,12 +545,12 @@ def finish_returns(first: int, n: int, slots: int, count: np.ndarray, out_t: np.
 class SensorTables:
     """What the sensor kernels read, built once per (scanner, sensor settings).
 
-    Per component (C,): reflectance, transparency (0 where glass is off), label, colour (C, 3)
-    float32 in 0..1, waviness phase. Per triangle (F,): unit normal (F, 3) float32, transparent (bool).
+    Per component (C,): reflectance, label, colour (C, 3) float32 in 0..1, waviness phase. Per
+    triangle (F,): unit normal (F, 3) float32, transparency (0 where glass is off) and transparent (bool).
     """
 
     reflectance: np.ndarray
-    transparency: np.ndarray
+    face_transparency: np.ndarray
     color: np.ndarray
     phase: np.ndarray
     face_normal: np.ndarray

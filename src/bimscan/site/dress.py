@@ -165,7 +165,8 @@ def _subset(scene: BimScene, keep: np.ndarray) -> BimScene:
     return dataclasses.replace(
         scene,
         mesh=SceneMesh(vertices=mesh.vertices[used], faces=inverse.reshape(-1, 3).astype(np.int32),
-                       face_component=new_id[mesh.face_component[faces_kept]].astype(np.int32)),
+                       face_component=new_id[mesh.face_component[faces_kept]].astype(np.int32),
+                       face_transparency=None if mesh.face_transparency is None else mesh.face_transparency[faces_kept]),
         components=ComponentTable(**columns, class_ancestry=table.class_ancestry), surfaces=surfaces,
     )
 
@@ -223,6 +224,8 @@ def _append(scene: BimScene, placed: list[PlacedObject], *, seed: int) -> BimSce
             color=np.concatenate([surfaces.color, more.color]),
             transparency=np.concatenate([surfaces.transparency, more.transparency]),
             style=np.concatenate([surfaces.style, more.style]), material=np.concatenate([surfaces.material, more.material]))
-    return dataclasses.replace(scene, mesh=SceneMesh(vertices=vertices, faces=faces, face_component=face_component),
+    mesh = SceneMesh(vertices=vertices, faces=faces, face_component=face_component,
+                     face_transparency=mesh.face_transparency_with(len(faces) - len(mesh.faces)))
+    return dataclasses.replace(scene, mesh=mesh,
                                components=ComponentTable(**columns, class_ancestry=ancestry),
                                unmapped_classes=dict(sorted(unmapped.items())), surfaces=surfaces)
