@@ -68,11 +68,13 @@ class SceneMesh:
     def n_triangles(self) -> int:
         return int(len(self.faces))
 
-    def face_transparency_with(self, added: int) -> np.ndarray | None:
-        """``face_transparency`` followed by ``added`` triangles without a style (NaN); None stays None."""
+    def face_transparency_for(self, kept: np.ndarray | None = None, added: int = 0) -> np.ndarray | None:
+        """``face_transparency`` of the ``kept`` triangles ((F,) bool; None: all), followed by ``added``
+        new triangles without a style (NaN), for a mesh derived from this one; None stays None."""
         if self.face_transparency is None:
             return None
-        return np.concatenate([self.face_transparency, np.full(added, np.nan, dtype=np.float32)])
+        alpha = self.face_transparency if kept is None else self.face_transparency[kept]
+        return np.concatenate([alpha, np.full(added, np.nan, dtype=np.float32)]) if added else alpha
 
     @cached_property
     def _bounds(self) -> tuple[np.ndarray, np.ndarray]:

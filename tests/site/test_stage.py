@@ -158,7 +158,8 @@ def test_an_opening_is_cut_through_a_board_and_nothing_else(angle):
     b.box((0.0, 0.0, 0.0), (4.0, 3.0, 0.2))  # a slab under it, not to be cut
     vertices, faces = b.build()
     component = np.repeat(np.arange(2, dtype=np.int32), 12)
-    mesh = SceneMesh(vertices=vertices, faces=faces, face_component=component)
+    styles = np.repeat(np.array([np.nan, 0.5], dtype=np.float32), 12)  # the slab styled, the board not
+    mesh = SceneMesh(vertices=vertices, faces=faces, face_component=component, face_transparency=styles)
     c, s = np.cos(angle), np.sin(angle)
     local = np.array([[-0.6, -0.3], [0.6, -0.3], [0.6, 0.3], [-0.6, 0.3]])
     hole = np.array([2.0, 1.5]) + local @ np.array([[c, s], [-s, c]])
@@ -169,6 +170,10 @@ def test_an_opening_is_cut_through_a_board_and_nothing_else(angle):
         n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]) / 2
         return float(n[np.sign(n[:, 2]) == normal_z, 2].sum() * normal_z)
 
+    # each triangle keeps its style: the slab's untouched, the board's pieces none
+    assert len(cut.face_transparency) == len(cut.faces)
+    assert (cut.face_transparency[cut.face_component == 1] == 0.5).all()
+    assert np.isnan(cut.face_transparency[cut.face_component == 0]).all()
     for side in (-1.0, 1.0):  # underside and top: 12 m2 less the 0.72 m2 opening
         assert area(cut, 0, side) == pytest.approx(12.0 - 0.72, abs=1e-9)
         assert area(cut, 1, side) == pytest.approx(12.0)

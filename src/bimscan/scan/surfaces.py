@@ -151,7 +151,7 @@ def glazing_faces(component_transparency: np.ndarray, face_component: np.ndarray
     transparency, NaN without a style (``SceneMesh.face_transparency``; None: not known).
     """
     alpha = np.asarray(component_transparency, dtype=np.float64)[face_component]
-    if face_style_transparency is None or not len(alpha):
+    if face_style_transparency is None:
         return alpha
     with np.errstate(invalid="ignore"):
         pane = np.asarray(face_style_transparency) > 0.0  # NaN (no style): not a pane

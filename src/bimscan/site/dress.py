@@ -166,7 +166,7 @@ def _subset(scene: BimScene, keep: np.ndarray) -> BimScene:
         scene,
         mesh=SceneMesh(vertices=mesh.vertices[used], faces=inverse.reshape(-1, 3).astype(np.int32),
                        face_component=new_id[mesh.face_component[faces_kept]].astype(np.int32),
-                       face_transparency=None if mesh.face_transparency is None else mesh.face_transparency[faces_kept]),
+                       face_transparency=mesh.face_transparency_for(faces_kept)),
         components=ComponentTable(**columns, class_ancestry=table.class_ancestry), surfaces=surfaces,
     )
 
@@ -225,7 +225,7 @@ def _append(scene: BimScene, placed: list[PlacedObject], *, seed: int) -> BimSce
             transparency=np.concatenate([surfaces.transparency, more.transparency]),
             style=np.concatenate([surfaces.style, more.style]), material=np.concatenate([surfaces.material, more.material]))
     mesh = SceneMesh(vertices=vertices, faces=faces, face_component=face_component,
-                     face_transparency=mesh.face_transparency_with(len(faces) - len(mesh.faces)))
+                     face_transparency=mesh.face_transparency_for(added=len(faces) - len(mesh.faces)))
     return dataclasses.replace(scene, mesh=mesh,
                                components=ComponentTable(**columns, class_ancestry=ancestry),
                                unmapped_classes=dict(sorted(unmapped.items())), surfaces=surfaces)

@@ -147,13 +147,11 @@ def _replace_faces(mesh: SceneMesh, removed: np.ndarray, pieces: Polygons, compo
     3 vertices, of ``component`` (P,)) as a fan of triangles, in order."""
     vertices, faces, polygon = pieces.fan_triangles(len(mesh.vertices))
     kept = ~removed
-    alpha = mesh.face_transparency
     return SceneMesh(vertices=np.concatenate([mesh.vertices, vertices]) if len(pieces) else mesh.vertices,
                      faces=np.concatenate([mesh.faces[kept], faces]).astype(np.int32),
                      face_component=np.concatenate([mesh.face_component[kept],
                                                     component[polygon].astype(np.int32)]),
-                     face_transparency=None if alpha is None else np.concatenate(
-                         [alpha[kept], np.full(len(faces), np.nan, dtype=np.float32)]))  # the pieces: no style
+                     face_transparency=mesh.face_transparency_for(kept, added=len(faces)))  # the pieces: no style
 
 
 def ceiling_coverings(scene: BimScene) -> np.ndarray:
