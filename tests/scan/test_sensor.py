@@ -279,7 +279,9 @@ def test_as_built_deviations_move_each_component_rigidly_by_the_recorded_transfo
         points = cloud.xyz[cloud.component == c]
         moved = deviations.transform(mesh.vertices, np.full(len(mesh.vertices), c))
         assert distance_to(moved, faces, points).max() < 2e-4, c  # on the moved component
-        assert np.median(distance_to(mesh.vertices, faces, points)) > 1e-3, c  # not where the IFC has it
+        # not where the IFC has it: off the original surface by more than twice the tolerance of
+        # "on the moved one" (the draw is per GlobalId, and the test model's are new every run)
+        assert np.median(distance_to(mesh.vertices, faces, points)) > 4e-4, c
     assert deviations.vertical.sum() == 4  # the walls; the slabs are horizontal
 
 
