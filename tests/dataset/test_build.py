@@ -207,14 +207,36 @@ def _small_spec(folder: Path, *, extra: str = "", scenes: str = "") -> Path:
     return path
 
 
-def test_a_bad_scene_fails_its_units_and_the_others_are_built(tmp_path: Path, session_env: Path) -> None:
+# An IFC file that reads but holds nothing to scan: it fails only when its unit parses it.
+EMPTY_IFC = """ISO-10303-21;
+HEADER;
+FILE_DESCRIPTION(('ViewDefinition [CoordinationView]'),'2;1');
+FILE_NAME('empty.ifc','2024-01-01T00:00:00',(''),(''),'','','');
+FILE_SCHEMA(('IFC4'));
+ENDSEC;
+DATA;
+ENDSEC;
+END-ISO-10303-21;
+"""
+
+
+def test_a_scene_that_is_not_an_ifc_file_is_refused_with_the_spec_before_any_unit(tmp_path: Path) -> None:
+    from bimscan.errors import IfcError
+
     (tmp_path / "broken.ifc").write_text("this is not a model\n")
+    spec = _small_spec(tmp_path, scenes='[[scenes]]\nname = "broken"\nifc = "broken.ifc"\n')
+    with pytest.raises(IfcError, match=r"\('broken'\): .*broken.ifc: not an IFC file"):
+        load_spec(spec)
+
+
+def test_a_bad_scene_fails_its_units_and_the_others_are_built(tmp_path: Path, session_env: Path) -> None:
+    (tmp_path / "broken.ifc").write_text(EMPTY_IFC)
     spec = _small_spec(tmp_path, scenes='[[scenes]]\nname = "broken"\nifc = "broken.ifc"\n')
     report = build_dataset(load_spec(spec), tmp_path / "out", executor="serial", progress=False)
     rows = {u["id"]: u for u in _manifest(tmp_path / "out")["units"]}
     assert rows["good__fast"]["status"] == "done" and rows["good__fast"]["points"] > 0
     assert rows["broken__fast"]["status"] == "failed"
-    assert "not an IFC file" in rows["broken__fast"]["error"] and "\n" not in rows["broken__fast"]["error"]
+    assert "nothing to scan" in rows["broken__fast"]["error"] and "\n" not in rows["broken__fast"]["error"]
     assert rows["broken__fast"]["points"] == 0 and rows["broken__fast"]["files"] == {}
     assert not report.ok and "1 failed" in report.summary()
     assert not (tmp_path / "out" / "units" / "broken__fast").exists()
@@ -266,7 +288,7 @@ def test_the_build_command_exits_non_zero_with_a_summary_when_a_unit_failed(
         tmp_path: Path, session_env: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from bimscan.cli.main import main
 
-    (tmp_path / "broken.ifc").write_text("this is not a model\n")
+    (tmp_path / "broken.ifc").write_text(EMPTY_IFC)
     spec = _small_spec(tmp_path, scenes='[[scenes]]\nname = "broken"\nifc = "broken.ifc"\n')
     assert main(["build", str(spec), str(tmp_path / "out"), "--workers", "1"]) == 1
     captured = capsys.readouterr()
@@ -274,7 +296,7 @@ def test_the_build_command_exits_non_zero_with_a_summary_when_a_unit_failed(
     lines = captured.err.strip().splitlines()
     assert lines[0].startswith("warning: configuration 'fast': scan_freq_hz = 240")  # exp3 exceeds the device
     (failure,) = [line for line in lines if line.startswith("failed: ")]
-    assert failure.startswith("failed: broken__fast: ") and "not an IFC file" in failure
+    assert failure.startswith("failed: broken__fast: ") and "nothing to scan" in failure
     assert lines[-1].startswith("error: 1 of 2 units failed;") and "run the same command again" in lines[-1]
 
 

@@ -83,6 +83,7 @@ from typing import Any
 from bimscan.dataset.layout import FORMAT_FILES, UNIT_SEPARATOR, unit_id
 from bimscan.errors import BimscanError, ConfigError, InputFileError
 from bimscan.ifc.generate.styles import DEFAULT_STYLE
+from bimscan.ifc.load import check_ifc_file
 from bimscan.scan.device import DEFAULT_SCANNER, ScanSettings
 from bimscan.scan.engine import DEFAULT_ENGINE
 from bimscan.scan.noise import NoiseModel
@@ -343,6 +344,10 @@ def _scene(raw: Any, *, base: Path, where: str) -> SceneSpec:
         if not ifc_path.is_file():
             raise InputFileError(f"{where}: IFC file {scene.ifc!r} not found (looked at {ifc_path}); fix the path, "
                                  "which is relative to the spec file")
+        try:
+            check_ifc_file(ifc_path)  # not an IFC file: refused now, not inside the build
+        except BimscanError as exc:
+            raise type(exc)(f"{where}: {exc}") from exc
         ifc = str(ifc_path)
     stations = scene.stations
     if stations != "auto":

@@ -144,6 +144,22 @@ def _spf_file(path: Path) -> Iterator[Path]:
         yield extracted
 
 
+def check_ifc_file(path: str | Path) -> None:
+    """The checks ``load_ifc`` makes before it parses, in milliseconds, for commands and specs that
+    parse later: a regular file that is an IFC-SPF file (header, end) or a zip archive of one .ifc."""
+    path = check_input_file(path, what="an IFC file (.ifc or .ifczip)")
+    try:
+        if zipfile.is_zipfile(path):
+            with zipfile.ZipFile(path) as archive:
+                members = [m for m in archive.namelist() if m.lower().endswith(".ifc") and not m.endswith("/")]
+            if len(members) != 1:
+                raise IfcError(f"{path}: a zip archive with {len(members)} .ifc files; an .ifczip must hold exactly one")
+            return
+    except (OSError, zipfile.BadZipFile) as exc:
+        raise IfcError(f"{path}: the .ifczip archive cannot be read ({exc}); copy or export it again") from exc
+    _check_ifc_file(path, str(path))
+
+
 def _check_ifc_file(path: Path, name: str) -> None:
     """Clear errors for an empty, non-IFC or truncated file before IfcOpenShell sees it."""
     try:
@@ -161,4 +177,4 @@ def _check_ifc_file(path: Path, name: str) -> None:
         raise IfcError(f"{name}: the IFC file is truncated (no END-ISO-10303-21; at its end); copy or export it again")
 
 
-__all__ = ["LOADER_VERSION", "load_ifc", "refuse_unless_clean"]
+__all__ = ["LOADER_VERSION", "check_ifc_file", "load_ifc", "refuse_unless_clean"]
