@@ -180,7 +180,7 @@ def test_fine_tuning_from_the_command_line_checks_its_start_before_any_work(
     ("edit", "message"),
     [
         (("epochs = 3", "epochs = 3\nepoch = 4"), "unknown key(s) 'epoch'"),
-        (("epochs = 3", "epochs = 0"), "epochs must be at least 1"),
+        (("epochs = 3", "epochs = 0"), "epochs must be an integer in 1..100000"),
         (("max_lr = 0.01", 'max_lr = "fast"'), "expected a number"),
         (('train = ["spc"]', 'train = ["nowhere"]'), "nowhere: no such file or folder"),
     ],

@@ -201,7 +201,7 @@ def test_input_config_rejects_bad_values() -> None:
         InputConfig(features=("height",))
     with pytest.raises(ConfigError, match="at most once"):
         InputConfig(features=("xyz", "colour"))
-    with pytest.raises(ConfigError, match="label_neighbours must be in 0..64"):
+    with pytest.raises(ConfigError, match="label_neighbours must be an integer in 0..64"):
         EvalConfig(label_neighbours=-1)
     with pytest.raises(ConfigError, match="scale_range"):
         AugmentConfig(scale_range=(1.2, 0.8))

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
+from bimscan.constraints import Checked, Effect, Range, effect_of, setting
 from bimscan.errors import ConfigError
 from bimscan.learn.features import FEATURE_CHANNELS
 from bimscan.semantics import DEFAULT_SCHEME, load_scheme
@@ -26,7 +27,7 @@ IGNORE_LABEL = UNLABELLED  # skipped by the loss and the metrics
 
 
 @dataclass(frozen=True)
-class SceneSet:
+class SceneSet(Checked):
     """Scenes whose labels read alike.
 
     ``scenes``: bimscan dataset folders (``manifest.json``; the units with status "done"), cloud
@@ -46,14 +47,11 @@ class SceneSet:
     scenes: tuple[str, ...]
     label_field: str | None = None
     mapping: str | None = None
-    weight: float = 1.0
+    weight: float = setting(1.0, within=Range(0, 100, low_open=True))
 
-    def __post_init__(self) -> None:
+    def check(self) -> None:
         if not self.scenes:
             raise ConfigError("a scene set names no scenes; give at least one path in 'scenes'")
-        if not 0 < self.weight <= 100:
-            raise ConfigError(f"weight = {self.weight!r} is impossible; give how often each block is drawn per epoch, "
-                              "above 0 and at most 100")
 
 
 def scene_sets(value: object) -> object:
@@ -67,7 +65,7 @@ def scene_sets(value: object) -> object:
 
 
 @dataclass(frozen=True)
-class DataConfig:
+class DataConfig(Checked):
     """Where the scenes are and how their labels read (``SceneSet``): ``train``, one or more sets
     (synthetic datasets, and real labelled scans to train on); ``val``, the set validated on every
     epoch (real scans; none: no validation). ``class_names``: the training classes, in id order.
@@ -77,7 +75,7 @@ class DataConfig:
     val: SceneSet | None = None
     class_names: tuple[str, ...] = DEFAULT_CLASS_NAMES
 
-    def __post_init__(self) -> None:
+    def check(self) -> None:
         if not self.train:
             raise ConfigError("'train' lists no scenes; name at least one dataset folder or cloud")
         if not 2 <= len(self.class_names) <= 255:
@@ -87,7 +85,7 @@ class DataConfig:
 
 
 @dataclass(frozen=True)
-class BlockConfig:
+class BlockConfig(Checked):
     """How scenes are cut into network inputs (Table 2: N = 8192 points per block).
 
     A block is a vertical column ``size_m`` x ``size_m`` over the scene's full height. Training
@@ -98,10 +96,10 @@ class BlockConfig:
     and validation. Evaluation and prediction slide the same column (``EvalConfig``).
     """
 
-    size_m: float = 4.0
-    points: int = 8192
-    min_points: int = 1024
-    cache_points: int = 16384
+    size_m: float = setting(4.0, within=Range(0, 100, low_open=True))
+    points: int = setting(8192, within=Range(16, 1 << 20))
+    min_points: int = setting(1024, within=Range(1, 1 << 24))
+    cache_points: int = setting(16384, within=Range(16, 1 << 24))
     # training columns of scenes that record stations: "station" (each station's points apart: what
     # one tripod saw, one face of each wall, like a real scan of one room, not both faces of a wall
     # and the room behind it; part of the sim-to-real recipe), "scene" (all stations merged, the
@@ -109,22 +107,18 @@ class BlockConfig:
     # evaluation always reads whole scenes
     train_columns: Literal["scene", "station", "both"] = "station"
 
-    def __post_init__(self) -> None:
-        if not self.size_m > 0:
-            raise ConfigError(f"size_m must be positive, got {self.size_m}")
-        if self.points < 16:
-            raise ConfigError(f"points must be at least 16, got {self.points}")
+    def check(self) -> None:
         if self.cache_points < self.points:
             raise ConfigError(f"cache_points ({self.cache_points}) must be >= points ({self.points})")
-        if not 1 <= self.min_points <= self.cache_points:
-            raise ConfigError(f"min_points must be in 1..cache_points, got {self.min_points}")
+        if self.min_points > self.cache_points:
+            raise ConfigError(f"min_points must be in 1..cache_points ({self.cache_points}), got {self.min_points}")
 
 
 FEATURE_NAMES = tuple(FEATURE_CHANNELS)  # the features bimscan.learn.features computes
 
 
 @dataclass(frozen=True)
-class InputConfig:
+class InputConfig(Checked):
     """What the network sees of a block, identically for synthetic and real scenes.
 
     ``grid_m``: density normalisation, one point per voxel of this size before blocking
@@ -137,80 +131,62 @@ class InputConfig:
     is ``grid_m = 0.0``, ``features = ["xyz"]``.
     """
 
-    grid_m: float = 0.05
+    grid_m: float = setting(0.05, within=Range(0.0, 1.0))
     features: tuple[str, ...] = ("xyz", "height", "normals", "shape")
-    height_scale_m: float = 3.0
-    normal_neighbours: int = 32
-    wide_neighbours: int = 128
+    height_scale_m: float = setting(3.0, within=Range(0, 100, low_open=True))
+    normal_neighbours: int = setting(32, within=Range(3, 128))
+    wide_neighbours: int = setting(128, within=Range(3, 512))
 
-    def __post_init__(self) -> None:
-        if not self.grid_m >= 0 or self.grid_m > 1.0:
-            raise ConfigError(f"grid_m must be in [0, 1] metres (0 = off), got {self.grid_m}")
+    def check(self) -> None:
         if not self.features or self.features[0] != "xyz":
             raise ConfigError(f"features must start with 'xyz', got {list(self.features)}")
         unknown = [f for f in self.features if f not in FEATURE_NAMES]
         if unknown or len(set(self.features)) != len(self.features):
             raise ConfigError(f"features take each of {', '.join(FEATURE_NAMES)} at most once, got {list(self.features)}")
-        if not self.height_scale_m > 0:
-            raise ConfigError(f"height_scale_m must be positive, got {self.height_scale_m}")
-        if not 3 <= self.normal_neighbours <= 128:
-            raise ConfigError(f"normal_neighbours must be in 3..128, got {self.normal_neighbours}")
-        if not 3 <= self.wide_neighbours <= 512:
-            raise ConfigError(f"wide_neighbours must be in 3..512, got {self.wide_neighbours}")
 
 
 @dataclass(frozen=True)
-class AugmentConfig:
+class AugmentConfig(Checked):
     """Training augmentations (:mod:`bimscan.learn.augment`); ``enabled = false`` is the paper's
     baseline. Each effect is off at its neutral value (rotate_z false, scale_range [1, 1],
     flip_probability 0, jitter_sigma_m 0, dropout_max 0, elastic [])."""
 
     enabled: bool = True
     rotate_z: bool = True
-    scale_range: tuple[float, float] = (0.9, 1.1)
+    scale_range: tuple[float, float] = setting((0.9, 1.1), each=Range(0, 10, low_open=True))
     anisotropic: bool = True
-    flip_probability: float = 0.5
-    jitter_sigma_m: float = 0.01
-    jitter_clip_m: float = 0.05
-    dropout_max: float = 0.2
-    elastic: tuple[tuple[float, float], ...] = ((0.2, 0.4), (0.8, 1.6))
+    flip_probability: float = setting(0.5, within=Range(0.0, 1.0))
+    jitter_sigma_m: float = setting(0.01, within=Range(0.0, 1.0))
+    jitter_clip_m: float = setting(0.05, within=Range(0.0, 1.0))
+    dropout_max: float = setting(0.2, within=Range(0.0, 1.0, high_open=True))
+    elastic: tuple[tuple[float, float], ...] = setting(((0.2, 0.4), (0.8, 1.6)), each=Range(0, 100))
 
-    def __post_init__(self) -> None:
+    def check(self) -> None:
         low, high = self.scale_range
-        if not 0 < low <= high:
+        if not low <= high:
             raise ConfigError(f"scale_range must be [low, high] with 0 < low <= high, got {list(self.scale_range)}")
-        if not 0.0 <= self.flip_probability <= 1.0:
-            raise ConfigError(f"flip_probability must be in [0, 1], got {self.flip_probability}")
-        if self.jitter_sigma_m < 0 or self.jitter_clip_m < 0:
-            raise ConfigError("jitter_sigma_m and jitter_clip_m must be >= 0")
-        if not 0.0 <= self.dropout_max < 1.0:
-            raise ConfigError(f"dropout_max must be in [0, 1), got {self.dropout_max}")
         for pair in self.elastic:
-            if len(pair) != 2 or not pair[0] > 0 or pair[1] < 0:
+            if len(pair) != 2 or not pair[0] > 0:
                 raise ConfigError(f"elastic takes [granularity_m > 0, magnitude >= 0] pairs, got {list(pair)}")
 
 
 @dataclass(frozen=True)
-class ModelConfig:
+class ModelConfig(Checked):
     """PCT segmentation network size (defaults: Guo et al. 2021, about 2.4M parameters at C=5)."""
 
-    embed_dim: int = 128
-    attention_layers: int = 4
-    fuse_dim: int = 1024
-    head_dims: tuple[int, ...] = (512, 256)
-    dropout: float = 0.5
+    embed_dim: int = setting(128, within=Range(4, 4096))
+    attention_layers: int = setting(4, within=Range(1, 64))
+    fuse_dim: int = setting(1024, within=Range(1, 1 << 16))
+    head_dims: tuple[int, ...] = setting((512, 256), each=Range(1, 1 << 16))
+    dropout: float = setting(0.5, within=Range(0.0, 1.0, high_open=True))
 
-    def __post_init__(self) -> None:
-        if self.embed_dim < 4 or self.embed_dim % 4:
+    def check(self) -> None:
+        if self.embed_dim % 4:
             raise ConfigError(f"embed_dim must be a multiple of 4 (q/k project to embed_dim/4), got {self.embed_dim}")
-        if self.attention_layers < 1 or self.fuse_dim < 1 or any(d < 1 for d in self.head_dims):
-            raise ConfigError("attention_layers, fuse_dim and head_dims must be positive")
-        if not 0.0 <= self.dropout < 1.0:
-            raise ConfigError(f"dropout must be in [0, 1), got {self.dropout}")
 
 
 @dataclass(frozen=True)
-class TrainConfig:
+class TrainConfig(Checked):
     """Optimisation (Table 2): Adam, OneCycleLR (cosine), EMA, AMP, accumulation, DDP.
 
     The global batch is ``batch_size`` (per process) x processes x ``accumulation_steps``.
@@ -227,22 +203,23 @@ class TrainConfig:
     results are to be compared across machines.
     """
 
-    epochs: int = 100
-    batch_size: int = 2
-    accumulation_steps: int = 4
-    max_lr: float = 2e-3
-    weight_decay: float = 5e-4
-    pct_start: float = 0.3
-    div_factor: float = 25.0
-    final_div_factor: float = 1e4
+    epochs: int = setting(100, within=Range(1, 100_000))
+    batch_size: int = setting(2, within=Range(1, 4096))
+    accumulation_steps: int = setting(4, within=Range(1, 4096))
+    # above 1 Adam's steps are larger than any weight of the network: a typo, not a schedule
+    max_lr: float = setting(2e-3, within=Range(0.0, 1.0, low_open=True))
+    weight_decay: float = setting(5e-4, within=Range(0.0, 1.0))
+    pct_start: float = setting(0.3, within=Range(0.0, 1.0, low_open=True, high_open=True))
+    div_factor: float = setting(25.0, within=Range(1.0, 1e6))
+    final_div_factor: float = setting(1e4, within=Range(1.0, 1e9))
     cycle_momentum: bool = True
-    ema_alpha: float = 0.99
+    ema_alpha: float = setting(0.99, within=Range(0.0, 1.0, high_open=True))
     amp: Literal["float16", "bfloat16", "off"] = "float16"
-    num_workers: int = 4
-    seed: int = 0
-    device: Literal["auto", "cpu", "cuda"] = "auto"
-    cpu_threads: int = 0
-    out_dir: str = "runs/train"
+    num_workers: int = setting(4, within=Range(0, 256), effect="runtime")
+    seed: int = setting(0, within=Range(0, 2**63 - 1))
+    device: Literal["auto", "cpu", "cuda"] = setting("auto", effect="runtime")
+    cpu_threads: int = setting(0, within=Range(0, 1024))
+    out_dir: str = setting("runs/train", effect="runtime")
     # class-balanced loss: per-class weights from the training points' class frequencies f_c,
     # "inverse" 1/f_c, "inverse_sqrt" 1/sqrt(f_c) (milder), normalised to mean 1; "none": the paper
     class_weights: Literal["none", "inverse", "inverse_sqrt"] = "inverse_sqrt"
@@ -250,22 +227,9 @@ class TrainConfig:
     # point-wise layers before attention), "attention"
     freeze: tuple[Literal["embedding", "attention"], ...] = ()
 
-    def __post_init__(self) -> None:
-        for name in ("epochs", "batch_size", "accumulation_steps"):
-            if getattr(self, name) < 1:
-                raise ConfigError(f"{name} must be at least 1, got {getattr(self, name)}")
-        if self.num_workers < 0 or self.cpu_threads < 0:
-            raise ConfigError(f"num_workers and cpu_threads must be >= 0, got {self.num_workers}, {self.cpu_threads}")
-        if not self.max_lr > 0 or self.weight_decay < 0:
-            raise ConfigError(f"max_lr must be > 0 and weight_decay >= 0, got {self.max_lr}, {self.weight_decay}")
-        if not 0.0 < self.pct_start < 1.0:
-            raise ConfigError(f"pct_start must be in (0, 1), got {self.pct_start}")
-        if not 0.0 <= self.ema_alpha < 1.0:
-            raise ConfigError(f"ema_alpha must be in [0, 1), got {self.ema_alpha}")
-
 
 @dataclass(frozen=True)
-class EvalConfig:
+class EvalConfig(Checked):
     """How evaluation and prediction label every point of a scene (:mod:`bimscan.learn.infer`).
 
     Columns of the training block's size slide every ``stride_m`` (the block size must be a whole
@@ -282,20 +246,10 @@ class EvalConfig:
     that evaluate or predict use it unless told otherwise, and record what they used.
     """
 
-    stride_m: float | None = None
-    votes: int = 1
-    label_neighbours: int = 3
-    batch_size: int = 8
-
-    def __post_init__(self) -> None:
-        if self.stride_m is not None and not self.stride_m > 0:
-            raise ConfigError(f"stride_m must be positive (or left out: half the block), got {self.stride_m}")
-        if not 1 <= self.votes <= 64:
-            raise ConfigError(f"votes must be in 1..64, got {self.votes}")
-        if not 0 <= self.label_neighbours <= 64:
-            raise ConfigError(f"label_neighbours must be in 0..64 (0 = the voxel's representative), got {self.label_neighbours}")
-        if self.batch_size < 1:
-            raise ConfigError(f"batch_size must be at least 1, got {self.batch_size}")
+    stride_m: float | None = setting(None, within=Range(0, 100, low_open=True), effect="scores")
+    votes: int = setting(1, within=Range(1, 64), effect="scores")
+    label_neighbours: int = setting(3, within=Range(0, 64), effect="scores")
+    batch_size: int = setting(8, within=Range(1, 4096), effect="runtime")
 
     def stride_for(self, size_m: float) -> float:
         """The stride for columns of ``size_m``; ConfigError unless it divides ``size_m`` whole."""
@@ -321,6 +275,20 @@ class TrainRunConfig:
 
     def __post_init__(self) -> None:
         self.eval.stride_for(self.blocks.size_m)  # a stride that does not divide the blocks fails now
+
+
+# The training sections of a run (and of an experiment's variants) and their settings classes.
+TRAINING_SECTIONS: dict[str, type] = {"blocks": BlockConfig, "input": InputConfig, "augment": AugmentConfig,
+                                      "model": ModelConfig, "train": TrainConfig, "eval": EvalConfig}
+
+
+def setting_effect(section: str, key: str) -> Effect:
+    """What changing ``[section] key`` touches: "model", "scores" or "runtime" (``bimscan.constraints``)."""
+    kind = {"data": DataConfig, **TRAINING_SECTIONS}.get(section)
+    try:
+        return "model" if kind is None else effect_of(kind, key)
+    except KeyError:
+        return "model"
 
 
 # Keys that moved, with where they live now (a one-line error names the new home).

@@ -1,0 +1,168 @@
+"""Settings with their constraints declared once, next to the field.
+
+A settings class is a frozen dataclass deriving from ``Checked``; each field that has a range
+declares it where it is declared, with its default::
+
+    @dataclass(frozen=True)
+    class TrainConfig(Checked):
+        max_lr: float = setting(2e-3, within=Range(0, 1, low_open=True))
+        epochs: int = setting(100, within=Range(1, 100_000))
+        amp: Literal["float16", "bfloat16", "off"] = "float16"   # choices: the Literal itself
+
+Construction checks every declared range and every ``Literal`` choice (``check_settings``), so
+a value is refused the same way whether it came from a TOML file (``toml_files.build_dataclass``),
+the CLI or Python, with one message shape: ``max_lr must be a number in (0, 1], got 1e+09``.
+Checks across fields stay in the class's own ``check`` method, which runs after these.
+(scikit-learn's ``_parameter_constraints`` is the model: constraints are data, one validator.)
+
+``setting(..., effect=...)`` also says what a change of the value touches: ``"model"`` (the
+default: what is computed), ``"scores"`` (how a trained model is evaluated, not the model), or
+``"runtime"`` (where and how fast it runs, nothing computed). Resuming a training run accepts
+changes of "scores" and "runtime" settings; an experiment's fingerprint ignores "runtime" ones.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import typing
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from bimscan.errors import ConfigError
+
+Effect = Literal["model", "scores", "runtime"]
+
+
+@dataclass(frozen=True)
+class Range:
+    """Numbers from ``low`` to ``high`` (None: unbounded on that side), each end closed unless
+    ``low_open``/``high_open``. Integers are told by the field's type, not here."""
+
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+
+    def admits(self, value: float) -> bool:
+        if isinstance(value, float) and not math.isfinite(value):
+            return False
+        if self.low is not None and (value <= self.low if self.low_open else value < self.low):
+            return False
+        return not (self.high is not None and (value >= self.high if self.high_open else value > self.high))
+
+    def describe(self, *, integer: bool) -> str:
+        """``in (0, 1]``, ``in 1..64``, ``>= 0``, ``at most 10`` (integers as ``a..b``)."""
+        def show(v: float) -> str:
+            return str(int(v)) if integer else f"{v:g}"
+
+        low, high = self.low, self.high
+        if low is not None and high is not None:
+            if integer and not self.low_open and not self.high_open:
+                return f"in {show(low)}..{show(high)}"
+            return f"in {'(' if self.low_open else '['}{show(low)}, {show(high)}{')' if self.high_open else ']'}"
+        if low is not None:
+            return f"{'>' if self.low_open else '>='} {show(low)}"
+        if high is not None:
+            return f"{'<' if self.high_open else '<='} {show(high)}"
+        return "finite"
+
+
+def setting(default: Any = dataclasses.MISSING, *, factory: Any = dataclasses.MISSING, within: Range | None = None,
+            each: Range | None = None, effect: Effect = "model") -> Any:
+    """A dataclass field with its constraint: ``within`` for a number, ``each`` for every number of a
+    tuple (nested tuples too); ``effect``: see the module docs."""
+    metadata = {"within": within, "each": each, "effect": effect}
+    if factory is not dataclasses.MISSING:
+        return dataclasses.field(default_factory=factory, metadata=metadata)
+    return dataclasses.field(default=default, metadata=metadata)
+
+
+def effect_of(cls: type, name: str) -> Effect:
+    """What a change of field ``name`` of settings class ``cls`` touches (see the module docs)."""
+    for item in dataclasses.fields(cls):  # type: ignore[arg-type]
+        if item.name == name:
+            return item.metadata.get("effect", "model")
+    raise KeyError(f"{cls.__name__} has no field {name!r}")
+
+
+@functools.cache
+def _hints(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls)
+
+
+def _is_integer(hint: Any) -> bool:
+    if hint is int:
+        return True
+    origin = typing.get_origin(hint)
+    return origin is not None and any(_is_integer(a) for a in typing.get_args(hint) if a is not type(None))
+
+
+def _numbers(value: Any) -> list[Any]:
+    """Every number in a (nested) tuple, in order."""
+    if isinstance(value, list | tuple):
+        return [n for item in value for n in _numbers(item)]
+    return [value]
+
+
+def _literal_choices(hint: Any) -> tuple[Any, ...] | None:
+    """The allowed values of a ``Literal`` hint, or of a tuple of them (None: not a choice)."""
+    if typing.get_origin(hint) is Literal:
+        return typing.get_args(hint)
+    if typing.get_origin(hint) is tuple:
+        args = typing.get_args(hint)
+        if len(args) == 2 and args[1] is Ellipsis:
+            return _literal_choices(args[0])
+    return None
+
+
+def check_settings(settings: Any) -> None:
+    """ConfigError for the first field of ``settings`` outside its declared range or choices."""
+    cls = type(settings)
+    hints = _hints(cls)
+    for item in dataclasses.fields(settings):
+        value = getattr(settings, item.name)
+        if value is None:
+            continue
+        hint = hints.get(item.name)
+        choices = _literal_choices(hint)
+        if choices is not None:
+            values = value if isinstance(value, tuple) and typing.get_origin(hint) is tuple else (value,)
+            wrong = [v for v in values if v not in choices]
+            if wrong:
+                raise ConfigError(f"{item.name} takes {', '.join(map(repr, choices))}, got {wrong[0]!r}")
+        within, each = item.metadata.get("within"), item.metadata.get("each")
+        integer = _is_integer(hint)
+        if within is not None and (isinstance(value, bool) or not within.admits(value)):
+            kind = "an integer" if integer else "a number"
+            raise ConfigError(f"{item.name} must be {kind} {within.describe(integer=integer)}, got {_show(value)}")
+        if each is not None:
+            for number in _numbers(value):
+                if isinstance(number, bool) or not isinstance(number, int | float) or not each.admits(number):
+                    raise ConfigError(f"{item.name} takes numbers {each.describe(integer=False)}, got {_show(number)} "
+                                      f"in {list(value)}")
+
+
+def _show(value: Any) -> str:
+    """A value for a message, numbers short (a 300-digit integer is not read, it is counted)."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10**15:
+        return f"{float(value):.3g}"
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    return repr(value)
+
+
+class Checked:
+    """Base of settings classes: construction checks the declared constraints
+    (``check_settings``), then the class's own cross-field ``check``."""
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+        self.check()
+
+    def check(self) -> None:
+        """Constraints across fields (none by default)."""
+
+
+__all__ = ["Checked", "Effect", "Range", "check_settings", "effect_of", "setting"]
