@@ -59,3 +59,26 @@ def test_a_complete_checkpoint_reads(trained_run: Path) -> None:
     payload = read_checkpoint(trained_run / "run" / "last.pt")
 
     assert payload["epoch"] == 3 and payload["device"] == "cpu"
+
+
+def test_a_checkpoint_with_non_finite_weights_is_refused_by_every_reader(tmp_path: Path, trained_run: Path) -> None:
+    """A diverged run's model labels every point alike: predict, evaluate, --init and --resume refuse it."""
+    from bimscan.learn.train import read_start
+    from bimscan.learn.train_config import parse_config
+
+    payload = torch.load(trained_run / "run" / "last.pt", map_location="cpu", weights_only=True)
+    payload["ema"]["classifier.weight"][0, 0] = float("nan")
+    torch.save(payload, tmp_path / "nan-ema.pt")
+    payload = torch.load(trained_run / "run" / "last.pt", map_location="cpu", weights_only=True)
+    payload["model"]["classifier.bias"][1] = float("inf")
+    torch.save(payload, tmp_path / "inf-model.pt")
+
+    for weights in ("ema", "live"):
+        with pytest.raises(InputFileError, match=r"nan-ema.pt: its ema weights hold 1 non-finite value\(s\) "
+                                                 r"\(classifier.weight\): the training that wrote it diverged"):
+            load_trained_model(tmp_path / "nan-ema.pt", weights=weights)  # type: ignore[arg-type]
+    with pytest.raises(InputFileError, match=r"its model weights hold 1 non-finite value\(s\) \(classifier.bias\)"):
+        load_trained_model(tmp_path / "inf-model.pt")
+    config = parse_config(payload["config"], where="test")
+    with pytest.raises(InputFileError, match="non-finite"):
+        read_start(tmp_path / "nan-ema.pt", config)

@@ -301,3 +301,86 @@ def test_training_flushes_denormals_for_the_network_only(
     assert seen["features"] and all(seen["features"])  # the recipe's normals and shape, training and validation
     assert seen["network"] and not any(seen["network"])
     assert denormals_kept()
+
+
+
+def test_a_diverged_training_stops_with_one_line_and_keeps_the_last_finite_checkpoint(
+    tmp_path: Path, room_files: dict[str, list[str]], tiny_config: Callable[..., Path],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Weights gone non-finite in the second epoch (an exploding step: here a NaN put into one
+    weight by its second optimizer step): the run stops at that step, naming it, and last.pt stays
+    the first epoch's, finite."""
+    import bimscan.learn.train as train_module
+
+    config, base = load_train_config(tiny_config(tmp_path, **room_files, epochs=3, out_dir="run"))
+    in_second_epoch: list[bool] = []
+    original = train_module.finish_step
+
+    def exploding_step(model: torch.nn.Module, **kwargs: object) -> None:
+        original(model, **kwargs)  # type: ignore[arg-type]
+        if in_second_epoch:
+            with torch.no_grad():
+                model.classifier.weight[0, 0] = math.nan
+
+    def after_step(epoch: int, step: int) -> None:
+        if (epoch, step) == (1, 0):
+            in_second_epoch.append(True)
+
+    monkeypatch.setattr(train_module, "finish_step", exploding_step)
+    with pytest.raises(LearnError) as caught:
+        train_model(config, base_dir=base, log=lambda text: None, on_step_end=after_step)
+
+    message = str(caught.value)
+    assert message.startswith("training diverged at epoch 2, step 2 (loss ")
+    assert "the weights are no longer finite" in message and "last.pt (epoch 1) is the last finite checkpoint" in message
+    assert "lower [train] max_lr (now 0.01)" in message and "\n" not in message
+    kept = _load(tmp_path / "run" / "last.pt")
+    assert kept["epoch"] == 1
+    assert all(bool(torch.isfinite(t).all()) for t in kept["model"].values() if t.is_floating_point())
+
+
+def test_an_absurd_learning_rate_is_refused_when_the_file_is_read(
+    tmp_path: Path, room_files: dict[str, list[str]], tiny_config: Callable[..., Path],
+) -> None:
+    path = tiny_config(tmp_path, **room_files)
+    path.write_text(path.read_text().replace("max_lr = 0.01", "max_lr = 1e9"))
+
+    with pytest.raises(ConfigError, match=r"key 'train': max_lr must be a number in \(0, 1\], got 1e\+09"):
+        load_train_config(path)
+
+
+def test_freezing_without_a_checkpoint_to_start_from_is_refused(
+    tmp_path: Path, room_files: dict[str, list[str]], tiny_config: Callable[..., Path],
+) -> None:
+    path = tiny_config(tmp_path, **room_files, out_dir="frozen")
+    path.write_text(path.read_text().replace("num_workers = 0", 'num_workers = 0\nfreeze = ["embedding"]'))
+
+    with pytest.raises(LearnError, match=r"freeze = \['embedding'\] .* without --init they start random"):
+        _run(path)
+
+    assert not (tmp_path / "frozen").exists()
+
+
+def test_resuming_with_another_start_checkpoint_is_refused_and_with_the_same_one_continues(
+    tmp_path: Path, room_files: dict[str, list[str]], tiny_config: Callable[..., Path], trained_run: Path,
+) -> None:
+    parent = trained_run / "run" / "last.pt"
+    other = _run(tiny_config(tmp_path, **room_files, epochs=1, out_dir="other", name="other.toml"))
+    path = tiny_config(tmp_path, **room_files, epochs=2, out_dir="tuned", name="tuned.toml")
+
+    def crash(epoch: int, step: int) -> None:
+        if epoch == 1:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        _run(path, init=parent, on_step_end=crash)
+    with pytest.raises(LearnError, match=r"started from another checkpoint .* leave --init out"):
+        _run(path, resume=True, init=other)
+    scratch = _run(tiny_config(tmp_path, **room_files, epochs=2, out_dir="scratch", name="scratch.toml"))
+    with pytest.raises(LearnError, match="started from random weights"):
+        _run(tmp_path / "scratch.toml", resume=True, init=parent)
+
+    resumed = _load(_run(path, resume=True, init=parent))
+    assert resumed["epoch"] == 2 and resumed["init"]["checkpoint"] == str(parent)
+    assert _load(scratch)["init"] is None

@@ -78,7 +78,20 @@ def read_checkpoint(path: str | Path, *, require: tuple[str, ...] = MODEL_KEYS) 
                                  or (key == "class_names" and not all(isinstance(n, str) for n in value))):
             raise InputFileError(f"{path}: damaged checkpoint, {key!r} is a {type(value).__name__}; "
                                  "pass a bimscan checkpoint")
+        if key in ("model", "ema"):
+            check_finite_weights(value, what=f"{key} weights", path=path)
     return payload
+
+
+def check_finite_weights(state: Mapping[str, Any], *, what: str, path: str | Path) -> None:
+    """InputFileError when a floating-point tensor of ``state`` holds NaN or infinity: a model whose
+    training diverged labels every point alike, and a run started from it learns nothing."""
+    for name, tensor in state.items():
+        if isinstance(tensor, torch.Tensor) and tensor.is_floating_point():
+            bad = int((~torch.isfinite(tensor)).sum())
+            if bad:
+                raise InputFileError(f"{path}: its {what} hold {bad:,} non-finite value(s) ({name}): the training that "
+                                     "wrote it diverged; train again with a lower [train] max_lr")
 
 
 def load_state(module: nn.Module | Any, state: Mapping[str, Any], *, what: str, path: str | Path) -> None:

@@ -42,7 +42,9 @@ from bimscan.processes import die_with_parent
 from bimscan.learn.checkpoint import (
     MODEL_KEYS, capture_rng_state, load_state, read_checkpoint, restore_rng_state, save_checkpoint,
 )
-from bimscan.learn.train_config import IGNORE_LABEL, SceneSet, TrainConfig, TrainRunConfig, dump_config, parse_config
+from bimscan.learn.train_config import (
+    IGNORE_LABEL, SceneSet, TrainConfig, TrainRunConfig, dump_config, parse_config, setting_effect,
+)
 from bimscan.toml_files import resolve_path
 from bimscan.learn.data import SceneSource, TileDataset, TileSet, list_scenes, load_or_collect_tiles, station_count
 from bimscan.learn.features import input_channels
@@ -56,11 +58,6 @@ from bimscan.learn.plots import plot_training_curves, write_history_csv
 from bimscan.progress import progress_bar
 
 VAL_EPOCH_KEY = 2**31  # validation blocks are drawn once, with this fixed "epoch"
-# settings a resumed run may change: they do not alter the computation ("device" may change as
-# long as it picks the same kind of device: that is checked on its own, see _train)
-# settings that change how a run is carried out or evaluated, not the model it trains
-RESUMABLE_CHANGES = {("train", "num_workers"), ("train", "device"), ("train", "out_dir"), ("eval", "stride_m"),
-                     ("eval", "votes"), ("eval", "label_neighbours"), ("eval", "batch_size")}
 # what resuming reads from last.pt besides MODEL_KEYS
 RESUME_KEYS = (*MODEL_KEYS, "ema_steps", "optimizer", "scheduler", "scaler", "rng", "history", "world_size", "device")
 
@@ -277,6 +274,23 @@ def finish_step(
             ema.update(model)
 
 
+def check_diverged(model: nn.Module, *, loss: torch.Tensor, epoch: int, step: int, checkpoint: Path,
+                   settings: TrainConfig) -> None:
+    """LearnError when the weights left by an optimizer step are no longer finite (a NaN or
+    infinite loss, an exploding step): the run stops there, before anything is saved, so the last
+    checkpoint (the last finished epoch's) stays the last finite one. Every process of a DDP run
+    holds the same weights, so all stop at the same step. (Under float16 AMP the gradient scaler
+    skips a step whose gradients overflow: the weights stay finite and training goes on.)"""
+    total = torch.stack([p.detach().float().sum() for p in model.parameters()]).sum()
+    if bool(torch.isfinite(total)):
+        return
+    kept = (f"{checkpoint} (epoch {epoch}) is the last finite checkpoint and is kept" if epoch > 0 and checkpoint.is_file()
+            else "no checkpoint was written")
+    raise LearnError(f"training diverged at epoch {epoch + 1}, step {step + 1} (loss {float(loss.detach()):.4g}): the weights "
+                     f"are no longer finite; {kept}; start again in another out_dir with a lower [train] max_lr "
+                     f"(now {settings.max_lr:g})")
+
+
 def _update_confusion(confusion: torch.Tensor, logits: torch.Tensor, label: torch.Tensor) -> None:
     # fixed-size tensor operations only (no boolean indexing, no bincount): the GPU is not waited for
     classes = confusion.shape[0]
@@ -366,6 +380,19 @@ def start_from(model: PCTSegmentation, path: Path, payload: dict[str, Any]) -> d
     return {"checkpoint": str(path), "sha256": file_sha256(path), "epoch": int(payload["epoch"])}
 
 
+def check_same_start(recorded: dict[str, Any] | None, init: Path, checkpoint: Path) -> None:
+    """LearnError unless ``init`` is the checkpoint the run being resumed started from (``recorded``:
+    what its checkpoint says of its start, None when it started from random weights)."""
+    from bimscan.files import file_sha256
+
+    if recorded is None:
+        raise LearnError(f"--init {init}: the run in {checkpoint.parent} started from random weights and --resume "
+                         "continues it as it started; leave --init out, or start a new run in another out_dir")
+    if recorded.get("sha256") != file_sha256(init):
+        raise LearnError(f"--init {init}: the run in {checkpoint.parent} started from another checkpoint "
+                         f"({recorded.get('checkpoint')}) and --resume continues it as it started; leave --init out")
+
+
 def freeze(model: PCTSegmentation, parts: tuple[str, ...]) -> tuple[nn.Module, ...]:
     """Keep ``parts`` of ``model`` ("embedding", "attention") as they are while training: their
     parameters get no gradient, and :func:`train_mode` keeps their normalisation statistics.
@@ -386,12 +413,14 @@ def train_mode(model: nn.Module, frozen: tuple[nn.Module, ...]) -> None:
 
 
 def _check_resumable(stored: dict[str, Any], current: dict[str, Any], where: Path) -> None:
-    """LearnError naming the first setting that differs from the interrupted run's, except
-    ``RESUMABLE_CHANGES``. ``stored`` is complete (keys added since then carry their defaults)."""
+    """LearnError naming the first setting that differs from the interrupted run's, except those
+    that do not change the model it trains (their ``setting_effect`` is "scores" or "runtime";
+    "device" may change as long as it picks the same kind of device: that is checked on its own,
+    see _train). ``stored`` is complete (keys added since then carry their defaults)."""
     for section, values in current.items():
         for key, value in values.items():
             old = stored.get(section, {}).get(key)
-            if (section, key) in RESUMABLE_CHANGES:
+            if setting_effect(section, key) != "model":
                 continue
             if (list(old) if isinstance(old, tuple | list) else old) != (list(value) if isinstance(value, tuple | list) else value):
                 raise LearnError(
@@ -479,7 +508,13 @@ def _train(
     train_sets = [resolve_scene_set(scenes, base=base_dir) for scenes in config.data.train]
     train_sources = [source for sources in train_sets for source in sources]
     val_sources = [] if config.data.val is None else resolve_scene_set(config.data.val, base=base_dir)
-    parent = None if init is None else read_start(init, config)
+    if settings.freeze and init is None and not resume:
+        raise LearnError(f"[train] freeze = {list(settings.freeze)} keeps those parts of the network as they start, and "
+                         "without --init they start random; pass --init CHECKPOINT (fine-tuning) or leave freeze out")
+    state = read_checkpoint(last_path, require=RESUME_KEYS) if resume else None
+    if state is not None and init is not None:
+        check_same_start(state.get("init"), init, last_path)
+    parent = None if init is None or resume else read_start(init, config)
     if ctx.is_main:
         out.mkdir(parents=True, exist_ok=True)
     classes = len(config.data.class_names)
@@ -507,7 +542,7 @@ def _train(
     model: PCTSegmentation = build_model(
         classes, config.model, in_dim=input_channels(config.input.features),
     ).to(ctx.device)
-    started_from = None if init is None else start_from(model, init, parent)  # before the EMA copies the weights
+    started_from = None if parent is None else start_from(model, init, parent)  # before the EMA copies the weights
     frozen = freeze(model, settings.freeze)
     frozen_parameters = sum(p.numel() for module in frozen for p in module.parameters())
     ema = WeightEMA(model, alpha=settings.ema_alpha)
@@ -530,8 +565,8 @@ def _train(
     start_epoch = 0
     best_miou = -math.inf
     config_dict = dump_config(config)
-    if resume:
-        state = read_checkpoint(last_path, require=RESUME_KEYS)
+    if state is not None:
+        started_from = state.get("init")
         stored = dump_config(parse_config(state["config"], where=f"{last_path} [config]"))
         _check_resumable(stored, config_dict, last_path)  # accumulation_steps among them
         if state["device"] != ctx.device.type:
@@ -612,6 +647,7 @@ def _train(
                     continue
                 last_lr = optimizer.param_groups[0]["lr"]  # the LR this step applies; finish_step moves on
                 finish_step(model, optimizer=optimizer, scaler=scaler, scheduler=scheduler, ema=ema)
+                check_diverged(model, loss=loss, epoch=epoch, step=step, checkpoint=last_path, settings=settings)
                 bar.update(1)
                 if on_step_end is not None:
                     on_step_end(epoch, step)
