@@ -12,8 +12,9 @@ from pathlib import Path
 
 import pytest
 from bimscan.cli.main import main
-from bimscan.errors import ConfigError, InputFileError, LearnError
+from bimscan.errors import ConfigError, IfcError, InputFileError, LearnError
 from bimscan.io.text import write_text_cloud
+from bimscan.types import PointCloud
 from bimscan.learn.experiment import load_experiment, run_experiment, training_config, training_sections
 
 from .conftest import make_room
@@ -152,7 +153,7 @@ def test_a_tiny_experiment_runs_end_to_end_and_resumes(experiment_dir: Path) -> 
     (('scenes = ["real.txt"]', 'scenes = ["missing.txt"]'), "real scenes not found"),
     (('name = "recipe"', 'name = "baseline"'), "used twice"),
     (('data = "spec.toml"\ninput', 'data = "nothing.toml"\ninput'), "data not found"),
-    (("epochs = 2", "epochs = 0"), "epochs must be at least 1"),
+    (("epochs = 2", "epochs = 0"), "epochs must be an integer in 1..100000"),
     (('augment = { enabled = false }', 'augment = { enabled = false, flips = 1 }'), "flips"),
     (('name = "baseline"', 'name = "base line/x"'), "not a usable name"),
 ])
@@ -334,7 +335,7 @@ def test_cpu_threads_are_set_for_training_and_checked() -> None:
         assert torch.get_num_threads() == 1
     finally:
         torch.set_num_threads(before)
-    with pytest.raises(ConfigError, match="cpu_threads must be >= 0"):
+    with pytest.raises(ConfigError, match="cpu_threads must be an integer in 0..1024"):
         TrainConfig(cpu_threads=-1)
 
 
@@ -460,16 +461,22 @@ def test_variants_training_on_real_rooms_are_never_scored_on_them(rooms_dir: Pat
     (('rooms = ["r2.txt"]', 'rooms = ["r9.txt"]'), "'r9.txt' is not of the \\[rooms\\] scenes"),
     (("room_weight = 4.0", "room_weight = 0.0"), "room_weight"),
     (('[rooms]\nscenes = ["r1.txt", "r2.txt", "r3.txt"]', ""), "'all' of no rooms"),
-    (("folds = 2", "folds = 1"), "folds = 1 is impossible"),
+    (("folds = 2", "folds = 1"), "folds must be an integer in 2..64, got 1"),
     (('freeze = ["embedding"]', 'freeze = ["head"]'), "freeze"),
     (("stride_m = 1.5", "stride_m = 0.7"), r"#1 \(synthetic\): \[eval\] stride_m = 0.7 does not divide"),
     (("[rooms]", '[holdout]\nifc = ["house.ifc"]\nclutter = -1.0\n\n[rooms]'), r"\[holdout\].*clutter density = -1"),
+    (('train = { epochs = 2, freeze = ["embedding"] }', 'train = { epochs = 2 }\nmodel = { embed_dim = 16 }'),
+     r"#4 \(finetune-all\): init 'synthetic' trains another \[model\]"),
+    (('rooms = ["r1.txt"]\nroom_weight = 2.0', 'rooms = ["r1.txt"]\nroom_weight = 2.0\ntrain = { freeze = ["attention"] }'),
+     r"#5 \(mixed-1\) \[train\] freeze = \['attention'\]: without 'init' those parts of the network stay random"),
+    (('rooms = ["r2.txt"]', 'rooms = ["r2.txt", "r2.txt"]'), r"'r2.txt' is listed twice"),
+    (("max_lr = 0.01", "max_lr = 1e9"), r"\[train\]: max_lr must be a number in \(0, 1\], got 1e\+09"),
 ])
 def test_bad_room_variants_are_one_line_errors(rooms_dir: Path, patch: tuple[str, str], message: str) -> None:
     text = ROOMS_EXPERIMENT.replace(*patch)
     assert text != ROOMS_EXPERIMENT
     (rooms_dir / "exp.toml").write_text(text, encoding="utf-8")
-    (rooms_dir / "house.ifc").write_text("ISO-10303-21;\n", encoding="utf-8")  # a holdout model's path must exist
+    (rooms_dir / "house.ifc").write_text("ISO-10303-21;\nEND-ISO-10303-21;\n", encoding="utf-8")  # a holdout model must exist
     with pytest.raises(ConfigError, match=message) as caught:
         load_experiment(rooms_dir / "exp.toml")
     assert "\n" not in str(caught.value)
@@ -485,7 +492,7 @@ def test_a_variant_training_on_every_scored_room_by_name_is_refused(rooms_dir: P
 def test_the_holdout_models_are_scanned_with_the_given_sensor_settings(rooms_dir: Path) -> None:
     from bimscan.learn.experiment import _holdout_spec
 
-    (rooms_dir / "house.ifc").write_text("ISO-10303-21;\n", encoding="utf-8")
+    (rooms_dir / "house.ifc").write_text("ISO-10303-21;\nEND-ISO-10303-21;\n", encoding="utf-8")
     holdout = '[holdout]\nifc = ["house.ifc"]\nrealism = "paper"\nsensor = { glass = true }\n\n[rooms]'
     (rooms_dir / "exp.toml").write_text(ROOMS_EXPERIMENT.replace("[rooms]", holdout, 1), encoding="utf-8")
     (config,) = _holdout_spec(load_experiment(rooms_dir / "exp.toml")).configs
@@ -497,7 +504,7 @@ def test_the_holdout_models_are_scanned_with_the_given_sensor_settings(rooms_dir
 
 
 def test_a_variant_training_on_the_holdout_is_refused_before_any_work(rooms_dir: Path) -> None:
-    (rooms_dir / "house.ifc").write_text("ISO-10303-21;\n", encoding="utf-8")
+    (rooms_dir / "house.ifc").write_text("ISO-10303-21;\nEND-ISO-10303-21;\n", encoding="utf-8")
     (rooms_dir / "out" / "holdout").mkdir(parents=True)
     (rooms_dir / "houses.toml").write_text(
         'name = "houses"\n\n[[scenes]]\nname = "house"\nifc = "house.ifc"\n\n[[configs]]\nname = "exp1"\npreset = "exp1"\n',
@@ -516,3 +523,27 @@ def test_a_variant_training_on_the_holdout_is_refused_before_any_work(rooms_dir:
             run_experiment(load_experiment(rooms_dir / "exp.toml"), rooms_dir / "out", log=lambda t: None)
         assert "\n" not in str(caught.value)
         assert sorted(p.name for p in (rooms_dir / "out").iterdir()) == ["holdout"]  # nothing built, nothing trained
+
+
+def test_a_holdout_model_that_is_not_an_ifc_file_is_refused_before_any_work(rooms_dir: Path) -> None:
+    (rooms_dir / "notes.ifc").write_text("meeting notes, not a model\n", encoding="utf-8")
+    text = ROOMS_EXPERIMENT.replace("[rooms]", '[holdout]\nifc = ["notes.ifc"]\n\n[rooms]')
+    (rooms_dir / "exp.toml").write_text(text, encoding="utf-8")
+
+    with pytest.raises(IfcError, match=r"\[holdout\].*notes.ifc: not an IFC file \(no ISO-10303-21 STEP header\)") as caught:
+        load_experiment(rooms_dir / "exp.toml")
+
+    assert "\n" not in str(caught.value)
+
+
+def test_real_scenes_without_labels_are_refused_before_any_build(rooms_dir: Path) -> None:
+    """A scored scene without labels is named with where it came from ([real] or --real), before a
+    dataset is built or a model trained (it was refused at training time, as '[data] val')."""
+    write_text_cloud(rooms_dir / "bare.xyz", PointCloud(xyz=make_room(60, points_per_m2=40).xyz))
+    experiment = load_experiment(rooms_dir / "exp.toml", real=[rooms_dir / "bare.xyz"])
+    out = rooms_dir / "out"
+
+    with pytest.raises(LearnError, match=r"bare.xyz: holds no labels \(\[real\] scenes or --real"):
+        run_experiment(experiment, out, log=lambda text: None)
+
+    assert not (out / "variants").exists() and not (out / "datasets").exists()

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from bimscan.errors import ConfigError
+from bimscan.errors import ConfigError, LearnError
 from bimscan.io.text import write_text_cloud
 from bimscan.learn.train_config import DEFAULT_CLASS_NAMES, BlockConfig, EvalConfig, InputConfig, ModelConfig
 from bimscan.learn.data import iter_raw_chunks, list_scenes
@@ -173,7 +173,7 @@ def test_eval_votes_shuffle_every_column_again(scene: tuple[Path, PointCloud], m
     # every block of more than N points cut into groups three times; a smaller one passes whole once
     assert once.passes < thrice.passes <= 3 * once.passes
     assert np.array_equal(np.sort(np.concatenate(labelled)), np.arange(len(cloud)))  # each point once
-    with pytest.raises(ConfigError, match="votes must be in 1..64"):
+    with pytest.raises(ConfigError, match="votes must be an integer in 1..64"):
         EvalConfig(votes=0)
 
 
@@ -398,14 +398,36 @@ def test_a_sparse_cloud_kilometres_wide_is_quick_and_warned_about(tmp_path: Path
     assert len(warned) == 1 and "check its unit" in warned[0]
 
 
-def test_a_room_in_millimetres_is_labelled_and_named_as_likely_millimetres(
+def test_a_room_in_millimetres_is_refused_in_seconds_with_the_unit_named(
     tmp_path: Path, room: Callable[..., PointCloud], model: torch.nn.Module,
 ) -> None:
-    cloud = room(8, size_m=(4.0, 3.0), points_per_m2=10)
+    """Read as metres, a room in millimetres puts about one point in each column: labelling it would
+    pass every point through the network alone (minutes for a real room, labels of no use)."""
+    import time
+
+    cloud = room(8, size_m=(4.0, 3.0), points_per_m2=200)
     write_text_cloud(tmp_path / "mm.txt", PointCloud(xyz=cloud.xyz * 1000.0, label=cloud.label))
     warned: list[str] = []
+    started = time.perf_counter()
 
-    index, _, _ = _label(model, tmp_path / "mm.txt", warn=warned.append)
+    with pytest.raises(LearnError, match=r"looks like millimetres, so scale it to metres first .*per column"):
+        _label(model, tmp_path / "mm.txt", warn=warned.append)
 
-    assert len(index) == len(cloud)
-    assert len(warned) == 1 and "looks like millimetres" in warned[0]
+    assert time.perf_counter() - started < 30.0
+    assert warned == []
+
+
+def test_a_dense_scene_too_wide_for_metres_is_labelled_with_a_warning(
+    tmp_path: Path, room: Callable[..., PointCloud], model: torch.nn.Module,
+) -> None:
+    """Too wide and tall for a building in metres, but with many points in every column (centimetres would
+    fit it): labelled as given, the likely unit named in a warning."""
+    rng = np.random.default_rng(3)
+    xyz = rng.random((90_000, 3)) * [2_100.0, 0.4, 250.0]
+    write_text_cloud(tmp_path / "cm.txt", PointCloud(xyz=xyz, label=rng.integers(0, 5, len(xyz)).astype(np.uint8)))
+    warned: list[str] = []
+
+    index, _, _ = _label(model, tmp_path / "cm.txt", warn=warned.append)
+
+    assert np.array_equal(np.sort(index), np.arange(len(xyz)))
+    assert len(warned) == 1 and "it looks like centimetres" in warned[0]

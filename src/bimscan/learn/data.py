@@ -109,6 +109,12 @@ def list_scenes(
             suffixes = "/".join(suffix for suffixes in CLOUD_FORMATS.values() for suffix in suffixes if suffix)
             raise InputFileError(f"{path}: not a scene; pass a {suffixes} cloud, a bimscan NumPy cloud folder, "
                                  "dataset folder or unit folder, or an S3DIS room/area folder")
+    seen: dict[Path, SceneSource] = {}
+    for scene in scenes:
+        first = seen.setdefault(scene.path.resolve(), scene)
+        if first is not scene:
+            raise LearnError(f"{scene.path}: scene {scene.name!r} is listed twice (also as {first.name!r}); name each "
+                             "scene once (a scene set's weight draws its blocks more often)")
     if label_field is not None and scenes and all(s.kind == "s3dis" for s in scenes):
         raise LearnError(
             f"label field {label_field!r} cannot apply to S3DIS rooms: their labels are the annotation file "
@@ -140,6 +146,21 @@ def build_scene_label_table(
         if header is not None:
             names = header.scheme.names
     return build_label_table(class_names=class_names, mapping=source.mapping, source_names=names)
+
+
+def require_labels(sources: Sequence[SceneSource], *, class_names: Sequence[str], where: str) -> None:
+    """LearnError naming the first scene whose first points carry no label of ``class_names``
+    (a cloud without a label column, or labels its mapping sends nowhere): scored scenes are
+    checked in seconds, before any build or training. ``where``: what named them, for the message."""
+    for source in sources:
+        table = build_scene_label_table(source, class_names=class_names)
+        first = next(iter_raw_chunks(source, chunk_points=1 << 16), None)
+        if first is None or first.label is None:
+            raise LearnError(f"{source.path}: holds no labels ({where}: scenes to score on need ground truth); give "
+                             "a labelled cloud, or name its label column or dimension (label_field)")
+        if not (table[first.label.astype(np.int64)] != IGNORE_LABEL).any():
+            raise LearnError(f"{source.path}: none of its first {len(first):,} points has a label of the classes "
+                             f"{', '.join(class_names)} ({where}); check its labels and the scene set's mapping")
 
 
 def _reads_asprs_classification(source: SceneSource, header: CloudHeader | None) -> bool:

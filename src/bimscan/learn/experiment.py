@@ -58,21 +58,19 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
+from bimscan.constraints import Checked, Range, setting
 from bimscan.errors import ConfigError, InputFileError, LearnError
 from bimscan.files import write_atomic
 from bimscan.learn.data import SceneSource
 from bimscan.learn.metrics import METRIC_NAMES, compute_metrics
 from bimscan.learn.train_config import (
-    AugmentConfig, BlockConfig, DataConfig, EvalConfig, InputConfig, ModelConfig, SceneSet, TrainConfig,
-    TrainRunConfig, check_moved_keys, scene_sets,
+    TRAINING_SECTIONS, DataConfig, SceneSet, TrainRunConfig, check_moved_keys, scene_sets, setting_effect,
 )
 from bimscan.toml_files import base_file, build_dataclass, load_toml, resolve_path
 
 if TYPE_CHECKING:
     from bimscan.dataset.spec import DatasetSpec
 
-TRAINING_SECTIONS = {"blocks": BlockConfig, "input": InputConfig, "augment": AugmentConfig, "model": ModelConfig,
-                     "train": TrainConfig, "eval": EvalConfig}
 DATA_RECORD = "synthetic_data.digest"  # in a variant's folder: the data its models were trained on
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9+][A-Za-z0-9._+-]{0,63}$")
 RECORD_FORMAT = "bimscan-experiment"
@@ -80,23 +78,19 @@ RECORD_VERSION = 2
 
 
 @dataclass(frozen=True)
-class ExperimentTable:
+class ExperimentTable(Checked):
     """``[experiment]``: the experiment's name (default: the file's stem), its classes, the dataset
     builds' worker processes, the folds of variants training on every scored room, a base file."""
 
     name: str | None = None
     class_names: tuple[str, ...] | None = None
-    workers: int | None = None
-    folds: int = 3
+    workers: int | None = setting(None, within=Range(1, 1024), effect="runtime")
+    folds: int = setting(3, within=Range(2, 64))
     base: str | None = None
 
-    def __post_init__(self) -> None:
+    def check(self) -> None:
         if self.name is not None and not NAME_PATTERN.match(self.name):
             raise ConfigError(f"name {self.name!r} is not a usable name (letters, digits, . _ -)")
-        if self.workers is not None and self.workers < 1:
-            raise ConfigError(f"workers = {self.workers} is impossible; give 1 or more")
-        if not 2 <= self.folds <= 64:
-            raise ConfigError(f"folds = {self.folds} is impossible; give 2..64")
 
 
 @dataclass(frozen=True)
@@ -114,7 +108,7 @@ class HoldoutTable:
 
 
 @dataclass(frozen=True, kw_only=True)
-class TrainingTables:
+class TrainingTables(Checked):
     """The training sections as written (``TRAINING_SECTIONS``, tables checked once merged): the
     experiment's shared ones and a variant's overrides."""
 
@@ -134,16 +128,14 @@ class VariantTable(TrainingTables):
     description: str = ""
     data: tuple[str, ...] = ()
     rooms: tuple[str, ...] | Literal["all"] = ()
-    room_weight: float = 1.0
+    room_weight: float = setting(1.0, within=Range(0, 100, low_open=True))
     init: str | None = None
 
-    def __post_init__(self) -> None:
+    def check(self) -> None:
         if not NAME_PATTERN.match(self.name):
             raise ConfigError(f"name {self.name!r} is not a usable name (letters, digits, . _ -, at most 64)")
         if not self.data and not self.rooms:
             raise ConfigError(f"variant {self.name!r} trains on nothing; give 'data' (synthetic) and/or 'rooms' (real)")
-        if not 0 < self.room_weight <= 100:
-            raise ConfigError(f"room_weight = {self.room_weight!r} is impossible; give 0 < weight <= 100")
 
 
 @dataclass(frozen=True)
@@ -248,6 +240,7 @@ def load_experiment(path: str | Path, *, real: Sequence[str | Path] | None = Non
         check_moved_keys(sections, where=where)
         built = {name: build_dataclass(kind, sections[name], where=f"{where} [{name}]")
                  for name, kind in TRAINING_SECTIONS.items()}
+        _check_start(table, built, variants, parsed, where=where)
         try:  # what TrainRunConfig checks across sections, before any work
             built["eval"].stride_for(built["blocks"].size_m)
         except ConfigError as exc:
@@ -262,6 +255,25 @@ def load_experiment(path: str | Path, *, real: Sequence[str | Path] | None = Non
                             workers=head.workers, folds=head.folds)
     _holdout_spec(experiment)  # its models and settings checked before any work
     return experiment
+
+
+def _check_start(table: VariantTable, built: dict[str, Any], earlier: list[Variant], parsed: ExperimentFile, *,
+                 where: str) -> None:
+    """ConfigError before any work for a variant that cannot start as it says: one that freezes
+    parts of a network it does not take from a parent (they would stay random), or one whose
+    network does not fit its parent's (``init``), which would be refused only after the parent trained."""
+    if table.init is None:
+        if built["train"].freeze:
+            raise ConfigError(f"{where} [train] freeze = {list(built['train'].freeze)}: without 'init' those parts of "
+                              "the network stay random; name the variant to start from in 'init' or leave freeze out")
+        return
+    parent = next(v for v in earlier if v.name == table.init)
+    theirs = training_sections(parent)
+    for what, mine, other in (("[model]", built["model"], theirs["model"]),
+                              ("[input] features", built["input"].features, theirs["input"].features)):
+        if mine != other:
+            raise ConfigError(f"{where}: init {table.init!r} trains another {what} ({other}) than this variant "
+                              f"({mine}); fine-tuning starts from the same network: give both the same {what}")
 
 
 def _listed(table: Any) -> Any:
@@ -306,6 +318,10 @@ def _variant_rooms(names: tuple[str, ...] | str, sources: list[SceneSource], *,
             raise ConfigError(f"{where} rooms: 'all' of no rooms; name the real rooms to train on in [rooms]")
         return "all"
     chosen = []
+    repeated = sorted({name for name in names if list(names).count(name) > 1})
+    if repeated:
+        raise ConfigError(f"{where} rooms: {repeated[0]!r} is listed twice; name each room once (room_weight draws "
+                          "them more often)")
     for name in names:
         found = [s for s in sources if s.name == name or s.name.endswith("/" + name) or s.path.name == name]
         if len(found) != 1:
@@ -433,6 +449,7 @@ def run_experiment(experiment: Experiment, out_dir: str | Path, *,
     out = Path(out_dir).resolve()
     out.mkdir(parents=True, exist_ok=True)
     _check_holdout_unseen(experiment, out)
+    _check_real_labelled(experiment)
     _check_same_experiment(experiment, out)
     _build_datasets(experiment, out, emit)
     holdout = _build_holdout(experiment, out, emit)
@@ -446,6 +463,16 @@ def run_experiment(experiment: Experiment, out_dir: str | Path, *,
     write_report(experiment, results, out)
     emit(f"report: {out / 'report.md'}")
     return results
+
+
+def _check_real_labelled(experiment: Experiment) -> None:
+    """Every scored scene carries labels of the experiment's classes: a cloud without them is
+    refused in seconds, naming where it came from, before the datasets are built."""
+    from bimscan.learn.data import require_labels
+    from bimscan.learn.train_config import DEFAULT_CLASS_NAMES
+
+    require_labels(_scored_scenes(experiment), class_names=experiment.class_names or DEFAULT_CLASS_NAMES,
+                   where="[real] scenes or --real")
 
 
 def _scored_scenes(experiment: Experiment) -> list[SceneSource]:
@@ -515,11 +542,9 @@ def _fingerprint(experiment: Experiment, variant: Variant, out: Path) -> str:
     document = {"sections": variant.sections, "synthetic": _synthetic(variant, out), "init": variant.init,
                 "rooms": "all" if variant.rooms == "all" else [str(s.path) for s in variant.rooms],
                 "room_weight": variant.room_weight, "folds": experiment.folds, "class_names": experiment.class_names}
-    document["sections"] = {k: {kk: vv for kk, vv in v.items() if (k, kk) not in _RUNTIME} for k, v in variant.sections.items()}
+    document["sections"] = {k: {kk: vv for kk, vv in v.items() if setting_effect(k, kk) != "runtime"}
+                            for k, v in variant.sections.items()}
     return hashlib.sha256(json.dumps(document, sort_keys=True, default=str).encode()).hexdigest()[:16]
-
-
-_RUNTIME = {("train", "device"), ("train", "num_workers"), ("train", "out_dir"), ("eval", "batch_size")}
 
 
 def _check_same_experiment(experiment: Experiment, out: Path) -> None:

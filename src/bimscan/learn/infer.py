@@ -63,6 +63,9 @@ RECORD_WITH_COMPONENT = np.dtype(RECORD.descr + [("component", "<i4")])  # when 
 MIN_PADDED = 16  # blocks smaller than N run padded to a power of two at least this
 BUILDING_EXTENT_M = 2_000.0  # wider than this, or taller than BUILDING_HEIGHT_M: likely not metres
 BUILDING_HEIGHT_M = 300.0
+# a scene too large for metres is refused when its columns hold fewer points than this on average
+# (a real scan in metres holds thousands per column; one in millimetres about one)
+MIN_POINTS_PER_COLUMN = 16
 
 
 @dataclass(frozen=True)
@@ -226,7 +229,8 @@ class _Labeller:
             counts, lower, upper, self.origin = self._bucket(chunk_points)
             self.rows_from = int(np.floor((lower[1] - self.origin[1]) / self.stride))
             self.rows_to = max(self.rows_from, int(np.floor((upper[1] - self.origin[1]) / self.stride)) - self.k + 1)
-            _check_extent(self.source, lower, upper, warn)
+            _check_extent(self.source, lower, upper, warn, points=sum(counts.values()),
+                          columns=lambda: self._occupied_columns(counts))
             self.floor_map = self._floor_map(counts)
             self._label_stripes(counts)
         return SceneLabels(
@@ -277,6 +281,11 @@ class _Labeller:
         if total == 0 or origin is None:
             raise LearnError(f"{self.source.path}: the scene holds no points; pass a non-empty cloud")
         return counts, lower, upper, origin
+
+    def _occupied_columns(self, counts: dict[int, int]) -> int:
+        """How many stride x stride cells hold points (one read of the stripe files' y)."""
+        return sum(len(np.unique(np.floor((self._read(s)["xyz"][:, 1] - self.origin[1]) / self.stride)))
+                   for s in counts)
 
     def _read(self, stripe: int) -> np.ndarray:
         return np.fromfile(self.folder / f"{stripe}.bin", dtype=self.record)
@@ -416,9 +425,13 @@ class _Labeller:
 
 
 def _check_extent(source: SceneSource, lower: np.ndarray, upper: np.ndarray,
-                  warn: Callable[[str], None] | None) -> None:
-    """One warning when the scene is larger than a building scanned in metres is: it is likely in
-    millimetres (or feet); the network's blocks are metres."""
+                  warn: Callable[[str], None] | None, *, points: int = 0,
+                  columns: Callable[[], int] | None = None) -> None:
+    """When the scene is larger than a building scanned in metres is, it is likely in millimetres
+    (or feet), and the network's blocks are metres: one warning; a LearnError instead when another
+    unit fits it and its ``points`` are so spread over the columns (``columns()``: how many hold
+    points) that labelling it as metres would run a nearly empty block per point or two (a 10 m room
+    in millimetres: minutes instead of seconds, and labels of no use)."""
     size = upper - lower
     wide, tall = float(max(size[0], size[1])), float(size[2])
     if wide <= BUILDING_EXTENT_M and tall <= BUILDING_HEIGHT_M:
@@ -427,9 +440,18 @@ def _check_extent(source: SceneSource, lower: np.ndarray, upper: np.ndarray,
                                            ("feet", 3.281))
                  if wide / factor <= BUILDING_EXTENT_M and tall / factor <= BUILDING_HEIGHT_M and tall / factor >= 2.0),
                 None)
-    line = (f"{source.path}: the scene is {wide:,.0f} x {tall:,.0f} units across; bimscan reads metres"
-            + (f": it looks like {unit}, so scale it to metres first" if unit else ": check its unit"))
+    advice = f": it looks like {unit}, so scale it to metres first" if unit else ": check its unit"
+    line = f"{source.path}: the scene is {_size(wide)} x {_size(tall)} units across; bimscan reads metres" + advice
+    occupied = columns() if columns is not None and unit is not None else 0
+    if occupied and points / occupied < MIN_POINTS_PER_COLUMN:
+        raise LearnError(f"{line} (its {points:,} points spread over {occupied:,} columns, "
+                         f"{points / occupied:.1f} per column: labelling it as metres would pass nearly every point "
+                         "through the network alone)")
     (warn or (lambda text: warnings.warn(text, stacklevel=3)))(line)
+
+
+def _size(value: float) -> str:
+    return f"{value:,.0f}" if value < 1e12 else f"{value:.3g}"
 
 
 def spread_votes(
