@@ -87,6 +87,27 @@ def effect_of(cls: type, name: str) -> Effect:
     raise KeyError(f"{cls.__name__} has no field {name!r}")
 
 
+def choices_of(cls: type, name: str) -> tuple[Any, ...]:
+    """The values field ``name`` of settings class ``cls`` takes (its ``Literal``), for a CLI's
+    choice list: the one declaration, never a copy."""
+    choices = _literal_choices(_hints(cls).get(name))
+    if choices is None:
+        raise KeyError(f"{cls.__name__}.{name} is not a choice")
+    return choices
+
+
+def default_of(cls: type, name: str) -> Any:
+    """The default of field ``name`` of settings class ``cls`` (for a CLI's shown default)."""
+    for item in dataclasses.fields(cls):  # type: ignore[arg-type]
+        if item.name == name:
+            if item.default is not dataclasses.MISSING:
+                return item.default
+            if item.default_factory is not dataclasses.MISSING:
+                return item.default_factory()
+            raise KeyError(f"{cls.__name__}.{name} has no default")
+    raise KeyError(f"{cls.__name__} has no field {name!r}")
+
+
 @functools.cache
 def _hints(cls: type) -> dict[str, Any]:
     return typing.get_type_hints(cls)
@@ -165,4 +186,4 @@ class Checked:
         """Constraints across fields (none by default)."""
 
 
-__all__ = ["Checked", "Effect", "Range", "check_settings", "effect_of", "setting"]
+__all__ = ["Checked", "Effect", "Range", "check_settings", "choices_of", "default_of", "effect_of", "setting"]

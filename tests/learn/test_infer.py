@@ -90,7 +90,7 @@ def test_a_pass_cap_labels_the_unseen_points_from_their_nearest_neighbours(
 ) -> None:
     path, cloud = scene
 
-    index, _, result = _label(model, path, max_passes=1)
+    index, _, result = _label(model, path, evaluation=EvalConfig(max_passes=1))
 
     assert result.nearest_filled > 0
     assert np.array_equal(np.sort(index), np.arange(len(cloud)))
@@ -226,8 +226,8 @@ def test_labelling_memory_does_not_grow_with_the_scene_length(tmp_path: Path, mo
         # interned strings' dict, about 4 MB under pytest) can land in any single run
         for _ in range(2):
             tracemalloc.start()
-            result = label_scene(model, source, class_names=DEFAULT_CLASS_NAMES, blocks=BLOCKS, max_passes=1,
-                                 chunk_points=5000)
+            result = label_scene(model, source, class_names=DEFAULT_CLASS_NAMES, blocks=BLOCKS,
+                                 evaluation=EvalConfig(max_passes=1), chunk_points=5000)
             runs.append(tracemalloc.get_traced_memory()[1])
             tracemalloc.stop()
             assert result.points == n

@@ -14,6 +14,7 @@ from bimscan.errors import InputFileError, OutputError
 from bimscan.io import read_cloud, read_cloud_header
 from bimscan.io.text import write_text_cloud
 from bimscan.learn.predict import predict_cloud
+from bimscan.learn.train_config import EvalConfig
 from bimscan.types import PointCloud
 
 
@@ -60,8 +61,9 @@ def test_prediction_labels_every_point_and_keeps_the_other_columns(
 def test_prediction_is_reproducible_to_the_byte(tmp_path: Path, trained_run: Path, scan: Path) -> None:
     checkpoint = trained_run / "run" / "last.pt"
 
-    predict_cloud(checkpoint, scan, tmp_path / "a.laz", device="cpu", max_passes=1)
-    predict_cloud(checkpoint, scan, tmp_path / "b.laz", device="cpu", max_passes=1)
+    once = EvalConfig(max_passes=1)
+    predict_cloud(checkpoint, scan, tmp_path / "a.laz", device="cpu", evaluation=once)
+    predict_cloud(checkpoint, scan, tmp_path / "b.laz", device="cpu", evaluation=once)
 
     assert (tmp_path / "a.laz").read_bytes() == (tmp_path / "b.laz").read_bytes()
 

@@ -9,16 +9,19 @@ from typing import TypeVar
 
 import click
 
-DEVICES = click.Choice(["auto", "cpu", "cuda"])
+from bimscan.constraints import choices_of, default_of
+from bimscan.learn.train_config import EvalConfig, TrainConfig
+
+DEVICES = click.Choice(choices_of(TrainConfig, "device"))
 F = TypeVar("F", bound=Callable[..., object])
 
 
 def inference_options(command: F) -> F:
-    """The options evaluate and predict share: --device, how to label (--stride, --votes,
-    --label-neighbours, --batch-size: the checkpoint's [eval] unless given), --max-passes,
-    --weights, --seed."""
+    """The options evaluate and predict share: --device and how to label (--stride, --votes,
+    --label-neighbours, --batch-size, --max-passes, --weights, --seed: the checkpoint's [eval]
+    unless given)."""
     options = [
-        click.option("--device", type=DEVICES, default="auto", show_default=True),
+        click.option("--device", type=DEVICES, default=default_of(TrainConfig, "device"), show_default=True),
         click.option("--stride", "stride_m", type=float, default=None,
                      help="Columns every this many metres (a whole divisor of the block size). Default: the "
                           "checkpoint's [eval] stride_m."),
@@ -29,10 +32,14 @@ def inference_options(command: F) -> F:
                           "voxel's). Default: the checkpoint's [eval] label_neighbours."),
         click.option("--batch-size", type=click.IntRange(min=1), default=None,
                      help="Blocks per forward pass (speed and memory only). Default: the checkpoint's [eval] batch_size."),
-        click.option("--max-passes", type=click.IntRange(min=0), default=0, show_default=True,
-                     help="Passes per block at most (0: every point seen; else the rest from nearest neighbours)."),
-        click.option("--weights", type=click.Choice(["ema", "live"]), default="ema", show_default=True),
-        click.option("--seed", type=int, default=0, show_default=True),
+        click.option("--max-passes", type=click.IntRange(min=0), default=None,
+                     help="Passes per block at most (0: every point seen; else the rest from nearest neighbours). "
+                          "Default: the checkpoint's [eval] max_passes (0)."),
+        click.option("--weights", type=click.Choice(choices_of(EvalConfig, "weights")), default=None,
+                     help="The averaged (EMA) weights or the live ones. Default: the checkpoint's [eval] weights (ema)."),
+        click.option("--seed", type=click.IntRange(min=0), default=None,
+                     help="Seed of the shuffles that cut blocks into groups. Default: the checkpoint's [eval] seed, "
+                          "else its training seed (as sim2real scores)."),
     ]
     for option in reversed(options):  # decorators apply bottom-up: keep the listed order in --help
         command = option(command)
@@ -89,7 +96,7 @@ def train(config: Path, resume: bool, out_dir: Path | None, init: Path | None) -
 def evaluate(
     checkpoint: Path, scenes: tuple[Path, ...], out_dir: Path | None, label_field: str | None, mapping: Path | None,
     device: str, stride_m: float | None, votes: int | None, label_neighbours: int | None, batch_size: int | None,
-    max_passes: int, weights: str, seed: int,
+    max_passes: int | None, weights: str | None, seed: int | None,
 ) -> None:
     """Score CHECKPOINT on labelled SCENE... (every point): OA, mIoU, mAcc, FWIoU, kappa per scene.
 
@@ -105,10 +112,10 @@ def evaluate(
 
     label_mapping = None if mapping is None else load_label_mapping(mapping)
     evaluation = evaluation_settings(checkpoint, stride_m=stride_m, votes=votes, label_neighbours=label_neighbours,
-                                     batch_size=batch_size)
+                                     batch_size=batch_size, max_passes=max_passes, weights=weights, seed=seed)
     results = evaluate_checkpoint(
         checkpoint, scenes, label_field=label_field, mapping=label_mapping, device=device, evaluation=evaluation,
-        max_passes=max_passes, weights=weights, seed=seed, warn=lambda line: click.echo(f"warning: {line}", err=True),
+        warn=lambda line: click.echo(f"warning: {line}", err=True),
     )
     click.echo(format_markdown(results), nl=False)  # the metrics table, then IoU per class
     if out_dir is not None:
@@ -125,7 +132,8 @@ def evaluate(
 @inference_options
 def predict(
     checkpoint: Path, in_path: Path, out_path: Path, overwrite: bool, device: str, stride_m: float | None,
-    votes: int | None, label_neighbours: int | None, batch_size: int | None, max_passes: int, weights: str, seed: int,
+    votes: int | None, label_neighbours: int | None, batch_size: int | None, max_passes: int | None,
+    weights: str | None, seed: int | None,
 ) -> None:
     """Label every point of the scan IN with CHECKPOINT and write OUT (.laz/.las/.ply or a folder).
 
@@ -137,10 +145,10 @@ def predict(
 
     check_cloud_output(out_path, overwrite=overwrite)  # before the checkpoint is read
     evaluation = evaluation_settings(checkpoint, stride_m=stride_m, votes=votes, label_neighbours=label_neighbours,
-                                     batch_size=batch_size)
+                                     batch_size=batch_size, max_passes=max_passes, weights=weights, seed=seed)
     result = predict_cloud(
-        checkpoint, in_path, out_path, device=device, evaluation=evaluation, max_passes=max_passes,
-        weights=weights, seed=seed, overwrite=overwrite, warn=lambda line: click.echo(f"warning: {line}", err=True),
+        checkpoint, in_path, out_path, device=device, evaluation=evaluation, overwrite=overwrite,
+        warn=lambda line: click.echo(f"warning: {line}", err=True),
     )
     shares = ", ".join(
         f"{name} {100.0 * count / max(result.points, 1):.1f}%"

@@ -155,11 +155,13 @@ class TrainedModel:
 
 
 def load_trained_model(
-    path: str | Path, *, device: torch.device | str = "cpu", weights: Literal["ema", "live"] = "ema",
+    path: str | Path, *, device: torch.device | str = "cpu", weights: Literal["ema", "live"] | None = None,
 ) -> TrainedModel:
-    """Rebuild the network of a checkpoint; ``weights="ema"`` (default, as Table 2) or "live"."""
+    """Rebuild the network of a checkpoint with its "ema" weights (as Table 2) or its "live" ones
+    (None: those its ``[eval] weights`` names, the EMA unless changed)."""
     payload = read_checkpoint(path)
     config = parse_config(payload["config"], where=f"{path} [config]")
+    weights = weights or config.eval.weights
     class_names = tuple(payload["class_names"])
     if len(class_names) < 2:
         raise InputFileError(f"{path}: damaged checkpoint, {len(class_names)} class name(s); pass a bimscan checkpoint")

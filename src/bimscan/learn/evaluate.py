@@ -111,8 +111,7 @@ class SceneEvaluation:
 def evaluate_checkpoint(
     checkpoint: str | Path, scenes: Sequence[str | Path], *, label_field: str | None = None,
     mapping: LabelMapping | None = None, device: str = "auto", evaluation: EvalConfig | None = None,
-    max_passes: int = 0, weights: str = "ema", seed: int = 0, work_dir: Path | None = None,
-    warn: Callable[[str], None] | None = None,
+    work_dir: Path | None = None, warn: Callable[[str], None] | None = None,
 ) -> list[SceneEvaluation]:
     """Label every point of each scene with the checkpoint's network and score it.
 
@@ -120,8 +119,8 @@ def evaluate_checkpoint(
     ``evaluation``: how to label (default: the checkpoint's own ``[eval]``).
     """
     torch_device = pick_device(device)
-    trained = load_trained_model(checkpoint, device=torch_device, weights="ema" if weights == "ema" else "live")
-    evaluation = evaluation or trained.config.eval
+    trained = load_trained_model(checkpoint, device=torch_device, weights=None if evaluation is None else evaluation.weights)
+    evaluation = (evaluation or trained.config.eval).with_seed(trained.config.train.seed)
     trained.config.eval.stride_for(trained.config.blocks.size_m)
     evaluation.stride_for(trained.config.blocks.size_m)  # a stride that does not divide the blocks: one line now
     sources = list_scenes(scenes, label_field=label_field, mapping=mapping)
@@ -131,8 +130,8 @@ def evaluate_checkpoint(
         components = header.components if header is not None else None
         labels = label_scene(
             trained.model, source, class_names=trained.class_names, blocks=trained.config.blocks,
-            evaluation=evaluation, device=torch_device, amp=trained.config.train.amp, seed=seed,
-            max_passes=max_passes, work_dir=work_dir, inputs=trained.config.input, warn=warn,
+            evaluation=evaluation, device=torch_device, amp=trained.config.train.amp, work_dir=work_dir,
+            inputs=trained.config.input, warn=warn,
             elements=0 if components is None else len(components.ifc_class),
         )
         if labels.labelled == 0:

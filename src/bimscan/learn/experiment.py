@@ -732,13 +732,13 @@ def _run_variant(experiment: Experiment, variant: Variant, runs_of: dict[str, li
             mapping = None if experiment.real.mapping is None else load_label_mapping(experiment.real.mapping)
             found = evaluate_checkpoint(last, [s.path for s in run.scored], label_field=experiment.real.label_field,
                                         mapping=mapping, device=config.train.device, evaluation=config.eval,
-                                        seed=config.train.seed, work_dir=where)
+                                        work_dir=where)
             write_evaluation(found, where / "eval", class_names,
                              title=f"{label}: confusion on {len(found)} real scene(s), all points")
             evaluations += found
         if holdout is not None:
             found = evaluate_checkpoint(last, [holdout], device=config.train.device, evaluation=config.eval,
-                                        seed=config.train.seed, work_dir=where)
+                                        work_dir=where)
             write_evaluation(found, where / "holdout", class_names,
                              title=f"{label}: confusion on {len(found)} holdout building(s), all points")
             holdouts.append(found)

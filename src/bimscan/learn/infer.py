@@ -152,19 +152,18 @@ class BlockRunner:
 def label_scene(
     model: nn.Module, source: SceneSource, *, class_names: Sequence[str], blocks: BlockConfig,
     evaluation: EvalConfig | None = None, inputs: InputConfig | None = None, device: torch.device | str = "cpu",
-    amp: str = "off", seed: int = 0, use_labels: bool = True, work_dir: Path | None = None,
+    amp: str = "off", use_labels: bool = True, work_dir: Path | None = None,
     on_labels: Callable[[np.ndarray, np.ndarray], None] | None = None, chunk_points: int = CHUNK_POINTS,
-    max_passes: int = 0, warn: Callable[[str], None] | None = None, elements: int = 0,
+    warn: Callable[[str], None] | None = None, elements: int = 0,
 ) -> SceneLabels:
     """Predict a class for every point of ``source`` (see the module docstring).
 
-    ``model`` must be in eval mode. ``evaluation``: columns, votes and interpolation (default:
-    ``EvalConfig()``); ``inputs``: what the network was trained on (default: the paper's raw
+    ``model`` must be in eval mode. ``evaluation``: columns, votes, interpolation, passes and the
+    shuffles' seed (default: ``EvalConfig()``; a seed left None counts as 0); ``inputs``: what the network was trained on (default: the paper's raw
     XYZ). ``use_labels`` False ignores the scene's labels (prediction of unlabelled or
     foreign-labelled scans). ``on_labels(index, prediction)`` receives (M,) int64 original point
     indices and (M,) uint8 classes, stripe by stripe. Temporary stripe files go to ``work_dir``
-    (default: the system's temporary folder). ``max_passes`` > 0 caps the groups per block
-    (points left out take their nearest voted neighbour's class). ``warn`` receives one line
+    (default: the system's temporary folder). ``warn`` receives one line
     when the scene's extent looks like another unit than metres (default: a Python warning).
     ``elements`` > 0: the scene's points carry component ids (a bimscan cloud's ``component``)
     of that many components; the predictions are counted per component (``element_counts``).
@@ -172,8 +171,8 @@ def label_scene(
     evaluation = evaluation or EvalConfig()
     inputs = inputs or InputConfig(grid_m=0.0, features=("xyz",))
     return _Labeller(model, source, class_names=class_names, blocks=blocks, evaluation=evaluation, inputs=inputs,
-                     device=torch.device(device), amp=amp, seed=seed, use_labels=use_labels, on_labels=on_labels,
-                     max_passes=max_passes, elements=elements).run(work_dir=work_dir, chunk_points=chunk_points,
+                     device=torch.device(device), amp=amp, seed=evaluation.seed or 0, use_labels=use_labels,
+                     on_labels=on_labels, max_passes=evaluation.max_passes, elements=elements).run(work_dir=work_dir, chunk_points=chunk_points,
                                                                    warn=warn)
 
 

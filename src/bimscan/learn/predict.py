@@ -57,8 +57,7 @@ def build_prediction_scheme(class_names: tuple[str, ...], stored: LabelScheme | 
 
 def predict_cloud(
     checkpoint: str | Path, in_path: str | Path, out_path: str | Path, *, device: str = "auto",
-    evaluation: EvalConfig | None = None, max_passes: int = 0, weights: str = "ema", seed: int = 0,
-    overwrite: bool = False, chunk_points: int = CHUNK_POINTS, warn: Callable[[str], None] | None = None,
+    evaluation: EvalConfig | None = None, overwrite: bool = False, chunk_points: int = CHUNK_POINTS, warn: Callable[[str], None] | None = None,
 ) -> PredictionResult:
     """Label every point of ``in_path`` and write ``out_path`` (format by suffix, see bimscan.io).
 
@@ -71,8 +70,8 @@ def predict_cloud(
     out_path = Path(out_path)
     check_cloud_output(out_path, overwrite=overwrite)
     torch_device = pick_device(device)
-    trained = load_trained_model(checkpoint, device=torch_device, weights="ema" if weights == "ema" else "live")
-    evaluation = evaluation or trained.config.eval
+    trained = load_trained_model(checkpoint, device=torch_device, weights=None if evaluation is None else evaluation.weights)
+    evaluation = (evaluation or trained.config.eval).with_seed(trained.config.train.seed)
     evaluation.stride_for(trained.config.blocks.size_m)  # a stride that does not divide the blocks: one line now
     sources = list_scenes([in_path])
     if len(sources) != 1:
@@ -90,8 +89,7 @@ def predict_cloud(
 
             result = label_scene(
                 trained.model, source, class_names=trained.class_names, blocks=trained.config.blocks,
-                evaluation=evaluation, device=torch_device, amp=trained.config.train.amp, seed=seed,
-                max_passes=max_passes, use_labels=False, work_dir=folder, on_labels=keep, chunk_points=chunk_points,
+                evaluation=evaluation, device=torch_device, amp=trained.config.train.amp, use_labels=False, work_dir=folder, on_labels=keep, chunk_points=chunk_points,
                 inputs=trained.config.input, warn=warn,
             )
         labels = np.memmap(folder / "labels.u1", dtype=np.uint8, mode="w+", shape=(result.points,))
@@ -109,7 +107,7 @@ def predict_cloud(
             metadata={
                 "prediction": {
                     "checkpoint": str(checkpoint), "epoch": trained.epoch, "weights": trained.weights,
-                    "source": str(in_path), "seed": seed, "max_passes": max_passes,
+                    "source": str(in_path), "seed": evaluation.seed, "max_passes": evaluation.max_passes,
                     "block_size_m": trained.config.blocks.size_m, "points_per_block": trained.config.blocks.points,
                     "evaluation": asdict(evaluation),
                 },

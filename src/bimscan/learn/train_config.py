@@ -10,7 +10,7 @@ the paper's baseline. Relative paths in the file are relative to the file's fold
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
@@ -240,7 +240,10 @@ class EvalConfig(Checked):
     KPConv vote). With a density grid a point that is not its voxel's representative takes the
     inverse-square-distance mean of the votes of its ``label_neighbours`` nearest representatives
     (PointNet++'s interpolation, Qi et al. 2017; 0: its own voxel's representative's).
-    ``batch_size``: blocks per forward pass (speed and memory only).
+    ``batch_size``: blocks per forward pass (speed and memory only). ``max_passes`` > 0 caps the
+    groups per block (points left out take their nearest voted neighbour's class; 0: every point
+    seen). ``weights``: the EMA weights (Table 2) or the live ones. ``seed``: the shuffles'
+    (None: the training run's ``[train] seed``, the one ``sim2real`` scores with).
 
     A training run stores its ``[eval]`` with its checkpoint as that model's evaluation; commands
     that evaluate or predict use it unless told otherwise, and record what they used.
@@ -250,6 +253,13 @@ class EvalConfig(Checked):
     votes: int = setting(1, within=Range(1, 64), effect="scores")
     label_neighbours: int = setting(3, within=Range(0, 64), effect="scores")
     batch_size: int = setting(8, within=Range(1, 4096), effect="runtime")
+    max_passes: int = setting(0, within=Range(0, 1 << 20), effect="scores")
+    weights: Literal["ema", "live"] = setting("ema", effect="scores")
+    seed: int | None = setting(None, within=Range(0, 2**63 - 1), effect="scores")
+
+    def with_seed(self, training_seed: int) -> EvalConfig:
+        """This evaluation with its seed decided: its own, else the training run's."""
+        return self if self.seed is not None else replace(self, seed=training_seed)
 
     def stride_for(self, size_m: float) -> float:
         """The stride for columns of ``size_m``; ConfigError unless it divides ``size_m`` whole."""
