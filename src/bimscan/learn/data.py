@@ -290,13 +290,15 @@ def _scene_seed(seed: int, source: SceneSource) -> np.random.SeedSequence:
 
 def collect_scene_tiles(
     source: SceneSource, *, blocks: BlockConfig, class_names: Sequence[str], seed: int,
-    chunk_points: int = CHUNK_POINTS, grid_m: float = 0.0, per_station: bool = False,
+    chunk_points: int = CHUNK_POINTS, grid_m: float = 0.0, per_station: bool = False, labelled: bool = True,
 ) -> TileSet:
     """Stream one scene into its training columns, keeping <= ``blocks.cache_points`` each.
 
     Each point gets a random key; each column keeps its points with the smallest keys, i.e. a
     uniform random subset without replacement, independent of how the stream is chunked.
     Columns with fewer than ``blocks.min_points`` points or no labelled point are dropped.
+    ``labelled`` False: an unlabelled scene (domain adaptation): its labels are never read (every
+    label is 255) and its columns are kept whatever they hold.
 
     With ``grid_m`` > 0 (density normalisation, :mod:`bimscan.learn.density`) the key is a hash
     of the point's voxel, the same for all its points, and of the points sharing a voxel only the
@@ -325,10 +327,16 @@ def collect_scene_tiles(
     column_keys: list[np.ndarray] = []
     column_counts: list[np.ndarray] = []
     floors = FloorMapBuilder()  # the floor under every point (from all of them, stations merged): a first pass
-    for chunk in iter_scene_chunks(source, class_names=class_names, chunk_points=chunk_points):
+    def chunks() -> Iterator[PointCloud]:
+        if labelled:
+            return iter_scene_chunks(source, class_names=class_names, chunk_points=chunk_points)
+        return (replace(chunk, label=np.full(len(chunk), IGNORE_LABEL, dtype=np.uint8))
+                for chunk in iter_raw_chunks(source, chunk_points=chunk_points, labels=False))
+
+    for chunk in chunks():
         floors.add(chunk.xyz)
     floor_map = floors.build()
-    for chunk in iter_scene_chunks(source, class_names=class_names, chunk_points=chunk_points):
+    for chunk in chunks():
         floor = floor_map.floor_under(chunk.xyz)
         ix, iy = locate_columns(chunk.xyz[:, :2], size_m=blocks.size_m)
         iy = iy + storey_of(floor_map, floor) * _STOREY_SHIFT  # a column of a building is one block per storey
@@ -386,7 +394,8 @@ def collect_scene_tiles(
     else:
         counts = {}
     height = kept_xyz[:, 2] - floor_map.floor_under(kept_xyz)
-    return _tiles_from_points(source, kept_key, kept_xyz, kept_label, height, counts, blocks=blocks)
+    return _tiles_from_points(source, kept_key, kept_xyz, kept_label, height, counts, blocks=blocks,
+                              labelled=labelled)
 
 
 _STATION_SHIFT = 1 << 20  # per-station columns: column x index + station x this (|x index| < 2**19)
@@ -489,7 +498,7 @@ def _sort_by_column_and_key(key: np.ndarray, prio: np.ndarray) -> tuple[np.ndarr
 
 def _tiles_from_points(
     source: SceneSource, key: np.ndarray, xyz: np.ndarray, label: np.ndarray, height: np.ndarray,
-    counts: dict[int, int], *, blocks: BlockConfig,
+    counts: dict[int, int], *, blocks: BlockConfig, labelled: bool = True,
 ) -> TileSet:
     starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]]) if len(key) else np.empty(0, np.int64)
     ends = np.r_[starts[1:], len(key)].astype(np.int64)
@@ -497,7 +506,7 @@ def _tiles_from_points(
     for start, end in zip(starts.tolist(), ends.tolist(), strict=True):
         column = int(key[start])
         labels = label[start:end]
-        if counts[column] < blocks.min_points or not (labels != IGNORE_LABEL).any():
+        if counts[column] < blocks.min_points or (labelled and not (labels != IGNORE_LABEL).any()):
             continue
         ix, iy = decode_column_key(np.array([column]))
         ix, iy = _column_x(ix), _column_y(iy)
@@ -536,14 +545,14 @@ def _fingerprint(path: Path) -> list[object]:
 
 def name_tile_cache(
     source: SceneSource, *, blocks: BlockConfig, class_names: Sequence[str], seed: int, grid_m: float = 0.0,
-    per_station: bool = False,
+    per_station: bool = False, labelled: bool = True,
 ) -> str:
     """File name of a scene's cached tiles: a digest of everything the tiles depend on."""
     recipe = {  # version: what collecting does (7: a slab seen from both sides gives its top as the floor)
         "version": 7, "scene": _fingerprint(source.path), "name": source.name, "kind": source.kind,
         "label_field": source.label_field, "mapping": None if source.mapping is None else asdict(source.mapping),
         "blocks": asdict(blocks), "class_names": list(class_names), "seed": seed, "grid_m": grid_m,
-        "per_station": per_station,
+        "per_station": per_station, **({} if labelled else {"unlabelled": True}),
     }
     digest = hashlib.sha256(json.dumps(recipe, sort_keys=True, default=str).encode()).hexdigest()[:24]
     return f"tiles-{digest}.npz"
@@ -552,16 +561,18 @@ def name_tile_cache(
 def load_or_collect_tiles(
     source: SceneSource, *, blocks: BlockConfig, class_names: Sequence[str], seed: int,
     cache_dir: Path | None = None, build: bool = True, grid_m: float = 0.0, per_station: bool = False,
+    labelled: bool = True,
 ) -> TileSet:
     """Tiles of one scene, from ``cache_dir`` when cached there, else collected (and cached).
 
     With ``build`` False a missing cache entry is an error (DDP ranks other than 0 only read).
+    ``labelled`` False: an unlabelled scene (see ``collect_scene_tiles``).
     """
     if cache_dir is None:
         return collect_scene_tiles(source, blocks=blocks, class_names=class_names, seed=seed, grid_m=grid_m,
-                                   per_station=per_station)
+                                   per_station=per_station, labelled=labelled)
     path = cache_dir / name_tile_cache(source, blocks=blocks, class_names=class_names, seed=seed, grid_m=grid_m,
-                                       per_station=per_station)
+                                       per_station=per_station, labelled=labelled)
     if path.is_file():
         with np.load(path) as data:
             return TileSet(
@@ -572,7 +583,7 @@ def load_or_collect_tiles(
     if not build:
         raise LearnError(f"{path}: tile cache missing (rank 0 should have written it); rerun the training")
     tiles = collect_scene_tiles(source, blocks=blocks, class_names=class_names, seed=seed, grid_m=grid_m,
-                                per_station=per_station)
+                                per_station=per_station, labelled=labelled)
     cache_dir.mkdir(parents=True, exist_ok=True)
     with atomic_output(path) as temp, temp.open("wb") as out:
         np.savez(
@@ -613,18 +624,26 @@ class TileDataset:
         if self.augment is None and self.inputs.features == ("xyz",):
             block = sample_block(xyz, label, points=self.points, rng=rng)  # the paper's block, bit for bit
             return {"xyz": block.xyz, "label": block.label, "mask": block.mask}
-        from bimscan.learn.augment import augment_points
+        return draw_block(xyz, label, height, points=self.points, rng=rng, inputs=self.inputs, augment=self.augment)
 
-        m = len(xyz)
-        lower, upper = xyz.min(axis=0), xyz.max(axis=0)  # the whole block's box, as sample_block and inference use
-        chosen = np.sort(rng.choice(m, size=self.points, replace=False)) if m > self.points else np.arange(m)
-        xyz, label, height = xyz[chosen], label[chosen], height[chosen]
-        if self.augment is not None:
-            xyz, kept, z_scale = augment_points(xyz, config=self.augment, rng=rng)
-            label, chosen, height = label[kept], chosen[kept], height[kept] * z_scale  # a taller storey
-            lower, upper = xyz.min(axis=0), xyz.max(axis=0)
-        extra = extra_features(xyz, features=self.inputs.features, height_m=height,
-                               height_scale_m=self.inputs.height_scale_m, neighbours=self.inputs.normal_neighbours,
-                               wide_neighbours=self.inputs.wide_neighbours)
-        block = pad_block(xyz, label, chosen, points=self.points, lower=lower, upper=upper, extra=extra)
-        return {"xyz": block.xyz, "label": block.label, "mask": block.mask}
+
+def draw_block(xyz: np.ndarray, label: np.ndarray, height: np.ndarray, *, points: int, rng: np.random.Generator,
+               inputs: InputConfig, augment: AugmentConfig | None) -> dict[str, np.ndarray]:
+    """One training block of a tile's points (M, 3) float64 metres with their labels (M,) uint8 and
+    heights above the floor (M,): ``points`` drawn without replacement, augmented (``augment``,
+    None: not), its input features computed; a dict of ``xyz`` (N, D) float32, ``label`` (N,) int64
+    and ``mask`` (N,) bool (see ``TileDataset``)."""
+    from bimscan.learn.augment import augment_points
+
+    m = len(xyz)
+    lower, upper = xyz.min(axis=0), xyz.max(axis=0)  # the whole block's box, as sample_block and inference use
+    chosen = np.sort(rng.choice(m, size=points, replace=False)) if m > points else np.arange(m)
+    xyz, label, height = xyz[chosen], label[chosen], height[chosen]
+    if augment is not None and augment.enabled:
+        xyz, kept, z_scale = augment_points(xyz, config=augment, rng=rng)
+        label, chosen, height = label[kept], chosen[kept], height[kept] * z_scale  # a taller storey
+        lower, upper = xyz.min(axis=0), xyz.max(axis=0)
+    extra = extra_features(xyz, features=inputs.features, height_m=height, height_scale_m=inputs.height_scale_m,
+                           neighbours=inputs.normal_neighbours, wide_neighbours=inputs.wide_neighbours)
+    block = pad_block(xyz, label, chosen, points=points, lower=lower, upper=upper, extra=extra)
+    return {"xyz": block.xyz, "label": block.label, "mask": block.mask}

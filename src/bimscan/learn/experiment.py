@@ -118,6 +118,7 @@ class TrainingTables(Checked):
     model: dict[str, Any] = field(default_factory=dict)
     train: dict[str, Any] = field(default_factory=dict)
     eval: dict[str, Any] = field(default_factory=dict)
+    adapt: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

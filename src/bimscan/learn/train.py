@@ -46,6 +46,7 @@ from bimscan.learn.train_config import (
     IGNORE_LABEL, SceneSet, TrainConfig, TrainRunConfig, dump_config, parse_config, setting_effect,
 )
 from bimscan.toml_files import resolve_path
+from bimscan.learn.adapt import AdaptedBlocks, pseudo_label_tiles
 from bimscan.learn.data import SceneSource, TileDataset, TileSet, list_scenes, load_or_collect_tiles, station_count
 from bimscan.learn.features import input_channels
 from bimscan.learn.mapping import load_label_mapping
@@ -241,19 +242,28 @@ def class_weights_from_labels(label: np.ndarray, *, classes: int, mode: str) -> 
 def run_micro_batch(
     model: nn.Module, xyz: torch.Tensor, label: torch.Tensor, mask: torch.Tensor, *,
     scaler: torch.amp.GradScaler, amp: str, accumulation: int, weight: torch.Tensor | None = None,
+    adapted: int = 0, adapted_weight: float = 1.0,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """One micro-batch: forward (autocast on CUDA), masked loss, scaled backward of loss / A.
 
     xyz (B, N, 3) float32, label (B, N) int64, mask (B, N) bool on the model's device.
     Returns (logits (B, N, C), mean loss, labelled points). The benchmark times this too.
     Runs with denormals flushed (:func:`bimscan.learn.model.flush_denormals`): the network only,
-    never the loader's features.
+    never the loader's features. ``adapted``: the last that many blocks are adapted ones
+    (:mod:`bimscan.learn.adapt`), whose mean loss adds ``adapted_weight`` times to the others';
+    the loss and count returned are the others' (the synthetic blocks').
     """
     with flush_denormals():
         with autocast_context(xyz.device, amp):
             logits = model(xyz, mask)
-        loss, count = compute_loss(logits, label, weight)
-        scaler.scale(loss / accumulation).backward()
+        if not adapted:
+            loss, count = compute_loss(logits, label, weight)
+            scaler.scale(loss / accumulation).backward()
+            return logits, loss, count
+        own = len(xyz) - adapted
+        loss, count = compute_loss(logits[:own], label[:own], weight)
+        adapted_loss, _ = compute_loss(logits[own:], label[own:], weight)
+        scaler.scale((loss + adapted_weight * adapted_loss) / accumulation).backward()
     return logits, loss, count
 
 
@@ -325,16 +335,17 @@ def resolve_scene_set(scenes: SceneSet, *, base: Path) -> list[SceneSource]:
 
 def _collect_tiles(
     sources: list[SceneSource], *, config: TrainRunConfig, cache_dir: Path, ctx: DistributedContext,
-    columns: str = "scene",
+    columns: str = "scene", labelled: bool = True,
 ) -> TileSet:
     """Tiles of every scene, cut as ``columns`` says (``[blocks] train_columns``: "scene",
-    "station" or "both"). Under DDP each process reads every P-th scene into the on-disk tile
-    cache, then all read the whole cache: one pass over the data, spread over processes."""
+    "station" or "both"); ``labelled`` False: scenes whose labels are never read (adaptation).
+    Under DDP each process reads every P-th scene into the on-disk tile cache, then all read the
+    whole cache: one pass over the data, spread over processes."""
 
     def tiles_of(source: SceneSource, per_station: bool, *, build: bool = True) -> TileSet:
         return load_or_collect_tiles(
             source, blocks=config.blocks, class_names=config.data.class_names, seed=config.train.seed,
-            cache_dir=cache_dir, build=build, grid_m=config.input.grid_m, per_station=per_station,
+            cache_dir=cache_dir, build=build, grid_m=config.input.grid_m, per_station=per_station, labelled=labelled,
         )
 
     def cut(source: SceneSource, *, build: bool = True) -> list[TileSet]:
@@ -492,25 +503,85 @@ def train_model(
             dist.destroy_process_group()
 
 
+@dataclass
+class _Run:
+    """A training run set up (``_set_up``): what its epochs (``_train_epoch``) and checkpoints
+    (``_save_epoch``) need, and where it stands (``history``, ``start_epoch``, ``best_miou``)."""
+
+    config: TrainRunConfig
+    ctx: DistributedContext
+    out: Path
+    emit: Callable[[str], None]
+    model: PCTSegmentation
+    ddp_model: nn.Module
+    ema: WeightEMA
+    optimizer: torch.optim.Optimizer
+    scheduler: torch.optim.lr_scheduler.LRScheduler
+    scaler: torch.amp.GradScaler
+    sampler: GlobalBatchSampler
+    loader: torch.utils.data.DataLoader
+    val_set: TileDataset | None
+    weight: torch.Tensor | None
+    frozen: tuple[nn.Module, ...]
+    frozen_parameters: int
+    parameters: int
+    adapted: AdaptedBlocks | None
+    target_tiles: TileSet | None
+    started_from: dict[str, Any] | None
+    history: list[dict[str, float]]
+    start_epoch: int = 0
+    best_miou: float = -math.inf
+
+    @property
+    def settings(self) -> TrainConfig:
+        return self.config.train
+
+    @property
+    def last_path(self) -> Path:
+        return self.out / "last.pt"
+
+    @property
+    def best_path(self) -> Path:
+        return self.out / "best.pt"
+
+
 def _train(
     config: TrainRunConfig, *, settings: TrainConfig, ctx: DistributedContext, base_dir: Path, out_dir: Path | None,
     resume: bool, init: Path | None, on_step_end: Callable[[int, int], None] | None,
     log: Callable[[str], None] | None,
 ) -> TrainResult:
     emit = log or (lambda text: print(text, file=sys.stderr, flush=True))
+    run = _set_up(config, ctx=ctx, base_dir=base_dir, out_dir=out_dir, resume=resume, init=init, emit=emit)
+    for epoch in range(run.start_epoch, settings.epochs):
+        row = _train_epoch(run, epoch, on_step_end)
+        _save_epoch(run, epoch, row)
+        if ctx.world > 1:
+            dist.barrier()  # nobody races ahead of the checkpoint
+    return TrainResult(out_dir=run.out, checkpoint=run.last_path, epochs_done=len(run.history), history=run.history,
+                       parameters=run.parameters)
+
+
+def _set_up(config: TrainRunConfig, *, ctx: DistributedContext, base_dir: Path, out_dir: Path | None, resume: bool,
+            init: Path | None, emit: Callable[[str], None]) -> _Run:
+    """Every input checked (before the output folder appears), the tiles read, the network, its
+    optimizer and schedule built, and with ``resume`` restored from ``last.pt``."""
+    settings = config.train
     out = Path(out_dir) if out_dir is not None else resolve_path(base_dir, settings.out_dir)
-    last_path, best_path = out / "last.pt", out / "best.pt"
+    last_path = out / "last.pt"
     if not resume and last_path.exists():
         raise LearnError(f"{out}: already holds a training run; pass --resume to continue it or choose another out_dir")
     if resume and not last_path.is_file():
         raise LearnError(f"{last_path}: no checkpoint to resume from; start without --resume")
-    # every input is checked before the output folder appears
     train_sets = [resolve_scene_set(scenes, base=base_dir) for scenes in config.data.train]
     train_sources = [source for sources in train_sets for source in sources]
     val_sources = [] if config.data.val is None else resolve_scene_set(config.data.val, base=base_dir)
+    target_sources = [source for scenes in config.data.adapt for source in resolve_scene_set(scenes, base=base_dir)]
     if settings.freeze and init is None and not resume:
         raise LearnError(f"[train] freeze = {list(settings.freeze)} keeps those parts of the network as they start, and "
                          "without --init they start random; pass --init CHECKPOINT (fine-tuning) or leave freeze out")
+    if target_sources and init is None and not resume:
+        raise LearnError("[data] adapt: adapting to unlabelled scans starts from a trained model (their pseudo-labels "
+                         "are its predictions); pass --init CHECKPOINT, or train on labelled data first")
     state = read_checkpoint(last_path, require=RESUME_KEYS) if resume else None
     if state is not None and init is not None:
         check_same_start(state.get("init"), init, last_path)
@@ -530,6 +601,13 @@ def _train(
         )
     train_tiles = _collect_tiles(train_sources, config=config, cache_dir=cache_dir, ctx=ctx,
                                  columns=config.blocks.train_columns)
+    target_tiles = None
+    if target_sources:
+        target_tiles = _collect_tiles(target_sources, config=config, cache_dir=cache_dir, ctx=ctx,
+                                      columns=config.blocks.train_columns, labelled=False)
+        if len(target_tiles) == 0:
+            raise LearnError(f"[data] adapt: no column of its {len(target_sources)} scene(s) holds blocks.min_points "
+                             f"({config.blocks.min_points}) points; give scans of the building's rooms")
     train_set = TileDataset(train_tiles, points=config.blocks.points, seed=settings.seed, inputs=config.input,
                             augment=config.augment)
     val_set = None if val_tiles is None else TileDataset(
@@ -544,7 +622,6 @@ def _train(
     ).to(ctx.device)
     started_from = None if parent is None else start_from(model, init, parent)  # before the EMA copies the weights
     frozen = freeze(model, settings.freeze)
-    frozen_parameters = sum(p.numel() for module in frozen for p in module.parameters())
     ema = WeightEMA(model, alpha=settings.ema_alpha)
     optimizer = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=settings.max_lr,
                                  weight_decay=settings.weight_decay)
@@ -561,132 +638,171 @@ def _train(
     )
     use_scaler = ctx.device.type == "cuda" and settings.amp == "float16"
     scaler = torch.amp.GradScaler(ctx.device.type, enabled=use_scaler)
-    history: list[dict[str, float]] = []
-    start_epoch = 0
-    best_miou = -math.inf
-    config_dict = dump_config(config)
+    adapted = None if target_tiles is None else AdaptedBlocks(
+        target_tiles, train_tiles, points=config.blocks.points, size_m=config.blocks.size_m, seed=settings.seed,
+        inputs=config.input, augment=config.augment, config=config.adapt)
+    run = _Run(config=config, ctx=ctx, out=out, emit=emit, model=model, ddp_model=model, ema=ema, optimizer=optimizer,
+               scheduler=scheduler, scaler=scaler, sampler=sampler, loader=None,  # type: ignore[arg-type]
+               val_set=val_set, weight=weight, frozen=frozen,
+               frozen_parameters=sum(p.numel() for module in frozen for p in module.parameters()),
+               parameters=count_parameters(model), adapted=adapted, target_tiles=target_tiles,
+               started_from=started_from, history=[])
     if state is not None:
-        started_from = state.get("init")
-        stored = dump_config(parse_config(state["config"], where=f"{last_path} [config]"))
-        _check_resumable(stored, config_dict, last_path)  # accumulation_steps among them
-        if state["device"] != ctx.device.type:
-            raise LearnError(
-                f"{last_path}: the run trained on {state['device']} and would resume on {ctx.device.type}; "
-                f"resume it on {state['device']} ([train] device = \"{state['device']}\") or start a new run in another out_dir"
-            )
-        if state["world_size"] != ctx.world:
-            raise LearnError(
-                f"{last_path}: the run used {state['world_size']} process(es), this one {ctx.world}; resume with "
-                f"the same number (torchrun --nproc_per_node {state['world_size']}) or start a new run"
-            )
-        load_state(model, state["model"], what="model weights", path=last_path)
-        load_state(ema.module, state["ema"], what="EMA weights", path=last_path)
-        ema.steps = state["ema_steps"]
-        load_state(optimizer, state["optimizer"], what="optimizer state", path=last_path)
-        load_state(scheduler, state["scheduler"], what="scheduler state", path=last_path)
-        load_state(scaler, state["scaler"], what="gradient scaler state", path=last_path)
-        restore_rng_state(state["rng"])
-        history = list(state["history"])
-        start_epoch = int(state["epoch"])
-        best_miou = float(state.get("best_val_miou", -math.inf))
-        if ctx.is_main:
-            emit(f"resuming {out} after epoch {start_epoch}/{settings.epochs}")
-    parameters = count_parameters(model)
-    if ctx.is_main and not resume:
+        _restore(run, state)
+    elif ctx.is_main:
         emit(
-            f"training PCT ({parameters:,} parameters) on {len(train_set)} blocks from "
+            f"training PCT ({run.parameters:,} parameters) on {len(train_set)} blocks from "
             f"{len(set(train_tiles.scene_names))} scenes, validating on "
-            f"{0 if val_set is None else len(val_set)} blocks; "
+            f"{0 if val_set is None else len(val_set)} blocks"
+            + ("" if target_tiles is None else f", adapting to {len(target_tiles)} unlabelled blocks from "
+               f"{len(set(target_tiles.scene_names))} scenes") + "; "
             f"global batch {sampler.global_batch} = {settings.batch_size} x {ctx.world} process(es) x "
             f"{settings.accumulation_steps} accumulation, {sampler.steps_per_epoch} steps/epoch, device {ctx.device}"
         )
         if weights is not None:
             emit("class weights (" + settings.class_weights + "): " + ", ".join(
                 f"{name} {w:.2f}" for name, w in zip(config.data.class_names, weights.tolist(), strict=True)))
-    ddp_model: nn.Module = model
     if ctx.world > 1:
         # buffers stay identical in every process by construction (see MaskedBatchNorm1d):
         # no need to broadcast them before every forward
-        ddp_model = nn.parallel.DistributedDataParallel(
+        run.ddp_model = nn.parallel.DistributedDataParallel(
             model, device_ids=[ctx.local_rank] if ctx.device.type == "cuda" else None, forward_sync_buffers=False,
         )
     # the sampler runs in this process (keys carry the epoch), so workers can persist across epochs
-    loader = torch.utils.data.DataLoader(
+    run.loader = torch.utils.data.DataLoader(
         train_set, batch_sampler=sampler, num_workers=settings.num_workers,
         pin_memory=ctx.device.type == "cuda", persistent_workers=settings.num_workers > 0,
         worker_init_fn=die_with_parent if settings.num_workers > 0 else None,
     )
-    accumulation = settings.accumulation_steps
+    return run
 
-    for epoch in range(start_epoch, settings.epochs):
-        started = time.perf_counter()
-        sampler.set_epoch(epoch)
-        train_mode(model, frozen)
-        confusion = torch.zeros(classes, classes, dtype=torch.int64, device=ctx.device)
-        sums = torch.zeros(2, dtype=torch.float64, device=ctx.device)
-        last_lr = math.nan
-        with progress_bar(total=sampler.steps_per_epoch, desc=f"epoch {epoch + 1}/{settings.epochs}", unit="step",
-                          enabled=ctx.is_main) as bar:
-            for index, batch in enumerate(loader):
-                step, k = divmod(index, accumulation)
-                torch.manual_seed(_seed_int(settings.seed, 11, epoch, step, ctx.rank * accumulation + k))
-                xyz = batch["xyz"].to(ctx.device, non_blocking=True)
-                label = batch["label"].to(ctx.device, non_blocking=True)
-                mask = batch["mask"].to(ctx.device, non_blocking=True)
-                last_micro = k == accumulation - 1
-                sync = contextlib.nullcontext() if (last_micro or ctx.world == 1) else ddp_model.no_sync()
-                with sync:
-                    logits, loss, count = run_micro_batch(
-                        ddp_model, xyz, label, mask, scaler=scaler, amp=settings.amp, accumulation=accumulation,
-                        weight=weight,
-                    )
-                with torch.no_grad():
-                    sums += torch.stack([loss.detach().double() * count, count.double()])
-                    _update_confusion(confusion, logits.detach(), label)
-                if not last_micro:
-                    continue
-                last_lr = optimizer.param_groups[0]["lr"]  # the LR this step applies; finish_step moves on
-                finish_step(model, optimizer=optimizer, scaler=scaler, scheduler=scheduler, ema=ema)
-                check_diverged(model, loss=loss, epoch=epoch, step=step, checkpoint=last_path, settings=settings)
-                bar.update(1)
-                if on_step_end is not None:
-                    on_step_end(epoch, step)
-        _all_reduce(confusion, ctx)
-        _all_reduce(sums, ctx)
-        row: dict[str, float] = {"epoch": epoch + 1, "lr": float(last_lr)}
-        row.update(_metric_row("train", confusion, float(sums[0]), float(sums[1])))
-        if val_set is not None:
-            val_confusion, val_loss, val_points = _validate(
-                ema.module, val_set, ctx=ctx, batch_size=config.eval.batch_size, amp=settings.amp, classes=classes,
-            )
-            row.update(_metric_row("val", val_confusion, val_loss, val_points))
-        else:
-            row.update(_metric_row("val", None, 0.0, 0.0))
-        row["seconds"] = time.perf_counter() - started
-        history.append(row)
+
+def _restore(run: _Run, state: dict[str, Any]) -> None:
+    """Continue from ``last.pt`` (``state``): the same configuration, device kind and processes,
+    every weight, optimizer, schedule and generator state as it was."""
+    ctx, last_path = run.ctx, run.last_path
+    stored = dump_config(parse_config(state["config"], where=f"{last_path} [config]"))
+    _check_resumable(stored, dump_config(run.config), last_path)  # accumulation_steps among them
+    if state["device"] != ctx.device.type:
+        raise LearnError(
+            f"{last_path}: the run trained on {state['device']} and would resume on {ctx.device.type}; "
+            f"resume it on {state['device']} ([train] device = \"{state['device']}\") or start a new run in another out_dir"
+        )
+    if state["world_size"] != ctx.world:
+        raise LearnError(
+            f"{last_path}: the run used {state['world_size']} process(es), this one {ctx.world}; resume with "
+            f"the same number (torchrun --nproc_per_node {state['world_size']}) or start a new run"
+        )
+    load_state(run.model, state["model"], what="model weights", path=last_path)
+    load_state(run.ema.module, state["ema"], what="EMA weights", path=last_path)
+    run.ema.steps = state["ema_steps"]
+    load_state(run.optimizer, state["optimizer"], what="optimizer state", path=last_path)
+    load_state(run.scheduler, state["scheduler"], what="scheduler state", path=last_path)
+    load_state(run.scaler, state["scaler"], what="gradient scaler state", path=last_path)
+    restore_rng_state(state["rng"])
+    run.started_from = state.get("init")
+    run.history = list(state["history"])
+    run.start_epoch = int(state["epoch"])
+    run.best_miou = float(state.get("best_val_miou", -math.inf))
+    if ctx.is_main:
+        run.emit(f"resuming {run.out} after epoch {run.start_epoch}/{run.settings.epochs}")
+
+
+def _train_epoch(run: _Run, epoch: int, on_step_end: Callable[[int, int], None] | None) -> dict[str, float]:
+    """One epoch: its optimizer steps (with adapted blocks beside the synthetic ones when the run
+    adapts), then validation; returns its metrics row."""
+    ctx, settings, config = run.ctx, run.settings, run.config
+    classes = len(config.data.class_names)
+    accumulation = settings.accumulation_steps
+    started = time.perf_counter()
+    if run.adapted is not None and run.target_tiles is not None:
+        pseudo = pseudo_label_tiles(run.ema.module, run.target_tiles, points=config.blocks.points, inputs=config.input,
+                                    config=config.adapt, classes=classes, device=ctx.device,
+                                    batch_size=config.eval.batch_size, amp=settings.amp, seed=settings.seed,
+                                    epoch=epoch)
+        run.adapted.set_pseudo_labels(pseudo)
         if ctx.is_main:
-            payload = {
-                "config": config_dict, "class_names": list(config.data.class_names), "epoch": epoch + 1,
-                "model": model.state_dict(), "ema": ema.state_dict(), "ema_steps": ema.steps,
-                "optimizer": optimizer.state_dict(),
-                "scheduler": scheduler.state_dict(), "scaler": scaler.state_dict(), "rng": capture_rng_state(),
-                "history": history, "world_size": ctx.world, "accumulation_steps": accumulation,
-                "device": ctx.device.type,
-                "global_batch": sampler.global_batch, "parameters": parameters,
-                "best_val_miou": max(best_miou, row["val_miou"]) if not math.isnan(row["val_miou"]) else best_miou,
-                "init": started_from, "frozen_parameters": frozen_parameters,
-            }
-            save_checkpoint(last_path, payload)
-            if not math.isnan(row["val_miou"]) and row["val_miou"] > best_miou:
-                save_checkpoint(best_path, payload)
-            write_history_csv(history, out / "metrics.csv")
-            plot_training_curves(history, out / "curves.png", title=f"PCT on {out.name}")
-            emit(_describe_epoch(row, settings.epochs))
-        if not math.isnan(row["val_miou"]):
-            best_miou = max(best_miou, row["val_miou"])
-        if ctx.world > 1:
-            dist.barrier()  # nobody races ahead of the checkpoint
-    return TrainResult(out_dir=out, checkpoint=last_path, epochs_done=len(history), history=history, parameters=parameters)
+            run.emit(f"epoch {epoch + 1}: " + pseudo.describe(tuple(config.data.class_names)))
+    run.sampler.set_epoch(epoch)
+    train_mode(run.model, run.frozen)
+    confusion = torch.zeros(classes, classes, dtype=torch.int64, device=ctx.device)
+    sums = torch.zeros(2, dtype=torch.float64, device=ctx.device)
+    last_lr = math.nan
+    with progress_bar(total=run.sampler.steps_per_epoch, desc=f"epoch {epoch + 1}/{settings.epochs}", unit="step",
+                      enabled=ctx.is_main) as bar:
+        for index, batch in enumerate(run.loader):
+            step, k = divmod(index, accumulation)
+            torch.manual_seed(_seed_int(settings.seed, 11, epoch, step, ctx.rank * accumulation + k))
+            xyz = batch["xyz"].to(ctx.device, non_blocking=True)
+            label = batch["label"].to(ctx.device, non_blocking=True)
+            mask = batch["mask"].to(ctx.device, non_blocking=True)
+            own = len(xyz)
+            adapted = 0
+            if run.adapted is not None:
+                slot = ((step * ctx.world + ctx.rank) * accumulation + k) * settings.batch_size
+                extra = run.adapted.batch(epoch, slot, settings.batch_size)
+                adapted = len(extra["xyz"])
+                xyz = torch.cat([xyz, extra["xyz"].to(ctx.device)])
+                label = torch.cat([label, extra["label"].to(ctx.device)])
+                mask = torch.cat([mask, extra["mask"].to(ctx.device)])
+            last_micro = k == accumulation - 1
+            sync = contextlib.nullcontext() if (last_micro or ctx.world == 1) else run.ddp_model.no_sync()
+            with sync:
+                logits, loss, count = run_micro_batch(
+                    run.ddp_model, xyz, label, mask, scaler=run.scaler, amp=settings.amp, accumulation=accumulation,
+                    weight=run.weight, adapted=adapted, adapted_weight=config.adapt.weight,
+                )
+            with torch.no_grad():
+                sums += torch.stack([loss.detach().double() * count, count.double()])
+                _update_confusion(confusion, logits[:own].detach(), label[:own])
+            if not last_micro:
+                continue
+            last_lr = run.optimizer.param_groups[0]["lr"]  # the LR this step applies; finish_step moves on
+            finish_step(run.model, optimizer=run.optimizer, scaler=run.scaler, scheduler=run.scheduler, ema=run.ema)
+            check_diverged(run.model, loss=loss, epoch=epoch, step=step, checkpoint=run.last_path, settings=settings)
+            bar.update(1)
+            if on_step_end is not None:
+                on_step_end(epoch, step)
+    _all_reduce(confusion, ctx)
+    _all_reduce(sums, ctx)
+    row: dict[str, float] = {"epoch": epoch + 1, "lr": float(last_lr)}
+    row.update(_metric_row("train", confusion, float(sums[0]), float(sums[1])))
+    if run.val_set is not None:
+        val_confusion, val_loss, val_points = _validate(
+            run.ema.module, run.val_set, ctx=ctx, batch_size=config.eval.batch_size, amp=settings.amp, classes=classes,
+        )
+        row.update(_metric_row("val", val_confusion, val_loss, val_points))
+    else:
+        row.update(_metric_row("val", None, 0.0, 0.0))
+    row["seconds"] = time.perf_counter() - started
+    return row
+
+
+def _save_epoch(run: _Run, epoch: int, row: dict[str, float]) -> None:
+    """Record the epoch: its row in the history, and on the main process last.pt (best.pt when the
+    validation mIoU is the best yet), metrics.csv and curves.png."""
+    run.history.append(row)
+    if run.ctx.is_main:
+        settings = run.settings
+        payload = {
+            "config": dump_config(run.config), "class_names": list(run.config.data.class_names), "epoch": epoch + 1,
+            "model": run.model.state_dict(), "ema": run.ema.state_dict(), "ema_steps": run.ema.steps,
+            "optimizer": run.optimizer.state_dict(),
+            "scheduler": run.scheduler.state_dict(), "scaler": run.scaler.state_dict(), "rng": capture_rng_state(),
+            "history": run.history, "world_size": run.ctx.world, "accumulation_steps": settings.accumulation_steps,
+            "device": run.ctx.device.type,
+            "global_batch": run.sampler.global_batch, "parameters": run.parameters,
+            "best_val_miou": max(run.best_miou, row["val_miou"]) if not math.isnan(row["val_miou"]) else run.best_miou,
+            "init": run.started_from, "frozen_parameters": run.frozen_parameters,
+        }
+        save_checkpoint(run.last_path, payload)
+        if not math.isnan(row["val_miou"]) and row["val_miou"] > run.best_miou:
+            save_checkpoint(run.best_path, payload)
+        write_history_csv(run.history, run.out / "metrics.csv")
+        plot_training_curves(run.history, run.out / "curves.png", title=f"PCT on {run.out.name}")
+        run.emit(_describe_epoch(row, settings.epochs))
+    if not math.isnan(row["val_miou"]):
+        run.best_miou = max(run.best_miou, row["val_miou"])
 
 
 def _describe_epoch(row: dict[str, float], epochs: int) -> str:

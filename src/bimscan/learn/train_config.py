@@ -68,11 +68,14 @@ def scene_sets(value: object) -> object:
 class DataConfig(Checked):
     """Where the scenes are and how their labels read (``SceneSet``): ``train``, one or more sets
     (synthetic datasets, and real labelled scans to train on); ``val``, the set validated on every
-    epoch (real scans; none: no validation). ``class_names``: the training classes, in id order.
+    epoch (real scans; none: no validation); ``adapt``, unlabelled scans the model adapts to
+    (``[adapt]``; their labels, if any, are never read: a user's own scans of the building).
+    ``class_names``: the training classes, in id order.
     """
 
     train: tuple[SceneSet, ...]
     val: SceneSet | None = None
+    adapt: tuple[SceneSet, ...] = ()
     class_names: tuple[str, ...] = DEFAULT_CLASS_NAMES
 
     def check(self) -> None:
@@ -272,6 +275,29 @@ class EvalConfig(Checked):
 
 
 @dataclass(frozen=True)
+class AdaptConfig(Checked):
+    """Adaptation to unlabelled scans (``[data] adapt``): self-training on pseudo-labels of the
+    averaged (EMA, mean-teacher) weights, with class-balanced thresholds, on blocks that mix the
+    unlabelled scans with the synthetic ones (:mod:`bimscan.learn.adapt`).
+
+    Every epoch is a round (Zou et al. 2018, CBST): the teacher labels every kept point of the
+    unlabelled columns once, and of the points it calls class c the ``pseudo_share`` most
+    confident keep their label (the threshold at most ``max_threshold``: a class it is sure of
+    is not cut), so rare classes keep labels too. Beside each micro-batch of synthetic blocks
+    train as many adapted blocks: an unlabelled column with its pseudo-labels, its footprint cut
+    into ``mix_cells`` x ``mix_cells`` cells of which a random half (at least one, not all) take
+    a synthetic column's points and labels instead (column mixing, after DODA's cuboid mixing,
+    Ding et al. 2022), the whole augmented as a synthetic block; ``mix_cells`` 1: the
+    unlabelled column alone. Its loss counts ``weight`` times the synthetic blocks'.
+    """
+
+    pseudo_share: float = setting(0.5, within=Range(0.0, 1.0, low_open=True))
+    max_threshold: float = setting(0.9, within=Range(0.0, 1.0))
+    mix_cells: int = setting(2, within=Range(1, 8))
+    weight: float = setting(1.0, within=Range(0.0, 10.0, low_open=True))
+
+
+@dataclass(frozen=True)
 class TrainRunConfig:
     """A whole training experiment: the sections of the TOML file."""
 
@@ -282,6 +308,7 @@ class TrainRunConfig:
     model: ModelConfig = field(default_factory=ModelConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
+    adapt: AdaptConfig = field(default_factory=AdaptConfig)
 
     def __post_init__(self) -> None:
         self.eval.stride_for(self.blocks.size_m)  # a stride that does not divide the blocks fails now
@@ -289,7 +316,8 @@ class TrainRunConfig:
 
 # The training sections of a run (and of an experiment's variants) and their settings classes.
 TRAINING_SECTIONS: dict[str, type] = {"blocks": BlockConfig, "input": InputConfig, "augment": AugmentConfig,
-                                      "model": ModelConfig, "train": TrainConfig, "eval": EvalConfig}
+                                      "model": ModelConfig, "train": TrainConfig, "eval": EvalConfig,
+                                      "adapt": AdaptConfig}
 
 
 def setting_effect(section: str, key: str) -> Effect:
@@ -334,6 +362,8 @@ def with_scene_sets(data: dict[str, object]) -> dict[str, object]:
     table = dict(table)
     if "train" in table:
         table["train"] = scene_sets(table["train"])
+    if "adapt" in table:
+        table["adapt"] = scene_sets(table["adapt"])
     if "val" in table:
         val = scene_sets(table["val"])
         if isinstance(val, list) and not val:
