@@ -223,9 +223,7 @@ def scan_survey(survey: Survey, out: str | Path, *, overwrite: bool = False, pro
             for chunk in stream_checked(survey, summary=summary, on_pulses=bar.update):
                 writer.write(chunk)
         if summary.points == 0:
-            raise StationError(f"the scan of {survey.scene.source} has no point: no station sees a surface between "
-                               f"{survey.recipe.scanner.min_range_m:g} and {survey.recipe.scanner.max_range_m:g} m; "
-                               "check the stations and the scanner's range")
+            raise StationError(f"the scan of {survey.scene.source} has no point: {_blind_survey(survey)}")
         written = writer.close()
         finished = True
     finally:
@@ -233,6 +231,19 @@ def scan_survey(survey: Survey, out: str | Path, *, overwrite: bool = False, pro
             writer.abort()  # never leave a half-written cloud, whatever stopped us (Ctrl-C included)
     return ScanResult(path=Path(written.path), points=summary.points, survey=survey, summary=summary,
                       seconds=time.perf_counter() - start)
+
+
+def _blind_survey(survey: Survey) -> str:
+    """Why a survey saw nothing, naming the device that scanned and its range, and what to check."""
+    mobile = survey.recipe.mobile
+    if mobile is not None:
+        lidar, mounts = mobile.lidar, len(mobile.platform.mounts)
+        return (f"no pose of the walk sees a surface between {lidar.min_range_m:g} and {lidar.max_range_m:g} m (the "
+                f"range of {mounts} x {lidar.name} on the {mobile.platform.name} platform); check that the trajectory "
+                "runs through the model, and the lidar's range")
+    scanner = survey.recipe.scanner
+    return (f"no station sees a surface between {scanner.min_range_m:g} and {scanner.max_range_m:g} m (the range of "
+            f"{scanner.name}); check the stations and the scanner's range")
 
 
 def scan_model(model: str | Path, out: str | Path, recipe: ScanRecipe, *,
@@ -251,8 +262,8 @@ def scan_model(model: str | Path, out: str | Path, recipe: ScanRecipe, *,
     check_cloud_output(out, overwrite=overwrite)
     if recipe.mobile is not None:
         check_mobile_output(out, overwrite=overwrite)
-        if recipe.mobile.trajectory_from != AUTO_TRAJECTORY:
-            read_trajectory(recipe.mobile.trajectory_from)  # a bad file fails now, before the (slow) parse
+        if recipe.mobile.trajectory_from != AUTO_TRAJECTORY:  # a bad file or budget fails now, before the parse
+            recipe.check_walk(read_trajectory(recipe.mobile.trajectory_from), source=recipe.mobile.trajectory_from)
     say = warn or (lambda line: None)
     for warning in recipe.warnings + recipe.site.warnings:
         say(warning)

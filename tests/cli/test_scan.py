@@ -183,3 +183,58 @@ def test_full_realism_from_the_command_line_writes_returns_colour_and_the_as_bui
     plain = tmp_path / "plain.laz"
     assert main(["scan", str(box_room_ifc), str(plain), *FAST, "--seed", "1", "--realism", "paper"]) == 0
     assert "sensor" not in read_cloud_header(plain).metadata and read_cloud(plain).rgb is None
+
+
+@pytest.mark.parametrize(("args", "named"), [
+    (["--platform", "handheld", "--preset", "exp1"], "no TLS 'preset' (--preset)"),
+    (["--platform", "handheld", "--head-speed", "60"], "'head_deg_per_s' (--head-speed)"),
+    (["--platform", "backpack", "--returns", "all"], "returns = 'all' (acts only with footprint or glass)"),
+    (["--platform", "handheld", "--beam-sample-quality", "4"], "beam_sample_quality = 4 (acts only with footprint)"),
+    (["--platform", "handheld", "--max-station-pulses", "1000"], "'max_station_pulses' (--max-station-pulses)"),
+    (["--platform", "handheld", "--stations", "{stations}", "--trajectory", "{walk}"], "stations from 'st.csv'"),
+    (["--platform", "{no_mounts}"], "the platform has no [[mounts]]"),
+    (["--returns", "all"], "returns = 'all' (acts only with footprint or glass)"),
+    (["--beam-sample-quality", "4", "--glass"], "beam_sample_quality = 4 (acts only with footprint)"),
+    (["--material-table", "{materials}"], "material_table = 'materials.toml' (acts only with materials"),
+    (["--max-walk-pulses", "1000"], "'max_walk_pulses' (--max-walk-pulses)"),
+])
+def test_an_option_that_would_change_nothing_is_refused_in_one_line_before_the_model_is_read(tmp_path, capsys,
+                                                                                              args, named):
+    files = {"stations": tmp_path / "st.csv", "walk": tmp_path / "walk.csv", "no_mounts": tmp_path / "pole.toml",
+             "materials": tmp_path / "materials.toml"}
+    files["stations"].write_text("x,y,height\n4,3,1.7\n")
+    files["walk"].write_text("t,x,y,z,roll,pitch,yaw\n0,2,3,0,0,0,0\n3,5,3,0,0,0,0\n")
+    files["no_mounts"].write_text('description = "a lidar on a pole, not placed"\nwalking_speed_m_s = 0.8\n')
+    files["materials"].write_text("")
+    inputs = sorted(p.name for p in tmp_path.iterdir())
+    args = [a.format(**files) for a in args]
+    # the model does not exist: the option is refused before anything reads it
+    assert main(["scan", str(tmp_path / "unread.ifc"), str(tmp_path / "x.laz"), *args]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and named in err[0], err
+    assert "unread.ifc" not in err[0] and sorted(p.name for p in tmp_path.iterdir()) == inputs
+
+
+def test_a_walk_over_its_pulse_budget_is_refused_with_the_estimate_before_the_model_is_read(tmp_path, capsys):
+    import math
+
+    from bimscan.survey.trajectory import read_trajectory
+
+    walk = tmp_path / "long.csv"  # two rows, 20,000 s apart: 5.8e9 pulses of one VLP-16
+    walk.write_text("t,x,y,z,roll,pitch,yaw\n0,2,3,0,0,0,0\n20000,5,3,0,0,0,0\n")
+    args = ["scan", str(tmp_path / "unread.ifc"), str(tmp_path / "x.laz"), "--platform", "handheld",
+            "--trajectory", str(walk)]
+    assert main(args) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: the trajectory {walk} would fire 5.79e+09 pulses "
+                                               "(20,000 s x 1 x velodyne_vlp16 at 289,352 pulses/s)")
+    assert "budget of 2,000,000,000" in err[0] and "--max-walk-pulses" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["long.csv"]
+    # the estimate is what the scan would fire: whole firing sequences of 16 pulses, on every lidar
+    sequences = math.floor(20000 / 55.296e-6 + 1e-9)
+    for platform, lidars in (("handheld", 1), ("backpack", 2)):
+        recipe = ScanRecipe.resolve(platform=platform, trajectory=str(walk), max_walk_pulses=2 * 10**10)
+        assert recipe.check_walk(read_trajectory(walk)) == sequences * 16 * lidars
+    # a raised budget lets the walk through to the model, which is read next
+    assert main([*args, "--max-walk-pulses", str(6 * 10**9)]) == 1
+    assert "unread.ifc" in capsys.readouterr().err

@@ -68,13 +68,14 @@ def test_sensor_realism_and_settings_apply_per_configuration_over_the_spec(spec_
         (Path(__import__("bimscan.scan", fromlist=["x"]).__file__).parent / "materials.toml").read_text())
     text = GOOD.replace("voxel_size_m = 0.02", 'voxel_size_m = 0.02\nrealism = "full"')
     text = text.replace("[[scenes]]", '[sensor]\nreturns = "first"\nmaterial_table = "materials.toml"\n[[scenes]]', 1)
-    text += 'realism = "paper"\nsensor = { footprint = true }\n'
+    text += 'realism = "paper"\nsensor = { footprint = true, color = true }\n'  # colour reads the material table
     spec = load_spec(_write(spec_folder, text))
     room = spec.scenes[0]
     full, mine = (spec.recipe(room, config).sensor for config in spec.configs)
     assert full.realism == "full" and full.returns == "first" and full.on("glass")
     assert full.material_table == str((spec_folder / "materials.toml").resolve())
     assert mine.realism == "paper" and mine.on("footprint") and not mine.on("glass") and mine.returns == "first"
+    assert mine.material_table == full.material_table
     assert spec.recipe(room, spec.configs[0]).to_json()["sensor"]["material_table"]["file"] == "materials.toml"
 
 
@@ -215,3 +216,51 @@ def test_the_companion_sim2real_specs_scan_the_same_units_as_their_base() -> Non
             assert recipe.site.is_bare and not original.site.is_bare and recipe.sensor == original.sensor
         else:
             assert companion.realism == "full" and recipe.sensor != original.sensor and recipe.site == original.site
+
+
+MOBILE = """\
+[[scenes]]
+name = "room"
+ifc = "models/room.ifc"
+trajectory = "walk.csv"
+[[configs]]
+name = "hh"
+platform = "handheld"
+"""
+WALK = "t,x,y,z,roll,pitch,yaw\n0,2,3,0,0,0,0\n3,5,3,0,0,0,0\n"
+
+
+@pytest.mark.parametrize(("walk", "spec_edit", "error", "message"), [
+    ("t,x,y,z\n0,2,3,0\n3,5,3,0\n", None, InputFileError, "the header lacks column(s) roll, pitch, yaw"),
+    ("t,x,y,z,roll,pitch,yaw\n0,2,3,0,0,0,0\n3,five,3,0,0,0,0\n", None, InputFileError, "data line 3"),
+    ("t,x,y,z,roll,pitch,yaw\n0,2,3,0,0,0,0\n0,5,3,0,0,0,0\n", None, InputFileError, "time must increase"),
+    ("t,x,y,z,roll,pitch,yaw\n0,2,3,0,0,0,0\n20000,5,3,0,0,0,0\n", None, ScannerSettingsError,
+     "with [[configs]] 'hh': the trajectory walk.csv would fire 5.79e+09 pulses"),
+    (WALK, lambda t: t.replace('platform = "handheld"', 'preset = "exp1"'), ConfigError,
+     "trajectory 'walk.csv' would change nothing: no configuration is mobile"),
+    (WALK, lambda t: t.replace('trajectory = "walk.csv"', 'trajectory = "walk.csv"\nstations = "stations.csv"'),
+     ConfigError, "stations 'stations.csv' would change nothing: every configuration is mobile"),
+])
+def test_a_scene_s_trajectory_file_is_checked_when_the_spec_is_read(spec_folder: Path, walk: str, spec_edit, error,
+                                                                    message: str) -> None:
+    (spec_folder / "walk.csv").write_text(walk)
+    path = _write(spec_folder, (spec_edit or (lambda t: t))(MOBILE))
+    with pytest.raises(error) as caught:
+        load_spec(path)
+    assert message in str(caught.value), str(caught.value)
+    assert f"{path} [[scenes]] 'room'" in str(caught.value) and "\n" not in str(caught.value)
+    assert "walk.csv" in str(caught.value)
+
+
+def test_a_scene_s_trajectory_and_stations_serve_a_spec_with_tripod_and_mobile_configurations(
+        spec_folder: Path) -> None:
+    (spec_folder / "walk.csv").write_text("\ufeff" + WALK)  # a byte order mark is no part of the header
+    text = MOBILE.replace('trajectory = "walk.csv"', 'trajectory = "walk.csv"\nstations = "stations.csv"')
+    text += '[[configs]]\nname = "tls"\npreset = "exp1"\n'  # the stations serve it
+    spec = load_spec(_write(spec_folder, text))
+    room = spec.scenes[0]
+    hh, tls = (spec.recipe(room, config) for config in spec.configs)
+    assert tls.stations_from == str(spec_folder / "stations.csv") and hh.mobile.trajectory_from == room.trajectory
+    assert hh.max_walk_pulses == spec.max_walk_pulses and tls.max_station_pulses == spec.max_station_pulses
+    with pytest.raises(ScannerSettingsError, match=r"'room' with \[\[configs\]\] 'hh'.*budget of 100,000"):
+        load_spec(_write(spec_folder, "max_walk_pulses = 100000\n" + text))

@@ -216,3 +216,28 @@ def test_shading_leaves_the_callers_light_vector_alone():
     colors = face_colors(mesh, np.zeros(1, np.uint8), load_scheme(), light_towards=light)
     assert light.tolist() == [0.0, 0.0, 2.0]
     assert tuple(colors[0]) == load_scheme().classes[0].rgb  # facing the light: full colour
+
+
+def test_a_walk_is_drawn_and_named_in_the_legend_only_where_it_lies_in_the_picture(tmp_path: Path,
+                                                                                   capsys: pytest.CaptureFixture[str]):
+    from bimscan.survey.trajectory import Trajectory, write_trajectory
+
+    cloud = _write(_room_cloud(), tmp_path / "room.laz")
+    t = np.linspace(0.0, 8.0, 9)
+    inside = Trajectory(t=t, xyz=np.column_stack([0.5 + 0.6 * t, np.full(9, 2.0), np.zeros(9)]), roll=np.zeros(9),
+                        pitch=np.zeros(9), yaw=np.zeros(9), pass_id=np.zeros(9, dtype=np.int32))
+    far = Trajectory(t=t, xyz=inside.xyz + [300.0, 0.0, 0.0], roll=inside.roll, pitch=inside.pitch, yaw=inside.yaw,
+                     pass_id=inside.pass_id)
+    size = {"width": 400, "height": 300}
+    plain = render_cloud(cloud, tmp_path / "plain.png", **size)
+    drawn = render_cloud(cloud, tmp_path / "drawn.png", trajectory=inside, **size)
+    missed = render_cloud(cloud, tmp_path / "missed.png", trajectory=far, **size)
+    assert drawn.walk_drawn and not missed.walk_drawn and not plain.walk_drawn
+    assert (tmp_path / "drawn.png").read_bytes() != (tmp_path / "plain.png").read_bytes()
+    # a walk off the picture adds nothing: no line, no legend entry, no title; the very bytes of the plain render
+    assert (tmp_path / "missed.png").read_bytes() == (tmp_path / "plain.png").read_bytes()
+    walk = write_trajectory(tmp_path / "elsewhere.csv", far)
+    assert main(["render", str(cloud), str(tmp_path / "cli.png"), "--size", "400x300", "--trajectory", str(walk)]) == 0
+    err = capsys.readouterr().err
+    assert f"warning: the walk of {walk} lies outside" in err and "not drawn and not in the legend" in err
+    assert (tmp_path / "cli.png").read_bytes() == (tmp_path / "plain.png").read_bytes()

@@ -156,3 +156,27 @@ def test_a_larger_pulse_budget_admits_a_slow_head():
 def test_nonsense_scanner_files_are_refused(tmp_path, keys, message):
     with pytest.raises(ScannerSettingsError, match=message):
         load_scanner(scanner_file(tmp_path, **keys))
+
+
+def test_an_option_a_scan_would_ignore_is_refused_by_the_rule_the_cli_and_dataset_specs_share(tmp_path):
+    walk = tmp_path / "walk.csv"
+    walk.write_text("t,x,y,z,roll,pitch,yaw\n0,2,3,0,0,0,0\n3,5,3,0,0,0,0\n")
+    stations = tmp_path / "st.csv"
+    stations.write_text("x,y,height\n4,3,1.7\n")
+    for fields, named in (({"preset": "exp1"}, "no TLS 'preset'"), ({"settings": SETTINGS}, "'settings'"),
+                          ({"head_deg_per_s": 60.0}, r"'head_deg_per_s' \(--head-speed\)"),
+                          ({"max_station_pulses": 10**6}, "'max_station_pulses'"),
+                          ({"stations_from": str(stations), "trajectory": str(walk)}, "stations from 'st.csv'"),
+                          ({"realism": "full", "sensor": {"returns": "all"}}, "returns = 'all'.*mobile scan")):
+        with pytest.raises(ConfigError, match=named):
+            ScanRecipe.resolve(platform="handheld", **fields)
+    with pytest.raises(ConfigError, match="'max_walk_pulses'"):
+        ScanRecipe.resolve(max_walk_pulses=10**6)
+    with pytest.raises(ConfigError, match="returns = 'all' .acts only with footprint or glass"):
+        ScanRecipe.resolve(sensor={"returns": "all"})
+    # where they act, they are taken
+    assert ScanRecipe.resolve(platform="handheld", stations_from=str(stations)).stations_from == str(stations)
+    assert ScanRecipe.resolve(platform="backpack", trajectory=str(walk), max_walk_pulses=10**6).max_walk_pulses == 10**6
+    assert ScanRecipe.resolve(max_station_pulses=10**9).max_station_pulses == 10**9
+    assert ScanRecipe.resolve(sensor={"returns": "all", "glass": True}).sensor.returns == "all"
+    assert ScanRecipe.resolve(realism="full", sensor={"beam_sample_quality": 4}).sensor.beam_sample_quality == 4

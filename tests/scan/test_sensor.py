@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 
 import numpy as np
 import open3d as o3d
@@ -466,3 +467,52 @@ def test_full_realism_is_recorded_and_changes_the_fingerprint():
 def test_impossible_sensor_settings_are_refused_naming_the_setting(change, message):
     with pytest.raises(ConfigError, match=message):
         SensorModel(**change)
+
+
+# A value away from the default for every setting that acts through an effect (SETTING_EFFECTS).
+CHANGED = {"beam_sample_quality": 4, "adaptive_footprint": False, "edge_depth_m": 0.01, "returns": "all",
+           "max_returns": 5, "speckle_cells": 2, "range_noise_ppm": 20.0, "max_incidence_deg": 80.0,
+           "material_table": "materials.toml", "glass_return_probability": 0.2, "max_glass_layers": 7,
+           "color_noise": 0.06, "ambient": 0.4, "position_tolerance_m": 0.03, "level_tolerance_m": 0.02,
+           "plumb_tolerance_m": 0.03, "sigmas_per_tolerance": 3.0, "waviness_m": 0.002,
+           "waviness_wavelength_m": 3.0}
+NEEDS = {"max_returns": {"returns": "all"}, "waviness_wavelength_m": {"waviness_m": 0.002}}  # besides an effect
+
+
+def test_every_sensor_setting_names_the_effects_it_acts_through():
+    from bimscan.scan.sensor import EFFECTS, SETTING_EFFECTS
+
+    settings = {f.name for f in dataclasses.fields(SensorModel)} - set(EFFECTS) - {"realism"}
+    assert set(SETTING_EFFECTS) == settings == set(CHANGED)
+    assert all(set(effects) <= set(EFFECTS) for effects in SETTING_EFFECTS.values())
+
+
+@pytest.mark.parametrize("name", sorted(CHANGED))
+def test_a_sensor_setting_is_refused_exactly_where_none_of_its_effects_is_on(name):
+    from bimscan.scan.sensor import SETTING_EFFECTS
+
+    off = dict.fromkeys(SETTING_EFFECTS[name], False)
+    with pytest.raises(ConfigError, match=f"would change nothing.*{name} = ") as caught:
+        ScanRecipe(sensor=SensorModel(**off, **NEEDS.get(name, {}), **{name: CHANGED[name]}))
+    message = str(caught.value)
+    assert "\n" not in message and re.search(rf"leave [a-z_, ]*\b{name}\b[a-z_, ]* out$", message)
+    for effect in SETTING_EFFECTS[name]:  # any one of its effects on: it acts, and is taken
+        on = SensorModel(**off | {effect: True}, **NEEDS.get(name, {}), **{name: CHANGED[name]})
+        assert on.idle_settings() == {}
+    assert SensorModel(**{name: getattr(SensorModel(), name)}).idle_settings() == {}  # at its default: nothing said
+
+
+def test_the_settings_refused_without_their_effect_change_no_point_of_a_scan(box):
+    """What the refusal rests on: with detection on but neither footprint nor glass, a pulse has one
+    echo, so the echo choice, the number of returns kept and the sub-ray rings change no column."""
+    base = SensorModel(detection=True)
+    plain = scan(box, base, BOX_SETTINGS, seed=2, station=BOX_STATION)
+    recipe = ScanRecipe(settings=BOX_SETTINGS, preset=None, noise=NoiseModel.off(), seed=2, sensor=base)
+    idle = dataclasses.replace(base, returns="all", max_returns=7, beam_sample_quality=5)
+    object.__setattr__(recipe, "sensor", idle)  # past the refusal, to scan what it refuses
+    survey = prepare_survey(box, recipe.with_fields(sensor=base), stations=(BOX_STATION,))
+    cloud = PointCloud.concatenate(list(survey.scanner.scan_station(BOX_STATION, recipe)))
+    assert len(plain) > 10_000
+    for column in PointCloud.COLUMNS:
+        x, y = getattr(plain, column), getattr(cloud, column)
+        assert (x is None and y is None) or np.array_equal(x, y), column

@@ -186,3 +186,28 @@ def test_an_opening_is_cut_through_a_board_and_nothing_else(angle):
     assert np.isinf(t[0]) and t[1] == pytest.approx(0.2, abs=1e-5)  # through the opening; the board beside it
     again = cut_openings(mesh, np.array([True, False]), [hole])
     assert again.vertices.tobytes() == cut.vertices.tobytes() and again.faces.tobytes() == cut.faces.tobytes()
+
+
+def test_furniture_with_only_a_demolition_task_is_not_there_before_its_storey_is_built(tmp_path, tiny_model):
+    from bimscan.ifc.schedule import read_schedule
+    from bimscan.pipeline import load_scene
+
+    model = tiny_model()
+    run, f = model.api.run, model.file
+    model.add_box("IfcSlab", origin=(0, 0, -0.3), size=(6, 6, 0.3), name="floor")
+    chair = model.add_box("IfcFurniture", origin=(2, 2, 0), size=(0.5, 0.5, 0.9), name="chair")
+    works = run("sequence.add_work_schedule", f, name="works")
+    for name, predefined, finish, product in (("ground floor", "CONSTRUCTION", "2024-01-15", model.storey),
+                                              ("clear the chairs", "DEMOLITION", "2024-05-01", chair)):
+        t = run("sequence.add_task", f, work_schedule=works, name=name, predefined_type=predefined)
+        run("sequence.edit_task_time", f, task_time=run("sequence.add_task_time", f, task=t),
+            attributes={"ScheduleStart": finish, "ScheduleFinish": finish})
+        run("sequence.assign_product", f, relating_product=product, related_object=t)
+    path = model.write(tmp_path / "chair.ifc")
+    scene, schedule = load_scene(path, use_cache=False), read_schedule(path)
+    standing = {at: dict(zip(scene.components.name.tolist(),
+                             built_components(scene, StageSettings(at=at), seed=0, schedule=schedule).tolist()))
+                for at in ("2024-01-01", "2024-03-01", "2024-06-01")}
+    assert standing == {"2024-01-01": {"floor": False, "chair": False},  # no floor yet: no chair floating over it
+                        "2024-03-01": {"floor": True, "chair": True},
+                        "2024-06-01": {"floor": True, "chair": False}}

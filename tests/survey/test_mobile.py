@@ -10,7 +10,7 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from bimscan.errors import ConfigError, InputFileError, OutputError, StationError
+from bimscan.errors import ConfigError, InputFileError, OutputError, ScannerSettingsError, StationError
 from bimscan.io import read_cloud, read_cloud_header
 from bimscan.pipeline import load_scene, scan_model
 from bimscan.scan.device import SCANNERS
@@ -65,6 +65,13 @@ def test_a_bad_trajectory_file_gets_one_line_naming_the_problem(tmp_path, text, 
     with pytest.raises(InputFileError, match=message) as caught:
         read_trajectory(path)
     assert "\n" not in str(caught.value) and str(path) in str(caught.value)
+
+
+def test_a_trajectory_file_with_a_byte_order_mark_reads_its_header(tmp_path):
+    path = tmp_path / "excel.csv"  # what spreadsheet programs write as "CSV UTF-8"
+    path.write_bytes(b"\xef\xbb\xbft,x,y,z,roll,pitch,yaw\r\n0,0,0,0,0,0,0\r\n2,1,0,0,0,0,90\r\n")
+    trajectory = read_trajectory(path)
+    assert trajectory.t.tolist() == [0.0, 2.0] and trajectory.yaw[1] == pytest.approx(math.pi / 2)
 
 
 # -- drift ------------------------------------------------------------------------------------------
@@ -291,6 +298,50 @@ def test_a_platform_file_is_read_with_its_mounts(tmp_path):
     assert platform.name == "pole" and platform.mounts[0].height_m == 2.5
     with pytest.raises(ConfigError, match="neither a file nor a known platform"):
         load_platform("segway")
+    path.write_text('description = "a lidar on a pole"\nwalking_speed_m_s = 0.8\n')  # where is the lidar?
+    with pytest.raises(ConfigError, match=r"pole.toml: the platform has no \[\[mounts\]\]; add one") as caught:
+        load_platform(path)
+    assert "\n" not in str(caught.value)
+
+
+def _lidar_file(folder, name: str, **changes) -> str:
+    """The VLP-16's file with some keys changed, as a file of its own."""
+    from importlib import resources
+
+    text = (resources.files("bimscan.scan") / "scanners" / "velodyne_vlp16.toml").read_text("utf-8")
+    lines = [line for line in text.splitlines() if line.split(" = ")[0] not in {"name", *changes}]
+    path = folder / f"{name}.toml"
+    path.write_text("\n".join([f'name = "{name}"', *lines, *(f"{k} = {v!r}" for k, v in changes.items())]) + "\n")
+    return str(path)
+
+
+def test_a_walk_that_sees_nothing_names_its_lidar_and_range_not_the_tripod_scanner(box_room_ifc, tmp_path):
+    walk = tmp_path / "walk.csv"  # across the 8 x 6 m room, every wall farther than the lidar's 0.3 m
+    walk.write_text("t,x,y,z,roll,pitch,yaw\n0,3,3,0,0,0,0\n1,3.05,3,0,0,0,0\n")
+    recipe = ScanRecipe.resolve(platform="backpack", trajectory=str(walk),
+                                lidar=_lidar_file(tmp_path, "short_puck", max_range_m=0.3))
+    with pytest.raises(StationError, match="has no point") as caught:
+        scan_model(box_room_ifc, tmp_path / "none.laz", recipe, progress=False)
+    message = str(caught.value)
+    assert "between 0.09144 and 0.3 m (the range of 2 x short_puck on the backpack platform)" in message
+    assert "riegl" not in message.lower() and "station" not in message
+    assert not (tmp_path / "none.laz").exists() and not trajectory_path(tmp_path / "none.laz").exists()
+
+
+def test_a_walk_too_short_to_fire_is_refused_before_the_model_is_read(tmp_path):
+    walk = tmp_path / "blink.csv"  # 20 microseconds: less than one VLP-16 firing sequence (55.296 us)
+    walk.write_text("t,x,y,z,roll,pitch,yaw\n0,3,3,0,0,0,0\n0.00002,3,3,0,0,0,0\n")
+    recipe = ScanRecipe.resolve(platform="handheld", trajectory=str(walk))
+    with pytest.raises(ScannerSettingsError, match="less than one firing sequence of the velodyne_vlp16"):
+        scan_model(tmp_path / "unread.ifc", tmp_path / "x.laz", recipe, progress=False)
+
+
+def test_a_planned_walk_over_its_pulse_budget_is_refused_before_the_scan(office, tmp_path):
+    recipe = ScanRecipe.resolve(platform="handheld", max_walk_pulses=1_000_000)
+    with pytest.raises(ScannerSettingsError, match=r"the walk would fire [0-9.e+]+ pulses \([0-9,]+ s x 1 x "
+                                                   r"velodyne_vlp16.*budget of 1,000,000.*--max-walk-pulses"):
+        scan_model(office, tmp_path / "hh.laz", recipe, progress=False)
+    assert list(tmp_path.iterdir()) == []
 
 
 # -- datasets --------------------------------------------------------------------------------------

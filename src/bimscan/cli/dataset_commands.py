@@ -126,14 +126,18 @@ def render(cloud: Path, out: Path, color: str, max_points: int, size: str, cut: 
     from bimscan.survey.trajectory import read_trajectory, trajectory_path
 
     width, height = _size(size)
-    walk = None
+    walk, source = None, None
     if trajectory == "auto":
         beside = trajectory_path(cloud)
-        walk = read_trajectory(beside) if beside.is_file() else None
+        walk, source = (read_trajectory(beside), beside) if beside.is_file() else (None, None)
     elif trajectory != "none":
-        walk = read_trajectory(trajectory)
+        walk, source = read_trajectory(trajectory), trajectory
     result = render_cloud(cloud, out, color=color, max_points=max_points, width=width, height=height, cut=cut,
                           trajectory=walk)
+    if walk is not None and not result.walk_drawn:
+        shown = "the floors shown (--cut none shows every floor)" if result.section is not None else "the picture"
+        click.echo(f"warning: the walk of {source} lies outside {shown}; it is not drawn and not in the legend",
+                   err=True)
     click.echo(f"{result.path}: {result.total_points:,} points, {result.drawn_points:,} drawn, by {color}")
 
 

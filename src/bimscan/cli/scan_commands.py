@@ -16,7 +16,7 @@ from bimscan.scan.noise import NoiseModel
 from bimscan.scan.sensor import REALISMS, RETURN_MODES, SensorModel
 from bimscan.scan.multibeam import LIDARS
 from bimscan.survey.platform import PLATFORM_NAMES, TRIPOD
-from bimscan.survey.recipe import AUTO_STATIONS, DEFAULT_MAX_STATION_PULSES, ScanRecipe
+from bimscan.survey.recipe import AUTO_STATIONS, DEFAULT_MAX_STATION_PULSES, DEFAULT_MAX_WALK_PULSES, ScanRecipe
 
 if TYPE_CHECKING:
     from bimscan.site.model import SiteModel
@@ -26,11 +26,12 @@ if TYPE_CHECKING:
 @click.argument("model", type=click.Path(path_type=Path))
 @click.argument("out", type=click.Path(path_type=Path))
 @click.option("--preset", default=None,
-              help=f"Scan settings: {', '.join(PRESETS)} (the paper's Table 1) or a settings TOML file. "
-                   f"Default: {DEFAULT_PRESET}.")
+              help=f"Tripod scan settings: {', '.join(PRESETS)} (the paper's Table 1) or a settings TOML file. "
+                   f"Default: {DEFAULT_PRESET}. Refused on a mobile platform (its lidars fire their own pattern).")
 @click.option("--stations", default=AUTO_STATIONS, show_default=True,
               help="'auto' (planned on the floors the model has: one per room, then every spot of a level seen "
-                   "from a station within 12 m) or a CSV file (x,y,z or x,y,height[,storey][,heading_deg]).")
+                   "from a station within 12 m) or a CSV file (x,y,z or x,y,height[,storey][,heading_deg]). On a "
+                   "mobile platform: the waypoints of a planned walk (refused beside a --trajectory file).")
 @click.option("--seed", default=ScanRecipe.seed, show_default=True, type=int, help="Noise seed; same seed, same bytes.")
 @click.option("--no-noise", is_flag=True, help="Exact points on the hit surfaces (no range or angle noise).")
 @click.option("--range-sigma", "range_sigma_m", default=None, type=float,
@@ -61,7 +62,8 @@ if TYPE_CHECKING:
 @click.option("--rotation-hz", type=float, default=None,
               help="Mobile platforms: the lidar's rotation rate. Default: the scanner's (VLP-16: 10 Hz).")
 @click.option("--head-speed", "head_deg_per_s", type=float, default=None,
-              help="Head rotation in deg/s, overriding the preset (fewer points per station when faster).")
+              help="Tripod head rotation in deg/s, overriding the preset (fewer points per station when faster). "
+                   "Refused on a mobile platform.")
 @click.option("--scheme", default=None, help=SCHEME_HELP)
 @click.option("--engine", type=click.Choice([*ENGINES, AUTO_ENGINE]), default=DEFAULT_ENGINE, show_default=True,
               help="Ray engine: open3d (Embree), embreex, warp (NVIDIA Warp: CUDA GPU, else its CPU device) or auto "
@@ -72,20 +74,31 @@ if TYPE_CHECKING:
 @click.option("--sensor", "sensor_file", default=None,
               help="A TOML file of sensor settings (the keys of a dataset spec's [sensor] table).")
 @click.option("--returns", type=click.Choice(list(RETURN_MODES)), default=None,
-              help=f"Which echoes of a pulse become points (with the footprint or glass). Default: {SensorModel.returns}.")
+              help=f"Which echoes of a pulse become points. Default: {SensorModel.returns}. Acts only with the "
+                   "footprint or glass (a pulse has one echo without them): another value is refused without them, "
+                   "and on a mobile platform.")
 @click.option("--footprint/--no-footprint", default=None, help="Beam footprint with sub-rays at edges (mixed pixels).")
 @click.option("--beam-sample-quality", type=int, default=None,
-              help="Sub-ray rings of the footprint (HELIOS++'s beamSampleQuality; 3 = 19 sub-rays).")
+              help=f"Sub-ray rings of the footprint (HELIOS++'s beamSampleQuality; 3 = 19 sub-rays). Default: "
+                   f"{SensorModel.beam_sample_quality}. Acts only with the footprint: another value is refused "
+                   "without it, and on a mobile platform.")
 @click.option("--detection/--no-detection", default=None,
               help="Return probability from the range equation (reflectance, incidence, range) with speckle.")
 @click.option("--glass/--no-glass", default=None, help="Transparent surfaces pass the beam.")
 @click.option("--rgb/--no-rgb", "color", default=None, help="Per-point colour from the surface styles.")
 @click.option("--as-built/--no-as-built", "deviations", default=None,
               help="As-built deviations of every component within construction tolerances (ACI 117).")
-@click.option("--material-table", default=None, help="A TOML material table replacing the built-in one.")
+@click.option("--material-table", default=None,
+              help="A TOML material table replacing the built-in one. Acts only with materials, glass or colour "
+                   "(--realism full, --glass, --rgb): refused without them.")
 @click.option("--threads", default=ScanRecipe.threads, show_default=True, type=int, help="Cores to use (0 = all).")
-@click.option("--max-station-pulses", default=DEFAULT_MAX_STATION_PULSES, show_default=True, type=int,
-              help="Refuse settings under which one station would fire more pulses (a guard against typos).")
+@click.option("--max-station-pulses", default=None, type=int,
+              help=f"Tripod: refuse settings under which one station would fire more pulses (a guard against "
+                   f"typos). Default: {DEFAULT_MAX_STATION_PULSES:,}. Refused on a mobile platform.")
+@click.option("--max-walk-pulses", default=None, type=int,
+              help=f"Mobile platforms: refuse a walk whose lidars would fire more pulses in all (its duration x "
+                   f"the lidars' pulse rates; checked before the model is read when the trajectory is a file). "
+                   f"Default: {DEFAULT_MAX_WALK_PULSES:,}. Refused on the tripod.")
 @click.option("--overwrite", is_flag=True, help="Replace OUT if it exists.")
 @site_options
 def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, no_noise: bool,
@@ -94,8 +107,9 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
          scheme: str | None, engine: str, realism: str | None, sensor_file: str | None, returns: str | None,
          footprint: bool | None, beam_sample_quality: int | None, detection: bool | None, glass: bool | None,
          color: bool | None, deviations: bool | None, material_table: str | None, threads: int,
-         max_station_pulses: int, overwrite: bool, length_unit: str | None, site: SiteModel, platform: str,
-         trajectory: str | None, drift_m: float | None, rotation_hz: float | None) -> None:
+         max_station_pulses: int | None, max_walk_pulses: int | None, overwrite: bool, length_unit: str | None,
+         site: SiteModel, platform: str, trajectory: str | None, drift_m: float | None,
+         rotation_hz: float | None) -> None:
     """Scan MODEL.ifc with a virtual TLS (or a mobile scanner) and write a labelled cloud to OUT.
 
     OUT's suffix picks the format: .laz, .las, .e57, .ply, or a folder (no suffix) of NumPy arrays
@@ -105,7 +119,9 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
     --clutter/--stage the building is scanned as a site (objects added as components, elements
     not yet built left out); stations are planned on that scene. With --platform handheld or
     backpack the scanner walks a trajectory instead: every point carries its time, ring, lidar and
-    beam origin, and the trajectory walked is written beside OUT as OUT.trajectory.csv.
+    beam origin, and the trajectory walked is written beside OUT as OUT.trajectory.csv. An option
+    that would change nothing (a preset on a mobile platform, --returns without the footprint or
+    glass, ...) is refused before any work.
     """
     from bimscan.ifc.watchdog import prestart_worker
 
@@ -130,9 +146,9 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
     recipe = ScanRecipe.resolve(preset=preset, scanner=None if mobile else scanner, lidar=scanner if mobile else None,
                                 head_deg_per_s=head_deg_per_s, noise=noise, seed=seed,
                                 engine=engine, stations_from=stations, strict=strict, threads=threads,
-                                max_station_pulses=max_station_pulses, sensor=settings, site=site, platform=platform,
-                                trajectory=trajectory, drift=None if drift_m is None else DriftModel(sigma_m=drift_m),
-                                rotation_hz=rotation_hz)
+                                max_station_pulses=max_station_pulses, max_walk_pulses=max_walk_pulses,
+                                sensor=settings, site=site, platform=platform, trajectory=trajectory,
+                                drift=None if drift_m is None else DriftModel(sigma_m=drift_m), rotation_hz=rotation_hz)
     result = scan_model(model, out, recipe, scheme=scheme, overwrite=overwrite, length_unit=length_unit,
                         warn=lambda line: click.echo(f"warning: {line}", err=True))
     extents = result.summary.extents()

@@ -217,7 +217,8 @@ def plan_build(spec: DatasetSpec, folder: DatasetFolder, scenes: SceneFiles, *,
                                      voxel_size_m=spec.voxel_size_m, out_dir=str(folder.root), inputs=inputs,
                                      fingerprint=key, site_tag=tag, site_key=stations_key(inputs_of_scene, recipe),
                                      length_unit=scene.length_unit)
-            scene_recipes.setdefault(tag, recipe.with_fields(mobile=None))  # the scene task plans tripod stations
+            # the scene task plans (or reads) the tripod stations of the scene, whatever the configuration
+            scene_recipes.setdefault(tag, recipe.with_fields(mobile=None, stations_from=scene.stations))
         if inputs_of_scene is not None:
             for tag, scene_recipe in scene_recipes.items():
                 stations_file = str(folder.stations_path(scene.name, tag))

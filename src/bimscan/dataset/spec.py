@@ -10,15 +10,17 @@ A spec is one TOML file (paths inside it are relative to the file)::
     voxel_size_m = 0.02           # optional: voxel subsampling of every unit
     engine = "open3d"             # ray engine: open3d, embreex, warp or auto (warp on a CUDA GPU)
     strict = false                # settings outside the device's limits are errors
-    max_station_pulses = 500000000  # refuse settings that would fire more per station
+    max_station_pulses = 500000000  # refuse settings that would fire more per station (tripod)
+    max_walk_pulses = 2000000000  # refuse a walk that would fire more in all (mobile)
+    realism = "paper"             # optional: "paper" (default) or "full" sensor effects
 
     [noise]                       # optional; default: the scanner's accuracies
     range_sigma_m = 0.005
     angle_sigma_deg = 0.03
 
-    realism = "paper"             # optional: "paper" (default) or "full" sensor effects
-    [sensor]                      # optional: sensor settings (bimscan.scan.sensor.SensorModel keys)
-    returns = "all"
+    [sensor]                      # optional: sensor settings (bimscan.scan.sensor.SensorModel keys;
+    color = true                  # a setting whose effect is off in a configuration is refused)
+    color_noise = 0.05
 
     [[scenes]]
     name = "duplex"
@@ -64,7 +66,9 @@ configuration becomes one per stage, named ``<config>.<stage>`` (unit ``<scene>_
 
 ``load_spec`` checks everything a build needs before any work starts: unknown keys, bad
 values, names, missing IFC or station files, unknown presets, schemes (and the IFC classes their
-rules name), scanners and engines, impossible settings, unknown stages and clutter kinds. Each
+rules name), scanners and engines, impossible settings, unknown stages and clutter kinds,
+trajectory files (read, and their walks held to ``max_walk_pulses``), and settings that would
+change nothing (as ``bimscan scan`` refuses them: ``ScanRecipe.resolve``). Each
 (scene, configuration) pair is one data unit ``<scene>__<config>``, scanned with the
 ``ScanRecipe`` that ``DatasetSpec.recipe`` resolves for it. A mobile configuration walks each
 scene along its ``trajectory``: planned through the scene's stations (the tripod plan every
@@ -90,7 +94,7 @@ from bimscan.scan.noise import NoiseModel
 from bimscan.survey.drift import DriftModel
 from bimscan.survey.mobile import AUTO_TRAJECTORY
 from bimscan.survey.platform import TRIPOD
-from bimscan.survey.recipe import AUTO_STATIONS, DEFAULT_MAX_STATION_PULSES, ScanRecipe
+from bimscan.survey.recipe import AUTO_STATIONS, DEFAULT_MAX_STATION_PULSES, DEFAULT_MAX_WALK_PULSES, ScanRecipe
 from bimscan.scan.sensor import merge_sensor_tables
 from bimscan.site.model import ClutterSettings, SiteModel, StageSettings, stage_table
 from bimscan.toml_files import base_file, build_dataclass, load_toml
@@ -162,7 +166,8 @@ class DatasetSpec:
     voxel_size_m: float | None = None
     engine: str = DEFAULT_ENGINE
     strict: bool = False
-    max_station_pulses: int = DEFAULT_MAX_STATION_PULSES
+    max_station_pulses: int = DEFAULT_MAX_STATION_PULSES  # the tripod configurations' budget per station
+    max_walk_pulses: int = DEFAULT_MAX_WALK_PULSES  # the mobile configurations' budget per walk
     noise: NoiseModel = field(default_factory=NoiseModel)
     realism: str | None = None
     sensor: dict[str, Any] | None = None
@@ -190,13 +195,13 @@ class DatasetSpec:
     def recipe(self, scene: SceneSpec, config: ConfigSpec) -> ScanRecipe:
         """The scan recipe of the unit (scene, config): its own noise stream (the unit id), so no
         two units share a noise sequence. Raises ConfigError/ScannerSettingsError when impossible."""
-        if config.is_mobile:
-            if config.preset is not None or config.settings is not None or config.head_deg_per_s is not None:
-                raise ConfigError(f"a mobile configuration (platform {config.platform!r}) has no TLS 'preset', "
-                                  "'settings' or 'head_deg_per_s'; give its lidar, rotation_hz and drift_m")
+        stations_from = scene.stations
+        if config.is_mobile:  # a preset, settings or head speed is refused by ScanRecipe.resolve, as on the CLI
             mobile = {"platform": config.platform, "lidar": config.lidar, "rotation_hz": config.rotation_hz,
-                      "trajectory": scene.trajectory,
+                      "trajectory": scene.trajectory, "max_walk_pulses": self.max_walk_pulses,
                       "drift": None if config.drift_m is None else DriftModel(sigma_m=config.drift_m)}
+            if scene.trajectory != AUTO_TRAJECTORY:  # the scene's stations serve its tripod configurations
+                stations_from = AUTO_STATIONS
         else:
             if (config.preset is None) == (config.settings is None):
                 raise ConfigError(f"give exactly one of 'preset' (exp1..exp6 or a settings file) or 'settings' (a "
@@ -204,12 +209,12 @@ class DatasetSpec:
             if config.lidar is not None or config.rotation_hz is not None or config.drift_m is not None:
                 raise ConfigError("'lidar', 'rotation_hz' and 'drift_m' are for mobile configurations; give "
                                   "platform = \"handheld\" or \"backpack\", or leave them out")
-            mobile = {}
+            mobile = {"max_station_pulses": self.max_station_pulses}
         return ScanRecipe.resolve(preset=config.preset, settings=config.settings, scanner=self.scanner, **mobile,
                                   head_deg_per_s=config.head_deg_per_s, noise=self.noise, seed=self.seed,
                                   noise_stream=unit_id(scene.name, config.name), engine=self.engine,
-                                  stations_from=scene.stations, strict=self.strict, site=self.site(config),
-                                  max_station_pulses=self.max_station_pulses, realism=config.realism or self.realism,
+                                  stations_from=stations_from, strict=self.strict, site=self.site(config),
+                                  realism=config.realism or self.realism,
                                   sensor=merge_sensor_tables(self.sensor, config.sensor))
 
 
@@ -397,6 +402,7 @@ def check_spec(spec: DatasetSpec, *, where: str) -> None:
         except BimscanError as exc:
             raise type(exc)(f"{where} [[configs]] {config.name!r}: {exc}") from exc
     for scene in spec.scenes:
+        check_scene_walks(spec, scene, where=f"{where} [[scenes]] {scene.name!r}")
         if scene.generate is not None:
             from bimscan.ifc.generate import check_building_options
 
@@ -405,6 +411,34 @@ def check_spec(spec: DatasetSpec, *, where: str) -> None:
                                        style=scene.generate.style)
             except BimscanError as exc:
                 raise type(exc)(f"{where} [[scenes]] {scene.name!r} generate: {exc}") from exc
+
+
+def check_scene_walks(spec: DatasetSpec, scene: SceneSpec, *, where: str) -> None:
+    """Raise a BimscanError, in one line naming the scene, when its trajectory file cannot be walked:
+    unreadable or malformed, over a mobile configuration's pulse budget, or given where it would
+    change nothing (no mobile configuration; a station file only mobile configurations walking the
+    file would ignore)."""
+    if scene.trajectory == AUTO_TRAJECTORY:
+        return
+    from bimscan.survey.trajectory import read_trajectory
+
+    mobile = [config for config in spec.configs if config.is_mobile]
+    if not mobile:
+        raise ConfigError(f"{where}: trajectory {Path(scene.trajectory).name!r} would change nothing: no configuration "
+                          "is mobile; leave it out or add a configuration with platform = \"handheld\" or \"backpack\"")
+    if scene.stations != AUTO_STATIONS and len(mobile) == len(spec.configs):
+        raise ConfigError(f"{where}: stations {Path(scene.stations).name!r} would change nothing: every configuration "
+                          f"is mobile and walks the trajectory file {Path(scene.trajectory).name!r}; leave the "
+                          "stations out, or give trajectory = \"auto\" to walk through them")
+    try:
+        trajectory = read_trajectory(scene.trajectory)
+    except BimscanError as exc:
+        raise type(exc)(f"{where}: trajectory {exc}") from exc
+    for config in mobile:
+        try:
+            spec.recipe(scene, config).check_walk(trajectory, source=Path(scene.trajectory).name)
+        except BimscanError as exc:
+            raise type(exc)(f"{where} with [[configs]] {config.name!r}: {exc}") from exc
 
 
 def _local_path(value: str, base: Path) -> str:

@@ -143,7 +143,7 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
         stations = folder.read_stations(job.scene, job.site_tag)
         if job.site_tag:  # the scene task's dressed scene, else dressed again (the same bytes)
             stored = read_site_scene(folder.site_scene_path(job.scene, job.site_tag), scene, job.site_key)
-            keep_clear = stations if job.recipe.stations_from != AUTO_STATIONS else ()
+            keep_clear = stations if job.inputs["stations"] != AUTO_STATIONS else ()  # the scene's station file
             scene = stored if stored is not None else build_site(scene, job.recipe, keep_clear=keep_clear)
         site_s = time.perf_counter() - start - load_s
         trajectory = walk = None

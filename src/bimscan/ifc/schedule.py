@@ -7,7 +7,8 @@ finish: actual, else scheduled, else early or late finish, else start plus durat
 latest finish of its nested tasks (IFC4/IFC4X3 ``IfcTaskTime``; IFC2X3 ``IfcScheduleTimeControl``
 through ``IfcRelAssignsTasks``). Tasks of type DEMOLITION, DISMANTLE or REMOVAL take an element
 away; every other task builds it. Dates given to a spatial element or an aggregate (a storey, a
-stair) apply to the elements inside it that have none of their own.
+stair) apply to the elements inside it that have none of their own, each kind apart: an element
+with only a demolition task is built when its storey is, and taken down by its own task.
 """
 
 from __future__ import annotations
@@ -43,13 +44,7 @@ def read_schedule(path: str | Path) -> dict[str, BuildDates]:
             # built when the last task building it is done; gone when the first taking it away is
             if current is None or (finish < current if removing else finish > current):
                 target[product.id()] = finish
-    dates: dict[int, tuple[datetime.date | None, datetime.date | None]] = {}
-    for pid in set(built) | set(removed):
-        dates[pid] = (built.get(pid), removed.get(pid))
-    # spatial elements and aggregates pass their dates on to what they hold
-    for pid in sorted(dates):
-        for inner in _contents(model.by_id(pid)):
-            dates.setdefault(inner.id(), dates[pid])
+    dates = _passed_on(model, built, removed)
     out: dict[str, BuildDates] = {}
     for pid, (b, r) in dates.items():
         entity = model.by_id(pid)
@@ -58,6 +53,25 @@ def read_schedule(path: str | Path) -> dict[str, BuildDates]:
             out[str(gid)] = BuildDates(built=None if b is None else b.isoformat(),
                                        removed=None if r is None else r.isoformat())
     return dict(sorted(out.items()))
+
+
+def _passed_on(model, built: dict[int, datetime.date],
+               removed: dict[int, datetime.date]) -> dict[int, tuple[datetime.date | None, datetime.date | None]]:
+    """Entity id -> (built, removed): each element's own dates, and for each kind it has no task of
+    its own, the date of the nearest spatial element or aggregate holding it that has one (a wall
+    with only a demolition task is built with its storey)."""
+    dated = set(built) | set(removed)
+    holdings = {pid: {e.id() for e in _contents(model.by_id(pid))} for pid in sorted(dated)}
+    dates = {pid: [built.get(pid), removed.get(pid)] for pid in dated}
+    # outer holders first (a holder holds more than anything it holds), so the nearest one wins
+    for pid in sorted(holdings, key=lambda p: (-len(holdings[p]), p)):
+        for inner in sorted(holdings[pid]):
+            own = (built.get(inner), removed.get(inner))
+            have = dates.setdefault(inner, [None, None])
+            for kind in (0, 1):
+                if own[kind] is None and dates[pid][kind] is not None:
+                    have[kind] = dates[pid][kind]
+    return {pid: (b, r) for pid, (b, r) in dates.items()}
 
 
 def open_model(path: str | Path):  # -> ifcopenshell.file

@@ -40,11 +40,14 @@ class CloudSample:
 
 @dataclass(frozen=True)
 class RenderResult:
+    """What ``render_cloud`` drew. walk_drawn: whether any of a given trajectory is in the picture."""
+
     path: Path
     total_points: int
     drawn_points: int
     color: str
     section: Section | None
+    walk_drawn: bool = False
 
 
 def sample_cloud(path: str | Path, *, max_points: int = DEFAULT_MAX_POINTS, seed: int = 0,
@@ -164,11 +167,12 @@ def view_masks(z: np.ndarray, cut: str) -> tuple[Section | None, np.ndarray, np.
     return section, below & (z >= section.floor_z - 0.15), below
 
 
-def draw_path(image: np.ndarray, xyz: np.ndarray, camera: Camera, colors: np.ndarray, *, mark_start: bool) -> None:
+def draw_path(image: np.ndarray, xyz: np.ndarray, camera: Camera, colors: np.ndarray, *, mark_start: bool) -> int:
     """Draw the polyline through ``xyz`` (M, 3) over ``image`` (on top of everything, 3 px wide),
-    segment k in colour ``colors[k]``, and (``mark_start``) a black square at its start."""
+    segment k in colour ``colors[k]``, and (``mark_start``) a black square at its start. Returns
+    the pixels of the line written (0: none of it lies in the picture, or fewer than 2 points)."""
     if len(xyz) < 2:
-        return
+        return 0
     sx, sy, _ = camera.project(xyz)
     step = np.hypot(np.diff(sx), np.diff(sy))
     counts = np.maximum(1, np.ceil(step * 2).astype(np.int64))
@@ -177,9 +181,10 @@ def draw_path(image: np.ndarray, xyz: np.ndarray, camera: Camera, colors: np.nda
     px = sx[segment] + f * (sx[segment + 1] - sx[segment])
     py = sy[segment] + f * (sy[segment + 1] - sy[segment])
     on_top = np.full((image.shape[0], image.shape[1]), np.inf)
-    splat_points(px, py, np.full(len(px), -1.0), np.ascontiguousarray(colors[segment]), 1, on_top, image)
+    written = splat_points(px, py, np.full(len(px), -1.0), np.ascontiguousarray(colors[segment]), 1, on_top, image)
     if mark_start:
         splat_points(sx[:1], sy[:1], np.full(1, -2.0), np.zeros((1, 3), dtype=np.uint8), 5, on_top, image)
+    return int(written)
 
 
 def render_cloud(path: str | Path, out: str | Path, *, color: str = "label", max_points: int = DEFAULT_MAX_POINTS,
@@ -190,7 +195,8 @@ def render_cloud(path: str | Path, out: str | Path, *, color: str = "label", max
     cut: "auto" opens the top storey of a building (a floor plan on top, rooms opened from above
     in the oblique view; see ``find_section``) or "none". ``trajectory``: a mobile scan's walk,
     drawn over the top view (the part of it on the floors shown), coloured from its start to its
-    end, its start marked by a black square. The PNG is exactly width x height pixels and is
+    end, its start marked by a black square; the legend and the panel title name it only when some
+    of it is drawn (``RenderResult.walk_drawn``). The PNG is exactly width x height pixels and is
     written atomically.
     """
     if color not in COLOR_MODES:
@@ -203,6 +209,7 @@ def render_cloud(path: str | Path, out: str | Path, *, color: str = "label", max
     section, top_mask, oblique_mask = view_masks(cloud.xyz[:, 2], cut)
     panel_w, panel_h = panel_size(width, height, panels=2)
     panels = []
+    walk_pixels = 0
     for title, (azimuth, elevation), mask in (("top view", TOP, top_mask), ("oblique view", OBLIQUE, oblique_mask)):
         is_top = title == "top view"
         xyz = cloud.xyz[mask]
@@ -220,18 +227,19 @@ def render_cloud(path: str | Path, out: str | Path, *, color: str = "label", max
                 for run in np.split(index, np.flatnonzero(np.diff(index) > 1) + 1):
                     progress = (trajectory.t[run] - trajectory.t[0]) / max(float(np.ptp(trajectory.t)), 1e-9)
                     if len(run):
-                        draw_path(image, trajectory.xyz[run], camera, _ramp(0.15 + 0.85 * progress),
-                                  mark_start=bool(run[0] == part.start))
-            title += ", walk drawn over it"
+                        walk_pixels += draw_path(image, trajectory.xyz[run], camera, _ramp(0.15 + 0.85 * progress),
+                                                 mark_start=bool(run[0] == part.start))
+            if walk_pixels:
+                title += ", walk drawn over it"
         panels.append(Panel(title=title, image=image))
-    if trajectory is not None:
+    if walk_pixels:
         ends = _ramp(np.array([0.15, 1.0]))
         legend = [*legend, ("walk: start (black square)", tuple(int(v) for v in ends[0])),
                   ("walk: end", tuple(int(v) for v in ends[1]))]
     title = f"{Path(path).name}: {sample.total:,} points ({len(cloud):,} sampled), coloured by {color}"
     compose_png(panels, legend=legend, title=title, out=out, width=width, height=height)
     return RenderResult(path=Path(out), total_points=sample.total, drawn_points=len(cloud), color=color,
-                        section=section)
+                        section=section, walk_drawn=walk_pixels > 0)
 
 
 def check_size(width: int, height: int) -> None:

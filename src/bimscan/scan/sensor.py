@@ -28,6 +28,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from bimscan.errors import ConfigError
@@ -41,6 +42,24 @@ EFFECTS = ("footprint", "detection", "geometric_noise", "materials", "glass", "c
 # grid, and glass (echoes merged by the pulse length) and detection (calibrated by the datasheet's
 # reach) need facts the shipped lidar files do not give.
 MOBILE_EFFECTS = ("geometric_noise", "materials", "color", "deviations")
+# The effects each setting acts through: a setting away from its default while none of its effects
+# is on changes no byte, so a scan refuses it (``SensorModel.idle_settings``). max_incidence_deg
+# caps 1 / cos(incidence) for the geometric noise and for the waviness of as-built surfaces.
+SETTING_EFFECTS: dict[str, tuple[str, ...]] = {
+    "beam_sample_quality": ("footprint",), "adaptive_footprint": ("footprint",), "edge_depth_m": ("footprint",),
+    "returns": ("footprint", "glass"), "max_returns": ("footprint", "glass"),  # one echo per pulse without them
+    "speckle_cells": ("detection",),
+    "range_noise_ppm": ("geometric_noise",), "max_incidence_deg": ("geometric_noise", "deviations"),
+    "material_table": ("materials", "glass", "color"),
+    "glass_return_probability": ("glass",), "max_glass_layers": ("glass",),
+    "color_noise": ("color",), "ambient": ("color",),
+    "position_tolerance_m": ("deviations",), "level_tolerance_m": ("deviations",),
+    "plumb_tolerance_m": ("deviations",), "sigmas_per_tolerance": ("deviations",), "waviness_m": ("deviations",),
+    "waviness_wavelength_m": ("deviations",),
+}
+# The ``bimscan scan`` flag of each effect that has one (the others: --realism full or --sensor FILE).
+EFFECT_FLAGS = {"footprint": "--footprint", "detection": "--detection", "glass": "--glass", "color": "--rgb",
+                "deviations": "--as-built"}
 MAX_BEAM_SAMPLE_QUALITY = 6  # 1 + 3 Q (Q - 1) sub-rays: 91 at 6
 MAX_RETURNS = 15  # what LAS point formats 6-10 can number
 
@@ -145,6 +164,53 @@ class SensorModel:
                               f"{'it' if len(asked) == 1 else 'them'} off for a mobile platform (mobile scans "
                               f"simulate {', '.join(MOBILE_EFFECTS)})")
         return dataclasses.replace(self, **{name: False for name in EFFECTS if name not in MOBILE_EFFECTS})
+
+    def idle_settings(self) -> dict[str, tuple[str, ...]]:
+        """The settings away from their defaults that change nothing here, each with the effects it
+        acts through (``SETTING_EFFECTS``): none of them is on (``max_returns`` also needs
+        ``returns = "all"``, ``waviness_wavelength_m`` a ``waviness_m`` above 0)."""
+        defaults = SensorModel()
+        idle = {}
+        for name, effects in SETTING_EFFECTS.items():
+            if getattr(self, name) == getattr(defaults, name):
+                continue
+            acts = any(self.on(effect) for effect in effects)
+            if name == "max_returns":
+                acts = acts and self.returns == "all"
+            elif name == "waviness_wavelength_m":
+                acts = acts and self.waviness_m > 0
+            if not acts:
+                idle[name] = effects
+        return idle
+
+    def check_settings_act(self, *, mobile: bool = False) -> None:
+        """Raise ConfigError, in one line, when a setting would change nothing (``idle_settings``):
+        an option either acts or is refused. ``mobile``: this is a mobile scan's model
+        (``for_mobile``), whose pulses have no footprint, glass or detection."""
+        idle = self.idle_settings()
+        if not idle:
+            return
+        clauses = []
+        for name, effects in idle.items():
+            needs = " or ".join(effects)
+            if name == "max_returns":
+                needs = f"returns = 'all' and {needs}"
+            elif name == "waviness_wavelength_m":
+                needs = f"{needs} and waviness_m > 0"
+            value = getattr(self, name)
+            shown = repr(Path(value).name) if name == "material_table" else repr(value)
+            clauses.append(f"{name} = {shown} (acts only with {needs})")
+        names = ", ".join(idle)
+        needed = [e for e in EFFECTS if any(e in effects for effects in idle.values())
+                  and (not mobile or e in MOBILE_EFFECTS)]
+        if not needed:  # only effects a mobile scan does not simulate
+            advice = (f"a mobile scan simulates {', '.join(MOBILE_EFFECTS)} only, so leave {names} out")
+        else:
+            flags = [EFFECT_FLAGS[e] for e in needed if e in EFFECT_FLAGS] + ["--realism full"]
+            advice = (f"switch {' or '.join(needed)} on ({', '.join(flags)}; in a dataset spec, its key or "
+                      f"realism = 'full') or leave {names} out")
+        raise ConfigError(f"sensor setting{'s' if len(idle) > 1 else ''} that would change nothing, the effect off: "
+                          f"{'; '.join(clauses)}; {advice}")
 
     @property
     def is_paper(self) -> bool:

@@ -4,7 +4,8 @@
 survey): the platform (``survey.platform``), the lidar on each of its mounts
 (``scan.multibeam``), the lidar's rotation rate, where the trajectory comes from (``"auto"``:
 planned from the model by ``survey.walk``; else a CSV file, ``survey.trajectory``) and the
-SLAM-like drift (``survey.drift``). ``pass_pulses`` counts what a pass fires, exactly.
+SLAM-like drift (``survey.drift``). ``pass_pulses`` and ``walk_pulses`` count what a pass and a
+walk fire, exactly.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from typing import Any
 from bimscan.scan.multibeam import MultiBeamScanner
 from bimscan.survey.drift import DriftModel
 from bimscan.survey.platform import Platform
+from bimscan.survey.trajectory import Trajectory
 
 AUTO_TRAJECTORY = "auto"
 UNUSED_LIDAR_FIELDS = ("beam_divergence_rad", "wavelength_nm")  # recorded facts the thin-ray scan does not use
@@ -45,6 +47,12 @@ class MobileScan:
         """Pulses one mount fires over a pass of ``duration_s``: whole firing sequences only."""
         sequences = int(math.floor(duration_s / (self.lidar.firing_cycle_us * 1e-6) + 1e-9))
         return max(0, sequences) * self.lidar.n_beams
+
+    def walk_pulses(self, trajectory: Trajectory) -> int:
+        """Pulses the whole walk fires: every pass, every mount's lidar (exactly what is scanned)."""
+        per_mount = sum(self.pass_pulses(float(trajectory.t[p][-1] - trajectory.t[p][0]))
+                        for p in trajectory.pass_slices())
+        return per_mount * len(self.platform.mounts)
 
     def to_json(self) -> dict[str, Any]:
         """What a mobile scan records (and its fingerprint's input). The lidar's divergence and

@@ -66,12 +66,14 @@ class Mount:
 class Platform:
     """A walking operator with one to four lidars.
 
+    mounts: where each lidar sits (no default: a platform without a lidar placed is refused).
     default_scanner: the multi-beam lidar used unless one is given. walking_speed_m_s,
     stair_speed_m_s, max_turn_deg_per_s: how a planned walk moves (``survey.walk``).
     body_radius_m, headroom_m: the free space the operator needs (a planned walk keeps to it).
     """
 
     name: str
+    mounts: tuple[Mount, ...]
     description: str = ""
     default_scanner: str = "velodyne_vlp16"
     walking_speed_m_s: float = 1.0
@@ -79,7 +81,6 @@ class Platform:
     max_turn_deg_per_s: float = 60.0
     body_radius_m: float = 0.25
     headroom_m: float = 1.9
-    mounts: tuple[Mount, ...] = (Mount(),)
 
     def __post_init__(self) -> None:
         if not 1 <= len(self.mounts) <= MAX_MOUNTS:
@@ -113,4 +114,8 @@ def load_platform(source: str | Path) -> Platform:
         raise ConfigError(f"platform {str(source)!r} is neither a file nor a known platform "
                           f"({', '.join(PLATFORM_NAMES)}); pass a platform TOML file")
     table = load_toml(path)
+    if not table.get("mounts"):  # no lidar placed: a platform file must say where its lidars sit
+        raise ConfigError(f"{path}: the platform has no [[mounts]]; add one [[mounts]] table per lidar (height_m, "
+                          "forward_m, lateral_m, tilt_deg, yaw_deg, head_rotation_hz), as in "
+                          "docs/guide/mobile.md#platforms")
     return build_dataclass(Platform, {"name": path.stem, **table}, where=str(path))

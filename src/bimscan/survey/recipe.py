@@ -36,16 +36,21 @@ from bimscan.scan.multibeam import load_lidar
 from bimscan.survey.drift import DriftModel
 from bimscan.survey.mobile import AUTO_TRAJECTORY, MobileScan
 from bimscan.survey.platform import TRIPOD, load_platform
+from bimscan.survey.trajectory import Trajectory
 from bimscan.toml_files import build_dataclass, load_toml
 
 DEFAULT_CHUNK_PULSES = 1 << 20  # ~70 MB of working arrays per chunk
 # The most pulses one station may fire unless the user raises it: the paper's densest preset fires
 # 7.5M per station; 500M points are about 15 GB uncompressed, so more is most likely a typo.
 DEFAULT_MAX_STATION_PULSES = 500_000_000
+# The most pulses a mobile scan's whole walk may fire unless the user raises it: about two hours of
+# one VLP-16 (289,352 pulses/s), one hour of the backpack's two; a walk of 2e9 pulses is some 60 GB
+# of points uncompressed, so more is most likely a unit mistake in a trajectory's time column.
+DEFAULT_MAX_WALK_PULSES = 2_000_000_000
 AUTO_STATIONS = "auto"
 # Fields that change how a scan runs or what it refuses, not its output bytes (left out of the
 # fingerprint).
-RUNTIME_FIELDS = ("threads", "chunk_pulses", "max_station_pulses")
+RUNTIME_FIELDS = ("threads", "chunk_pulses", "max_station_pulses", "max_walk_pulses")
 
 
 def _json_value(value: Any) -> Any:
@@ -74,8 +79,10 @@ class ScanRecipe:
     and memory only, never the output. max_station_pulses: a station that would fire more pulses is
     refused before any work (with the number it would fire). mobile: a mobile scan (a platform
     walking a trajectory with multi-beam lidars, ``survey.mobile``) instead of tripod stations;
-    ``scanner``, ``settings``, ``preset`` and ``stations_from`` are then the tripod plan's, which
-    decides where the walk goes (``survey.walk``), and are not recorded.
+    ``scanner`` and ``stations_from`` are then the tripod plan's, which decides where a planned
+    walk goes (``survey.walk``), ``settings`` and ``preset`` are unused, and none of them is
+    recorded. max_walk_pulses: a walk whose lidars would fire more pulses in all is refused before
+    the scan (``check_walk``).
     """
 
     scanner: ScannerModel = field(default_factory=lambda: SCANNERS[DEFAULT_SCANNER])
@@ -93,6 +100,7 @@ class ScanRecipe:
     chunk_pulses: int = DEFAULT_CHUNK_PULSES
     max_station_pulses: int = DEFAULT_MAX_STATION_PULSES
     mobile: MobileScan | None = None
+    max_walk_pulses: int = DEFAULT_MAX_WALK_PULSES
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "noise", self.noise.resolved(self.mobile.lidar if self.mobile else self.scanner))
@@ -105,6 +113,7 @@ class ScanRecipe:
             self.mobile.warnings(strict=self.strict)  # raises under strict
         if not isinstance(self.sensor, SensorModel):
             raise ConfigError(f"sensor must be a SensorModel, got {type(self.sensor).__name__}")
+        self.sensor.check_settings_act(mobile=self.mobile is not None)  # an option acts or is refused
         if self.sensor.needs_surfaces:
             from bimscan.scan.surfaces import load_material_table
 
@@ -117,6 +126,8 @@ class ScanRecipe:
             raise ConfigError(f"threads = {self.threads} is impossible; give 0 (all cores) or more")
         if self.chunk_pulses < 1:
             raise ConfigError(f"chunk_pulses = {self.chunk_pulses} is impossible; give 1 or more")
+        if self.max_walk_pulses < 1:
+            raise ConfigError(f"max_walk_pulses = {self.max_walk_pulses} is impossible; give 1 or more")
         check_settings(self.settings, self.scanner, strict=self.strict)  # raises for impossible settings
         lines = self.settings.scan_freq_hz * self.settings.duration_s()
         pulses = self.settings.expected_pulses(self.scanner)
@@ -134,7 +145,9 @@ class ScanRecipe:
                 scanner: str | Path | ScannerModel | None = None, head_deg_per_s: float | None = None,
                 realism: str | None = None, sensor: SensorModel | Mapping[str, Any] | str | Path | None = None,
                 platform: str | Path | None = None, lidar: str | Path | None = None, trajectory: str | None = None,
-                drift: DriftModel | None = None, rotation_hz: float | None = None, **fields: Any) -> ScanRecipe:
+                drift: DriftModel | None = None, rotation_hz: float | None = None,
+                max_station_pulses: int | None = None, max_walk_pulses: int | None = None,
+                **fields: Any) -> ScanRecipe:
         """A recipe from what a user wrote: a preset name or settings TOML (or a settings table),
         a scanner name or TOML, a head speed override, the sensor realism (``realism`` "paper" or
         "full", and ``sensor``: a SensorModel, a table of its keys or a TOML file of them; an
@@ -143,23 +156,52 @@ class ScanRecipe:
         stations) makes a mobile scan: its multi-beam ``lidar`` (a ``scan.multibeam.LIDARS`` name
         or file; default: the platform's) walked along ``trajectory`` ("auto" or a CSV file) with
         ``drift`` at ``rotation_hz`` (default: the lidar's). ``scanner`` stays the TLS whose
-        tripod plan the walk visits.
+        tripod plan the walk visits. ``max_station_pulses`` budgets a tripod station,
+        ``max_walk_pulses`` a mobile walk (None: the default).
 
-        Without ``preset`` and ``settings``: the default preset. Raises ConfigError for unknown
-        names, keys and missing files, ScannerSettingsError for impossible settings.
+        Without ``preset`` and ``settings``: the default preset. What would do nothing is refused,
+        whether it comes from the command line or a dataset spec: a preset, settings, head speed or
+        station budget on a mobile platform, stations beside a trajectory file, a walk budget or any
+        mobile option on a tripod (and, on construction, sensor settings whose effect is off).
+        Raises ConfigError for these, unknown names, keys and missing files, ScannerSettingsError
+        for impossible settings.
         """
         if preset is not None and settings is not None:
             raise ConfigError("give a preset or explicit settings, not both")
         fields["sensor"] = resolve_sensor(sensor, realism=realism)
         if platform is not None and platform != TRIPOD:
             chosen = load_platform(platform)
+            idle = [name for name, value in (("'preset' (--preset)", preset), ("'settings'", settings),
+                                             ("'head_deg_per_s' (--head-speed)", head_deg_per_s),
+                                             ("'max_station_pulses' (--max-station-pulses)", max_station_pulses))
+                    if value is not None]
+            if idle:
+                budget = "; a walk's budget is max_walk_pulses (--max-walk-pulses)" if max_station_pulses is not None else ""
+                raise ConfigError(f"a mobile platform ({chosen.name!r}) has no TLS {', '.join(idle)}: its lidars fire "
+                                  f"their own pattern along the walk; leave {'it' if len(idle) == 1 else 'them'} "
+                                  f"out{budget}")
+            walk_file = trajectory not in (None, AUTO_TRAJECTORY)
+            stations_from = fields.get("stations_from", AUTO_STATIONS)
+            if walk_file and stations_from != AUTO_STATIONS:
+                raise ConfigError(f"stations from {Path(stations_from).name!r} (--stations) would change nothing: they "
+                                  f"are the waypoints of a planned walk, and the walk comes from the trajectory file "
+                                  f"{Path(trajectory).name!r}; leave the stations out, or give --trajectory auto to "
+                                  "walk through them")
             fields["mobile"] = MobileScan(platform=chosen, lidar=load_lidar(lidar or chosen.default_scanner),
                                           rotation_hz=rotation_hz, trajectory_from=trajectory or AUTO_TRAJECTORY,
                                           drift=drift or DriftModel())
-        elif trajectory not in (None, AUTO_TRAJECTORY) or (drift is not None and not drift.is_off) or \
-                rotation_hz is not None or lidar is not None:
-            raise ConfigError("a multi-beam lidar, trajectory, drift or rotation rate needs a mobile platform "
-                              "(--platform handheld or backpack); a tripod scan has stations")
+            if max_walk_pulses is not None:
+                fields["max_walk_pulses"] = max_walk_pulses
+        else:
+            if trajectory not in (None, AUTO_TRAJECTORY) or (drift is not None and not drift.is_off) or \
+                    rotation_hz is not None or lidar is not None:
+                raise ConfigError("a multi-beam lidar, trajectory, drift or rotation rate needs a mobile platform "
+                                  "(--platform handheld or backpack); a tripod scan has stations")
+            if max_walk_pulses is not None:
+                raise ConfigError("'max_walk_pulses' (--max-walk-pulses) budgets a mobile platform's walk; a tripod "
+                                  "scan's budget is per station (--max-station-pulses): leave it out")
+            if max_station_pulses is not None:
+                fields["max_station_pulses"] = max_station_pulses
         model = scanner if isinstance(scanner, ScannerModel) else load_scanner(scanner)
         if settings is None:
             preset = DEFAULT_PRESET if preset is None else preset
@@ -169,6 +211,28 @@ class ScanRecipe:
             name = None
         settings = with_overrides(settings, head_deg_per_s=head_deg_per_s)
         return ScanRecipe(scanner=model, settings=settings, preset=name, **fields)
+
+    def check_walk(self, trajectory: Trajectory, *, source: str | Path | None = None) -> int:
+        """The pulses a mobile scan fires along ``trajectory`` (every pass, every lidar); raises
+        ScannerSettingsError, in one line with the estimate, when they are more than
+        ``max_walk_pulses`` or none. ``source`` names the trajectory in the message (its file)."""
+        mobile = self.mobile
+        if mobile is None:
+            raise ValueError("a tripod recipe walks no trajectory; check_walk needs a mobile recipe")
+        pulses = mobile.walk_pulses(trajectory)
+        duration, lidars = trajectory.duration_s(), len(mobile.platform.mounts)
+        walk = f"the trajectory {source}" if source is not None else "the walk"
+        if pulses == 0:
+            raise ScannerSettingsError(
+                f"{walk} lasts {duration:.3g} s, less than one firing sequence of the {mobile.lidar.name} "
+                f"({mobile.lidar.firing_cycle_us:g} us): it fires no pulse; give a longer trajectory")
+        if pulses > self.max_walk_pulses:
+            raise ScannerSettingsError(
+                f"{walk} would fire {pulses:.3g} pulses ({duration:,.0f} s x {lidars} x {mobile.lidar.name} at "
+                f"{mobile.lidar.pulse_rate_hz:,.0f} pulses/s), more than the budget of {self.max_walk_pulses:,}; "
+                f"check the trajectory's time column (seconds), shorten the walk, or raise the budget "
+                f"(--max-walk-pulses; max_walk_pulses in a dataset spec)")
+        return pulses
 
     @cached_property
     def warnings(self) -> tuple[str, ...]:

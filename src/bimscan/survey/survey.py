@@ -47,10 +47,7 @@ class Survey:
     def pulses(self) -> int:
         """Emitted pulses of the whole survey (for progress bars and size estimates)."""
         if self.trajectory is not None:
-            mobile = self.recipe.mobile
-            per_mount = sum(mobile.pass_pulses(float(self.trajectory.t[p][-1] - self.trajectory.t[p][0]))
-                            for p in self.trajectory.pass_slices())
-            return per_mount * len(mobile.platform.mounts)
+            return self.recipe.mobile.walk_pulses(self.trajectory)
         return station_pulses(self.recipe) * len(self.stations)
 
 
@@ -88,7 +85,7 @@ def choose_trajectory(scene: BimScene, recipe: ScanRecipe, *, prober: Prober | N
 
 def check_trajectory(trajectory: Trajectory, scene: BimScene, source: str | Path) -> None:
     """Raise StationError when a trajectory leaves the model's bounds by more than 5 m (a file in
-    another coordinate system or unit) or is too short for one firing sequence."""
+    another coordinate system or unit). Its pulses are the recipe's to check (``ScanRecipe.check_walk``)."""
     lo, hi = scene.mesh.bounds()
     outside = np.any((trajectory.xyz < lo - 5.0) | (trajectory.xyz > hi + 5.0), axis=1)
     if outside.any():
@@ -156,7 +153,8 @@ def prepare_survey(scene: BimScene, recipe: ScanRecipe, *, scanner: VirtualScann
     ``stations`` given: use them as they are (chosen and checked on this scene by the caller, as
     ``pipeline.site_and_stations`` and the dataset builder do; ``plan`` is their planner's report);
     ``recipe.stations_from`` is then not consulted. A mobile recipe takes ``trajectory`` (and the
-    ``walk`` report that planned it) instead, chosen by ``choose_trajectory`` when not given.
+    ``walk`` report that planned it) instead, chosen by ``choose_trajectory`` when not given, and
+    refuses a walk over its pulse budget (``ScanRecipe.check_walk``).
     """
     check_site(scene, recipe)
     if scanner is None or not fits(scanner, recipe):
@@ -164,6 +162,7 @@ def prepare_survey(scene: BimScene, recipe: ScanRecipe, *, scanner: VirtualScann
     if recipe.mobile is not None:
         if trajectory is None:
             trajectory, walk = choose_trajectory(scene, recipe)
+        recipe.check_walk(trajectory)  # the walk's pulse budget, before any scanning
         return Survey(scene=scene, scanner=scanner, recipe=recipe, stations=(), trajectory=trajectory, walk=walk)
     if stations is None:
         stations, plan = choose_stations(scene, recipe)

@@ -98,7 +98,7 @@ def read_trajectory(path: str | Path) -> Trajectory:
     """A trajectory CSV (see the module docs) -> Trajectory; one-line errors for bad files."""
     path = check_input_file(path, what="a trajectory CSV file (t,x,y,z,roll,pitch,yaw)")
     try:
-        text = path.read_text("utf-8")
+        text = path.read_text("utf-8-sig")  # a byte order mark (spreadsheet exports) is not part of the header
     except UnicodeDecodeError as exc:
         raise InputFileError(f"{path}: not a UTF-8 text file; pass a trajectory CSV file") from exc
     lines = [line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")]
