@@ -547,3 +547,58 @@ def test_real_scenes_without_labels_are_refused_before_any_build(rooms_dir: Path
         run_experiment(experiment, out, log=lambda text: None)
 
     assert not (out / "variants").exists() and not (out / "datasets").exists()
+
+
+ADAPT_VARIANTS = """
+[[variants]]
+name = "adapt-transductive"
+init = "synthetic"
+data = "synthetic.txt"
+adapt_to = "scored"
+train = { epochs = 1 }
+
+[[variants]]
+name = "adapt-inductive"
+init = "synthetic"
+data = "synthetic.txt"
+adapt_to = "others"
+train = { epochs = 1 }
+"""
+
+
+@pytest.mark.slow
+def test_adapted_variants_adapt_to_the_scored_scenes_or_to_the_others_in_folds(rooms_dir: Path) -> None:
+    head = ROOMS_EXPERIMENT[:ROOMS_EXPERIMENT.index('[[variants]]\nname = "real-only"')]
+    (rooms_dir / "exp.toml").write_text(head + ADAPT_VARIANTS, encoding="utf-8")
+    out = rooms_dir / "out"
+
+    results = {r.variant: r for r in run_experiment(load_experiment(rooms_dir / "exp.toml"), out, log=lambda t: None)}
+
+    rooms = {"r1", "r2", "r3"}
+    transductive, inductive = results["adapt-transductive"], results["adapt-inductive"]
+    assert [set(names) for names in transductive.adapted] == [rooms] and set(transductive.scenes) == rooms
+    assert transductive.excluded == [] and transductive.train_rooms == [[]]
+    assert inductive.folds == 2 and set(inductive.scenes) == rooms
+    for fold, adapted in enumerate(inductive.adapted, start=1):  # never adapted to a scene it is scored on
+        scored = json.loads((out / f"variants/adapt-inductive/fold-{fold}/eval/evaluation.json").read_text())
+        assert adapted and not {s["name"] for s in scored["scenes"]} & set(adapted)
+    config = json.loads((out / "variants/adapt-transductive/result.json").read_text())
+    assert config["init"] == "synthetic"
+    report = (out / "report.md").read_text()
+    assert "adapted to 3 unlabelled scene(s) (their labels never read)" in report
+
+
+@pytest.mark.parametrize(("variant", "message"), [
+    ('name = "a"\ndata = "synthetic.txt"\nadapt_to = "scored"', "adapting starts from a trained model"),
+    ('name = "a"\ninit = "synthetic"\nrooms = ["r1.txt"]\nadapt_to = "scored"', "not both"),
+    ('name = "a"\ninit = "synthetic"\ndata = "synthetic.txt"\nadapt_to = "everything"', "adapt_to"),
+    ('name = "a"\ninit = "synthetic"\ndata = "synthetic.txt"\nadapt_to = ["missing.laz"]', "scans not found"),
+])
+def test_bad_adapted_variants_are_one_line_errors(rooms_dir: Path, variant: str, message: str) -> None:
+    head = ROOMS_EXPERIMENT[:ROOMS_EXPERIMENT.index('[[variants]]\nname = "real-only"')]
+    (rooms_dir / "exp.toml").write_text(head + "[[variants]]\n" + variant + "\n", encoding="utf-8")
+
+    with pytest.raises((ConfigError, InputFileError), match=message) as caught:
+        load_experiment(rooms_dir / "exp.toml")
+
+    assert "\n" not in str(caught.value)

@@ -255,3 +255,39 @@ def test_training_with_an_unlabelled_validation_set_is_one_error_line(
     err = capsys.readouterr().err
     assert status == 1 and err.startswith("error: ") and err.count("\n") == 1, err
     assert "no ground-truth labels" in err
+
+
+@pytest.mark.slow
+def test_a_trained_model_adapts_to_unlabelled_scans_from_the_command_line(
+    project: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, room: Callable[..., PointCloud],
+) -> None:
+    """train, then adapt to two unlabelled scans (one with labels in its file: never read), then
+    predict with the adapted model; the same command again continues or finds it finished."""
+    from bimscan.io.text import write_text_cloud
+
+    monkeypatch.chdir(project)
+    config = project / "train.toml"
+    config.write_text(config.read_text().replace("epochs = 3", "epochs = 1"))
+    assert main(["train", "train.toml"]) == 0
+    checkpoint = project / "runs" / "tiny" / "last.pt"
+    write_text_cloud(project / "mine1.xyz", PointCloud(xyz=room(60, size_m=(5.0, 4.0), points_per_m2=40).xyz))
+    capsys.readouterr()
+
+    elsewhere = project / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)  # the checkpoint's data is found where its configuration was
+    assert main(["adapt", str(checkpoint), "../mine1.xyz", "../site.las", "adapted", "--device", "cpu"]) == 0
+    adapted = capsys.readouterr()
+    assert "pseudo-labels kept per class: Wall&Column" in adapted.err
+    assert "label a scan with 'bimscan predict adapted/last.pt SCAN OUT.laz'" in adapted.out
+    assert main(["adapt", str(checkpoint), "../mine1.xyz", "../site.las", "adapted", "--device", "cpu"]) == 0
+    assert "in 1 epoch(s)" in capsys.readouterr().out  # finished: nothing left to do
+    assert main(["predict", "adapted/last.pt", "../mine1.xyz", "mine1.laz", "--device", "cpu"]) == 0
+
+    assert main(["adapt", str(checkpoint), "../mine1.xyz", "other", "--synthetic", "../missing"]) == 1
+    assert "missing: no such file or folder" in capsys.readouterr().err
+    (project / "spc").rename(project / "spc-moved")
+    assert main(["adapt", str(checkpoint), "../mine1.xyz", "other"]) == 1
+    err = capsys.readouterr().err
+    assert "the synthetic data it trained on is not here" in err and "--synthetic PATH" in err
+    assert not (elsewhere / "other").exists()

@@ -10,7 +10,7 @@ from typing import TypeVar
 import click
 
 from bimscan.constraints import choices_of, default_of
-from bimscan.learn.train_config import EvalConfig, TrainConfig
+from bimscan.learn.train_config import AdaptationSchedule, EvalConfig, TrainConfig
 
 DEVICES = click.Choice(choices_of(TrainConfig, "device"))
 F = TypeVar("F", bound=Callable[..., object])
@@ -159,6 +159,42 @@ def predict(
                f"network) ({shares})")
 
 
+@click.command("adapt")
+@click.argument("checkpoint", type=click.Path(path_type=Path, dir_okay=False))
+@click.argument("scans", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.argument("out_dir", metavar="OUT", type=click.Path(path_type=Path, file_okay=False))
+@click.option("--synthetic", multiple=True, type=click.Path(path_type=Path),
+              help="Labelled training data to keep training on (repeatable). Default: the data the checkpoint "
+                   "trained on, where it was.")
+@click.option("--epochs", type=click.IntRange(min=1), default=None,
+              help=f"Passes over the synthetic data, each with adapted blocks beside. Default: "
+                   f"{default_of(AdaptationSchedule, 'epochs')}.")
+@click.option("--device", type=DEVICES, default=None, help="Replaces the checkpoint's [train] device.")
+def adapt(checkpoint: Path, scans: tuple[Path, ...], out_dir: Path, synthetic: tuple[Path, ...], epochs: int | None,
+          device: str | None) -> None:
+    """Adapt CHECKPOINT to your own unlabelled scans SCAN... and write the adapted model to OUT.
+
+    SCAN: clouds of the building (.las .laz .e57 .ply .txt ..., NumPy folders, S3DIS rooms); their
+    labels, if any, are never read. The model labels them itself (pseudo-labels of its averaged
+    weights, the most confident share of each class) and trains on them, mixed with its synthetic
+    training data, for a short fine-tune. Then label the scans with
+    'bimscan predict OUT/last.pt SCAN OUT.laz'. Run the same command again to continue a stopped run.
+    """
+    import dataclasses
+
+    from bimscan.learn.adapt import adaptation_config
+    from bimscan.learn.train import train_model
+
+    schedule = AdaptationSchedule() if epochs is None else dataclasses.replace(AdaptationSchedule(), epochs=epochs)
+    settings = adaptation_config(checkpoint, scans, synthetic=synthetic, schedule=schedule, device=device)
+    last = out_dir / "last.pt"
+    resume = last.is_file()
+    result = train_model(settings, base_dir=Path.cwd(), out_dir=out_dir, resume=resume, init=checkpoint,
+                         log=lambda text: click.echo(text, err=True))
+    click.echo(f"adapted {checkpoint} to {len(scans)} scan(s) in {result.epochs_done} epoch(s): {result.checkpoint}; "
+               f"label a scan with 'bimscan predict {result.checkpoint} SCAN OUT.laz'")
+
+
 @click.command("sim2real")
 @click.argument("experiment", type=click.Path(path_type=Path, dir_okay=False))
 @click.argument("out_dir", type=click.Path(path_type=Path, file_okay=False))
@@ -182,4 +218,4 @@ def sim2real(experiment: Path, out_dir: Path, real: tuple[Path, ...], device: st
     click.echo(format_report(results, parsed), nl=False)
 
 
-COMMANDS: list[click.Command] = [train, evaluate, predict, sim2real]
+COMMANDS: list[click.Command] = [train, adapt, evaluate, predict, sim2real]

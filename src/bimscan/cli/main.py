@@ -93,7 +93,8 @@ class _WarningLines(logging.Handler):
 # and training, which continues from its last checkpoint with --resume; the others leave nothing
 # (their outputs are written under temporary names and removed).
 RESUMES = {"build": "run the same command to resume", "sim2real": "run the same command to resume",
-           "demo": "run the same command to resume", "train": "add --resume to continue from the last epoch"}
+           "demo": "run the same command to resume", "adapt": "run the same command to resume",
+           "train": "add --resume to continue from the last epoch"}
 
 
 def _stopped(command: str | None = None) -> int:

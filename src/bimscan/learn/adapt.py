@@ -34,17 +34,22 @@ are collected with ``labelled=False``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 import torch
 from torch import nn
 
+from bimscan.errors import LearnError
 from bimscan.learn.blocks import pad_block
 from bimscan.learn.data import TileSet, draw_block
 from bimscan.learn.features import extra_features
 from bimscan.learn.model import autocast_context, flush_denormals
-from bimscan.learn.train_config import IGNORE_LABEL, AdaptConfig, AugmentConfig, InputConfig
+from bimscan.learn.train_config import (
+    IGNORE_LABEL, AdaptationSchedule, AdaptConfig, AugmentConfig, InputConfig, TrainRunConfig,
+)
 
 _PSEUDO_STREAM = 17  # seed streams of this module (the training loop's are 7 and 11)
 _MIX_STREAM = 19
@@ -194,4 +199,37 @@ def _cell(xyz: np.ndarray, cells: int, size_m: float) -> tuple[np.ndarray, np.nd
     return index[:, 0], index[:, 1]
 
 
-__all__ = ["AdaptedBlocks", "PseudoLabels", "class_thresholds", "mixed_cells", "pseudo_label_tiles"]
+
+
+def adaptation_config(checkpoint: Path, scans: Sequence[Path], *, synthetic: Sequence[Path] = (),
+                      schedule: AdaptationSchedule | None = None, device: str | None = None) -> TrainRunConfig:
+    """The training configuration that adapts ``checkpoint`` to ``scans`` (unlabelled; see
+    ``AdaptationSchedule``). ``synthetic``: labelled training data in place of the checkpoint's own
+    (LearnError when neither is here). Paths come back absolute."""
+    from bimscan.learn.checkpoint import read_checkpoint
+    from bimscan.learn.train_config import DataConfig, SceneSet, parse_config
+    from bimscan.toml_files import resolve_path
+
+    schedule = schedule or AdaptationSchedule()
+    payload = read_checkpoint(checkpoint, require=("config", "class_names", "model", "ema"))
+    stored = parse_config(payload["config"], where=f"{checkpoint} [config]")
+    if synthetic:
+        train = (SceneSet(scenes=tuple(str(Path(p).resolve()) for p in synthetic)),)
+    else:  # its relative paths are relative to where its configuration was (recorded with the run)
+        base = Path(str(payload.get("base_dir", ".")))
+        train = tuple(replace(scenes, scenes=tuple(str(resolve_path(base, p).resolve()) for p in scenes.scenes),
+                              mapping=None if scenes.mapping is None else str(resolve_path(base, scenes.mapping)))
+                      for scenes in stored.data.train)
+        missing = [scene for scenes in train for scene in scenes.scenes if not Path(scene).exists()]
+        if missing:
+            raise LearnError(f"{checkpoint}: the synthetic data it trained on is not here ({missing[0]}); pass "
+                             "--synthetic PATH (a dataset it trained on, or any labelled scans of its classes)")
+    data = DataConfig(train=train, val=None, adapt=(SceneSet(scenes=tuple(str(Path(p).resolve()) for p in scans)),),
+                      class_names=stored.data.class_names)
+    train_settings = replace(stored.train, epochs=schedule.epochs, max_lr=stored.train.max_lr * schedule.lr_factor,
+                             freeze=(), **({"device": device} if device else {}))
+    return replace(stored, data=data, train=train_settings)
+
+
+__all__ = ["AdaptationSchedule", "AdaptedBlocks", "PseudoLabels", "adaptation_config", "class_thresholds",
+           "mixed_cells", "pseudo_label_tiles"]

@@ -18,15 +18,20 @@ One TOML file (loaded like every config, :func:`bimscan.toml_files.build_datacla
 - ``[[variants]]``: ``name``, ``description``, ``data`` (synthetic: dataset specs to build, or
   dataset folders and clouds), ``rooms`` (names of ``[rooms]`` scenes to train on, or ``"all"``),
   ``room_weight`` (how often each block of those rooms is drawn per epoch), ``init`` (an earlier
-  variant whose trained weights this one starts from: fine-tuning) and overrides of the training
-  sections.
+  variant whose trained weights this one starts from: fine-tuning), ``adapt_to`` (unlabelled
+  scans to adapt to, their labels never read, :mod:`bimscan.learn.adapt`: ``"scored"``, the
+  scored real scenes themselves, the transductive protocol of unsupervised domain adaptation;
+  ``"others"``, in folds, each fold's model adapted to the scored scenes outside its fold and
+  scored on its own, the inductive one; or a list of scans) and overrides of the training
+  sections (``[adapt]`` among them).
 
 Scoring never counts a room a model trained on. A variant whose rooms are not among the scored
 scenes is trained once and scored on all of them; one whose rooms are, on the others; one
 training on ``"all"`` rooms when every scored scene is among them is run in ``folds`` folds
 (the scored rooms, in their order, dealt into ``folds`` groups): each fold's model trains on the
-other rooms and is scored on its own, and the variant's score pools the folds. A fine-tuned
-variant starts each run from its parent's run of the same fold (or its parent's only run).
+other rooms and is scored on its own, and the variant's score pools the folds (so is one adapted
+to ``"others"``). A fine-tuned or adapted variant starts each run from its parent's run of the
+same fold (or its parent's only run).
 
 Every run's real scored scenes are its validation set (``curves.png`` per epoch, as the paper's
 Figs. 7-8). Every step is kept on disk and skipped when found finished: a killed run continues.
@@ -131,12 +136,19 @@ class VariantTable(TrainingTables):
     rooms: tuple[str, ...] | Literal["all"] = ()
     room_weight: float = setting(1.0, within=Range(0, 100, low_open=True))
     init: str | None = None
+    adapt_to: tuple[str, ...] | Literal["scored", "others"] = ()
 
     def check(self) -> None:
         if not NAME_PATTERN.match(self.name):
             raise ConfigError(f"name {self.name!r} is not a usable name (letters, digits, . _ -, at most 64)")
         if not self.data and not self.rooms:
             raise ConfigError(f"variant {self.name!r} trains on nothing; give 'data' (synthetic) and/or 'rooms' (real)")
+        if self.adapt_to and self.init is None:
+            raise ConfigError(f"variant {self.name!r} adapt_to: adapting starts from a trained model (its pseudo-labels "
+                              "are that model's); name the variant to start from in 'init'")
+        if self.adapt_to and self.rooms:
+            raise ConfigError(f"variant {self.name!r}: give 'rooms' (labelled real rooms) or 'adapt_to' (unlabelled "
+                              "scans), not both")
 
 
 @dataclass(frozen=True)
@@ -163,6 +175,7 @@ class Variant:
     room_weight: float
     init: str | None
     sections: dict[str, Any]
+    adapt_to: tuple[SceneSource, ...] | Literal["scored", "others"] = ()
 
 
 @dataclass(frozen=True)
@@ -249,7 +262,7 @@ def load_experiment(path: str | Path, *, real: Sequence[str | Path] | None = Non
         variants.append(Variant(
             name=table.name, description=table.description, specs=tuple(specs), folders=tuple(folders),
             rooms=_variant_rooms(table.rooms, room_sources, where=where), room_weight=table.room_weight,
-            init=table.init, sections=sections))
+            init=table.init, sections=sections, adapt_to=_adapt_scenes(table.adapt_to, folder, where=where)))
     head = parsed.experiment
     experiment = Experiment(name=head.name or path.stem, path=path, real=real_set, rooms=rooms_set,
                             holdout=parsed.holdout, variants=tuple(variants), class_names=head.class_names,
@@ -277,6 +290,20 @@ def _check_start(table: VariantTable, built: dict[str, Any], earlier: list[Varia
                               f"({mine}); fine-tuning starts from the same network: give both the same {what}")
 
 
+def _adapt_scenes(value: tuple[str, ...] | str, folder: Path, *,
+                  where: str) -> tuple[SceneSource, ...] | Literal["scored", "others"]:
+    """A variant's ``adapt_to``: "scored", "others", or its scans resolved (their labels never read)."""
+    if value in ("scored", "others"):
+        return value  # type: ignore[return-value]
+    from bimscan.learn.data import list_scenes
+
+    paths = [resolve_path(folder, p).resolve() for p in value]
+    for path in paths:
+        if not path.exists():
+            raise InputFileError(f"{path}: {where} adapt_to: scans not found; fix the path")
+    return tuple(list_scenes(paths))
+
+
 def _listed(table: Any) -> Any:
     """A variant table with ``data = "x"`` as ``["x"]`` and ``rooms = "r"`` (not ``"all"``) as ``["r"]``."""
     if not isinstance(table, dict):
@@ -286,6 +313,8 @@ def _listed(table: Any) -> Any:
         table["data"] = [table["data"]]
     if isinstance(table.get("rooms"), str) and table["rooms"] != "all":
         table["rooms"] = [table["rooms"]]
+    if isinstance(table.get("adapt_to"), str) and table["adapt_to"] not in ("scored", "others"):
+        table["adapt_to"] = [table["adapt_to"]]
     return table
 
 
@@ -380,6 +409,7 @@ class Run:
     fold: int | None
     train_rooms: tuple[SceneSource, ...]
     scored: tuple[SceneSource, ...]
+    adapt: tuple[SceneSource, ...] = ()  # unlabelled scans it adapts to (labels never read)
 
     def folder(self, out: Path) -> Path:
         base = out / "variants" / self.variant.name
@@ -407,6 +437,7 @@ class VariantResult:
     folds: int
     evaluation: dict[str, Any]
     init: str | None
+    adapted: list[list[str]] = field(default_factory=list)  # per run, the unlabelled scenes it adapted to
 
     def to_json(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -414,7 +445,7 @@ class VariantResult:
     @staticmethod
     def from_json(data: dict[str, Any]) -> VariantResult:
         fields = {f.name for f in dataclasses.fields(VariantResult)}
-        if set(data) != fields:
+        if set(data) != fields and set(data) != fields - {"adapted"}:  # results from before adaptation read too
             raise LearnError("a variant result of another bimscan version; delete the variant's folder to rerun it")
         return VariantResult(**{**data, "class_names": tuple(data["class_names"])})
 
@@ -484,6 +515,20 @@ def _scored_scenes(experiment: Experiment) -> list[SceneSource]:
 
 def _runs(experiment: Experiment, variant: Variant, scored: list[SceneSource]) -> list[Run]:
     """The models of a variant (see the module docs: never scored on a room it trained on)."""
+    if variant.adapt_to == "scored":  # transductive: adapted to the very scenes it is scored on, unlabelled
+        return [Run(variant, None, (), tuple(scored), adapt=tuple(scored))]
+    if variant.adapt_to == "others":  # inductive: each fold adapted to the scored scenes outside it
+        folds = min(experiment.folds, len(scored))
+        if folds < 2:
+            raise ConfigError(f"variant {variant.name!r} adapt_to = \"others\" needs two scored scenes or more; "
+                              "score it on more (--real) or adapt_to = \"scored\"")
+        runs = []
+        for k in range(folds):
+            held = tuple(s for i, s in enumerate(scored) if i % folds == k)
+            runs.append(Run(variant, k, (), held, adapt=tuple(s for s in scored if s not in held)))
+        return runs
+    if variant.adapt_to:
+        return [Run(variant, None, (), tuple(scored), adapt=tuple(variant.adapt_to))]
     all_rooms = () if experiment.rooms is None else tuple(_room_sources(experiment.rooms, where="[rooms]"))
     rooms = all_rooms if variant.rooms == "all" else variant.rooms
     trained = {s.path.resolve() for s in rooms}
@@ -527,8 +572,9 @@ def training_config(experiment: Experiment, run: Run, out: Path) -> TrainRunConf
                               mapping=rooms.mapping, weight=run.variant.room_weight))
     val = SceneSet(scenes=tuple(str(s.path) for s in run.scored), label_field=experiment.real.label_field,
                    mapping=experiment.real.mapping) if run.scored else None
-    data = DataConfig(train=tuple(train), val=val, **({"class_names": experiment.class_names}
-                                                        if experiment.class_names else {}))
+    adapt = (SceneSet(scenes=tuple(str(s.path) for s in run.adapt)),) if run.adapt else ()
+    data = DataConfig(train=tuple(train), val=val, adapt=adapt, **({"class_names": experiment.class_names}
+                                                                  if experiment.class_names else {}))
     return TrainRunConfig(data=data, **training_sections(run.variant))
 
 
@@ -543,6 +589,10 @@ def _fingerprint(experiment: Experiment, variant: Variant, out: Path) -> str:
     document = {"sections": variant.sections, "synthetic": _synthetic(variant, out), "init": variant.init,
                 "rooms": "all" if variant.rooms == "all" else [str(s.path) for s in variant.rooms],
                 "room_weight": variant.room_weight, "folds": experiment.folds, "class_names": experiment.class_names}
+    if variant.adapt_to:  # (absent otherwise: the fingerprints of variants without it stay what they were)
+        # "scored" and "others" adapt to the scored scenes: other real scenes (--real), another model
+        document["adapt_to"] = [variant.adapt_to, *experiment.real.scenes] if isinstance(variant.adapt_to, str) \
+            else [str(s.path) for s in variant.adapt_to]
     document["sections"] = {k: {kk: vv for kk, vv in v.items() if setting_effect(k, kk) != "runtime"}
                             for k, v in variant.sections.items()}
     return hashlib.sha256(json.dumps(document, sort_keys=True, default=str).encode()).hexdigest()[:16]
@@ -721,6 +771,7 @@ def _run_variant(experiment: Experiment, variant: Variant, runs_of: dict[str, li
         if done < config.train.epochs:
             emit(f"variant {label}: training{' (resuming after epoch ' + str(done) + ')' if done else ''} on "
                  f"{len(run.train_rooms)} real room(s){' and synthetic data' if variant.specs or variant.folders else ''}"
+                 + (f", adapting to {len(run.adapt)} unlabelled scene(s)" if run.adapt else "")
                  + (f", from {variant.init}" if init else ""))
             train_model(config, base_dir=experiment.path.parent, out_dir=where / "train", resume=last.is_file(),
                         init=init, log=emit)
@@ -756,6 +807,7 @@ def _run_variant(experiment: Experiment, variant: Variant, runs_of: dict[str, li
         train_miou_per_epoch=[[float(r.get("train_miou", math.nan)) for r in h] for h in histories],
         train_seconds=seconds, synthetic=list(_synthetic(variant, out)),
         train_rooms=[[s.name for s in run.train_rooms] for run in runs],
+        adapted=[[s.name for s in run.adapt] for run in runs],
         excluded=sorted({s.name for run in runs for s in run.train_rooms} & {s.name for s in _scored_scenes(experiment)}),
         folds=len(runs) if runs[0].fold is not None else 0, evaluation=dataclasses.asdict(config.eval),
         init=variant.init)

@@ -79,6 +79,10 @@ def format_report(experiment: Experiment, results: Sequence[VariantResult]) -> s
             how.append(f"{rooms:g} real room(s)" + (f" per fold, {r.folds} folds" if r.folds else ""))
         if r.init:
             how.append(f"starting from {r.init}")
+        adapted = max((len(names) for names in r.adapted), default=0)
+        if adapted:
+            how.append(f"adapted to {adapted} unlabelled scene(s)" + (" per fold" if r.folds else "")
+                       + " (their labels never read)")
         scored = len(r.scenes)
         excluded = f"; its training rooms ({', '.join(r.excluded)}) are not scored" if r.excluded and not r.folds else ""
         folds = "; each fold's model scored on its held-out rooms" if r.folds else ""

@@ -511,6 +511,7 @@ class _Run:
     config: TrainRunConfig
     ctx: DistributedContext
     out: Path
+    base_dir: Path  # what the configuration's relative paths are relative to
     emit: Callable[[str], None]
     model: PCTSegmentation
     ddp_model: nn.Module
@@ -641,7 +642,7 @@ def _set_up(config: TrainRunConfig, *, ctx: DistributedContext, base_dir: Path, 
     adapted = None if target_tiles is None else AdaptedBlocks(
         target_tiles, train_tiles, points=config.blocks.points, size_m=config.blocks.size_m, seed=settings.seed,
         inputs=config.input, augment=config.augment, config=config.adapt)
-    run = _Run(config=config, ctx=ctx, out=out, emit=emit, model=model, ddp_model=model, ema=ema, optimizer=optimizer,
+    run = _Run(config=config, ctx=ctx, out=out, base_dir=base_dir.resolve(), emit=emit, model=model, ddp_model=model, ema=ema, optimizer=optimizer,
                scheduler=scheduler, scaler=scaler, sampler=sampler, loader=None,  # type: ignore[arg-type]
                val_set=val_set, weight=weight, frozen=frozen,
                frozen_parameters=sum(p.numel() for module in frozen for p in module.parameters()),
@@ -793,7 +794,7 @@ def _save_epoch(run: _Run, epoch: int, row: dict[str, float]) -> None:
             "device": run.ctx.device.type,
             "global_batch": run.sampler.global_batch, "parameters": run.parameters,
             "best_val_miou": max(run.best_miou, row["val_miou"]) if not math.isnan(row["val_miou"]) else run.best_miou,
-            "init": run.started_from, "frozen_parameters": run.frozen_parameters,
+            "init": run.started_from, "frozen_parameters": run.frozen_parameters, "base_dir": str(run.base_dir),
         }
         save_checkpoint(run.last_path, payload)
         if not math.isnan(row["val_miou"]) and row["val_miou"] > run.best_miou:

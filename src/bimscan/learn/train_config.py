@@ -298,6 +298,18 @@ class AdaptConfig(Checked):
 
 
 @dataclass(frozen=True)
+class AdaptationSchedule(Checked):
+    """How ``bimscan adapt`` fine-tunes a checkpoint to a user's unlabelled scans: ``epochs`` over
+    the checkpoint's synthetic training data (its scene sets as it trained on them), each with the
+    adapted blocks beside (``[adapt]``), at ``lr_factor`` times the checkpoint's ``max_lr`` (a
+    fine-tune, not a new training); the rest of its configuration as it was. The shipped
+    experiment's adapted variants use the same (``configs/experiments/sim2real_adapt_cpu.toml``)."""
+
+    epochs: int = setting(1, within=Range(1, 1000))
+    lr_factor: float = setting(0.2, within=Range(0.0, 1.0, low_open=True))
+
+
+@dataclass(frozen=True)
 class TrainRunConfig:
     """A whole training experiment: the sections of the TOML file."""
 
