@@ -26,6 +26,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import types
 import typing
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -138,31 +139,58 @@ def _literal_choices(hint: Any) -> tuple[Any, ...] | None:
     return None
 
 
+_SIMPLE = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}
+
+
+def _simple_type(hint: Any) -> type | None:
+    """``bool``/``int``/``float``/``str`` for such a hint or its ``X | None``, else None."""
+    if hint in _SIMPLE:
+        return hint
+    if typing.get_origin(hint) in (types.UnionType, typing.Union):
+        args = [a for a in typing.get_args(hint) if a is not type(None)]
+        if len(args) == 1 and args[0] in _SIMPLE:
+            return args[0]
+    return None
+
+
+def _of_type(value: Any, kind: type) -> bool:
+    if kind is float:
+        return isinstance(value, int | float) and not isinstance(value, bool)
+    if kind is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    return isinstance(value, kind)
+
+
 def check_settings(settings: Any) -> None:
-    """ConfigError for the first field of ``settings`` outside its declared range or choices."""
+    """The first field of ``settings`` of the wrong simple type, outside its declared range or not
+    among its choices, refused with the class's ``refusal`` (a ConfigError)."""
     cls = type(settings)
     hints = _hints(cls)
+    refuse = getattr(settings, "refusal", ConfigError)
     for item in dataclasses.fields(settings):
         value = getattr(settings, item.name)
         if value is None:
             continue
         hint = hints.get(item.name)
+        kind = _simple_type(hint)
+        if kind is not None and not _of_type(value, kind):
+            raise refuse(f"{item.name} must be {_SIMPLE[kind]}, got {_show(value)}")
         choices = _literal_choices(hint)
         if choices is not None:
             values = value if isinstance(value, tuple) and typing.get_origin(hint) is tuple else (value,)
             wrong = [v for v in values if v not in choices]
             if wrong:
-                raise ConfigError(f"{item.name} takes {', '.join(map(repr, choices))}, got {wrong[0]!r}")
+                raise refuse(f"{item.name} takes {', '.join(map(repr, choices))}, got {wrong[0]!r}")
         within, each = item.metadata.get("within"), item.metadata.get("each")
         integer = _is_integer(hint)
         if within is not None and (isinstance(value, bool) or not within.admits(value)):
-            kind = "an integer" if integer else "a number"
-            raise ConfigError(f"{item.name} must be {kind} {within.describe(integer=integer)}, got {_show(value)}")
+            kind_words = "an integer" if integer else "a number"
+            raise refuse(f"{item.name} must be {kind_words} {within.describe(integer=integer)}, got {_show(value)}")
         if each is not None:
             for number in _numbers(value):
                 if isinstance(number, bool) or not isinstance(number, int | float) or not each.admits(number):
-                    raise ConfigError(f"{item.name} takes numbers {each.describe(integer=False)}, got {_show(number)} "
-                                      f"in {list(value)}")
+                    raise refuse(f"{item.name} takes numbers {each.describe(integer=False)}, got {_show(number)} "
+                                 f"in {list(value)}")
 
 
 def _show(value: Any) -> str:
@@ -176,7 +204,8 @@ def _show(value: Any) -> str:
 
 class Checked:
     """Base of settings classes: construction checks the declared constraints
-    (``check_settings``), then the class's own cross-field ``check``."""
+    (``check_settings``), then the class's own cross-field ``check``; both refuse with
+    ``refusal`` (a ConfigError; a class may give its own kind or context, e.g. a scanner's name)."""
 
     def __post_init__(self) -> None:
         check_settings(self)
@@ -184,6 +213,10 @@ class Checked:
 
     def check(self) -> None:
         """Constraints across fields (none by default)."""
+
+    def refusal(self, problem: str) -> ConfigError:
+        """The error for one problem with these settings."""
+        return ConfigError(problem)
 
 
 __all__ = ["Checked", "Effect", "Range", "check_settings", "choices_of", "default_of", "effect_of", "setting"]

@@ -72,7 +72,7 @@ def test_a_station_file_drives_the_survey(box_room_ifc, tmp_path):
     (["--preset", "exp9"], "neither a file nor a known preset"),
     (["--strict"], "outside the device's limits"),
     (["--head-speed", "0"], "head_deg_per_s = 0 is impossible"),
-    (["--range-sigma", "-1"], "range_sigma_m = -1"),
+    (["--range-sigma", "-1"], "range_sigma_m must be a number in [0, 1], got -1"),
     (["--scanner", "nope"], "neither a file nor a known scanner"),
 ])
 def test_bad_settings_fail_with_one_line_and_no_output(box_room_ifc, tmp_path, capsys, args, message):
@@ -122,7 +122,7 @@ def test_an_existing_output_is_kept_unless_overwrite(box_room_ifc, tmp_path, cap
     (["--seed", str(2**70)], "seed = 1180591620717411303424 is impossible"),
     (["--threads", "-1"], "threads = -1 is impossible"),
     (["--head-speed", "1e-300"], "would fire inf pulses"),
-    (["--range-sigma", "nan"], "range_sigma_m = nan is impossible"),
+    (["--range-sigma", "nan"], "range_sigma_m must be a number in [0, 1], got nan"),
 ])
 def test_settings_that_would_crash_or_run_forever_are_one_line_errors(box_room_ifc, tmp_path, capsys, args, message):
     out = tmp_path / "x.laz"

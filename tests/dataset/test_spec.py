@@ -81,7 +81,7 @@ def test_sensor_realism_and_settings_apply_per_configuration_over_the_spec(spec_
 
 @pytest.mark.parametrize(("edit", "message"), [
     (lambda t: t + 'sensor = { footprnt = true }\n', "unknown key(s) 'footprnt'"),
-    (lambda t: t + 'realism = "photo"\n', "realism = 'photo'"),
+    (lambda t: t + 'realism = "photo"\n', "key 'realism': expected one of 'paper', 'full', got 'photo'"),
     (lambda t: t + 'sensor = { material_table = "nowhere.toml" }\nrealism = "full"\n', "material table"),
 ])
 def test_bad_sensor_settings_are_refused_before_any_work_naming_the_configuration(spec_folder: Path, edit,

@@ -460,9 +460,11 @@ def test_full_realism_is_recorded_and_changes_the_fingerprint():
 
 
 @pytest.mark.parametrize("change, message", [
-    ({"realism": "photo"}, "realism = 'photo'"), ({"returns": "second"}, "returns = 'second'"),
-    ({"beam_sample_quality": 0}, "beam_sample_quality = 0"), ({"glass_return_probability": 1.5}, "glass_return_probability"),
-    ({"footprint": "yes"}, "footprint = 'yes'"),
+    ({"realism": "photo"}, "realism takes 'paper', 'full', got 'photo'"),
+    ({"returns": "second"}, "returns takes 'first', 'last', 'strongest', 'all', got 'second'"),
+    ({"beam_sample_quality": 0}, "beam_sample_quality must be an integer in 1..6, got 0"),
+    ({"glass_return_probability": 1.5}, r"glass_return_probability must be a number in \[0, 1\], got 1.5"),
+    ({"footprint": "yes"}, "footprint must be true or false, got 'yes'"),
 ])
 def test_impossible_sensor_settings_are_refused_naming_the_setting(change, message):
     with pytest.raises(ConfigError, match=message):

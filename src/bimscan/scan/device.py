@@ -17,11 +17,12 @@ from pathlib import Path
 
 from bimscan.toml_files import build_dataclass, load_toml
 from bimscan.errors import ConfigError, ScannerSettingsError
-from bimscan.scan.noise import MAX_ANGLE_SIGMA_DEG
+from bimscan.constraints import Checked, Range, setting
+from bimscan.scan.noise import MAX_ANGLE_SIGMA_DEG, MAX_RANGE_SIGMA_M
 
 
 @dataclass(frozen=True)
-class ScannerModel:
+class ScannerModel(Checked):
     """A rotating-mirror terrestrial laser scanner.
 
     The polygon mirror sweeps ``mirror_sweep_deg`` per line (centred on the horizon) at the line
@@ -39,68 +40,43 @@ class ScannerModel:
 
     name: str
     description: str = ""
-    range_accuracy_m: float = 0.005
-    angle_accuracy_deg: float = 0.03
-    beam_divergence_rad: float = 0.0003
-    pulse_freqs_hz: tuple[float, ...] = ()
-    min_range_m: float = 1.5
-    max_range_m: float = 600.0
-    mirror_sweep_deg: float = 240.0
-    elevation_min_deg: float = -40.0
-    elevation_max_deg: float = 60.0
-    scan_freq_min_hz: float = 3.0
-    scan_freq_max_hz: float = 120.0
-    head_deg_per_s_max: float = 60.0
-    tripod_height_m: float = 1.5
-    beam_origin_height_m: float = 0.2
-    wavelength_nm: float = 1550.0
-    pulse_length_ns: float = 5.0
-    reach_reflectance: tuple[float, ...] = (0.9, 0.2)
-    reach_range_m: tuple[float, ...] = (600.0, 280.0)
-    reach_pulse_freq_hz: float = 100000.0
+    range_accuracy_m: float = setting(0.005, within=Range(0.0, MAX_RANGE_SIGMA_M))
+    angle_accuracy_deg: float = setting(0.03, within=Range(0.0, MAX_ANGLE_SIGMA_DEG))
+    beam_divergence_rad: float = setting(0.0003, within=Range(0.0, 0.1))
+    pulse_freqs_hz: tuple[float, ...] = setting((), each=Range(0.0, 1e8, low_open=True))
+    min_range_m: float = setting(1.5, within=Range(0.0, 1e5))
+    max_range_m: float = setting(600.0, within=Range(0.0, 1e5, low_open=True))
+    mirror_sweep_deg: float = setting(240.0, within=Range(0.0, 360.0, low_open=True))
+    elevation_min_deg: float = setting(-40.0, within=Range(-180.0, 180.0))
+    elevation_max_deg: float = setting(60.0, within=Range(-180.0, 180.0))
+    scan_freq_min_hz: float = setting(3.0, within=Range(0.0, 1e5, low_open=True))
+    scan_freq_max_hz: float = setting(120.0, within=Range(0.0, 1e5, low_open=True))
+    head_deg_per_s_max: float = setting(60.0, within=Range(0.0, 1e5, low_open=True))
+    tripod_height_m: float = setting(1.5, within=Range(0.0, 100.0))
+    beam_origin_height_m: float = setting(0.2, within=Range(0.0, 10.0))
+    wavelength_nm: float = setting(1550.0, within=Range(0.0, 1e5, low_open=True))
+    pulse_length_ns: float = setting(5.0, within=Range(0.0, 1e6, low_open=True))
+    reach_reflectance: tuple[float, ...] = setting((0.9, 0.2), each=Range(0.0, 1.0, low_open=True))
+    reach_range_m: tuple[float, ...] = setting((600.0, 280.0), each=Range(0.0, 1e5, low_open=True))
+    reach_pulse_freq_hz: float = setting(100000.0, within=Range(0.0, 1e8, low_open=True))
 
-    def __post_init__(self) -> None:
-        for name in ("wavelength_nm", "pulse_length_ns", "reach_pulse_freq_hz"):
-            value = getattr(self, name)
-            if not math.isfinite(value) or value <= 0:
-                self._refuse(f"{name} must be a number > 0, got {value}")
+    def check(self) -> None:
         if not self.reach_reflectance or len(self.reach_reflectance) != len(self.reach_range_m):
-            self._refuse(f"reach_reflectance and reach_range_m must be lists of the same length >= 1, got "
-                         f"{list(self.reach_reflectance)} and {list(self.reach_range_m)}")
-        elif not all(0 < r <= 1 for r in self.reach_reflectance) or not all(
-                math.isfinite(m) and m > 0 for m in self.reach_range_m):
-            self._refuse("reach_reflectance must lie in (0, 1] and reach_range_m be > 0, got "
-                         f"{list(self.reach_reflectance)} and {list(self.reach_range_m)}")
-        for name in ("range_accuracy_m", "angle_accuracy_deg", "beam_divergence_rad"):
-            value = getattr(self, name)
-            if not math.isfinite(value) or value < 0:
-                self._refuse(f"{name} must be a number >= 0, got {value}")
-        for name in ("tripod_height_m", "beam_origin_height_m"):
-            value = getattr(self, name)
-            if not math.isfinite(value) or value < 0:
-                self._refuse(f"{name} must be a number >= 0, got {value}")
-        if not all(math.isfinite(f) and f > 0 for f in self.pulse_freqs_hz):
-            self._refuse(f"pulse_freqs_hz must all be > 0, got {list(self.pulse_freqs_hz)}")
-        if not (math.isfinite(self.scan_freq_min_hz) and math.isfinite(self.scan_freq_max_hz)
-                and 0 < self.scan_freq_min_hz <= self.scan_freq_max_hz):
-            self._refuse(f"need 0 < scan_freq_min_hz <= scan_freq_max_hz, got {self.scan_freq_min_hz} and "
-                         f"{self.scan_freq_max_hz}")
-        if not (math.isfinite(self.head_deg_per_s_max) and self.head_deg_per_s_max > 0):
-            self._refuse(f"head_deg_per_s_max must be > 0, got {self.head_deg_per_s_max}")
-        if math.isfinite(self.angle_accuracy_deg) and self.angle_accuracy_deg > MAX_ANGLE_SIGMA_DEG:
-            self._refuse(f"angle_accuracy_deg must be at most {MAX_ANGLE_SIGMA_DEG:g}, got {self.angle_accuracy_deg}")
-        if not 0 < self.mirror_sweep_deg <= 360:
-            self._refuse(f"mirror_sweep_deg must be in (0, 360], got {self.mirror_sweep_deg}")
+            raise self.refusal(f"reach_reflectance and reach_range_m must be lists of the same length >= 1, got "
+                               f"{list(self.reach_reflectance)} and {list(self.reach_range_m)}")
+        if self.scan_freq_min_hz > self.scan_freq_max_hz:
+            raise self.refusal(f"need scan_freq_min_hz <= scan_freq_max_hz, got {self.scan_freq_min_hz} and "
+                               f"{self.scan_freq_max_hz}")
         half = self.mirror_sweep_deg / 2
         if not -half <= self.elevation_min_deg < self.elevation_max_deg <= half:
-            self._refuse(
+            raise self.refusal(
                 f"the elevation window [{self.elevation_min_deg}, {self.elevation_max_deg}) must be non-empty "
                 f"and inside the mirror sweep [-{half}, {half}]")
-        if not 0 <= self.min_range_m < self.max_range_m:
-            self._refuse(f"need 0 <= min_range_m < max_range_m, got {self.min_range_m} and {self.max_range_m}")
+        if not self.min_range_m < self.max_range_m:
+            raise self.refusal(f"need min_range_m < max_range_m, got {self.min_range_m} and {self.max_range_m}")
 
-    def _refuse(self, problem: str) -> None:
-        raise ScannerSettingsError(f"scanner {self.name!r}: {problem}; fix the scanner file")
+    def refusal(self, problem: str) -> ScannerSettingsError:
+        return ScannerSettingsError(f"scanner {self.name!r}: {problem}; fix the scanner file")
 
     @property
     def instrument_height_m(self) -> float:

@@ -25,21 +25,23 @@ import math
 import tomllib
 from dataclasses import dataclass
 from importlib import resources
+from typing import Literal
 from pathlib import Path
 
 import numba as nb
 import numpy as np
 
+from bimscan.constraints import Checked, Range, setting
 from bimscan.errors import ConfigError, ScannerSettingsError
 from bimscan.scan.kernels import _BLOCK, _FAST, _keep, hit_point
-from bimscan.scan.noise import MAX_ANGLE_SIGMA_DEG
+from bimscan.scan.noise import MAX_ANGLE_SIGMA_DEG, MAX_RANGE_SIGMA_M
 from bimscan.toml_files import build_dataclass, load_toml
 
 MULTIBEAM_KIND = "multibeam"
 
 
 @dataclass(frozen=True)
-class MultiBeamScanner:
+class MultiBeamScanner(Checked):
     """A spinning multi-beam lidar (see the module docs for the firing model).
 
     beam_elevation_deg, beam_azimuth_offset_deg, firing_offset_us: one entry per beam, in firing
@@ -51,51 +53,39 @@ class MultiBeamScanner:
     """
 
     name: str
-    kind: str = MULTIBEAM_KIND
+    kind: Literal["multibeam"] = MULTIBEAM_KIND
     description: str = ""
-    beam_elevation_deg: tuple[float, ...] = ()
-    beam_azimuth_offset_deg: tuple[float, ...] = ()
-    firing_offset_us: tuple[float, ...] = ()
-    firing_cycle_us: float = 55.296
-    rotation_hz_min: float = 5.0
-    rotation_hz_max: float = 20.0
-    rotation_hz: float = 10.0
-    range_accuracy_m: float = 0.03
-    angle_accuracy_deg: float = 0.0
-    min_range_m: float = 0.5
-    max_range_m: float = 100.0
-    beam_divergence_rad: float = 0.003
-    wavelength_nm: float = 903.0
+    beam_elevation_deg: tuple[float, ...] = setting((), each=Range(-90.0, 90.0))
+    beam_azimuth_offset_deg: tuple[float, ...] = setting((), each=Range(-360.0, 360.0))
+    firing_offset_us: tuple[float, ...] = setting((), each=Range(0.0, 1e6))
+    firing_cycle_us: float = setting(55.296, within=Range(0.0, 1e6, low_open=True))
+    rotation_hz_min: float = setting(5.0, within=Range(0.0, 1e3, low_open=True))
+    rotation_hz_max: float = setting(20.0, within=Range(0.0, 1e3, low_open=True))
+    rotation_hz: float = setting(10.0, within=Range(0.0, 1e3, low_open=True))
+    range_accuracy_m: float = setting(0.03, within=Range(0.0, MAX_RANGE_SIGMA_M))
+    angle_accuracy_deg: float = setting(0.0, within=Range(0.0, MAX_ANGLE_SIGMA_DEG))
+    min_range_m: float = setting(0.5, within=Range(0.0, 1e5))
+    max_range_m: float = setting(100.0, within=Range(0.0, 1e5, low_open=True))
+    beam_divergence_rad: float = setting(0.003, within=Range(0.0, 0.1))
+    wavelength_nm: float = setting(903.0, within=Range(0.0, 1e5, low_open=True))
 
-    def __post_init__(self) -> None:
+    def check(self) -> None:
         n = len(self.beam_elevation_deg)
-        if self.kind != MULTIBEAM_KIND:
-            self._refuse(f"kind must be {MULTIBEAM_KIND!r}, got {self.kind!r}")
         if not 1 <= n <= 256:
-            self._refuse(f"beam_elevation_deg must list 1..256 beams, got {n}")
+            raise self.refusal(f"beam_elevation_deg must list 1..256 beams, got {n}")
         if len(self.beam_azimuth_offset_deg) != n or len(self.firing_offset_us) != n:
-            self._refuse(f"beam_azimuth_offset_deg and firing_offset_us must have one entry per beam ({n}), got "
-                         f"{len(self.beam_azimuth_offset_deg)} and {len(self.firing_offset_us)}")
-        if not all(-90.0 <= e <= 90.0 for e in self.beam_elevation_deg):
-            self._refuse("every beam_elevation_deg must lie in -90..90")
-        if not (math.isfinite(self.firing_cycle_us) and self.firing_cycle_us > 0):
-            self._refuse(f"firing_cycle_us must be > 0, got {self.firing_cycle_us}")
-        if not all(0.0 <= f < self.firing_cycle_us for f in self.firing_offset_us):
-            self._refuse(f"every firing_offset_us must lie in [0, firing_cycle_us = {self.firing_cycle_us:g})")
-        if not 0 < self.rotation_hz_min <= self.rotation_hz <= self.rotation_hz_max:
-            self._refuse(f"need 0 < rotation_hz_min <= rotation_hz <= rotation_hz_max, got {self.rotation_hz_min}, "
-                         f"{self.rotation_hz}, {self.rotation_hz_max}")
-        if not 0 <= self.min_range_m < self.max_range_m:
-            self._refuse(f"need 0 <= min_range_m < max_range_m, got {self.min_range_m} and {self.max_range_m}")
-        for name in ("range_accuracy_m", "angle_accuracy_deg", "beam_divergence_rad"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                self._refuse(f"{name} must be a number >= 0, got {value}")
-        if self.angle_accuracy_deg > MAX_ANGLE_SIGMA_DEG:
-            self._refuse(f"angle_accuracy_deg must be at most {MAX_ANGLE_SIGMA_DEG:g}, got {self.angle_accuracy_deg}")
+            raise self.refusal(f"beam_azimuth_offset_deg and firing_offset_us must have one entry per beam ({n}), got "
+                               f"{len(self.beam_azimuth_offset_deg)} and {len(self.firing_offset_us)}")
+        if not all(f < self.firing_cycle_us for f in self.firing_offset_us):
+            raise self.refusal(f"every firing_offset_us must lie in [0, firing_cycle_us = {self.firing_cycle_us:g})")
+        if not self.rotation_hz_min <= self.rotation_hz <= self.rotation_hz_max:
+            raise self.refusal(f"need rotation_hz_min <= rotation_hz <= rotation_hz_max, got {self.rotation_hz_min}, "
+                               f"{self.rotation_hz}, {self.rotation_hz_max}")
+        if not self.min_range_m < self.max_range_m:
+            raise self.refusal(f"need min_range_m < max_range_m, got {self.min_range_m} and {self.max_range_m}")
 
-    def _refuse(self, problem: str) -> None:
-        raise ScannerSettingsError(f"scanner {self.name!r}: {problem}; fix the scanner file")
+    def refusal(self, problem: str) -> ScannerSettingsError:
+        return ScannerSettingsError(f"scanner {self.name!r}: {problem}; fix the scanner file")
 
     @property
     def n_beams(self) -> int:

@@ -7,10 +7,10 @@ noise. ``NoiseModel.resolved(scanner)`` fills those in; a ``ScanRecipe`` holds t
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
+from bimscan.constraints import Checked, Range, setting
 from bimscan.errors import ScannerSettingsError
 
 if TYPE_CHECKING:
@@ -21,7 +21,7 @@ MAX_RANGE_SIGMA_M = 1.0  # beyond this no laser scanner measures; a typo for mil
 
 
 @dataclass(frozen=True)
-class NoiseModel:
+class NoiseModel(Checked):
     """Zero-mean Gaussian noise: along the beam (metres) and on azimuth and elevation (degrees).
 
     ``range_sigma_m``/``angle_sigma_deg`` None: the scanner's range and angle accuracy (the SPC
@@ -34,22 +34,15 @@ class NoiseModel:
     axis with ``registration_sigma_deg``, as left by target- or cloud-based registration.
     """
 
-    range_sigma_m: float | None = None
-    angle_sigma_deg: float | None = None
-    registration_sigma_m: float = 0.0
-    registration_sigma_deg: float = 0.0
+    # beyond their ranges no laser scanner measures: a typo for millimetres, radians or arc minutes
+    range_sigma_m: float | None = setting(None, within=Range(0.0, MAX_RANGE_SIGMA_M))
+    angle_sigma_deg: float | None = setting(None, within=Range(0.0, MAX_ANGLE_SIGMA_DEG))
+    registration_sigma_m: float = setting(0.0, within=Range(0.0, MAX_RANGE_SIGMA_M))
+    registration_sigma_deg: float = setting(0.0, within=Range(0.0, 180.0))
 
-    def __post_init__(self) -> None:
-        for name in ("range_sigma_m", "angle_sigma_deg", "registration_sigma_m", "registration_sigma_deg"):
-            value = getattr(self, name)
-            if value is not None and (not math.isfinite(value) or value < 0):
-                raise ScannerSettingsError(f"{name} = {value} is impossible; allowed: a number >= 0")
-        if self.range_sigma_m is not None and self.range_sigma_m > MAX_RANGE_SIGMA_M:
-            raise ScannerSettingsError(f"range_sigma_m = {self.range_sigma_m} is impossible for a laser scanner (metres, "
-                                       f"not millimetres); allowed: 0..{MAX_RANGE_SIGMA_M:g}")
-        if self.angle_sigma_deg is not None and self.angle_sigma_deg > MAX_ANGLE_SIGMA_DEG:
-            raise ScannerSettingsError(f"angle_sigma_deg = {self.angle_sigma_deg} is impossible for a laser scanner; "
-                                       f"allowed: 0..{MAX_ANGLE_SIGMA_DEG:g}")
+    def refusal(self, problem: str) -> ScannerSettingsError:
+        return ScannerSettingsError(f"impossible noise for a laser scanner: {problem} (sigmas are in metres, not "
+                                    "millimetres, and degrees: 5 mm is 0.005)")
 
     @staticmethod
     def off() -> NoiseModel:

@@ -26,15 +26,18 @@ docs/guide/scanner.md ("Sensor realism beyond the paper"); in short:
 from __future__ import annotations
 
 import dataclasses
-import math
+import typing
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
+from bimscan.constraints import Checked, Range, setting
 from bimscan.errors import ConfigError
 
-REALISMS = ("paper", "full")
-RETURN_MODES = ("first", "last", "strongest", "all")
+Realism = Literal["paper", "full"]
+ReturnMode = Literal["first", "last", "strongest", "all"]
+REALISMS: tuple[str, ...] = typing.get_args(Realism)
+RETURN_MODES: tuple[str, ...] = typing.get_args(ReturnMode)
 # The switches; None follows ``realism`` (off for paper, on for full).
 EFFECTS = ("footprint", "detection", "geometric_noise", "materials", "glass", "color", "deviations")
 # What a moving multi-beam lidar's pulses get (a mobile scan): the effects decided by each pulse's
@@ -65,7 +68,7 @@ MAX_RETURNS = 15  # what LAS point formats 6-10 can number
 
 
 @dataclass(frozen=True)
-class SensorModel:
+class SensorModel(Checked):
     """What the virtual scanner simulates beyond a thin ray with Gaussian noise (see the module docs).
 
     Switches (``None``: follow ``realism``): footprint, detection, geometric_noise, materials,
@@ -90,61 +93,36 @@ class SensorModel:
     waviness, 0 = none) and waviness_wavelength_m.
     """
 
-    realism: str = "paper"
+    realism: Realism = "paper"
     footprint: bool | None = None
-    beam_sample_quality: int = 3
+    beam_sample_quality: int = setting(3, within=Range(1, MAX_BEAM_SAMPLE_QUALITY))
     adaptive_footprint: bool = True
-    edge_depth_m: float = 0.02
-    returns: str = "first"
-    max_returns: int = 4
+    edge_depth_m: float = setting(0.02, within=Range(1e-6, 10.0))
+    returns: ReturnMode = "first"
+    max_returns: int = setting(4, within=Range(1, MAX_RETURNS))
     detection: bool | None = None
-    speckle_cells: int = 1
+    speckle_cells: int = setting(1, within=Range(1, 64))
     geometric_noise: bool | None = None
-    range_noise_ppm: float = 10.0
-    max_incidence_deg: float = 85.0
+    range_noise_ppm: float = setting(10.0, within=Range(0.0, 1e5))
+    max_incidence_deg: float = setting(85.0, within=Range(0.0, 89.9))
     materials: bool | None = None
     material_table: str | None = None
     glass: bool | None = None
-    glass_return_probability: float = 0.1
-    max_glass_layers: int = 6
+    glass_return_probability: float = setting(0.1, within=Range(0.0, 1.0))
+    max_glass_layers: int = setting(6, within=Range(1, 32))
     color: bool | None = None
-    color_noise: float = 0.03
-    ambient: float = 0.5
+    color_noise: float = setting(0.03, within=Range(0.0, 1.0))
+    ambient: float = setting(0.5, within=Range(0.0, 1.0))
     deviations: bool | None = None
-    position_tolerance_m: float = 0.025
-    level_tolerance_m: float = 0.019
-    plumb_tolerance_m: float = 0.025
-    sigmas_per_tolerance: float = 2.0
-    waviness_m: float = 0.0
-    waviness_wavelength_m: float = 2.0
+    position_tolerance_m: float = setting(0.025, within=Range(0.0, 1.0))
+    level_tolerance_m: float = setting(0.019, within=Range(0.0, 1.0))
+    plumb_tolerance_m: float = setting(0.025, within=Range(0.0, 1.0))
+    sigmas_per_tolerance: float = setting(2.0, within=Range(0.5, 10.0))
+    waviness_m: float = setting(0.0, within=Range(0.0, 0.5))
+    waviness_wavelength_m: float = setting(2.0, within=Range(0.01, 1000.0))
 
-    def __post_init__(self) -> None:
-        problems = []
-        if self.realism not in REALISMS:
-            problems.append(f"realism = {self.realism!r}; allowed: {', '.join(REALISMS)}")
-        if self.returns not in RETURN_MODES:
-            problems.append(f"returns = {self.returns!r}; allowed: {', '.join(RETURN_MODES)}")
-        for name in EFFECTS + ("adaptive_footprint",):
-            value = getattr(self, name)
-            if value is not None and not isinstance(value, bool):
-                problems.append(f"{name} = {value!r}; allowed: true or false")
-        for name, low, high in (("beam_sample_quality", 1, MAX_BEAM_SAMPLE_QUALITY), ("max_returns", 1, MAX_RETURNS),
-                                ("speckle_cells", 1, 64), ("max_glass_layers", 1, 32)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-                problems.append(f"{name} = {value!r}; allowed: an integer in {low}..{high}")
-        for name, low, high in (("edge_depth_m", 1e-6, 10.0), ("range_noise_ppm", 0.0, 1e5),
-                                ("max_incidence_deg", 0.0, 89.9), ("glass_return_probability", 0.0, 1.0),
-                                ("color_noise", 0.0, 1.0), ("ambient", 0.0, 1.0), ("position_tolerance_m", 0.0, 1.0),
-                                ("level_tolerance_m", 0.0, 1.0), ("plumb_tolerance_m", 0.0, 1.0),
-                                ("sigmas_per_tolerance", 0.5, 10.0), ("waviness_m", 0.0, 0.5),
-                                ("waviness_wavelength_m", 0.01, 1000.0)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int | float) or not (
-                    math.isfinite(value) and low <= value <= high):
-                problems.append(f"{name} = {value!r}; allowed: a number in {low:g}..{high:g}")
-        if problems:
-            raise ConfigError("impossible sensor settings: " + "; ".join(problems))
+    def refusal(self, problem: str) -> ConfigError:
+        return ConfigError(f"impossible sensor settings: {problem}")
 
     def on(self, effect: str) -> bool:
         """Whether ``effect`` (one of ``EFFECTS``) is simulated."""

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bimscan.constraints import Checked, Range, setting
 from bimscan.errors import ConfigError
 from bimscan.toml_files import build_dataclass, load_toml
 from bimscan.types import ComponentSurfaces
@@ -26,19 +27,13 @@ PAPER_REFLECTANCE = 0.5  # the reflectance every surface has when material refle
 
 
 @dataclass(frozen=True)
-class MaterialCategory:
+class MaterialCategory(Checked):
     """One row of the material table (see ``materials.toml``)."""
 
     words: tuple[str, ...]
-    reflectance: float
-    color: tuple[float, ...]
-    transparency: float = 0.0
-
-    def __post_init__(self) -> None:
-        if not 0.0 <= self.reflectance <= 1.0 or not 0.0 <= self.transparency <= 1.0:
-            raise ConfigError(f"reflectance = {self.reflectance} and transparency = {self.transparency} must lie in 0..1")
-        if len(self.color) != 3 or not all(0.0 <= c <= 1.0 for c in self.color):
-            raise ConfigError(f"color = {list(self.color)} must be three numbers in 0..1")
+    reflectance: float = setting(within=Range(0.0, 1.0))
+    color: tuple[float, float, float] = setting(each=Range(0.0, 1.0))
+    transparency: float = setting(0.0, within=Range(0.0, 1.0))
 
 
 @dataclass(frozen=True)
