@@ -86,7 +86,9 @@ if TYPE_CHECKING:
 @click.option("--threads", default=ScanRecipe.threads, show_default=True, type=int, help="Cores to use (0 = all).")
 @click.option("--max-station-pulses", default=DEFAULT_MAX_STATION_PULSES, show_default=True, type=int,
               help="Refuse settings under which one station would fire more pulses (a guard against typos).")
-@click.option("--overwrite", is_flag=True, help="Replace OUT if it exists.")
+@click.option("--overwrite", is_flag=True,
+              help="Replace OUT (and a mobile scan's OUT.trajectory.csv) if bimscan wrote it: a cloud file in OUT's "
+                   "format or a bimscan NumPy folder. Anything else there is refused, never removed.")
 @site_options
 def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, no_noise: bool,
          range_sigma_m: float | None, angle_sigma_deg: float | None, registration_sigma_m: float,
