@@ -188,9 +188,10 @@ def remove_path(path: Path) -> None:
 
 # -- what an output may replace -----------------------------------------------------------------
 
-# The first bytes of the files bimscan writes, by the end of their name (the longest that
-# matches): an existing file of such a name is replaced only when it starts with them; any
-# regular file is, for names without an entry (JSON, Markdown, plain CSV, ...).
+# The first bytes of the files bimscan writes at paths a user names, by the end of their name (the
+# longest that matches): an existing file of such a name is replaced only when it starts with them;
+# any regular file is, for names without an entry (JSON, Markdown, plain CSV, and bimscan's own
+# caches and checkpoints, which it rewrites when they are damaged).
 FILE_SIGNATURES: dict[str, tuple[bytes, ...]] = {
     ".las": (b"LASF",),
     ".laz": (b"LASF",),
@@ -199,8 +200,6 @@ FILE_SIGNATURES: dict[str, tuple[bytes, ...]] = {
     ".e57": (b"ASTM-E57",),
     ".png": (b"\x89PNG\r\n\x1a\n",),
     ".ifc": (b"ISO-10303-21;",),
-    ".npz": (b"PK\x03\x04",),
-    ".pt": (b"PK\x03\x04",),
     ".trajectory.csv": (b"t,x,y,z,roll,pitch,yaw,pass\n",),  # the walk beside a mobile scan
 }
 
