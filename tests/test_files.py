@@ -1,4 +1,5 @@
-"""Shared file plumbing: stale temporaries of an output are swept, live ones kept; input kinds named."""
+"""Shared file plumbing: stale temporaries of an output are swept, live ones kept; work folders carry
+the writer's process id; input kinds named."""
 
 from __future__ import annotations
 
@@ -10,8 +11,16 @@ from pathlib import Path
 
 import pytest
 
-from bimscan.errors import InputFileError
-from bimscan.files import check_input_file, path_kind, remove_stale_temps, temp_path, write_atomic
+from bimscan.errors import InputFileError, OutputError
+from bimscan.files import (
+    check_input_file,
+    path_kind,
+    remove_dead_temps,
+    remove_stale_temps,
+    temp_path,
+    work_folder,
+    write_atomic,
+)
 
 
 @pytest.fixture(scope="module")
@@ -72,3 +81,37 @@ def test_input_paths_are_named_for_what_they_are(tmp_path):
     with pytest.raises(InputFileError, match="is a FIFO \\(named pipe\\), not a TOML file"):
         check_input_file(fifo, what="a TOML file")
     assert check_input_file(tmp_path, what="a cloud", folders=True) == Path(tmp_path)
+
+
+def test_a_work_folder_carries_the_writers_pid_is_removed_after_and_sweeps_a_killed_runs(tmp_path, dead_pid):
+    out = tmp_path / "labelled.laz"
+    killed = tmp_path / f".labelled.laz.{dead_pid}-0123456789ab.tmp"  # a predict killed with kill -9
+    (killed / "stripes").mkdir(parents=True)
+    (killed / "stripes" / "0.bin").write_bytes(b"x" * 64)
+    live = tmp_path / f".labelled.laz.{os.getppid()}-0123456789ab.tmp"  # another run, still going
+    live.mkdir()
+    with work_folder(out) as folder:
+        assert folder.is_dir() and folder.name.startswith(f".labelled.laz.{os.getpid()}-")
+        (folder / "labels.u1").write_bytes(b"\x00")
+        assert not killed.exists() and live.is_dir()
+    assert sorted(p.name for p in tmp_path.iterdir()) == [live.name]
+
+
+def test_dead_writers_temporaries_are_swept_from_a_folder_whatever_their_output(tmp_path, dead_pid):
+    dead = [tmp_path / f".a__b.{dead_pid}-0123456789ab.tmp", tmp_path / f".scan.v2.laz.{dead_pid}-abcdefabcdef.tmp"]
+    dead[0].mkdir()
+    (dead[0] / "cloud.laz").write_bytes(b"half")
+    dead[1].write_bytes(b"half")
+    live = tmp_path / f".a__c.{os.getppid()}-0123456789ab.tmp"
+    live.mkdir()
+    users = [tmp_path / ".hidden.tmp", tmp_path / "notes.0123456789ab.tmp", tmp_path / f".{dead_pid}-0123456789ab.tmp"]
+    for path in users:
+        path.write_text("mine")
+    assert remove_dead_temps(tmp_path) == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in [live, *users])
+
+
+@pytest.mark.parametrize("name", [".", "..", "/"])
+def test_a_path_that_names_a_folder_gets_no_temporary_name(name):
+    with pytest.raises(OutputError, match="names a folder, not an output inside one"):
+        temp_path(name)

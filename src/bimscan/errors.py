@@ -1,10 +1,23 @@
 """One exception hierarchy for everything a user can get wrong.
 
 Every message says what was wrong (with the offending value) and what to do about it, in one
-line: the CLI prints ``error: <message>`` and exits non-zero, never a traceback.
+line: the CLI prints ``error: <message>`` and exits non-zero, never a traceback. Numbers from the
+user's files go into messages through ``number``, so that a line stays a line whatever they hold.
 """
 
 from __future__ import annotations
+
+import math
+
+
+def number(value: float, decimals: int = 2) -> str:
+    """``value`` for a message: at most ``decimals`` decimals, trailing zeros dropped, and in
+    scientific notation from 1e9 on (a coordinate of 1e300 reads ``1e+300``, not 301 digits)."""
+    value = float(value)
+    if not math.isfinite(value) or abs(value) >= 1e9:
+        return f"{value:.6g}"
+    text = f"{value:.{decimals}f}".rstrip("0").rstrip(".")
+    return "0" if text in ("-0", "") else text
 
 
 class BimscanError(Exception):

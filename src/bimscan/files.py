@@ -1,7 +1,15 @@
-"""File plumbing every stage shares: atomic outputs (temporary name + rename) and content hashes.
+"""File plumbing every stage shares: atomic outputs (temporary name + rename), what an output may
+replace, and content hashes.
 
 An output is written under a hidden temporary name in its destination folder and renamed into
 place only when complete, so a reader never sees half a file, whatever stopped the writer.
+
+An existing output is replaced (``replace_path``, and so every writer, with ``overwrite`` or on a
+rerun) only when it is what bimscan writes there (``check_replaceable``): a regular file in the
+format its suffix names (``FILE_SIGNATURES``), or a folder of a kind bimscan writes whole
+(``FOLDER_OUTPUTS``: a NumPy cloud, a data unit, ...), recognised by its marker and holding
+nothing else. A user's folder, a symbolic link or another format's file is refused in one line,
+whatever the options: bimscan never removes what it did not write.
 """
 
 from __future__ import annotations
@@ -14,14 +22,15 @@ import re
 import secrets
 import shutil
 import stat
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from bimscan.errors import InputFileError
+from bimscan.errors import InputFileError, OutputError
 
 
 def file_sha256(path: str | Path) -> str:
@@ -81,8 +90,26 @@ def temp_path(final: str | Path) -> Path:
     first (see ``remove_stale_temps``).
     """
     final = Path(final)
+    if final.name in ("", ".", ".."):
+        raise OutputError(f"{final} names a folder, not an output inside one; give the output a name of its own")
     remove_stale_temps(final)
     return final.with_name(f".{final.name}.{os.getpid()}-{secrets.token_hex(6)}.tmp")
+
+
+@contextmanager
+def work_folder(beside: str | Path) -> Iterator[Path]:
+    """A fresh hidden folder for temporary work, named for ``beside`` as ``temp_path`` names
+    temporaries (so the next run removes it when this process is killed before it could), and
+    removed when the block ends."""
+    folder = temp_path(beside)
+    folder.mkdir()
+    try:
+        yield folder
+    finally:
+        try:
+            remove_path(folder)
+        except OSError:
+            pass  # best effort: a failing clean-up must not hide what the block raised
 
 
 def _process_alive(pid: int) -> bool:
@@ -97,6 +124,23 @@ def _process_alive(pid: int) -> bool:
     return True
 
 
+def _remove_dead(folder: Path, names: list[str], prefix_of: Callable[[str], int | None]) -> int:
+    """Remove the temporaries among ``names`` (in ``folder``) whose writer is gone; ``prefix_of``
+    gives the length of a name's ``.<output name>.`` part, None for names that are no temporary."""
+    removed = 0
+    for name in names:
+        start = prefix_of(name)
+        match = None if start is None else _TEMP_SUFFIX.fullmatch(name[start:])
+        if match is None or (match.group("pid") and _process_alive(int(match.group("pid")))):
+            continue
+        try:
+            remove_path(folder / name)
+            removed += 1
+        except OSError:
+            continue  # not ours to delete after all (permissions): leave it
+    return removed
+
+
 def remove_stale_temps(final: str | Path) -> int:
     """Delete the temporaries of ``final`` whose writer process is gone; returns how many.
 
@@ -105,25 +149,34 @@ def remove_stale_temps(final: str | Path) -> int:
     """
     final = Path(final)
     prefix = f".{final.name}."
-    removed = 0
     try:
         names = [n for n in os.listdir(final.parent) if n.startswith(prefix)]
     except OSError:
         return 0
-    for name in names:
-        match = _TEMP_SUFFIX.fullmatch(name[len(prefix):])
-        if match is None or (match.group("pid") and _process_alive(int(match.group("pid")))):
-            continue
-        try:
-            remove_path(final.parent / name)
-            removed += 1
-        except OSError:
-            continue  # not ours to delete after all (permissions): leave it
-    return removed
+    return _remove_dead(final.parent, names, lambda name: len(prefix))
+
+
+def remove_dead_temps(folder: str | Path) -> int:
+    """Delete every temporary in ``folder`` (``.<name>.<pid>-<random>.tmp``, whatever the output)
+    whose writer process is gone, e.g. those of the workers a stopped command has just ended;
+    returns how many. Live processes' temporaries are kept."""
+    folder = Path(folder)
+    try:
+        names = [n for n in os.listdir(folder) if n.startswith(".") and n.endswith(".tmp")]
+    except OSError:
+        return 0
+
+    def prefix_of(name: str) -> int | None:
+        # the output's name may hold dots: the temporary part follows the last dot before "<pid>-"
+        match = re.search(r"\.(?=(?:[0-9]+-)?[0-9a-f]{12}\.tmp$)", name)
+        return None if match is None or match.start() == 0 else match.end()
+
+    return _remove_dead(folder, names, prefix_of)
 
 
 def remove_path(path: Path) -> None:
-    """Delete a file or a folder tree; absent is fine."""
+    """Delete a file or a folder tree; absent is fine. Only for bimscan's own temporaries: an
+    existing output is replaced through ``replace_path``, which checks what it is first."""
     try:
         if path.is_dir() and not path.is_symlink():
             shutil.rmtree(path)
@@ -133,13 +186,171 @@ def remove_path(path: Path) -> None:
         pass
 
 
-def replace_path(staged: Path, final: Path) -> None:
-    """Move ``staged`` (a file or a folder) to ``final``, replacing what is there.
+# -- what an output may replace -----------------------------------------------------------------
 
-    ``os.replace`` cannot put a folder over a non-empty folder (or a file over a folder): the old
-    output is moved aside first and dropped once the new one is in place.
+# The first bytes of the files bimscan writes at paths a user names, by the end of their name (the
+# longest that matches): an existing file of such a name is replaced only when it starts with them;
+# any regular file is, for names without an entry (JSON, Markdown, plain CSV, and bimscan's own
+# caches and checkpoints, which it rewrites when they are damaged).
+FILE_SIGNATURES: dict[str, tuple[bytes, ...]] = {
+    ".las": (b"LASF",),
+    ".laz": (b"LASF",),
+    ".ply": (b"ply\n", b"ply\r\n"),
+    ".ply.json": (b"{",),  # a PLY cloud's header sidecar
+    ".e57": (b"ASTM-E57",),
+    ".png": (b"\x89PNG\r\n\x1a\n",),
+    ".ifc": (b"ISO-10303-21;",),
+    ".trajectory.csv": (b"t,x,y,z,roll,pitch,yaw,pass\n",),  # the walk beside a mobile scan
+}
+
+
+def file_signatures(path: str | Path) -> tuple[str, tuple[bytes, ...]] | None:
+    """(the name ending, its signatures) of ``FILE_SIGNATURES`` that applies to ``path``, or None."""
+    name = Path(path).name.lower()
+    ending = max((e for e in FILE_SIGNATURES if name.endswith(e) and len(name) > len(e)), key=len, default=None)
+    return None if ending is None else (ending, FILE_SIGNATURES[ending])
+
+
+@dataclass(frozen=True)
+class FolderOutput:
+    """A kind of folder bimscan writes whole, and so may replace whole.
+
+    what: its name in messages ("a bimscan NumPy cloud"). foreign: for an existing folder, the
+    names of the entries in it that bimscan did not write (sub-folders as ``name/``), or None
+    when the folder is not of this kind at all (its marker is missing or not bimscan's).
     """
-    if (final.exists() or final.is_symlink()) and (staged.is_dir() or final.is_dir()):
+
+    what: str
+    foreign: Callable[[Path], list[str] | None]
+
+
+# Filled where each kind is written: "npy" (bimscan.io.npdir), "unit" (bimscan.dataset.layout),
+# "obj-components" and "helios" (bimscan.io.obj).
+FOLDER_OUTPUTS: dict[str, FolderOutput] = {}
+
+
+def folder_entries(folder: Path) -> list[str]:
+    """The names in ``folder``, sorted, sub-folders (not links to them) as ``name/``."""
+    names = []
+    for entry in os.scandir(folder):
+        names.append(entry.name + "/" if entry.is_dir(follow_symlinks=False) else entry.name)
+    return sorted(names)
+
+
+def _shown(names: list[str], limit: int = 5) -> str:
+    shown = ", ".join(names[:limit])
+    return shown + (f" and {len(names) - limit} more" if len(names) > limit else "")
+
+
+def read_marker(path: Path, *, limit: int = 1 << 26) -> bytes | None:
+    """The bytes of a marker file when ``path`` is a regular file (not a link) of at most
+    ``limit`` bytes; None otherwise (then it marks nothing)."""
+    try:
+        info = os.lstat(path)
+        if not stat.S_ISREG(info.st_mode) or info.st_size > limit:
+            return None
+        return path.read_bytes()
+    except OSError:
+        return None
+
+
+def file_head(path: Path, size: int) -> bytes | None:
+    """The first ``size`` bytes of ``path`` when it is a regular file (not a link); None otherwise."""
+    try:
+        if not stat.S_ISREG(os.lstat(path).st_mode):
+            return None
+        with path.open("rb") as handle:
+            return handle.read(size)
+    except OSError:
+        return None
+
+
+def json_marker(data: bytes | None, key: str, value: object = None) -> bool:
+    """Whether ``data`` is a JSON object with ``key`` (equal to ``value`` unless None)."""
+    if data is None:
+        return False
+    try:
+        document = json.loads(data)
+    except (ValueError, UnicodeDecodeError):
+        return False
+    return isinstance(document, dict) and key in document and (value is None or document[key] == value)
+
+
+def _file_problem(path: Path) -> str | None:
+    """Why the regular file at ``path`` is not an output bimscan may replace, or None."""
+    found = file_signatures(path)
+    if found is None:
+        return None
+    ending, signatures = found
+    try:
+        with path.open("rb") as handle:
+            head = handle.read(max(len(s) for s in signatures))
+    except OSError as exc:
+        return f"cannot be read ({exc.strerror or exc})"
+    if any(head.startswith(s) for s in signatures):
+        return None
+    return f"is a file not in the format of a {ending} file" + (" (it is empty)" if not head else "")
+
+
+def replace_problem(path: str | Path, *, kind: str | None = None) -> str | None:
+    """Why bimscan may not replace what is at ``path`` with a new output, in words that follow the
+    path ("is a folder that is not a bimscan NumPy cloud (it holds thesis.txt, sub/)"); None when
+    it may: nothing is there, or (``kind`` None: a file output) a regular file in the format its
+    suffix names, or (``kind``: a ``FOLDER_OUTPUTS`` key) a folder of that kind holding nothing else."""
+    path = Path(path)
+    if not os.path.lexists(path):
+        return None
+    if path.is_symlink():
+        try:
+            target = os.readlink(path)
+        except OSError:
+            target = "?"
+        return f"is a symbolic link (to {target})"
+    wanted = None if kind is None else FOLDER_OUTPUTS[kind]
+    what = path_kind(path)
+    if what is None:  # a regular file
+        if wanted is not None:
+            return f"is a file, not {wanted.what}"
+        return _file_problem(path)
+    if what != "a folder":
+        return f"is {what}"
+    try:
+        names = folder_entries(path)
+    except OSError as exc:
+        return f"is a folder that cannot be read ({exc.strerror or exc})"
+    holds = f"it holds {_shown(names)}" if names else "it is empty"
+    if wanted is None:
+        return f"is a folder, not {f'a {path.suffix} file' if path.suffix else 'a file'} ({holds})"
+    try:
+        foreign = wanted.foreign(path)
+    except OSError as exc:
+        return f"is a folder that cannot be read ({exc.strerror or exc})"
+    if foreign is None:
+        return f"is a folder that is not {wanted.what} ({holds})"
+    if foreign:
+        return f"is {wanted.what} that also holds {_shown(foreign)}, which bimscan did not write"
+    return None
+
+
+def check_replaceable(path: str | Path, *, kind: str | None = None) -> None:
+    """Raise OutputError unless bimscan may replace what is at ``path`` (see ``replace_problem``):
+    the one rule every output that replaces another goes through."""
+    problem = replace_problem(path, kind=kind)
+    if problem is not None:
+        raise OutputError(f"{path} {problem}; bimscan replaces only what it wrote: choose another output or "
+                          "remove it yourself")
+
+
+def replace_path(staged: Path, final: Path, *, kind: str | None = None) -> None:
+    """Move ``staged`` (a file, or a folder of ``FOLDER_OUTPUTS[kind]``) to ``final``, replacing what
+    is there only when ``check_replaceable`` allows it (OutputError otherwise, and nothing moves).
+
+    ``os.replace`` cannot put a folder over a non-empty folder: the old output is moved aside
+    first and dropped once the new one is in place.
+    """
+    if os.path.lexists(final):
+        check_replaceable(final, kind=kind)
+    if kind is not None and final.is_dir():
         trash = temp_path(final)
         os.replace(final, trash)
         os.replace(staged, final)

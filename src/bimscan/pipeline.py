@@ -10,6 +10,7 @@ usable alone (``load_ifc``, ``label_model``, ``dress_scene``, ``VirtualScanner``
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -18,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from bimscan.errors import ConfigError, StationError
+from bimscan.errors import ConfigError, OutputError, StationError
 from bimscan.process.checks import check_semantics, filter_invalid
 from bimscan.process.summary import CloudSummary
 from bimscan.progress import progress_bar, step_line
@@ -163,9 +164,10 @@ def furnish_model(model: str | Path, out: str | Path, recipe: ScanRecipe, *,
     """Write a copy of the IFC ``model`` dressed as the recipe's site (``bimscan furnish``): the
     placed objects as IfcFurniture / IfcBuildingElementProxy, the elements the stage leaves out
     removed. Returns the dressed scene."""
-    from bimscan.ifc.furnish import FurnishObject, write_furnished
+    from bimscan.ifc.furnish import FurnishObject, check_furnished_output, write_furnished
     from bimscan.site import SITE_CLASSES
 
+    check_furnished_output(out)  # before the (slow) parse and dressing
     scene = load_scene(model, scheme=scheme, threads=recipe.threads or None)
     dressed = build_site(scene, recipe)
     table, mesh = dressed.components, dressed.mesh
@@ -292,16 +294,18 @@ def scan_model(model: str | Path, out: str | Path, recipe: ScanRecipe, *,
 def check_mobile_output(out: str | Path, *, overwrite: bool) -> None:
     """Raise before any work when a mobile scan cannot be written to ``out``: E57 stores one pose per
     scan (a mobile scan's per-point beam origins and rings would be lost), and the trajectory
-    beside the cloud must not overwrite a file unless asked."""
-    from bimscan.errors import OutputError
+    beside the cloud must not replace a file unless asked, nor ever anything bimscan did not write."""
+    from bimscan.files import check_replaceable
+    from bimscan.io import check_cloud_output
+    from bimscan.io.e57 import MOBILE_COLUMNS
 
-    if str(out).lower().endswith(".e57"):
-        raise OutputError(f"{out}: E57 stores one pose per scan and has no field for a mobile scan's beam origins and "
-                          "rings; write a mobile scan to .las, .laz, .ply or a folder")
+    check_cloud_output(out, overwrite=overwrite, columns=tuple(MOBILE_COLUMNS))
     beside = trajectory_path(out)
-    if beside.exists() and not overwrite:
-        raise OutputError(f"{beside} exists (the trajectory of a mobile scan goes there); pass --overwrite or choose "
-                          "another OUT")
+    if os.path.lexists(beside):
+        if not overwrite:
+            raise OutputError(f"{beside} exists (the trajectory of a mobile scan goes there); pass --overwrite or "
+                              "choose another OUT")
+        check_replaceable(beside)
 
 
 def rooms_without_station_line(plan: PlanReport) -> str:

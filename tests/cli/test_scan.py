@@ -111,11 +111,71 @@ def test_an_interrupted_scan_leaves_no_file(box_room_ifc, tmp_path, monkeypatch)
 
 def test_an_existing_output_is_kept_unless_overwrite(box_room_ifc, tmp_path, capsys):
     out = tmp_path / "keep.laz"
-    out.write_bytes(b"precious")
-    assert main(["scan", str(box_room_ifc), str(out), *FAST]) == 1
-    assert out.read_bytes() == b"precious"
-    assert main(["scan", str(box_room_ifc), str(out), *FAST, "--overwrite"]) == 0
-    assert out.read_bytes() != b"precious"
+    assert main(["scan", str(box_room_ifc), str(out), *FAST, "--seed", "1"]) == 0
+    first = out.read_bytes()
+    capsys.readouterr()
+    assert main(["scan", str(box_room_ifc), str(out), *FAST, "--seed", "2"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"error: {out} already exists; pass --overwrite to replace it or choose another path"]
+    assert "overwrite=True" not in err[0]
+    assert out.read_bytes() == first
+    assert main(["scan", str(box_room_ifc), str(out), *FAST, "--seed", "2", "--overwrite"]) == 0
+    assert out.read_bytes() != first and len(read_cloud(out)) > 50_000
+
+
+def test_overwrite_never_replaces_a_file_that_is_not_a_cloud_of_its_suffix(box_room_ifc, tmp_path, capsys):
+    out = tmp_path / "keep.laz"
+    out.write_bytes(b"precious")  # a user's file that happens to be named like a cloud
+    assert main(["scan", str(box_room_ifc), str(out), *FAST, "--overwrite"]) == 1
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"error: {out} is a file not in the format of a .laz file; bimscan replaces only what it wrote: choose another "
+        "output or remove it yourself"]
+    assert out.read_bytes() == b"precious" and sorted(p.name for p in tmp_path.iterdir()) == ["keep.laz"]
+
+
+@pytest.mark.parametrize("name", ["mydata", "x.laz"])
+def test_overwrite_refuses_a_users_folder_before_the_scan_and_keeps_all_of_it(box_room_ifc, tmp_path, capsys,
+                                                                              monkeypatch, name):
+    import bimscan.pipeline
+
+    def no_scan(*args, **kwargs):
+        raise AssertionError("the model was loaded: the output should have been refused first")
+
+    monkeypatch.setattr(bimscan.pipeline, "load_scene", no_scan)
+    folder = tmp_path / name
+    (folder / "sub").mkdir(parents=True)
+    (folder / "sub" / "data.csv").write_text("1,2,3\n")
+    (folder / "thesis.txt").write_text("three years of work")
+    assert main(["scan", str(box_room_ifc), str(folder), *FAST, "--overwrite"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {folder} is a folder") and "(it holds sub/, thesis.txt)" in err[0]
+    assert err[0].endswith("bimscan replaces only what it wrote: choose another output or remove it yourself")
+    assert (folder / "thesis.txt").read_text() == "three years of work"
+    assert (folder / "sub" / "data.csv").read_text() == "1,2,3\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == [name]
+
+
+@pytest.mark.parametrize("out", [".", "..", "/", "./"])
+def test_an_output_that_names_a_folder_is_refused_before_the_scan(box_room_ifc, tmp_path, capsys, monkeypatch, out):
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    assert main(["scan", str(box_room_ifc), out, *FAST, "--overwrite"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "names a folder" in err[0] and "give the output a name of its own" in err[0]
+    assert list(work.iterdir()) == []
+
+
+def test_a_mobile_scan_refuses_a_folder_where_its_trajectory_goes(box_room_ifc, tmp_path, capsys):
+    out = tmp_path / "walk.laz"
+    beside = tmp_path / "walk.laz.trajectory.csv"
+    beside.mkdir()
+    (beside / "mine.txt").write_text("x")
+    assert main(["scan", str(box_room_ifc), str(out), "--platform", "handheld", "--overwrite"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"error: {beside} is a folder, not a .csv file (it holds mine.txt); bimscan replaces only what it "
+                   "wrote: choose another output or remove it yourself"]
+    assert (beside / "mine.txt").read_text() == "x" and sorted(p.name for p in tmp_path.iterdir()) == [beside.name]
 
 
 @pytest.mark.parametrize("args, message", [

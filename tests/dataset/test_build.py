@@ -138,7 +138,9 @@ def _children(pid: int) -> list[int]:
 
 
 @pytest.mark.slow
-def test_a_build_killed_mid_way_resumes_to_identical_outputs(reference_dataset: BuiltDataset, tmp_path: Path) -> None:
+def test_a_build_killed_mid_way_prints_no_raw_warning_and_resumes_to_identical_outputs(
+    reference_dataset: BuiltDataset, tmp_path: Path,
+) -> None:
     out = tmp_path / "killed"
     command = [sys.executable, "-m", "bimscan.cli.main", "build", str(reference_dataset.spec), str(out), "--workers", "1"]
     process = subprocess.Popen(command, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
@@ -169,6 +171,9 @@ def test_a_build_killed_mid_way_resumes_to_identical_outputs(reference_dataset: 
     for pid in alive:
         os.kill(pid, signal.SIGKILL)  # do not leave them behind if the test fails
     assert not alive, "worker processes outlived their killed driver"
+    # the resource tracker removes the killed build's semaphores, without its raw "leaked semaphore" UserWarning
+    _, err = process.communicate(timeout=60)
+    assert "resource_tracker" not in err.decode() and "leaked" not in err.decode(), err.decode()
     statuses = [u["status"] for u in _manifest(out)["units"]]
     assert "pending" in statuses  # the manifest, rewritten after every unit, says the build is unfinished
 
@@ -176,6 +181,35 @@ def test_a_build_killed_mid_way_resumes_to_identical_outputs(reference_dataset: 
     assert report.ok and report.reused >= 1 and report.built >= 1
     assert not [p for p in (out / "units").iterdir() if p.name.startswith(".")]
     assert reproducible_files(out) == reproducible_files(reference_dataset.out)
+
+
+@pytest.mark.slow
+def test_a_build_stopped_by_sigterm_removes_its_workers_staging_on_the_way_out(
+    reference_dataset: BuiltDataset, tmp_path: Path,
+) -> None:
+    out = tmp_path / "stopped"
+    command = [sys.executable, "-m", "bimscan.cli.main", "build", str(reference_dataset.spec), str(out), "--workers", "2"]
+    process = subprocess.Popen(command, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 240
+    try:
+        # wait until the workers are writing units, then stop the build as a batch system does
+        while time.monotonic() < deadline and process.poll() is None:
+            units = out / "units"
+            if units.is_dir() and [p for p in units.iterdir() if p.name.endswith(".tmp")]:
+                process.send_signal(signal.SIGTERM)
+                break
+            time.sleep(0.005)
+        _, err = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+    lines = err.decode().strip().splitlines()
+    assert process.returncode == 143, lines
+    assert lines[-1] == "error: terminated; finished work is kept, run the same command to resume"
+    left = [p.relative_to(out).as_posix() for folder in (out, out / "units", out / "scenes") for p in folder.iterdir()
+            if p.name.endswith(".tmp")]
+    assert left == []  # the ended workers' staging folders went with the build, not at the next resume
 
 
 @pytest.mark.slow

@@ -113,7 +113,7 @@ def test_committing_a_unit_replaces_a_stale_one_and_leftovers_are_swept(tmp_path
     staged = _unit(units / ".a__b.123.tmp", key="new")
     (units / ".a__c.456.tmp").mkdir()
     (tmp_path / ".manifest.json.789.tmp").write_text("{")
-    replace_path(staged, stale)
+    replace_path(staged, stale, kind="unit")
     assert json.loads((units / "a__b" / "unit.json").read_text())["fingerprint"] == "new"
     assert DatasetFolder(tmp_path).remove_leftovers() == 2
     assert sorted(p.name for p in units.iterdir()) == ["a__b"] and not list(tmp_path.glob(".*.tmp"))

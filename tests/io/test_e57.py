@@ -369,3 +369,19 @@ def test_station_frames_keep_coordinates_far_from_the_file_origin_to_a_tenth_of_
         with open_cloud_writer(tmp_path / "origin.e57", header=posed_at_origin) as writer:
             writer.write(dataclasses.replace(cloud, station=None))
     assert not (tmp_path / "origin.e57").exists()
+
+
+def test_return_numbers_a_las_file_left_unset_are_written_as_first_returns(tmp_path, header, cloud_factory):
+    # laspy leaves return numbers 0 (LAS 1.4 counts from 1); E57's returnIndex 0..254 is the number - 1, which
+    # libE57Format refused after the whole job as "value out of min/max bounds", blamed on the disk
+    cloud = cloud_factory(2_000, seed=5, columns=("xyz", "label", "station", "intensity", "return_number",
+                                                  "number_of_returns"))
+    unset = dataclasses.replace(cloud, return_number=np.zeros(len(cloud), np.uint8),
+                                number_of_returns=np.where(np.arange(len(cloud)) % 2, 0, 2).astype(np.uint8))
+    path = tmp_path / "foreign.e57"
+    with open_cloud_writer(path, header=header) as writer:
+        writer.write(unset)
+    back = read_cloud(path)
+    assert set(np.unique(back.return_number)) == {1}
+    np.testing.assert_array_equal(back.number_of_returns, np.maximum(unset.number_of_returns, 1))
+    np.testing.assert_array_equal(back.label, cloud.label)

@@ -114,6 +114,25 @@ def test_existing_outputs_are_kept_without_overwrite(tmp_path, scene):
     assert not [p for p in (tmp_path / "obj").iterdir() if p.name.startswith(".")]  # no staging left
 
 
+def test_overwrite_replaces_a_previous_export_with_helios_files_but_never_a_users_folder(tmp_path, scene):
+    out = tmp_path / "project"
+    export_obj(scene, out, helios=True)
+    export_obj(scene, out, helios=True, overwrite=True)  # its own components/ and helios/: replaced
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]
+    (out / "components" / "my_notes.txt").write_text("mine")
+    with pytest.raises(OutputError, match=r"components is a folder of bimscan component OBJs that also holds "
+                                          r"my_notes.txt, which bimscan did not write"):
+        export_obj(scene, out, helios=True, overwrite=True)
+    (out / "components" / "my_notes.txt").unlink()
+    for child in (out / "helios").iterdir():  # the user's own HELIOS++ scene where the export puts its own
+        child.unlink()
+    (out / "helios" / "scene.xml").write_text('<?xml version="1.0"?>\n<document><scene id="mine"/></document>\n')
+    with pytest.raises(OutputError, match="helios is a folder that is not bimscan's HELIOS.. scene folder"):
+        export_obj(scene, out, helios=True, overwrite=True)
+    assert (out / "helios" / "scene.xml").read_text().startswith('<?xml version="1.0"?>')
+    assert (out / "model.obj").is_file()  # nothing was replaced: the refusal came first
+
+
 def test_a_missing_parent_folder_is_an_output_error(tmp_path, scene):
     with pytest.raises(OutputError, match="does not exist"):
         export_obj(scene, tmp_path / "missing" / "obj")

@@ -240,3 +240,50 @@ def test_the_per_class_table_shows_a_dash_for_an_absent_class() -> None:
     assert pooled[4] == "0.0"  # predicted in scene0, never true: a false alarm, IoU 0
     assert format_class_iou_markdown(results) in format_markdown(results)
     assert format_class_iou_markdown(results) not in format_markdown(results, class_iou=False)
+
+
+# An evaluation that stops for good once its stripe files are written: killed there, it leaves them.
+STALLED_EVALUATION = """
+import sys, time
+from pathlib import Path
+from bimscan.learn import infer
+from bimscan.learn.evaluate import evaluate_checkpoint
+
+def stalled(self, counts):
+    Path(sys.argv[3]).write_text("bucketed")
+    time.sleep(600)
+
+infer._Labeller._label_stripes = stalled
+evaluate_checkpoint(sys.argv[1], [sys.argv[2]], device="cpu")
+"""
+
+
+@pytest.mark.slow
+def test_the_stripes_of_a_killed_evaluation_are_removed_from_tmpdir_by_the_next_one(
+    tmp_path: Path, trained_run: Path, room: Callable[[int], PointCloud], monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import os
+    import subprocess
+    import sys
+    import tempfile
+    import time
+
+    scratch, ready = tmp_path / "tmpdir", tmp_path / "ready"
+    scratch.mkdir()
+    write_text_cloud(tmp_path / "scene.txt", room(7))
+    checkpoint = trained_run / "run" / "last.pt"
+    process = subprocess.Popen([sys.executable, "-c", STALLED_EVALUATION, str(checkpoint), str(tmp_path / "scene.txt"),
+                                str(ready)], env={**os.environ, "TMPDIR": str(scratch)})
+    start = time.monotonic()
+    while not ready.exists():
+        assert process.poll() is None and time.monotonic() - start < 120
+        time.sleep(0.05)
+    process.kill()
+    process.wait()
+    left = [p.name for p in scratch.iterdir()]
+    assert len(left) == 1 and left[0].startswith(f".bimscan-stripes.{process.pid}-")
+
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))  # $TMPDIR, as tempfile.gettempdir() read it
+    evaluate_checkpoint(checkpoint, [tmp_path / "scene.txt"], device="cpu")
+
+    assert list(scratch.iterdir()) == []

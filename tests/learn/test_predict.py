@@ -92,3 +92,97 @@ def test_prediction_refuses_to_overwrite_and_leaves_nothing_on_failure(
 
     assert out.read_bytes() == b"keep me"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["labelled.laz", "site.las"]
+
+
+def test_overwrite_refuses_a_users_folder_before_reading_the_checkpoint(tmp_path: Path, scan: Path) -> None:
+    userdir = tmp_path / "userdir"
+    (userdir / "sub").mkdir(parents=True)
+    (userdir / "results.txt").write_text("mine")
+
+    with pytest.raises(OutputError, match=r"userdir is a folder that is not a bimscan NumPy cloud \(it holds "
+                                          r"results.txt, sub/\)"):
+        predict_cloud(tmp_path / "nope.pt", scan, userdir, device="cpu", overwrite=True)
+
+    assert (userdir / "results.txt").read_text() == "mine" and (userdir / "sub").is_dir()
+
+
+# A predict that stops for good once its labels are on disk: the work folder is there when it is killed.
+STALLED_PREDICT = """
+import sys, time
+from pathlib import Path
+import bimscan.learn.predict as predict
+
+def stalled(*args, **kwargs):
+    result = real(*args, **kwargs)
+    Path(sys.argv[4]).write_text("labelled")
+    time.sleep(600)
+
+real, predict.label_scene = predict.label_scene, stalled
+predict.predict_cloud(sys.argv[1], sys.argv[2], sys.argv[3], device="cpu")
+"""
+
+
+@pytest.mark.slow
+def test_the_work_folder_of_a_killed_prediction_is_removed_by_the_next_run_to_the_same_output(
+    tmp_path: Path, trained_run: Path, scan: Path,
+) -> None:
+    import subprocess
+    import sys
+    import time
+
+    out, ready = tmp_path / "out" / "labelled.laz", tmp_path / "ready"
+    out.parent.mkdir()
+    checkpoint = trained_run / "run" / "last.pt"
+    process = subprocess.Popen([sys.executable, "-c", STALLED_PREDICT, str(checkpoint), str(scan), str(out), str(ready)])
+    start = time.monotonic()
+    while not ready.exists():
+        assert process.poll() is None and time.monotonic() - start < 120
+        time.sleep(0.05)
+    process.kill()  # kill -9: no clean-up of its own runs
+    process.wait()
+    left = [p.name for p in out.parent.iterdir()]
+    assert len(left) == 1 and left[0].startswith(f".labelled.laz.{process.pid}-")  # its work folder, named with its pid
+
+    predict_cloud(checkpoint, scan, out, device="cpu")
+
+    assert sorted(p.name for p in out.parent.iterdir()) == ["labelled.laz"]
+
+
+def test_a_mobile_cloud_to_e57_is_refused_before_any_labelling(
+    tmp_path: Path, trained_run: Path, room: Callable[..., PointCloud], monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import bimscan.learn.predict as predict
+    from bimscan.io import open_cloud_writer
+    from bimscan.learn.predict import build_prediction_scheme
+    from bimscan.types import CloudHeader
+
+    cloud = room(31, points_per_m2=10)
+    n = len(cloud)
+    walk = PointCloud(xyz=cloud.xyz, label=cloud.label, ring=np.arange(n, dtype=np.uint8) % 16,
+                      sensor_xyz=np.tile([1.0, 1.0, 1.6], (n, 1)), time=np.linspace(0.0, 10.0, n))
+    with open_cloud_writer(tmp_path / "walk.laz", header=CloudHeader(scheme=build_prediction_scheme(("a", "b")))) as w:
+        w.write(walk)
+
+    def no_labelling(*args: object, **kwargs: object) -> None:
+        raise AssertionError("labelling started: the output should have been refused first")
+
+    monkeypatch.setattr(predict, "label_scene", no_labelling)
+    with pytest.raises(OutputError, match="walk.e57: E57 stores one pose per scan and has no field for a mobile "
+                                          "scan's beam origins, rings"):
+        predict_cloud(trained_run / "run" / "last.pt", tmp_path / "walk.laz", tmp_path / "walk.e57", device="cpu")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["walk.laz"]
+
+
+def test_a_foreign_las_without_return_numbers_is_predicted_to_e57(tmp_path: Path, trained_run: Path, scan: Path) -> None:
+    # laspy leaves return numbers 0 (LAS 1.4 counts from 1): E57's returnIndex is the number - 1
+    assert int(laspy.read(scan).return_number.max()) == 0
+    checkpoint = trained_run / "run" / "last.pt"
+
+    result = predict_cloud(checkpoint, scan, tmp_path / "labelled.e57", device="cpu", max_passes=1)
+    predict_cloud(checkpoint, scan, tmp_path / "labelled.laz", device="cpu", max_passes=1)
+
+    e57, laz = read_cloud(tmp_path / "labelled.e57"), read_cloud(tmp_path / "labelled.laz")
+    assert len(e57) == len(laz) == result.points
+    np.testing.assert_array_equal(e57.label, laz.label)
+    np.testing.assert_allclose(e57.xyz, laz.xyz, atol=2e-4)
+    assert set(np.unique(e57.return_number)) == {1} and set(np.unique(e57.number_of_returns)) == {1}

@@ -273,6 +273,17 @@ def test_a_trajectory_outside_the_model_is_refused_before_the_scan(office, tmp_p
     assert not (tmp_path / "far.laz").exists() and not trajectory_path(tmp_path / "far.laz").exists()
 
 
+def test_a_trajectory_with_a_huge_coordinate_is_refused_in_a_short_line(office, tmp_path):
+    walk = tmp_path / "huge.csv"
+    walk.write_text("t,x,y,z,roll,pitch,yaw\n0,1e300,1,1,0,0,0\n10,2,1,1,0,0,0\n")
+    with pytest.raises(StationError) as caught:
+        scan_model(office, tmp_path / "huge.laz", ScanRecipe.resolve(platform="handheld", trajectory=str(walk)),
+                   progress=False)
+    message = str(caught.value).removeprefix(str(walk))
+    assert message.startswith(": pose 0 (t = 0 s) at 1e+300, 1, 1 lies more than 5 m outside the model (x 0..27.1,")
+    assert len(message) < 200 and max(len(word) for word in message.split()) < 20  # no 300-digit number
+
+
 def test_a_mobile_scan_to_e57_is_refused_before_any_work(office, tmp_path):
     with pytest.raises(OutputError, match="one pose per scan"):
         scan_model(office, tmp_path / "hh.e57", ScanRecipe.resolve(platform="handheld"), progress=False)

@@ -79,7 +79,9 @@ HELIOS_HELP = ("Also write HELIOS++ inputs: helios/scene.xml (one <part> per com
               help="With --helios and --platform: 'auto' (planned as 'bimscan scan' plans it; the default) or a "
                    "trajectory CSV file.")
 @click.option("--scheme", default=None, help=SCHEME_HELP)
-@click.option("--overwrite", is_flag=True, help="Replace files already in OUT_DIR.")
+@click.option("--overwrite", is_flag=True,
+              help="Replace the export's files and folders already in OUT_DIR if bimscan wrote them; anything else "
+                   "there is refused, never removed.")
 @click.option("--seed", default=0, show_default=True, type=int, help="Placement seed of the site flags' clutter.")
 @site_options
 @ifc_options

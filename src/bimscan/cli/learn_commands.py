@@ -128,7 +128,9 @@ def evaluate(
 @click.argument("checkpoint", type=click.Path(path_type=Path, dir_okay=False))
 @click.argument("in_path", metavar="IN", type=click.Path(path_type=Path))
 @click.argument("out_path", metavar="OUT", type=click.Path(path_type=Path))
-@click.option("--overwrite", is_flag=True, help="Replace OUT when it exists.")
+@click.option("--overwrite", is_flag=True,
+              help="Replace OUT if bimscan wrote it (a cloud file in OUT's format or a bimscan NumPy folder); anything "
+                   "else there is refused, never removed.")
 @inference_options
 def predict(
     checkpoint: Path, in_path: Path, out_path: Path, overwrite: bool, device: str, stride_m: float | None,

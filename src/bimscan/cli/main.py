@@ -7,8 +7,12 @@ Heavy libraries (Open3D, torch, Ray) are imported inside commands so ``--help`` 
 Signals: SIGINT (Ctrl-C) and SIGTERM stop a command the same way, by an exception raised in the
 main thread, so every ``finally`` runs (temporary outputs are removed) before the one line
 ``error: interrupted`` (exit 130) or ``error: terminated`` (exit 143). A Ctrl-C that lands while a
-library is being imported (Open3D turns it into an ImportError) gives the same one line. Python
-warnings and log records of the libraries print as ``warning: ...`` lines.
+library is being imported (Open3D turns it into an ImportError) gives the same one line, and so
+does an error that a library made of the signal. Handlers are held while lazrs runs
+(``bimscan.processes.signals_held``), whose callbacks would swallow the exception. Python
+warnings and log records of the libraries print as ``warning: ...`` lines; the resource tracker,
+which removes a killed command's semaphores, does so without its raw warning
+(``bimscan.processes.quiet_resource_tracker``).
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ import click
 
 from bimscan import __version__
 from bimscan.errors import BimscanError
+from bimscan.processes import quiet_resource_tracker
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
@@ -109,6 +114,7 @@ def _stopped(command: str | None = None) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit status."""
     _STOPPING.update(signal=0, raised_at=0.0)
+    quiet_resource_tracker()
     previous = {}
     if threading.current_thread() is threading.main_thread():  # only the main thread may set handlers
         previous = {number: signal.getsignal(number) for number in (signal.SIGINT, signal.SIGTERM)}
@@ -148,6 +154,8 @@ def _run(argv: list[str] | None) -> int:
         _error(exc.format_message())
         return exc.exit_code
     except BimscanError as exc:
+        if _STOPPING["signal"]:  # an error the stop caused (a library that turned the signal into its own error)
+            return _stopped(command)
         _error(str(exc))
         return exc.exit_code
     except KeyboardInterrupt:

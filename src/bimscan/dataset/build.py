@@ -218,8 +218,11 @@ def _run(folder: DatasetFolder, rows: dict[str, ManifestEntry], unit_jobs: dict[
             finished = True
         finally:
             if not finished:
-                # Ctrl-C or a driver bug: stop the workers, keep what is finished (the manifest says which).
+                # Ctrl-C or a driver bug: stop the workers, keep what is finished (the manifest says which),
+                # and remove the ended workers' staging (workers on other machines: the next build does)
                 pool.close(cancel=True)
+                if ray_address is None:
+                    folder.remove_dead_temps()
                 write_manifest()
         pool.close()
     return result

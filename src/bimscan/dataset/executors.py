@@ -26,7 +26,7 @@ from concurrent.futures import wait as wait_futures
 from typing import Any, Protocol
 
 from bimscan.errors import ConfigError, DatasetError
-from bimscan.processes import die_with_parent
+from bimscan.processes import die_with_parent, quiet_resource_tracker
 
 TaskFunction = Callable[[Any], Any]
 
@@ -121,6 +121,7 @@ class LocalExecutor:
     def __init__(self, *, workers: int, environment: dict[str, str] | None = None, address: str | None = None) -> None:
         if address:
             raise ConfigError(f"--ray-address {address!r} needs --executor ray; drop it or choose the ray executor")
+        quiet_resource_tracker()  # the queues' semaphores of a killed build are removed without a raw warning
         context = multiprocessing.get_context("spawn")
         self._queue = context.Queue()
         self._pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_init_worker,
@@ -148,7 +149,7 @@ class LocalExecutor:
                 return total  # the queue is gone with a broken pool; progress is cosmetic
 
     def close(self, *, cancel: bool = False) -> None:
-        if cancel:  # stopped (Ctrl-C, SIGTERM): end the running units now; the next build sweeps their staging
+        if cancel:  # stopped (Ctrl-C, SIGTERM): end the running units now; the driver then sweeps their staging
             for process in list(getattr(self._pool, "_processes", {}).values()):
                 process.terminate()
         self._pool.shutdown(wait=True, cancel_futures=cancel)

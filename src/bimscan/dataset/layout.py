@@ -20,13 +20,16 @@ dicts of their own. Layout of a built dataset (``OUT_DIR``)::
 JSON files are canonical (sorted keys, fixed indentation) and written atomically, so equal
 content gives equal bytes and a reader never sees half a file. A unit folder is staged under a
 hidden name in ``units/`` and renamed into place when complete: a unit folder that exists is
-whole, and its checksums tell whether its files are still the ones written.
+whole, and its checksums tell whether its files are still the ones written. A unit rebuilt over
+an old one replaces it only when the old folder holds nothing but what its ``unit.json`` lists
+(``FOLDER_OUTPUTS["unit"]``): files added to a unit folder by hand are never removed.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import shutil
 import zipfile
 from collections.abc import Mapping
@@ -37,7 +40,18 @@ from typing import Any
 import numpy as np
 
 from bimscan.errors import DatasetError, InputFileError
-from bimscan.files import atomic_output, dump_json, file_sha256, temp_path, write_atomic
+from bimscan.files import (
+    FOLDER_OUTPUTS,
+    FolderOutput,
+    atomic_output,
+    dump_json,
+    file_sha256,
+    json_marker,
+    read_marker,
+    remove_dead_temps,
+    temp_path,
+    write_atomic,
+)
 from bimscan.io import CLOUD_FORMATS, WRITABLE_FORMATS
 from bimscan.types import BimScene, ComponentSurfaces, ComponentTable, SceneMesh, SiteState, Station
 
@@ -66,6 +80,26 @@ FORMAT_FILES: dict[str, str] = {name: "cloud" + CLOUD_FORMATS[name][0] for name 
 # Which of a unit's files a reader takes: the fastest to decode first. All hold the same points
 # (the NumPy folder as float32 around the cloud's origin, LAS/LAZ and E57 in 0.1 mm steps, PLY as doubles).
 READ_ORDER = ("npy", "ply", "las", "laz", "e57")
+
+
+def foreign_unit_entries(folder: Path) -> list[str] | None:
+    """None unless ``folder`` is marked as a data unit (its ``unit.json`` has the unit format); then
+    the files in it (by path inside it) that its record neither is nor lists, links included."""
+    record = read_marker(folder / UNIT_NAME)
+    if not json_marker(record, "format", UNIT_FORMAT):
+        return None
+    checksums = json.loads(record or b"{}").get("checksums")
+    listed = set(checksums if isinstance(checksums, dict) else ()) | {UNIT_NAME, TIMINGS_NAME}
+    foreign = []
+    for root, dirs, files in os.walk(folder):  # links to folders are listed in dirs, not entered
+        for name in files + [d for d in dirs if os.path.islink(os.path.join(root, d))]:
+            relative = Path(root, name).relative_to(folder).as_posix()
+            if relative not in listed or os.path.islink(os.path.join(root, name)):
+                foreign.append(relative)
+    return sorted(foreign)
+
+
+FOLDER_OUTPUTS["unit"] = FolderOutput(what="a bimscan data unit", foreign=foreign_unit_entries)
 
 
 def unit_id(scene: str, config: str) -> str:
@@ -323,6 +357,11 @@ class DatasetFolder:
         folder = temp_path(self.unit_dir(unit))
         folder.mkdir(parents=True)
         return folder
+
+    def remove_dead_temps(self) -> int:
+        """Delete the staging folders and half-written files whose writer process has ended (those of
+        the workers a stopped build has just ended), keeping those of live processes; returns how many."""
+        return sum(remove_dead_temps(folder) for folder in (self.units_dir, self.scenes_dir, self.root))
 
     def remove_leftovers(self) -> int:
         """Delete staging folders and half-renamed files a killed build left; returns how many."""

@@ -194,7 +194,7 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
                                            "total_s": round(time.perf_counter() - start, 3),
                                            "threads": job.recipe.threads,
                                            "points_per_s": round(kept.points / max(scan_s, 1e-9))})
-        replace_path(staged, folder.unit_dir(job.unit))
+        replace_path(staged, folder.unit_dir(job.unit), kind="unit")
         staged = None
         return UnitOutcome(unit=job.unit, status="done", points=kept.points, files=files, load_s=load_s,
                            seconds=time.perf_counter() - start, site_s=site_s)

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.errors import OutputError
-from bimscan.files import atomic_output
+from bimscan.files import atomic_output, check_replaceable
 from bimscan.ifc.schedule import open_model
 
 
@@ -37,6 +37,18 @@ class FurnishObject:
     faces: np.ndarray
 
 
+def check_furnished_output(out: str | Path) -> Path:
+    """``out`` as a Path, or an OutputError now for a furnished copy that cannot be written there: not
+    ``.ifc``, a missing folder, or something there bimscan may not replace (``check_replaceable``)."""
+    out = Path(out)
+    if out.suffix.lower() != ".ifc":
+        raise OutputError(f"output file must end in .ifc, got {str(out)!r}; name it like furnished.ifc")
+    if not out.parent.is_dir():
+        raise OutputError(f"output folder {str(out.parent)!r} does not exist; create it first")
+    check_replaceable(out)
+    return out
+
+
 def write_furnished(source: str | Path, out: str | Path, objects: Sequence[FurnishObject],
                     removed: Iterable[str] = ()) -> int:
     """Write the furnished copy of ``source`` to ``out`` (atomically); returns the elements added."""
@@ -45,11 +57,7 @@ def write_furnished(source: str | Path, out: str | Path, objects: Sequence[Furni
     import ifcopenshell.util.representation
     import ifcopenshell.util.unit
 
-    source, out = Path(source), Path(out)
-    if out.suffix.lower() != ".ifc":
-        raise OutputError(f"output file must end in .ifc, got {str(out)!r}; name it like furnished.ifc")
-    if not out.parent.is_dir():
-        raise OutputError(f"output folder {str(out.parent)!r} does not exist; create it first")
+    source, out = Path(source), check_furnished_output(out)
     model = open_model(source)
     run = ifcopenshell.api.run
     scale = ifcopenshell.util.unit.calculate_unit_scale(model)  # project units -> metres

@@ -357,7 +357,7 @@ def _choose_length_unit(model: Any, elements: list[Any], override_m: float | Non
 
 def _mm_words(extent: float, what: str) -> str:
     return (f"the file assigns no length unit; read as millimetres, since in metres {what} would span "
-            f"{extent / 1000:.1f} km (pass --length-unit to choose)")
+            f"{extent / 1000:.6g} km (pass --length-unit to choose)")
 
 
 def _assign_length_unit(model: Any, metres: float) -> None:

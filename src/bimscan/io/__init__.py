@@ -30,11 +30,11 @@ import numpy as np
 
 from bimscan.errors import InputFileError, OutputError
 from bimscan.io._writer import CloudWriter, WrittenCloud, check_input_path, check_output_path
-from bimscan.io.e57 import count_e57_points, iter_e57_chunks, open_e57_writer, read_e57_header
+from bimscan.io.e57 import check_e57_columns, count_e57_points, iter_e57_chunks, open_e57_writer, read_e57_header
 from bimscan.io.las import count_las_points, iter_las_chunks, open_las_writer, open_laz_writer, read_las_header
 from bimscan.io.npdir import count_npdir_points, iter_npdir_chunks, open_npdir_writer, read_npdir_header
 from bimscan.io.obj import ObjExport, export_obj, read_obj
-from bimscan.io.ply import count_ply_points, iter_ply_chunks, open_ply_writer, read_ply_header
+from bimscan.io.ply import count_ply_points, iter_ply_chunks, open_ply_writer, read_ply_header, sidecar_path
 from bimscan.io.s3dis import count_s3dis_points, is_s3dis_room, iter_s3dis_chunks
 from bimscan.io.text import TEXT_SUFFIXES, count_text_points, iter_text_chunks
 from bimscan.types import CloudHeader, PointCloud
@@ -142,11 +142,17 @@ def open_cloud_writer(
     return WRITERS[_writer_key(path)](Path(path), header=header, overwrite=overwrite, checksum=checksum)
 
 
-def check_cloud_output(path: str | Path, *, overwrite: bool = False) -> None:
-    """Raise OutputError now for an output ``open_cloud_writer`` would refuse (unknown suffix,
-    missing folder, existing output), so a long job fails before it starts rather than at the end."""
-    _writer_key(path)
-    check_output_path(Path(path), overwrite=overwrite)
+def check_cloud_output(path: str | Path, *, overwrite: bool = False, columns: tuple[str, ...] = ()) -> None:
+    """Raise OutputError now for an output ``open_cloud_writer`` would refuse (unknown suffix, a path
+    that names no output, missing folder, existing output, or with ``overwrite`` one bimscan may not
+    replace), and for ``columns`` (``PointCloud.COLUMNS`` names) the format cannot hold, so a long job
+    fails before it starts rather than at the end."""
+    key = _writer_key(path)
+    path = Path(path)
+    check_output_path(path, overwrite=overwrite, extra=(sidecar_path(path),) if key == "ply" else (),
+                      kind="npy" if key == "npy" else None)
+    if key == "e57":
+        check_e57_columns(path, columns)
 
 
 def check_free_space(path: str | Path, *, points: int) -> None:

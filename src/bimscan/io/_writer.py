@@ -4,7 +4,10 @@ A writer stages its output under a hidden temporary name in the destination fold
 (``.<name>.<pid>-<random>.tmp``, see ``bimscan.files.temp_path``), streams chunks into it and, at ``close()``, finishes the headers and
 renames it into place with ``os.replace`` (atomic for a file on one file system). Any failure,
 and ``abort()``, removes the temporary output; a reader never sees a half-written cloud. The
-temporary name is random but never part of the output bytes.
+temporary name is random but never part of the output bytes. With ``overwrite`` an existing
+output is replaced only when it is one bimscan writes there (``bimscan.files.check_replaceable``:
+a cloud file in the format its suffix names, a NumPy cloud folder with its ``meta.json``); anything
+else is refused before any work.
 
 Outputs are not fsync'ed: the rename protects against interrupted and failed runs, not against
 power loss before the operating system has written its cache.
@@ -22,7 +25,7 @@ from types import TracebackType
 from typing import BinaryIO, Protocol, Self
 
 from bimscan.errors import OutputError
-from bimscan.files import check_input_file, file_sha256, remove_path, replace_path, temp_path
+from bimscan.files import check_input_file, check_replaceable, file_sha256, remove_path, replace_path, temp_path
 from bimscan.io._header import dump_json, header_to_document, present_columns
 from bimscan.types import CloudHeader, PointCloud
 
@@ -71,16 +74,25 @@ def folder_writable(folder: Path) -> bool:
     return os.access(folder, os.W_OK | os.X_OK)
 
 
-def check_output_path(path: Path, *, overwrite: bool, extra: tuple[Path, ...] = ()) -> None:
-    """Refuse outputs that cannot be written: missing parent folder, existing output."""
+def check_output_path(path: Path, *, overwrite: bool, extra: tuple[Path, ...] = (), kind: str | None = None) -> None:
+    """Refuse outputs that cannot be written: a path that names no output of its own (``.``, ``..``,
+    ``/``), a missing or read-only parent folder, an existing output (without ``overwrite``), or,
+    with ``overwrite``, anything there that bimscan may not replace (``check_replaceable``; ``kind``:
+    the ``FOLDER_OUTPUTS`` kind of a folder output, None for a file; ``extra`` are files)."""
+    if Path(path).name in ("", ".", ".."):
+        raise OutputError(f"{path} names a folder ({Path(path).resolve()}), not an output inside one; give the "
+                          "output a name of its own")
     parent = path.parent
     if not parent.is_dir():
         raise OutputError(f"output folder {parent} does not exist; create it first or choose another path")
     if not folder_writable(parent):
         raise OutputError(f"output folder {parent} is not writable; check its permissions or choose another path")
     for target in (path, *extra):
-        if not overwrite and (target.exists() or target.is_symlink()):
-            raise OutputError(f"{target} already exists; pass overwrite=True (--overwrite) or choose another path")
+        if not (target.exists() or target.is_symlink()):
+            continue
+        if not overwrite:
+            raise OutputError(f"{target} already exists; pass --overwrite to replace it or choose another path")
+        check_replaceable(target, kind=kind if target == path else None)
 
 
 def source_date_epoch() -> int | None:
@@ -135,11 +147,12 @@ class WatchedFile:
         return watched
 
 
-def commit_output(temp: Path, final: Path, *, overwrite: bool) -> None:
-    """Move ``temp`` to ``final``; an existing ``final`` is replaced only with ``overwrite``."""
+def commit_output(temp: Path, final: Path, *, overwrite: bool, kind: str | None = None) -> None:
+    """Move ``temp`` to ``final``; an existing ``final`` is replaced only with ``overwrite``, and only
+    when bimscan may replace it (``replace_path``; ``kind`` as in ``check_output_path``)."""
     if (final.exists() or final.is_symlink()) and not overwrite:
-        raise OutputError(f"{final} appeared while writing it; pass overwrite=True (--overwrite) or choose another path")
-    replace_path(temp, final)
+        raise OutputError(f"{final} appeared while writing it; pass --overwrite to replace it or choose another path")
+    replace_path(temp, final, kind=kind)
 
 
 class StreamingCloudWriter:
@@ -149,7 +162,10 @@ class StreamingCloudWriter:
     which columns the cloud has), ``_append(chunk)`` (at most ``BLOCK_POINTS`` rows at a time),
     ``_finish()`` (complete headers and sidecars) and may extend ``_release()`` (drop buffers;
     must be idempotent). They stage outputs with ``_open_file``/``_stage_dir`` + ``_watch``.
+    ``FOLDER_KIND``: the ``bimscan.files.FOLDER_OUTPUTS`` kind of a writer whose output is a folder.
     """
+
+    FOLDER_KIND: str | None = None
 
     def __init__(self, path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True) -> None:
         self.path = Path(path)
@@ -158,11 +174,11 @@ class StreamingCloudWriter:
         self.checksum = checksum
         self.columns: tuple[str, ...] | None = None
         self.n_points = 0
-        self._staged: list[tuple[Path, Path]] = []  # (temporary, final), committed in order
+        self._staged: list[tuple[Path, Path, str | None]] = []  # (temporary, final, folder kind), in commit order
         self._state = "open"
         self._result: WrittenCloud | None = None
         self._handles: list[WatchedFile] = []
-        check_output_path(self.path, overwrite=overwrite, extra=self._outputs()[1:])
+        check_output_path(self.path, overwrite=overwrite, extra=self._outputs()[1:], kind=self.FOLDER_KIND)
         dump_json(header_to_document(header, columns=(), n_points=0))  # fail now, not after the points
 
     def _outputs(self) -> tuple[Path, ...]:
@@ -173,7 +189,7 @@ class StreamingCloudWriter:
     def _stage_file(self, final: Path) -> Path:
         temp = temp_path(final)
         os.close(os.open(temp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
-        self._staged.append((temp, final))
+        self._staged.append((temp, final, None))
         return temp
 
     def _open_file(self, final: Path) -> WatchedFile:
@@ -195,7 +211,7 @@ class StreamingCloudWriter:
     def _stage_dir(self, final: Path) -> Path:
         temp = temp_path(final)
         temp.mkdir()
-        self._staged.append((temp, final))
+        self._staged.append((temp, final, self.FOLDER_KIND))
         return temp
 
     # -- hooks ----------------------------------------------------------------------------------
@@ -253,7 +269,7 @@ class StreamingCloudWriter:
             files: list[Path] = []
             sha256: dict[str, str] = {}
             n_bytes = 0
-            for temp, final in self._staged:
+            for temp, final, _ in self._staged:
                 members = sorted(p for p in temp.rglob("*") if p.is_file()) if temp.is_dir() else [temp]
                 for member in members:
                     name = (final / member.relative_to(temp)) if temp.is_dir() else final
@@ -261,8 +277,8 @@ class StreamingCloudWriter:
                     n_bytes += member.stat().st_size
                     if self.checksum:
                         sha256[name.relative_to(self.path.parent).as_posix()] = file_sha256(member)
-            for temp, final in self._staged:
-                commit_output(temp, final, overwrite=self.overwrite)
+            for temp, final, kind in self._staged:
+                commit_output(temp, final, overwrite=self.overwrite, kind=kind)
         except Exception as exc:
             error = self._failure(exc)
             if error is exc:
@@ -284,7 +300,7 @@ class StreamingCloudWriter:
             self._release()
         except (OSError, ValueError):
             pass  # the output is being discarded; a failing close changes nothing
-        for temp, _ in self._staged:
+        for temp, _, _ in self._staged:
             try:
                 remove_path(temp)
             except OSError:

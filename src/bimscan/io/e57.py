@@ -16,7 +16,9 @@ Layout of a bimscan E57 file (``scan.e57``):
   ``intensity`` (integer 0..65535,
   ``intensityLimits`` 0..65535), ``timeStamp`` (double, seconds since the start of the survey,
   as bimscan's ``time`` column; the entries have no ``acquisitionStart``), ``returnIndex`` 0 of
-  ``returnCount`` 1 (E57 counts returns from 0), and ``rowIndex``/``columnIndex``: the scan
+  ``returnCount`` 1 (E57 counts returns from 0; a return number 0, as LAS files that leave it
+  unset have, is written as the first return, and a count below its return number as that
+  number, as bimscan's LAS does), and ``rowIndex``/``columnIndex``: the scan
   grid of the rotating-mirror scanner, column = mirror line (one vertical profile per head
   step), row = pulse within the line (0 at the lowest elevation), with ``indexBounds``, so
   software that expects structured scans treats each entry as one. The grid is recovered
@@ -29,6 +31,9 @@ Layout of a bimscan E57 file (``scan.e57``):
   ``bimscan:component`` (integer -1..C-1, the BIM component id); at the root
   ``bimscan:cloudHeader``: the full header document as JSON (label scheme and class table,
   component table, stations, origin, metadata; see ``bimscan.io._header``).
+- A mobile scan's per-point ``ring``, ``channel`` and ``sensor_xyz`` (beam origins) have no E57
+  field: such clouds are refused (``check_e57_columns``, also before any work by
+  ``bimscan.io.check_cloud_output``) rather than written without them.
 - Clouds without a ``station`` column are one entry posed at ``CloudHeader.origin``
   (``cartesian = xyz - origin``, no spherical fields, which need a sensor position); so are
   stations the header has no pose for when the header has no stations at all. A station id
@@ -53,6 +58,7 @@ from __future__ import annotations
 
 import datetime as dt
 import math
+import re
 import shutil
 import uuid
 from collections.abc import Iterator, Mapping
@@ -105,12 +111,29 @@ def _write_error(exc: Exception, path: Path) -> OutputError:
     """The one-line OutputError for a libE57Format failure while writing ``path``.
 
     libE57Format reports a failed write without its errno; a file system with (almost) no space
-    left is the usual cause and is named as such.
+    left is the usual cause and is named as such. Only its file errors (open, write, seek, ...)
+    send the user to the folder; any other (a value outside a field's declared limits, ...) is
+    named as it is.
     """
     if _free_bytes(path.parent) < (1 << 20):
         return OutputError(f"disk full while writing {path}; free space and run again")
-    return OutputError(f"could not write {path} (libE57Format: {_reason(exc)}); check the folder, its permissions and "
-                       "free space, and run again")
+    reason = _reason(exc)
+    if re.search(r"\(Error\w*(Open|Write|Read|Seek|Close|File)\w*\)", reason):
+        return OutputError(f"could not write {path} (libE57Format: {reason}); check the folder, its permissions and "
+                           "free space, and run again")
+    return OutputError(f"could not write {path}: libE57Format refused the points ({reason})")
+
+
+# A mobile scan's per-point columns, which E57 (one pose per scan) has no field for, in words.
+MOBILE_COLUMNS: dict[str, str] = {"sensor_xyz": "beam origins", "ring": "rings", "channel": "lidar channels"}
+
+
+def check_e57_columns(path: str | Path, columns: tuple[str, ...]) -> None:
+    """Raise OutputError when a cloud with ``columns`` cannot be written to E57 without losing some."""
+    mobile = [words for column, words in MOBILE_COLUMNS.items() if column in columns]
+    if mobile:
+        raise OutputError(f"{path}: E57 stores one pose per scan and has no field for a mobile scan's "
+                          f"{', '.join(mobile)}; write a mobile scan to .las, .laz, .ply or a folder")
 
 
 # -- small helpers ----------------------------------------------------------------------------------
@@ -254,10 +277,7 @@ class E57CloudWriter(StreamingCloudWriter):
 
     # -- layout ---------------------------------------------------------------------------------
     def _begin(self, columns: tuple[str, ...]) -> None:
-        mobile = [c for c in ("ring", "channel", "sensor_xyz") if c in columns]
-        if mobile:
-            raise OutputError(f"{self.path}: E57 stores one pose per scan and has no field for a mobile scan's "
-                              f"{', '.join(mobile)}; write a mobile scan to .las, .laz, .ply or a folder")
+        check_e57_columns(self.path, columns)
         temp = self._stage_file(self.path)
         self._posed = "station" in columns and bool(self.header.stations)
         self._grid = _scan_grid(self.header) if self._posed and "time" in columns else None
@@ -481,7 +501,7 @@ class E57CloudWriter(StreamingCloudWriter):
                 raise OutputError(f"{self.path}: non-finite coordinates in station {scan.station}; drop them first")
             if min(low) < -reach or max(high) > reach:
                 raise OutputError(
-                    f"{self.path}: points {max(-min(low), max(high)):.0f} m from the pose of "
+                    f"{self.path}: points {max(-min(low), max(high)):.6g} m from the pose of "
                     f"{'station ' + str(scan.station) if scan.station is not None else 'the origin'} do not fit E57's "
                     "0.1 mm integer steps (+-214 km); give stations (or CloudHeader.origin) near the points")
             np.minimum(scan.low, low, out=scan.low)
@@ -499,10 +519,12 @@ class E57CloudWriter(StreamingCloudWriter):
         if "timeStamp" in buffers:
             buffers["timeStamp"][into] = rows.time
         if self._returns:
-            np.subtract(rows.return_number, 1, out=buffers["returnIndex"][into])
-            buffers["returnCount"][into] = rows.number_of_returns
+            # LAS files that leave return numbers unset hold 0 (LAS 1.4 counts from 1): the first return
+            number = np.maximum(rows.return_number, 1)
+            np.subtract(number, 1, out=buffers["returnIndex"][into])
+            np.maximum(rows.number_of_returns, number, out=buffers["returnCount"][into])
             if len(rows):
-                scan.return_high = max(scan.return_high, int(rows.return_number.max()) - 1)
+                scan.return_high = max(scan.return_high, int(number.max()) - 1)
         if "colorRed" in buffers:
             for channel, name in enumerate(COLOR_FIELDS):
                 buffers[name][into] = rows.rgb[:, channel]
@@ -879,7 +901,7 @@ def iter_e57_chunks(
 
 
 __all__ = [
-    "COMPONENT_FIELD", "E57CloudWriter", "E57Scan", "E57_BLOCK_POINTS", "HEADER_NODE", "LABEL_FIELD",
-    "NAMESPACE_PREFIX", "NAMESPACE_URI", "STATION_NODE", "gps_seconds", "heading_quaternion", "iter_e57_chunks",
+    "COMPONENT_FIELD", "E57CloudWriter", "E57Scan", "E57_BLOCK_POINTS", "HEADER_NODE", "LABEL_FIELD", "MOBILE_COLUMNS",
+    "NAMESPACE_PREFIX", "NAMESPACE_URI", "STATION_NODE", "check_e57_columns", "gps_seconds", "heading_quaternion", "iter_e57_chunks",
     "count_e57_points", "open_e57_writer", "quaternion_matrix", "read_e57_header", "read_e57_scans",
 ]

@@ -25,6 +25,11 @@ Layout of a bimscan LAS/LAZ file:
   before laspy sees them, so the bytes do not depend on how the caller chunked the stream (lazrs
   happens to buffer partial LAZ chunks itself; the re-blocking does not rely on it) and the
   writer holds one block, about 40 MB, whatever the point count.
+- Ctrl-C and SIGTERM: lazrs writes through the ``WatchedFile`` wrapper, whose Python ``write`` is
+  where a pending signal's handler runs when the signal arrives while lazrs compresses (a mobile
+  scan spends about half its time there); lazrs turned the handler's exception into
+  ``IoError: Failed to call write``. Signals are held while lazrs runs
+  (``bimscan.processes.signals_held``) and handled as soon as it returns.
 """
 
 from __future__ import annotations
@@ -55,6 +60,7 @@ from bimscan.io._header import (
     parse_document,
 )
 from bimscan.io._writer import BLOCK_POINTS, StreamingCloudWriter, WatchedFile, check_input_path, source_date_epoch
+from bimscan.processes import signals_held
 from bimscan.types import CloudHeader, LabelScheme, PointCloud
 
 LAS_SCALE_M = 1e-4  # 0.1 mm coordinate step
@@ -217,7 +223,8 @@ class LasCloudWriter(StreamingCloudWriter):
             # (known from _encode) and the return counts (all 1) with a sort of every block.
             record = PackedPointRecord(self._block[: self._fill], self._point_format)
             try:
-                self._writer.point_writer.write_points(record)
+                with signals_held():  # lazrs would turn a Ctrl-C inside its write callback into an IoError
+                    self._writer.point_writer.write_points(record)
             except (LaspyException, RuntimeError) as exc:  # lazrs raises LazrsError(RuntimeError)
                 raise OutputError(f"could not write {self.path} ({exc}); check the disk and run again") from exc
         self._fill = 0
@@ -234,8 +241,9 @@ class LasCloudWriter(StreamingCloudWriter):
         document = header_to_document(self.header, columns=self.columns, n_points=self.n_points)
         evlr = laspy.VLR(BIMSCAN_USER_ID, BIMSCAN_RECORD_ID, "bimscan cloud header (JSON)", dump_json(document))
         try:
-            self._writer.write_evlrs(VLRList([evlr]))
-            self._writer.close()
+            with signals_held():  # lazrs writes its last chunk and chunk table here
+                self._writer.write_evlrs(VLRList([evlr]))
+                self._writer.close()
         except (LaspyException, RuntimeError) as exc:
             raise OutputError(f"could not finish {self.path} ({exc}); check the disk and run again") from exc
         self._writer = None

@@ -21,7 +21,10 @@ file                         dtype       content
 ``meta.json``                            the header document (``bimscan.io._header``), origin included
 ===========================  ==========  =============================================================
 
-Files of columns the cloud lacks are not written. Each ``.npy`` is streamed: its header is
+Files of columns the cloud lacks are not written. ``meta.json`` marks the folder as bimscan's: with
+``overwrite`` a folder is replaced only when it has that marker and holds nothing but the files
+above (``FOLDER_OUTPUTS["npy"]``); a folder of someone else's (a stray ``coord.npy`` included) is
+refused. Each ``.npy`` is streamed: its header is
 written first with a fixed size (``NPY_HEADER_BYTES``) and rewritten at close with the final
 shape, padded with spaces as the format allows, so ``np.load`` reads it (memory-mapped too).
 The folder is built under a temporary name and renamed into place at close.
@@ -36,7 +39,15 @@ from typing import Any
 import numpy as np
 
 from bimscan.errors import InputFileError
-from bimscan.io._header import as_labels, dump_json, header_from_document, header_to_document, parse_document
+from bimscan.files import FOLDER_OUTPUTS, FolderOutput, folder_entries, json_marker, read_marker
+from bimscan.io._header import (
+    HEADER_KEY,
+    as_labels,
+    dump_json,
+    header_from_document,
+    header_to_document,
+    parse_document,
+)
 from bimscan.io._writer import StreamingCloudWriter, WatchedFile, check_input_path
 from bimscan.types import CloudHeader, PointCloud
 
@@ -59,6 +70,18 @@ META_NAME = "meta.json"
 ORIGIN_NAME = "origin.npy"
 NPY_HEADER_BYTES = 128  # magic + version + length + dict padded; fits a 20-digit row count
 _NPY_MAGIC = b"\x93NUMPY\x01\x00"
+NPDIR_NAMES = frozenset({f"{stem}.npy" for stem, _, _ in NPDIR_FILES.values()} | {ORIGIN_NAME, META_NAME})
+
+
+def foreign_npdir_entries(folder: Path) -> list[str] | None:
+    """None unless ``folder`` is marked as a bimscan NumPy cloud (its ``meta.json`` is a cloud header
+    document); then the entries bimscan does not write in one (sub-folders as ``name/``)."""
+    if not json_marker(read_marker(folder / META_NAME), HEADER_KEY):
+        return None
+    return [name for name in folder_entries(folder) if name not in NPDIR_NAMES]
+
+
+FOLDER_OUTPUTS["npy"] = FolderOutput(what="a bimscan NumPy cloud", foreign=foreign_npdir_entries)
 
 
 def npy_header(dtype: str, shape: tuple[int, ...]) -> bytes:
@@ -73,6 +96,8 @@ def npy_header(dtype: str, shape: tuple[int, ...]) -> bytes:
 
 class NpdirCloudWriter(StreamingCloudWriter):
     """Streams ``PointCloud`` chunks into a Pointcept-style NumPy folder."""
+
+    FOLDER_KIND = "npy"
 
     def __init__(self, path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True) -> None:
         super().__init__(path, header=header, overwrite=overwrite, checksum=checksum)
@@ -222,6 +247,6 @@ def iter_npdir_chunks(
 
 
 __all__ = [
-    "NPDIR_FILES", "NpdirCloudWriter", "count_npdir_points", "iter_npdir_chunks", "npy_header", "open_npdir_writer",
-    "read_npdir_header",
+    "NPDIR_FILES", "NPDIR_NAMES", "NpdirCloudWriter", "count_npdir_points", "foreign_npdir_entries", "iter_npdir_chunks",
+    "npy_header", "open_npdir_writer", "read_npdir_header",
 ]

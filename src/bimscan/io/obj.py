@@ -17,13 +17,18 @@
 Coordinates are written in metres with 6 decimals (1 micrometre). Text is formatted with one
 ``%`` operation per component block, which writes a 2.4M-triangle model in seconds. Everything
 is built in a hidden staging folder inside ``out_dir`` and moved into place at the end; a failure
-leaves ``out_dir`` as it was.
+leaves ``out_dir`` as it was. With ``overwrite``, an output already in ``out_dir`` is replaced
+only when it is what this export writes there (``bimscan.files.check_replaceable``): files of
+the same names, a ``components/`` folder of bimscan component OBJs only
+(``FOLDER_OUTPUTS["obj-components"]``) and a ``helios/`` folder of bimscan's HELIOS++ files only
+(``FOLDER_OUTPUTS["helios"]``).
 """
 
 from __future__ import annotations
 
 import csv
 import io
+import re
 import shutil
 import warnings
 from collections.abc import Mapping
@@ -33,7 +38,15 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.errors import InputFileError, OutputError
-from bimscan.files import temp_path
+from bimscan.files import (
+    FOLDER_OUTPUTS,
+    FolderOutput,
+    check_replaceable,
+    file_head,
+    folder_entries,
+    read_marker,
+    temp_path,
+)
 from bimscan.io._writer import commit_output, output_error
 from bimscan.io.helios import HELIOS_DIR, SCENE_FILE, SURVEY_FILE, helios_scene_id, write_helios_scene
 from bimscan.types import BimScene
@@ -44,6 +57,43 @@ INDEX_COLUMNS = (
     "n_triangles", "obj_file",
 )
 MATERIALS_NAME = "classes.mtl"
+COMPONENTS_DIR = "components"
+_COMPONENT_FILE = re.compile(r"c[0-9]+\.obj")
+_COMPONENT_HEAD = b"# bimscan component "
+_HELIOS_FILE = re.compile(r"scene\.xml|survey\.xml|survey_mount[0-9]+\.xml|trajectory_mount[0-9]+\.trj")
+_XML_HEAD = b'<?xml version="1.0" encoding="UTF-8"?>\n<document>\n'
+_SCENE_PART = re.compile(rb'key="filepath" value="([^"]*)"')
+_SCENE_PART_PATH = re.compile(rb"components/c[0-9]+\.obj")
+
+
+def _foreign_components(folder: Path) -> list[str] | None:
+    """None unless ``folder`` holds bimscan component OBJs (``c<id>.obj`` starting with bimscan's
+    comment); then its other entries."""
+    names = folder_entries(folder)
+    ours = [n for n in names if _COMPONENT_FILE.fullmatch(n)
+            and (file_head(folder / n, len(_COMPONENT_HEAD)) or b"").startswith(_COMPONENT_HEAD)]
+    return [n for n in names if n not in ours] if ours else None
+
+
+def _foreign_helios(folder: Path) -> list[str] | None:
+    """None unless ``folder`` holds bimscan's HELIOS++ scene (``scene.xml`` whose parts are all
+    ``components/c<id>.obj``); then the entries bimscan does not write there."""
+    scene = read_marker(folder / "scene.xml")
+    if scene is None or not scene.startswith(_XML_HEAD) or \
+            not all(_SCENE_PART_PATH.fullmatch(part) for part in _SCENE_PART.findall(scene)):
+        return None
+    foreign = []
+    for name in folder_entries(folder):
+        head = (file_head(folder / name, len(_XML_HEAD)) or b"") if _HELIOS_FILE.fullmatch(name) else b""
+        if not head.startswith(_XML_HEAD if name.endswith(".xml") else b"#TIME_COLUMN: 0\n"):
+            foreign.append(name)
+    return foreign
+
+
+FOLDER_OUTPUTS["obj-components"] = FolderOutput(what="a folder of bimscan component OBJs", foreign=_foreign_components)
+FOLDER_OUTPUTS["helios"] = FolderOutput(what="bimscan's HELIOS++ scene folder", foreign=_foreign_helios)
+# what export_obj writes into out_dir, and the folder kind of those that are folders
+_FOLDER_KINDS = {COMPONENTS_DIR: "obj-components", HELIOS_DIR: "helios"}
 
 
 @dataclass(frozen=True)
@@ -107,11 +157,13 @@ def export_obj(scene: BimScene, out_dir: str | Path, *, helios: bool = False, he
         raise OutputError(f"folder {out_dir.parent} does not exist; create it first or choose another output folder")
     if out_dir.exists() and not out_dir.is_dir():
         raise OutputError(f"{out_dir} is a file, not a folder; choose another output folder")
-    names = ["model.obj", MATERIALS_NAME, "components", "index.csv"] + ([HELIOS_DIR] if helios else [])
-    if not overwrite:
-        existing = [n for n in names if (out_dir / n).exists()]
-        if existing:
-            raise OutputError(f"{out_dir} already holds {', '.join(existing)}; pass overwrite=True (--overwrite) or choose another folder")
+    names = ["model.obj", MATERIALS_NAME, COMPONENTS_DIR, "index.csv"] + ([HELIOS_DIR] if helios else [])
+    existing = [n for n in names if (out_dir / n).exists() or (out_dir / n).is_symlink()]
+    if existing and not overwrite:
+        raise OutputError(f"{out_dir} already holds {', '.join(existing)}; pass --overwrite to replace them or choose "
+                          "another folder")
+    for name in existing:
+        check_replaceable(out_dir / name, kind=_FOLDER_KINDS.get(name))
     mesh = scene.mesh
     if len(mesh.face_component) and mesh.face_component.min() < 0:
         raise OutputError(f"scene {scene.source}: some triangles have a negative component id; the scene mesh is invalid")
@@ -127,7 +179,7 @@ def export_obj(scene: BimScene, out_dir: str | Path, *, helios: bool = False, he
         for relative, data in (helios_files or {}).items():  # a mobile survey: surveys and trajectories
             (stage / relative).write_bytes(data)
         for name in names:
-            commit_output(stage / name, out_dir / name, overwrite=True)
+            commit_output(stage / name, out_dir / name, overwrite=True, kind=_FOLDER_KINDS.get(name))
         done = True
     except OSError as exc:
         raise output_error(exc, out_dir) from exc
@@ -140,7 +192,7 @@ def export_obj(scene: BimScene, out_dir: str | Path, *, helios: bool = False, he
         model_obj=out_dir / "model.obj",
         materials=out_dir / MATERIALS_NAME,
         index_csv=out_dir / "index.csv",
-        component_files={c: out_dir / "components" / f"c{c}.obj" for c in files},
+        component_files={c: out_dir / COMPONENTS_DIR / f"c{c}.obj" for c in files},
         helios_scene=(out_dir / SCENE_FILE) if helios else None,
         n_triangles=mesh.n_triangles,
         helios_survey=(out_dir / SURVEY_FILE) if helios_survey is not None or helios_files else None,
@@ -164,7 +216,7 @@ def _write_all(scene: BimScene, stage: Path, *, helios: bool) -> list[int]:
 
     labels = scene.scheme.names
     source = Path(scene.source).name
-    (stage / "components").mkdir()
+    (stage / COMPONENTS_DIR).mkdir()
     (stage / MATERIALS_NAME).write_text(_materials_text(scene), encoding="utf-8")
     vertex_format = f"v {COORD_FORMAT} {COORD_FORMAT} {COORD_FORMAT}\n"
     written: list[int] = []
@@ -186,7 +238,7 @@ def _write_all(scene: BimScene, stage: Path, *, helios: bool) -> list[int]:
                 f"mtllib ../{MATERIALS_NAME}\n"
                 + head + vertex_text + _block("f %d %d %d\n", global_faces[f0:f1] - v0 + 1)
             )
-            (stage / "components" / f"c{component}.obj").write_text(part, encoding="utf-8")
+            (stage / COMPONENTS_DIR / f"c{component}.obj").write_text(part, encoding="utf-8")
             written.append(component)
 
     has_file = set(written)

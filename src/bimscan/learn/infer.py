@@ -45,6 +45,7 @@ import torch
 from torch import nn
 
 from bimscan.errors import LearnError
+from bimscan.files import work_folder
 from bimscan.learn.blocks import Block, pad_block, plan_passes
 from bimscan.learn.data import CHUNK_POINTS, SceneSource, iter_raw_chunks, iter_scene_chunks
 from bimscan.learn.density import voxel_representatives
@@ -60,6 +61,7 @@ SPREAD_CHUNK = 262_144  # points interpolated at a time (see spread_votes)
 SPREAD_CELLS = 1.5  # voxels per cell of the vote-spreading grid (bimscan.learn.neighbours)
 RECORD = np.dtype([("xyz", "<f8", (3,)), ("label", "u1"), ("index", "<i8")])
 RECORD_WITH_COMPONENT = np.dtype(RECORD.descr + [("component", "<i4")])  # when predictions are counted per component
+STRIPES_NAME = "bimscan-stripes"  # the work folder: .bimscan-stripes.<pid>-<random>.tmp in work_dir or $TMPDIR
 MIN_PADDED = 16  # blocks smaller than N run padded to a power of two at least this
 BUILDING_EXTENT_M = 2_000.0  # wider than this, or taller than BUILDING_HEIGHT_M: likely not metres
 BUILDING_HEIGHT_M = 300.0
@@ -223,8 +225,10 @@ class _Labeller:
         self.stride = self.evaluation.stride_for(self.blocks.size_m)
         self.k = int(round(self.blocks.size_m / self.stride))
         self.runner = BlockRunner(self.model, device=self.device, batch_size=self.evaluation.batch_size, amp=self.amp)
-        with tempfile.TemporaryDirectory(prefix=".bimscan-stripes-", dir=work_dir) as temp:
-            self.folder = Path(temp)
+        # stripe files in a hidden folder named with this process's id: removed at the end, or by the
+        # next run when this one is killed (bimscan.files.work_folder)
+        with work_folder(Path(work_dir or tempfile.gettempdir()) / STRIPES_NAME) as temp:
+            self.folder = temp
             counts, lower, upper, self.origin = self._bucket(chunk_points)
             self.rows_from = int(np.floor((lower[1] - self.origin[1]) / self.stride))
             self.rows_to = max(self.rows_from, int(np.floor((upper[1] - self.origin[1]) / self.stride)) - self.k + 1)

@@ -4,14 +4,15 @@ voted on, then the input is streamed again into :func:`bimscan.io.open_cloud_wri
 
 from __future__ import annotations
 
-import tempfile
 from collections.abc import Callable
+from contextlib import closing
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from bimscan.errors import LearnError
+from bimscan.files import work_folder
 from bimscan.learn.checkpoint import load_trained_model
 from bimscan.learn.data import CHUNK_POINTS, SceneSource, iter_raw_chunks, list_scenes
 from bimscan.learn.infer import label_scene, replace_labels
@@ -63,22 +64,28 @@ def predict_cloud(
 
     The input's other columns (intensity, time, station, component) are kept; its own labels
     (if any: they are neither read for use nor checked) are replaced. ``out_path`` is checked
-    before any work; nothing is left at it when anything fails.
+    before any work, against the input's columns too (E57 cannot hold a mobile scan's); nothing is
+    left at it when anything fails. The work files go to a hidden folder beside ``out_path``
+    (``bimscan.files.work_folder``), removed at the end, or by the next run when this one is killed.
     """
     from bimscan.io import check_cloud_output, open_cloud_writer, read_cloud_header
+    from bimscan.io._header import present_columns
 
     out_path = Path(out_path)
     check_cloud_output(out_path, overwrite=overwrite)
-    torch_device = pick_device(device)
-    trained = load_trained_model(checkpoint, device=torch_device, weights=None if evaluation is None else evaluation.weights)
-    evaluation = (evaluation or trained.config.eval).with_seed(trained.config.train.seed)
-    evaluation.stride_for(trained.config.blocks.size_m)  # a stride that does not divide the blocks: one line now
     sources = list_scenes([in_path])
     if len(sources) != 1:
         raise LearnError(f"{in_path}: holds {len(sources)} scenes; predict one cloud at a time")
     source: SceneSource = sources[0]
-    with tempfile.TemporaryDirectory(prefix=".bimscan-predict-", dir=out_path.parent) as temp:
-        folder = Path(temp)
+    with closing(iter_raw_chunks(source, chunk_points=1, labels=False)) as chunks:
+        first = next(chunks, None)  # the input's columns, from its first point
+    if first is not None:  # (an input without points is refused when it is read)
+        check_cloud_output(out_path, overwrite=overwrite, columns=present_columns(first))
+    torch_device = pick_device(device)
+    trained = load_trained_model(checkpoint, device=torch_device, weights=None if evaluation is None else evaluation.weights)
+    evaluation = (evaluation or trained.config.eval).with_seed(trained.config.train.seed)
+    evaluation.stride_for(trained.config.blocks.size_m)  # a stride that does not divide the blocks: one line now
+    with work_folder(out_path) as folder:
         index_file, label_file = folder / "index.i8", folder / "label.u1"
         with index_file.open("wb") as index_out, label_file.open("wb") as label_out:
 

@@ -78,7 +78,7 @@ class VoxelSubsampler:
         index = np.floor((xyz - self.origin) / self.voxel_size_m).astype(np.int64) + _SPAN // 2
         if len(index) and (index.min() < 0 or index.max() >= _SPAN):
             far = float(np.abs(xyz - self.origin).max())
-            raise ConfigError(f"a point lies {far:.1f} m from the voxel grid's origin, beyond "
+            raise ConfigError(f"a point lies {far:.6g} m from the voxel grid's origin, beyond "
                              f"{_SPAN // 2 * self.voxel_size_m:.1f} m ({_SPAN // 2} voxels); use a larger voxel")
         return (index[:, 0] << (2 * _BITS)) | (index[:, 1] << _BITS) | index[:, 2]
 

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.errors import OutputError
-from bimscan.files import write_atomic
+from bimscan.files import check_replaceable, write_atomic
 from bimscan.types import LabelScheme
 
 TITLE_PX = 46
@@ -63,6 +63,7 @@ def check_png_output(out: str | Path) -> Path:
         raise OutputError(f"{out}: pictures are written as PNG; give a path ending in .png")
     if not out.parent.is_dir():
         raise OutputError(f"output folder {out.parent} does not exist; create it first or choose another path")
+    check_replaceable(out)  # an existing PNG is replaced; a folder, a link or another file is not
     return out
 
 

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bimscan.errors import InputFileError, StationError
+from bimscan.errors import InputFileError, StationError, number
 from bimscan.scan.device import ScannerModel
 from bimscan.scan.probe import Prober, sphere_directions
 from bimscan.survey.spots import (
@@ -118,7 +118,7 @@ def station_problem(station: Station, scene: BimScene, prober: Prober) -> str | 
     to stand on, a surface closer than a scanner head's size), or None. A station whose floor is
     a room's (``floor_z`` at the bottom of an IfcSpace it stands in) stands on that floor even
     where the model has no slab."""
-    where = f"station {station.id} at ({', '.join(f'{c:.2f}' for c in station.position)})"
+    where = f"station {station.id} at ({', '.join(number(c) for c in station.position)})"
     inside = prober.solid_containing(np.asarray(station.position))
     if inside is not None:
         return (f"{where} is inside a solid ({scene.components.ifc_class[inside]} "

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from bimscan import __version__
-from bimscan.errors import StationError
+from bimscan.errors import StationError, number
 from bimscan.scan.pattern import PulsePattern
 from bimscan.scan.probe import Prober
 from bimscan.survey.recipe import AUTO_STATIONS, ScanRecipe
@@ -91,8 +91,9 @@ def check_trajectory(trajectory: Trajectory, scene: BimScene, source: str | Path
     if outside.any():
         k = int(np.flatnonzero(outside)[0])
         raise StationError(f"{source}: pose {k} (t = {trajectory.t[k]:g} s) at "
-                           f"{', '.join(f'{v:.2f}' for v in trajectory.xyz[k])} lies more than 5 m outside the model "
-                           f"(x {lo[0]:.1f}..{hi[0]:.1f}, y {lo[1]:.1f}..{hi[1]:.1f}, z {lo[2]:.1f}..{hi[2]:.1f}); give "
+                           f"{', '.join(number(v) for v in trajectory.xyz[k])} lies more than 5 m outside the model "
+                           f"(x {number(lo[0], 1)}..{number(hi[0], 1)}, y {number(lo[1], 1)}..{number(hi[1], 1)}, "
+                           f"z {number(lo[2], 1)}..{number(hi[2], 1)}); give "
                            "the trajectory in the model's coordinates, in metres")
 
 

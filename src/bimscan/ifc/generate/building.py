@@ -46,7 +46,7 @@ import ifcopenshell.guid
 import numpy as np
 from ifcopenshell.util.shape_builder import ShapeBuilder
 
-from bimscan.files import atomic_output
+from bimscan.files import atomic_output, check_replaceable
 from bimscan.errors import ConfigError, OutputError
 from bimscan.ifc.generate.layout import (
     ATTIC_NAME,
@@ -202,8 +202,7 @@ def _check_output_path(target: Path) -> None:
     folder = target.parent if str(target.parent) else Path(".")
     if not folder.is_dir():
         raise OutputError(f"output folder {str(folder)!r} does not exist; create it first or choose another path")
-    if target.is_dir():
-        raise OutputError(f"output path {str(target)!r} is a folder; give a file name ending in .ifc")
+    check_replaceable(target)  # an existing IFC file is replaced; a folder, a link or another file is not
 
 
 def _write_atomically(target: Path, text: str) -> None:
