@@ -15,7 +15,8 @@ from bimscan.cli.main import main
 from bimscan.errors import ConfigError, IfcError, InputFileError, LearnError
 from bimscan.io.text import write_text_cloud
 from bimscan.types import PointCloud
-from bimscan.learn.experiment import load_experiment, run_experiment, training_config, training_sections
+from bimscan.learn.experiment import training_sections
+from bimscan.sim2real import load_experiment, run_experiment, training_config
 
 from .conftest import make_room
 
@@ -176,7 +177,7 @@ def test_real_scenes_on_the_command_line_replace_those_of_the_file(experiment_di
     write_text_cloud(experiment_dir / "other.txt", make_room(7, size_m=(3.0, 3.0), points_per_m2=40))
     parsed = load_experiment(experiment_dir / "exp.toml", real=[experiment_dir / "other.txt"], device="cpu")
     assert parsed.real.scenes == (str((experiment_dir / "other.txt").resolve()),)
-    from bimscan.learn.experiment import _runs, _scored_scenes
+    from bimscan.sim2real import _runs, _scored_scenes
 
     run = _runs(parsed, parsed.variants[0], _scored_scenes(parsed))[0]
     config = training_config(parsed, run, experiment_dir / "out")
@@ -490,7 +491,7 @@ def test_a_variant_training_on_every_scored_room_by_name_is_refused(rooms_dir: P
 
 
 def test_the_holdout_models_are_scanned_with_the_given_sensor_settings(rooms_dir: Path) -> None:
-    from bimscan.learn.experiment import _holdout_spec
+    from bimscan.sim2real import _holdout_spec
 
     (rooms_dir / "house.ifc").write_text("ISO-10303-21;\nEND-ISO-10303-21;\n", encoding="utf-8")
     holdout = '[holdout]\nifc = ["house.ifc"]\nrealism = "paper"\nsensor = { glass = true }\n\n[rooms]'

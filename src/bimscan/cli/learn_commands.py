@@ -213,7 +213,7 @@ def sim2real(experiment: Path, out_dir: Path, real: tuple[Path, ...], device: st
     val_miou.png, label_efficiency.png and per variant its confusion matrices and curves. Run the
     same command again to continue a killed run.
     """
-    from bimscan.learn.experiment import format_report, load_experiment, run_experiment
+    from bimscan.sim2real import format_report, load_experiment, run_experiment
 
     parsed = load_experiment(experiment, real=list(real) or None, device=device)
     results = run_experiment(parsed, out_dir, log=lambda text: click.echo(text, err=True))
