@@ -8,6 +8,7 @@ import json
 import os
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -78,6 +79,7 @@ def test_unit_metadata_records_inputs_counts_and_checksums_that_match_the_files(
         np.testing.assert_allclose(meta["extents"]["min"], laz.xyz.min(axis=0), atol=1e-3)
         timings = json.loads((folder / "timings.json").read_text())
         assert timings["total_s"] > 0
+        assert timings["host"] == socket.gethostname() and "ray_node" not in timings  # where it was built
 
 
 def test_every_configuration_of_a_scene_scans_from_the_same_stations(reference_dataset: BuiltDataset) -> None:
