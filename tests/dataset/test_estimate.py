@@ -12,7 +12,7 @@ import pytest
 
 from bimscan.dataset.build import build_dataset
 from bimscan.dataset.estimate import (
-    UnitWork, WorkProgress, check_free_space, estimate_size, tripod_unit_work, with_unknown_as_mean,
+    UnitWork, WorkProgress, check_output_fits, estimate_size, tripod_unit_work, with_unknown_as_mean,
 )
 from bimscan.dataset.spec import load_spec
 from bimscan.errors import OutputError
@@ -152,6 +152,8 @@ def test_a_mobile_unit_whose_walk_is_not_planned_yet_counts_as_the_mean_tripod_u
     assert (filled[2].pulses, filled[2].points, filled[2].most_points, filled[2].known) == (20000, 10000, 65000, False)
     alone = with_unknown_as_mean(works[2:])  # nothing known: equal weights, no size
     assert (alone[0].pulses, alone[0].points) == (1.0, 0.0)
+    estimate = estimate_size(works[2:], Path("."), formats=("laz",))
+    assert estimate.fits and estimate.line().startswith("output: not estimated (1 mobile units")
 
 
 def _disk(free: int):
@@ -169,14 +171,14 @@ def test_the_size_estimate_refuses_in_one_line_naming_the_size_the_free_space_an
     assert estimate.bytes == pytest.approx(3 * per_scene) and not estimate.fits
     assert estimate.most_bytes == pytest.approx(3 * per_scene / 0.8 * 12 / 6)
     with pytest.raises(OutputError) as raised:
-        check_free_space(estimate)
+        check_output_fits(estimate)
     message = str(raised.value)
     assert "\n" not in message
     assert message.startswith(f"the build would write about {3 * per_scene / 1e9:.1f} GB (6 units")
     assert f"{tmp_path} has {2.5 * per_scene / 1e9:.1f} GB free" in message
     assert f"the first 2 of 3 scenes (4 units, about {2 * per_scene / 1e9:.1f} GB) fit" in message
     monkeypatch.setattr(shutil, "disk_usage", _disk(int(3.1 * per_scene)))
-    check_free_space(estimate_size(works, tmp_path, formats=("laz",)))  # fits: no error
+    check_output_fits(estimate_size(works, tmp_path, formats=("laz",)))  # fits: no error
 
 
 def test_finished_units_of_the_dataset_give_the_bytes_a_point_of_the_rest(tmp_path: Path) -> None:

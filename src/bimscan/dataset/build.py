@@ -26,7 +26,7 @@ from typing import Any
 
 from bimscan import __version__
 from bimscan.dataset.estimate import (
-    EtaCheck, SizeEstimate, UnitWork, WorkProgress, check_free_space, estimate_size, tripod_unit_work,
+    EtaCheck, SizeEstimate, UnitWork, WorkProgress, check_output_fits, estimate_size, tripod_unit_work,
     with_unknown_as_mean,
 )
 from bimscan.dataset.executors import TaskFunction, make_executor
@@ -228,7 +228,7 @@ def _run(folder: DatasetFolder, rows: dict[str, ManifestEntry], unit_jobs: dict[
                               (folder.read_unit(e.id) for e in rows.values() if e.status == "done")]
             result.estimate = estimate_size(works, folder.root, formats=jobs[0].formats, finished=finished_units)
             log(result.estimate.line())
-            check_free_space(result.estimate)
+            check_output_fits(result.estimate)
             # 3. The units, the progress weighted by the pulses each scans.
             work = WorkProgress({w.unit: w.pulses for w in works})
             for job in jobs:

@@ -85,6 +85,9 @@ class SizeEstimate:
         """One line: the expected size, its bound and the free space."""
         if self.units == 0:
             return f"output: nothing to build; {_gb(self.free_bytes)} free in {self.folder}"
+        if self.unknown_units == self.units:
+            return (f"output: not estimated ({self.units} mobile units: their walks are planned by their own tasks); "
+                    f"{_gb(self.free_bytes)} free in {self.folder}")
         source = (f"as this dataset's {self.measured_on} finished units" if self.measured_on
                   else f"typical of {'+'.join(self.formats)}")
         unknown = f"; {self.unknown_units} mobile units counted as the mean unit" if self.unknown_units else ""
@@ -125,7 +128,7 @@ def estimate_size(works: Sequence[UnitWork], folder: Path, *, formats: Sequence[
     done_bytes, done_points = sum(b for b, _ in finished), sum(p for _, p in finished)
     per_point = (done_bytes / done_points if done_points > 0
                  else float(sum(LIKELY_BYTES_PER_POINT[f] for f in formats)))
-    largest = float(sum(BYTES_PER_POINT[f] for f in formats))
+    most_per_point = float(sum(BYTES_PER_POINT[f] for f in formats))
     free = shutil.disk_usage(folder).free
     scene_bytes: dict[str, list[float]] = {}  # scene -> [units, bytes], in spec order
     for work in works:
@@ -139,13 +142,13 @@ def estimate_size(works: Sequence[UnitWork], folder: Path, *, formats: Sequence[
         fitting, units, total = fitting + 1, units + int(count), total + size
     return SizeEstimate(folder=folder, formats=tuple(formats), units=len(works),
                         points=sum(w.points for w in works), bytes=sum(w.points for w in works) * per_point,
-                        most_bytes=sum(w.most_points for w in works) * largest, free_bytes=free,
+                        most_bytes=sum(w.most_points for w in works) * most_per_point, free_bytes=free,
                         bytes_per_point=per_point, measured_on=len(finished) if done_points > 0 else 0,
                         unknown_units=sum(not w.known for w in works),
                         subset=(fitting, len(scene_bytes), units, total))
 
 
-def check_free_space(estimate: SizeEstimate) -> None:
+def check_output_fits(estimate: SizeEstimate) -> None:
     """Raise OutputError (one line: the estimate, the free space, a subset that fits) when the
     units to build would not fit."""
     if not estimate.fits:
