@@ -6,8 +6,10 @@ import errno
 import hashlib
 import json
 import os
+import random
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -78,6 +80,7 @@ def test_unit_metadata_records_inputs_counts_and_checksums_that_match_the_files(
         np.testing.assert_allclose(meta["extents"]["min"], laz.xyz.min(axis=0), atol=1e-3)
         timings = json.loads((folder / "timings.json").read_text())
         assert timings["total_s"] > 0
+        assert timings["host"] == socket.gethostname() and "ray_node" not in timings  # where it was built
 
 
 def test_every_configuration_of_a_scene_scans_from_the_same_stations(reference_dataset: BuiltDataset) -> None:
@@ -137,32 +140,35 @@ def _children(pid: int) -> list[int]:
     return found
 
 
-@pytest.mark.slow
-def test_a_build_killed_mid_way_prints_no_raw_warning_and_resumes_to_identical_outputs(
-    reference_dataset: BuiltDataset, tmp_path: Path,
-) -> None:
-    out = tmp_path / "killed"
-    command = [sys.executable, "-m", "bimscan.cli.main", "build", str(reference_dataset.spec), str(out), "--workers", "1"]
+def _kill_at(out: Path, spec: Path, delay_s: float) -> tuple[float, str]:
+    """Start `bimscan build SPEC OUT --workers 1` and kill -9 it ``delay_s`` after it started, or
+    as soon as its last unit to build is being written, whichever comes first (a moment with work
+    left). Checks that its orphaned worker ends itself. Returns the moment and what it was doing."""
+    command = [sys.executable, "-m", "bimscan.cli.main", "build", str(spec), str(out), "--workers", "1"]
     process = subprocess.Popen(command, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    deadline = time.monotonic() + 240
+    start = time.monotonic()
+    units = out / "units"
+    leftovers = {n for n in os.listdir(units) if n.endswith(".tmp")} if units.is_dir() else set()  # a killed run's
     workers: list[int] = []
+    doing = "starting"
     try:
-        # wait until one unit is in place and the next one is being written, then kill -9 the driver
-        while time.monotonic() < deadline and process.poll() is None:
-            units = out / "units"
-            finished = [p for p in units.iterdir() if not p.name.startswith(".")] if units.is_dir() else []
-            staging = [p for p in units.iterdir() if p.name.endswith(".tmp")] if units.is_dir() else []
-            if finished and staging:
-                workers = _children(process.pid)
-                process.send_signal(signal.SIGKILL)
-                break
+        while time.monotonic() - start < delay_s and process.poll() is None:
+            names = set(os.listdir(units)) if units.is_dir() else set()
+            finished = [n for n in names if not n.startswith(".")]
+            staging = [n for n in names - leftovers if n.endswith(".tmp")]
+            doing = f"{'writing a unit' if staging else 'starting, planning or between units'}, " \
+                    f"{len(finished)} finished"
+            if staging and len(finished) == len(UNIT_IDS) - 1:
+                break  # the last unit: kill now or never
             time.sleep(0.005)
+        workers = _children(process.pid)
+        process.send_signal(signal.SIGKILL)
     finally:
-        if process.poll() is None and not workers:  # stopped waiting without killing: end the whole build
+        if process.poll() is None and not workers:
             os.killpg(process.pid, signal.SIGKILL)
         process.wait(timeout=60)
+    moment = time.monotonic() - start
     assert process.returncode == -signal.SIGKILL, f"the build ended before it could be killed: {process.stderr.read()}"
-    assert workers  # the spawned worker (and multiprocessing's resource tracker)
     # the orphaned worker notices its driver is gone and ends itself, mid-unit
     end = time.monotonic() + 10
     while time.monotonic() < end and any(Path(f"/proc/{pid}").exists() for pid in workers):
@@ -174,13 +180,39 @@ def test_a_build_killed_mid_way_prints_no_raw_warning_and_resumes_to_identical_o
     # the resource tracker removes the killed build's semaphores, without its raw "leaked semaphore" UserWarning
     _, err = process.communicate(timeout=60)
     assert "resource_tracker" not in err.decode() and "leaked" not in err.decode(), err.decode()
-    statuses = [u["status"] for u in _manifest(out)["units"]]
-    assert "pending" in statuses  # the manifest, rewritten after every unit, says the build is unfinished
+    return moment, doing
+
+
+@pytest.mark.slow
+def test_a_build_killed_twice_at_random_moments_resumes_to_identical_outputs(
+        reference_dataset: BuiltDataset, tmp_path: Path) -> None:
+    from bimscan.cli.main import main
+    from bimscan.dataset.layout import DatasetFolder, verify_unit
+
+    rng = random.Random(44)
+    uninterrupted_s = reference_dataset.report.seconds + 3  # its build, plus starting Python
+    out = tmp_path / "killed"
+    kills = []
+    for kill in range(2):
+        folder = DatasetFolder(out)
+        pending = 1.0 if kill == 0 else sum(u["status"] != "done" for u in _manifest(out)["units"]) / len(UNIT_IDS)
+        moment, doing = _kill_at(out, reference_dataset.spec, rng.uniform(0.1, 0.9) * uninterrupted_s * pending + 1)
+        kills.append(f"{moment:.1f} s, {doing}")
+        # what a killed build leaves is consistent: a readable manifest saying what is unfinished, and every
+        # unit folder in place whole (its files match their checksums)
+        if (out / "manifest.json").is_file():
+            statuses = [u["status"] for u in _manifest(out)["units"]]
+            assert "pending" in statuses, kills
+        for unit in (folder.unit_dir(u) for u in UNIT_IDS):
+            if unit.exists():
+                record = json.loads((unit / "unit.json").read_text())
+                assert verify_unit(unit, expected_fingerprint=record["fingerprint"]) is None, kills
 
     report = build_dataset(load_spec(reference_dataset.spec), out, workers=1, progress=False)
-    assert report.ok and report.reused >= 1 and report.built >= 1
+    assert report.ok and report.reused + report.built == len(UNIT_IDS) and report.built >= 1, kills
     assert not [p for p in (out / "units").iterdir() if p.name.startswith(".")]
-    assert reproducible_files(out) == reproducible_files(reference_dataset.out)
+    assert reproducible_files(out) == reproducible_files(reference_dataset.out), kills
+    assert main(["stats", str(out), "--verify", "--out", str(tmp_path / "stats")]) == 0
 
 
 @pytest.mark.slow

@@ -15,6 +15,7 @@ from bimscan.io import (
     CHUNK_READERS,
     CLOUD_FORMATS,
     HEADER_READERS,
+    LIKELY_BYTES_PER_POINT,
     POINT_COUNTERS,
     WRITABLE_FORMATS,
     WRITERS,
@@ -34,7 +35,7 @@ def test_every_reader_registry_has_exactly_the_formats_of_the_vocabulary(registr
     assert list(registry) == list(CLOUD_FORMATS)
 
 
-@pytest.mark.parametrize("registry", [WRITERS, BYTES_PER_POINT])
+@pytest.mark.parametrize("registry", [WRITERS, BYTES_PER_POINT, LIKELY_BYTES_PER_POINT])
 def test_every_writer_registry_has_exactly_the_writable_formats(registry: dict[str, object]) -> None:
     assert list(registry) == list(WRITABLE_FORMATS)
     assert set(WRITABLE_FORMATS) <= set(CLOUD_FORMATS)

@@ -40,6 +40,10 @@ def _report_build(report: BuildReport) -> None:
         if entry.status == "failed":
             click.echo(f"failed: {entry.id}: {entry.error}", err=True)
     click.echo(f"{report.out_dir}: {report.summary()}")
+    if len(report.nodes) > 1:
+        click.echo("units built per node: " + ", ".join(f"{node} {n}" for node, n in sorted(report.nodes.items())))
+    if report.eta is not None and report.eta.elapsed_s + report.eta.actual_left_s >= 60:  # not worth a line sooner
+        click.echo(report.eta.line())
     if not report.ok:
         pending = sum(e.status == "pending" for e in report.entries)
         raise DatasetError(f"{report.failed} of {len(report.entries)} units failed"
@@ -62,8 +66,10 @@ def build(spec: Path, out_dir: Path, workers: int | None, executor: str, ray_add
 
     One data unit per (scene, configuration): units/<scene>__<config>/ with the cloud file(s),
     unit.json and timings.json; manifest.json lists every unit and its status. Everything in
-    SPEC is checked before any work. Interrupted or failed builds resume: run the same command
-    again and only the missing units are built (finished ones are verified by checksum).
+    SPEC is checked before any work. Once the scenes' stations are planned, the output's size is
+    estimated and the build refuses to start when OUT_DIR's disk cannot hold it. Interrupted or
+    failed builds resume: run the same command again and only the missing units are built
+    (finished ones are verified by checksum).
     """
     from bimscan.dataset.build import build_dataset
     from bimscan.dataset.spec import device_warnings, load_spec
@@ -73,7 +79,8 @@ def build(spec: Path, out_dir: Path, workers: int | None, executor: str, ray_add
     dataset_spec = load_spec(spec)
     for warning in device_warnings(dataset_spec):
         click.echo(f"warning: {warning}", err=True)
-    report = build_dataset(dataset_spec, out_dir, workers=workers, executor=executor, ray_address=ray_address)
+    report = build_dataset(dataset_spec, out_dir, workers=workers, executor=executor, ray_address=ray_address,
+                           log=lambda line: click.echo(line, err=True))
     _report_build(report)
 
 

@@ -100,7 +100,7 @@ def run_demo(out_dir: str | Path, *, workers: int | None = None, executor: str =
     if warnings:
         log(f"note: {len(warnings)} settings of the paper's presets lie outside the scanner's limits, as in "
             f"the paper (`bimscan build {spec_path} ...` lists them)")
-    report = build_dataset(spec, folder.root, workers=workers, executor=executor)
+    report = build_dataset(spec, folder.root, workers=workers, executor=executor, log=log)
     done = {e.id: e for e in folder.read_manifest().done()}
     stats_report = write_stats(folder.root, out / "stats").out_dir / "report.md" if done else None
     pictures: list[Path] = []

@@ -4,11 +4,14 @@ Every executor runs plain functions on picklable task objects and hands back res
 finish; the build driver does not care where. ``EXECUTORS`` maps the names of ``--executor``:
 
 - ``local``: a pool of ``workers`` processes started with ``spawn`` (Open3D and OpenMP are not
-  fork-safe). Workers report scanned pulses through a queue for the progress bar, and end
-  themselves within a second when the driver dies (a killed build leaves no process behind).
+  fork-safe). Workers report the pulses each unit has scanned through a queue (progress and the
+  time left), and end themselves within a second when the driver dies (a killed build leaves no
+  process behind).
 - ``ray``: one Ray task per job on a local Ray instance, or on a running cluster with
-  ``address`` (the dataset folder must then be on storage every node sees). Ray is imported
-  only here, inside the functions.
+  ``address`` (the dataset folder must then be on storage every node sees). A task whose worker
+  or node dies is run again on another node (``RAY_TASK_RETRIES``): tasks write under staging
+  names and rename when whole, so a rerun gives the same bytes and a half-written unit is never
+  seen. Ray is imported only here, inside the functions.
 - ``serial``: runs every task in the calling process, one after the other (debugging, tests).
 """
 
@@ -17,7 +20,10 @@ from __future__ import annotations
 import multiprocessing
 import os
 import queue
+import secrets
 import signal
+import socket
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -30,15 +36,59 @@ from bimscan.processes import die_with_parent, quiet_resource_tracker
 
 TaskFunction = Callable[[Any], Any]
 
-# Set in each worker process by the local executor's initializer.
-_WORKER_STATE: dict[str, Any] = {"queue": None, "parent": None}
+# Times Ray runs a task again when its worker process or its node dies (killed, out of memory, a
+# machine lost): the build then loses no unit. A task that raises is not run again (its unit fails
+# with the reason).
+RAY_TASK_RETRIES = 3
+# Names the Ray actor that counts the pulses of a build's Ray tasks (set in their environment).
+PULSE_COUNTER_ENV = "BIMSCAN_PULSE_COUNTER"
+
+# Set in each worker process by the local executor's initializer (queue, parent), or by the first
+# report of a Ray task (counter: the build's pulse counter actor).
+_WORKER_STATE: dict[str, Any] = {"queue": None, "parent": None, "counter": None}
 
 
-def report_pulses(n: int) -> None:
-    """Called by tasks as they scan: forwards pulse counts to the driver's progress bar."""
+def report_pulses(n: int, *, unit: str = "") -> None:
+    """Called by tasks as they scan: forwards the pulses ``unit`` has just scanned to the driver
+    (its progress bar and time left): through the local pool's queue, or the build's Ray actor."""
     channel = _WORKER_STATE["queue"]
     if channel is not None:
-        channel.put_nowait(n)
+        channel.put_nowait((unit, n))
+        return
+    name = os.environ.get(PULSE_COUNTER_ENV)
+    if name:
+        counter = _WORKER_STATE["counter"]
+        if counter is None:
+            import ray  # only ever set on a Ray worker
+
+            try:
+                counter = _WORKER_STATE["counter"] = ray.get_actor(name)
+            except ValueError:  # the build's driver is gone: progress is cosmetic
+                return
+        counter.add.remote(unit, n)  # fire and forget
+
+
+class PulseCounter:
+    """Pulses scanned per unit, summed between two ``drain`` calls (a Ray actor of the build)."""
+
+    def __init__(self) -> None:
+        self.counts: dict[str, int] = {}
+
+    def add(self, unit: str, n: int) -> None:
+        self.counts[unit] = self.counts.get(unit, 0) + n
+
+    def drain(self) -> dict[str, int]:
+        counts, self.counts = self.counts, {}
+        return counts
+
+
+def worker_node() -> dict[str, str]:
+    """Where this task runs, for the unit's timings: the host name, and the Ray node id on Ray."""
+    place = {"host": socket.gethostname()}
+    ray = sys.modules.get("ray")  # imported by Ray in its workers; never imported here
+    if ray is not None and ray.is_initialized():
+        place["ray_node"] = ray.get_runtime_context().get_node_id()
+    return place
 
 
 def driver_alive() -> bool:
@@ -75,7 +125,7 @@ class TaskExecutor(Protocol):
 
     def submit(self, fn: TaskFunction, task: Any, *, cpus: int) -> Any: ...
     def wait(self, handles: list[Any], *, timeout: float) -> list[tuple[Any, Any, BaseException | None]]: ...
-    def drain_pulses(self) -> int: ...
+    def drain_pulses(self) -> dict[str, int]: ...
     def close(self, *, cancel: bool = False) -> None: ...
 
 
@@ -106,8 +156,8 @@ class SerialExecutor:
                     return [(handle, None, exc)]
         return []
 
-    def drain_pulses(self) -> int:
-        return 0
+    def drain_pulses(self) -> dict[str, int]:
+        return {}
 
     def close(self, *, cancel: bool = False) -> None:
         self._pending.clear()
@@ -138,15 +188,16 @@ class LocalExecutor:
             out.append((future, None if error else future.result(), error))
         return out
 
-    def drain_pulses(self) -> int:
-        total = 0
+    def drain_pulses(self) -> dict[str, int]:
+        scanned: dict[str, int] = {}
         while True:
             try:
-                total += self._queue.get_nowait()
+                unit, n = self._queue.get_nowait()
             except queue.Empty:
-                return total
+                return scanned
             except (OSError, ValueError, EOFError):
-                return total  # the queue is gone with a broken pool; progress is cosmetic
+                return scanned  # the queue is gone with a broken pool; progress is cosmetic
+            scanned[unit] = scanned.get(unit, 0) + n
 
     def close(self, *, cancel: bool = False) -> None:
         if cancel:  # stopped (Ctrl-C, SIGTERM): end the running units now; the driver then sweeps their staging
@@ -168,7 +219,8 @@ class RayExecutor:
             raise ConfigError("--executor ray needs Ray; install it with pip install 'bimscan[ray]'") from exc
         self._ray = ray
         self._started = not ray.is_initialized()
-        runtime_env = {"env_vars": dict(environment or {})}
+        counter_name = f"bimscan-pulses-{os.getpid()}-{secrets.token_hex(4)}"
+        runtime_env = {"env_vars": dict(environment or {}) | {PULSE_COUNTER_ENV: counter_name}}
         if self._started:
             try:
                 if address:
@@ -180,11 +232,24 @@ class RayExecutor:
                 raise DatasetError(f"could not start or reach Ray{f' at {address}' if address else ''} ({exc}); "
                                    "check the address or use --executor local") from exc
         self._remote: dict[TaskFunction, Any] = {}
+        # The driver sizes tasks by its own cores; a task asking for more CPUs than any node has
+        # would wait forever, so it asks for at most the largest node's.
+        self._largest_node_cpus = max((int(node["Resources"].get("CPU", 0)) for node in ray.nodes() if node["Alive"]),
+                                      default=0)
+        # Tasks report their pulses to an actor on the driver's node (it takes no CPU); tasks of a
+        # Ray session the caller started report nothing (their environment is not ours).
+        from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+        here = NodeAffinitySchedulingStrategy(node_id=ray.get_runtime_context().get_node_id(), soft=True)
+        self._counter = ray.remote(PulseCounter).options(name=counter_name, num_cpus=0,
+                                                         scheduling_strategy=here).remote()
 
     def submit(self, fn: TaskFunction, task: Any, *, cpus: int) -> Any:
         if fn not in self._remote:
             self._remote[fn] = self._ray.remote(fn)
-        return self._remote[fn].options(num_cpus=cpus, max_retries=0).remote(task)
+        if self._largest_node_cpus >= 1:
+            cpus = min(cpus, self._largest_node_cpus)
+        return self._remote[fn].options(num_cpus=cpus, max_retries=RAY_TASK_RETRIES).remote(task)
 
     def wait(self, handles: list[Any], *, timeout: float) -> list[tuple[Any, Any, BaseException | None]]:
         done, _ = self._ray.wait(handles, num_returns=1, timeout=timeout)
@@ -196,8 +261,11 @@ class RayExecutor:
                 out.append((ref, None, exc))
         return out
 
-    def drain_pulses(self) -> int:
-        return 0
+    def drain_pulses(self) -> dict[str, int]:
+        try:
+            return self._ray.get(self._counter.drain.remote(), timeout=5)
+        except Exception:  # the actor lost or slow (RayActorError, GetTimeoutError): progress is cosmetic
+            return {}
 
     def close(self, *, cancel: bool = False) -> None:
         if self._started:

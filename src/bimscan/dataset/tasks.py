@@ -8,8 +8,8 @@ them (``scenes/<scene>.<site>.site.npz``). A *unit task* reads that dressed scen
 is missing, dresses the scene again: seeded, the same objects in the same places), scans the
 survey with its recipe and streams the merged cloud through the post-processing (invalid points dropped and counted, semantic checks,
 optional voxel subsampling) into every requested format at once, checks what was written, and
-writes ``unit.json`` (reproducible) and ``timings.json`` (not). The unit is built in a hidden
-staging folder and renamed into place when whole. Tasks are module-level functions so they
+writes ``unit.json`` (reproducible) and ``timings.json`` (not: times, and the host and Ray node
+that built it). The unit is built in a hidden staging folder and renamed into place when whole. Tasks are module-level functions so they
 pickle by name; they return outcomes and never raise for a user error.
 """
 
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import errno
+import functools
 import shutil
 import time
 from collections.abc import Mapping
@@ -25,7 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from bimscan.dataset.executors import driver_alive, report_pulses
+from bimscan.dataset.executors import driver_alive, report_pulses, worker_node
 from bimscan.dataset.layout import (
     FORMAT_FILES, STATIONS_FORMAT, STATIONS_VERSION, TIMINGS_NAME, TRAJECTORY_NAME, DatasetFolder, UnitRecord, read_json,
     read_site_scene, write_json, write_site_scene, write_unit_record,
@@ -34,6 +35,7 @@ from bimscan.dataset.plan import SceneJob, UnitJob
 from bimscan.errors import BimscanError, DatasetError, SemanticError
 from bimscan.files import file_sha256, replace_path
 from bimscan.survey.recipe import AUTO_STATIONS
+from bimscan.types import Station
 
 if TYPE_CHECKING:
     from bimscan.io import CloudWriter, WrittenCloud
@@ -51,6 +53,8 @@ class SceneOutcome:
     site_s: float = 0.0  # dressing the scene (stage, free floor, placement)
     placement_s: float = 0.0  # of which placing the objects
     site_rooms: int = 0
+    points_per_pulse: float = 0.0  # measured on a thinned pattern from the stations (size estimate)
+    probe_s: float = 0.0  # measuring it
 
 
 @dataclass(frozen=True)
@@ -63,6 +67,7 @@ class UnitOutcome:
     load_s: float = 0.0
     seconds: float = 0.0
     site_s: float = 0.0
+    node: str = ""  # where it was built: the host name, with the Ray node id's start on Ray ("host/3fa2c19b")
 
 
 def task_error(error: BaseException) -> str:
@@ -85,6 +90,7 @@ def run_scene_job(job: SceneJob) -> SceneOutcome:
     """Parse the scene (filling the geometry cache), dress it, and plan or read its stations once."""
     from bimscan.ifc.summary import report_lines
     from bimscan.pipeline import load_scene, rooms_without_station_line, site_and_stations
+    from bimscan.survey.survey import probe_points_per_pulse
 
     try:
         start = time.perf_counter()
@@ -97,11 +103,15 @@ def run_scene_job(job: SceneJob) -> SceneOutcome:
         if path.is_file():
             try:
                 stored = read_json(path)
-                dressed_ok = site_path is None or read_site_scene(site_path, scene, job.stations_key) is not None
-                if stored.get("key") == job.stations_key and dressed_ok:
-                    return SceneOutcome(scene=job.scene, n_stations=len(stored["stations"]), parse_s=parse_s,
-                                        notes=loading + tuple(stored.get("notes", ())), site_tag=job.site_tag)
-            except (DatasetError, KeyError, TypeError):
+                dressed = scene if site_path is None else read_site_scene(site_path, scene, job.stations_key)
+                if stored.get("key") == job.stations_key and dressed is not None:
+                    stations = tuple(Station.from_dict(s) for s in stored["stations"])
+                    probe_start = time.perf_counter()
+                    per_pulse = probe_points_per_pulse(dressed, job.recipe, stations)
+                    return SceneOutcome(scene=job.scene, n_stations=len(stations), parse_s=parse_s,
+                                        notes=loading + tuple(stored.get("notes", ())), site_tag=job.site_tag,
+                                        points_per_pulse=per_pulse, probe_s=time.perf_counter() - probe_start)
+            except (DatasetError, KeyError, TypeError, ValueError):
                 pass  # damaged: plan again
         site_start = time.perf_counter()
         chosen = site_and_stations(scene, job.recipe)
@@ -115,9 +125,12 @@ def run_scene_job(job: SceneJob) -> SceneOutcome:
         write_json(path, {"format": STATIONS_FORMAT, "version": STATIONS_VERSION, "key": job.stations_key,
                           "scene": job.scene, "site": job.site_tag,
                           "stations": [dataclasses.asdict(s) for s in stations], "notes": notes})
+        probe_start = time.perf_counter()
+        per_pulse = probe_points_per_pulse(scene, job.recipe, stations)
         return SceneOutcome(scene=job.scene, n_stations=len(stations), parse_s=parse_s, notes=loading + tuple(notes),
                             site_tag=job.site_tag, site_s=site_s, placement_s=timings.placement_s,
-                            site_rooms=timings.rooms)
+                            site_rooms=timings.rooms, points_per_pulse=per_pulse,
+                            probe_s=time.perf_counter() - probe_start)
     except (BimscanError, OSError) as exc:
         return SceneOutcome(scene=job.scene, error=_one_line(exc), site_tag=job.site_tag)
 
@@ -159,7 +172,7 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
         kept = CloudSummary() if job.voxel_size_m else scanned  # without subsampling, what is kept is what was scanned
         subsampler = VoxelSubsampler(job.voxel_size_m, origin=header.origin) if job.voxel_size_m else None
         scan_start = time.perf_counter()
-        for chunk in stream_checked(survey, summary=scanned, on_pulses=report_pulses):
+        for chunk in stream_checked(survey, summary=scanned, on_pulses=functools.partial(report_pulses, unit=job.unit)):
             if not driver_alive():
                 raise DatasetError("the build driver is gone; unit abandoned (run the build again to finish it)")
             if subsampler is not None:
@@ -189,15 +202,22 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
             ifc={"report": report_document(scene.report), "failed": [dataclasses.asdict(f) for f in scene.failed]},
         )
         write_unit_record(staged, record)
+        place = worker_node()
         write_json(staged / TIMINGS_NAME, {"load_s": round(load_s, 3), "site_s": round(site_s, 3),
                                            "scan_write_s": round(scan_s, 3),
                                            "total_s": round(time.perf_counter() - start, 3),
                                            "threads": job.recipe.threads,
+<<<<<<< HEAD
                                            "points_per_s": round(kept.points / max(scan_s, 1e-9))})
         replace_path(staged, folder.unit_dir(job.unit), kind="unit")
+=======
+                                           "points_per_s": round(kept.points / max(scan_s, 1e-9)), **place})
+        replace_path(staged, folder.unit_dir(job.unit))
+>>>>>>> issue44-cluster
         staged = None
         return UnitOutcome(unit=job.unit, status="done", points=kept.points, files=files, load_s=load_s,
-                           seconds=time.perf_counter() - start, site_s=site_s)
+                           seconds=time.perf_counter() - start, site_s=site_s,
+                           node=f"{place['host']}/{place['ray_node'][:8]}" if "ray_node" in place else place["host"])
     except (BimscanError, OSError) as exc:
         return UnitOutcome(unit=job.unit, status="failed", error=_one_line(exc), seconds=time.perf_counter() - start)
     finally:

@@ -88,9 +88,14 @@ POINT_COUNTERS: dict[str, Callable[[str | Path], int]] = {
     "text": count_text_points,
     "s3dis": count_s3dis_points,
 }
-# Bytes a point takes on disk at most, per format (LAZ: a bound on what scans compress to), for
-# the free-space check before a long scan.
-BYTES_PER_POINT: dict[str, int] = {"las": 36, "laz": 12, "ply": 41, "e57": 40, "npy": 29}
+# Bytes a point of the paper's scanner takes on disk at most, per format (LAZ: a bound on what
+# scans compress to; colour, extra echoes and mobile columns add more), for the free-space check
+# before a long scan.
+BYTES_PER_POINT: dict[str, int] = {"las": 36, "laz": 12, "ply": 41, "e57": 40, "npy": 32}
+# What such a point takes in a typical scan, for a dataset's size estimate: LAZ compresses the
+# presets' scans at 10 deg/s to 4.4 (exp6) to 7.4 (exp1) bytes a point, sparser scans to about 9
+# (docs/guide/datasets.md); the other formats store a fixed record.
+LIKELY_BYTES_PER_POINT: dict[str, float] = BYTES_PER_POINT | {"laz": 6.0}
 _WRITABLE = ", ".join(s for name in WRITABLE_FORMATS for s in CLOUD_FORMATS[name] if s) + \
     ", or a folder path without suffix (NumPy)"
 _READABLE = ", ".join(s for suffixes in CLOUD_FORMATS.values() for s in suffixes if s) + \
@@ -218,8 +223,8 @@ def read_cloud_header(path: str | Path) -> CloudHeader | None:
 
 
 __all__ = [
-    "BYTES_PER_POINT", "CHUNK_READERS", "CLOUD_FORMATS", "HEADER_READERS", "POINT_COUNTERS", "WRITABLE_FORMATS",
-    "WRITERS", "CloudWriter", "ObjExport", "WrittenCloud", "check_cloud_output", "check_free_space", "count_points",
+    "BYTES_PER_POINT", "CHUNK_READERS", "CLOUD_FORMATS", "HEADER_READERS", "LIKELY_BYTES_PER_POINT", "POINT_COUNTERS",
+    "WRITABLE_FORMATS", "WRITERS", "CloudWriter", "ObjExport", "WrittenCloud", "check_cloud_output", "check_free_space", "count_points",
     "export_obj", "input_format", "iter_cloud_chunks", "open_cloud_writer", "output_format", "read_cloud",
     "read_cloud_header", "read_obj",
 ]

@@ -201,6 +201,29 @@ def _run_mobile(survey: Survey, *, on_pulses: Callable[[int], None] | None,
                                                 on_pulses=on_pulses, reuse_buffers=reuse_buffers)
 
 
+def probe_points_per_pulse(scene: BimScene, recipe: ScanRecipe, stations: tuple[Station, ...], *,
+                           lines: int = 120, pulses_per_line: int = 120) -> float:
+    """Points a pulse of the tripod ``recipe`` gives in ``scene`` from ``stations``, measured by
+    scanning a thinned copy of its pattern: the same scanner, elevation window, head turn and sensor
+    effects, with at most ``lines`` mirror lines of at most ``pulses_per_line`` pulses per station
+    (about 15,000 pulses instead of up to millions). Pulses that hit nothing (open sky, out of
+    range) give no point, extra echoes (``returns = "all"``) give more, as in the scan. For size
+    estimates before a build: a thinned pattern samples the same directions evenly, so its share
+    of hits is the full pattern's within a few per cent."""
+    settings = recipe.settings
+    low, high = settings.window(recipe.scanner)
+    line_pulses = settings.pulse_freq_hz / settings.scan_freq_hz * (high - low) / recipe.scanner.mirror_sweep_deg
+    n_lines = settings.scan_freq_hz * settings.duration_s()
+    thinned = dataclasses.replace(settings,
+                                  pulse_freq_hz=settings.pulse_freq_hz * min(1.0, pulses_per_line / line_pulses),
+                                  head_deg_per_s=settings.head_deg_per_s * max(1.0, n_lines / lines))
+    survey = prepare_survey(scene, recipe.with_fields(settings=thinned, strict=False, mobile=None), stations=stations)
+    points = 0
+    for chunk in run_survey(survey, reuse_buffers=True):
+        points += int(np.isfinite(chunk.xyz).all(axis=1).sum())
+    return points / max(survey.pulses(), 1)
+
+
 def cloud_origin(scene: BimScene) -> tuple[float, float, float]:
     """Local origin for the writers: the model's lower corner in whole metres."""
     lo, _ = scene.mesh.bounds()
