@@ -303,15 +303,7 @@ def _holdout_spec(experiment: Experiment) -> DatasetSpec | None:
 
     folder = experiment.path.parent
     names = [Path(p).stem for p in holdout.ifc]
-    config: dict[str, Any] = {"name": "holdout", "preset": holdout.preset, "stage": holdout.stage}
-    if holdout.head_deg_per_s is not None:
-        config["head_deg_per_s"] = holdout.head_deg_per_s
-    if holdout.clutter:
-        config["clutter"] = {"density": holdout.clutter}
-    if holdout.realism is not None:
-        config["realism"] = holdout.realism
-    if holdout.sensor:
-        config["sensor"] = dict(holdout.sensor)
+    config: dict[str, Any] = {**holdout.config, "name": "holdout"}
     return parse_spec({"name": f"{experiment.name}-holdout", "seed": holdout.seed, "formats": ["npy"],
                        "scenes": [{"name": n, "ifc": str(resolve_path(folder, p).resolve())}
                                   for n, p in zip(names, holdout.ifc, strict=True)],

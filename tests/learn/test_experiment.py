@@ -205,7 +205,8 @@ def test_the_shipped_experiments_are_valid() -> None:
     assert [c.platform for c in handheld.configs] == ["handheld"]
     for section in ("blocks", "input", "augment", "model", "train"):
         assert getattr(_config(recipe.variants[0]), section) == getattr(_config(recipe.variants[1]), section)
-    assert all((configs / f).is_file() for f in recipe.holdout.ifc) and recipe.holdout.clutter == 0.3
+    assert all((configs / f).is_file() for f in recipe.holdout.ifc)
+    assert recipe.holdout.config == {"preset": "exp3", "head_deg_per_s": 75.0, "clutter": {"density": 0.3}}
     ablation = load_experiment(configs / "sim2real_cpu_ablation.toml")
     whole, last_row = _config(recipe.variants[0]), _config(ablation.variants[-1])
     for section in ("input", "augment", "model"):
@@ -465,7 +466,10 @@ def test_variants_training_on_real_rooms_are_never_scored_on_them(rooms_dir: Pat
     (("folds = 2", "folds = 1"), "folds must be an integer in 2..64, got 1"),
     (('freeze = ["embedding"]', 'freeze = ["head"]'), "freeze"),
     (("stride_m = 1.5", "stride_m = 0.7"), r"#1 \(synthetic\): \[eval\] stride_m = 0.7 does not divide"),
-    (("[rooms]", '[holdout]\nifc = ["house.ifc"]\nclutter = -1.0\n\n[rooms]'), r"\[holdout\].*clutter density = -1"),
+    (("[rooms]", '[holdout]\nifc = ["house.ifc"]\nconfig = { clutter = { density = -1.0 } }\n\n[rooms]'),
+     r"\[holdout\].*clutter density = -1"),
+    (("[rooms]", '[holdout]\nifc = ["house.ifc"]\nclutter = 0.3\n\n[rooms]'),
+     r"\[holdout\] clutter: the holdout's scan settings are a dataset configuration table now"),
     (('train = { epochs = 2, freeze = ["embedding"] }', 'train = { epochs = 2 }\nmodel = { embed_dim = 16 }'),
      r"#4 \(finetune-all\): init 'synthetic' trains another \[model\]"),
     (('rooms = ["r1.txt"]\nroom_weight = 2.0', 'rooms = ["r1.txt"]\nroom_weight = 2.0\ntrain = { freeze = ["attention"] }'),
@@ -494,7 +498,8 @@ def test_the_holdout_models_are_scanned_with_the_given_sensor_settings(rooms_dir
     from bimscan.sim2real import _holdout_spec
 
     (rooms_dir / "house.ifc").write_text("ISO-10303-21;\nEND-ISO-10303-21;\n", encoding="utf-8")
-    holdout = '[holdout]\nifc = ["house.ifc"]\nrealism = "paper"\nsensor = { glass = true }\n\n[rooms]'
+    holdout = ('[holdout]\nifc = ["house.ifc"]\nconfig = { realism = "paper", sensor = { glass = true }, '
+               'clutter = { density = 0.2, kinds = ["office"] } }\n\n[rooms]')
     (rooms_dir / "exp.toml").write_text(ROOMS_EXPERIMENT.replace("[rooms]", holdout, 1), encoding="utf-8")
     (config,) = _holdout_spec(load_experiment(rooms_dir / "exp.toml")).configs
     assert (config.realism, config.sensor) == ("paper", {"glass": True})

@@ -88,16 +88,18 @@ class ExperimentTable(Checked):
 
 @dataclass(frozen=True)
 class HoldoutTable:
-    """``[holdout]``: IFC models scanned once (auto stations) and scored, never trained on."""
+    """``[holdout]``: IFC models (``ifc``) scanned once with auto stations, seeded by ``seed``, with
+    the scan settings of ``config``: a dataset spec's ``[[configs]]`` table (preset, head speed,
+    clutter, stage, realism, sensor, ...; its name is "holdout"), read by the dataset spec's own
+    loader. Scored, never trained on."""
 
     ifc: tuple[str, ...] = ()
-    preset: str = "exp3"
-    head_deg_per_s: float | None = None
-    clutter: float = 0.0
-    stage: str = "finished"
     seed: int = 0
-    realism: str | None = None  # the scans' sensor realism and settings, as a dataset configuration's
-    sensor: dict[str, Any] | None = None
+    config: dict[str, Any] = field(default_factory=lambda: {"preset": "exp3"})
+
+
+# [holdout] keys of earlier versions, now keys of its dataset configuration table
+HOLDOUT_MOVED = ("preset", "head_deg_per_s", "clutter", "stage", "realism", "sensor")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -203,6 +205,11 @@ def parse_experiment(path: str | Path, *, real: Sequence[str | Path] | None = No
         data["variants"] = [_listed(v) for v in data["variants"]]
     if isinstance(data.get("holdout"), dict) and isinstance(data["holdout"].get("ifc"), str):
         data["holdout"] = {**data["holdout"], "ifc": [data["holdout"]["ifc"]]}
+    moved = [key for key in HOLDOUT_MOVED if isinstance(data.get("holdout"), dict) and key in data["holdout"]]
+    if moved:
+        raise ConfigError(f"{path} [holdout] {moved[0]}: the holdout's scan settings are a dataset configuration "
+                          f"table now; write [holdout] config = {{ {moved[0]} = ... }} (clutter as "
+                          "{ density = 0.3 }, as in a dataset spec's [[configs]])")
     parsed = build_dataclass(ExperimentFile, data, where=str(path))
     folder = path.parent
     if real:
