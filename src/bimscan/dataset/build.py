@@ -208,39 +208,6 @@ def _run(folder: DatasetFolder, rows: dict[str, ManifestEntry], unit_jobs: dict[
                           enabled=progress) as scene_bar:
             while handles:
                 for handle, value, error in pool.wait(list(handles), timeout=0.5):
-<<<<<<< HEAD
-                    kind, name = handles.pop(handle)
-                    if kind == "scene":
-                        scene_outcome = value if error is None else SceneOutcome(scene=name[0], error=task_error(error),
-                                                                                 site_tag=name[1])
-                        result.scenes.append(scene_outcome)
-                        scene_bar.update(1)
-                        if scene_outcome.error is not None:
-                            for job in by_scene[name]:
-                                finish_unit(UnitOutcome(unit=job.unit, status="failed",
-                                                        error=f"scene {name[0]!r}: {scene_outcome.error}"))
-                                unit_bar.update(1)
-                            continue
-                        for job in by_scene[name]:
-                            pulse_bar.total += station_pulses(job.recipe) * scene_outcome.n_stations
-                            submit("unit", job.unit, run_unit_job, job)
-                        pulse_bar.refresh()
-                    else:
-                        finish_unit(value if error is None else
-                                    UnitOutcome(unit=name, status="failed", error=task_error(error)))
-                        unit_bar.update(1)
-                pulse_bar.update(pool.drain_pulses())
-            finished = True
-        finally:
-            if not finished:
-                # Ctrl-C or a driver bug: stop the workers, keep what is finished (the manifest says which),
-                # and remove the ended workers' staging (workers on other machines: the next build does)
-                pool.close(cancel=True)
-                if ray_address is None:
-                    folder.remove_dead_temps()
-                write_manifest()
-        pool.close()
-=======
                     name = handles.pop(handle)
                     scene_outcome = value if error is None else SceneOutcome(scene=name[0], error=task_error(error),
                                                                              site_tag=name[1])
@@ -283,14 +250,16 @@ def _run(folder: DatasetFolder, rows: dict[str, ManifestEntry], unit_jobs: dict[
         finished = True
     finally:
         if not finished:
-            # Ctrl-C, a refusal or a driver bug: stop the workers, keep what is finished (the manifest says which).
+            # Ctrl-C, a refusal or a driver bug: stop the workers, keep what is finished (the manifest says which),
+            # and remove the ended workers' staging (workers on other machines: the next build does)
             pool.close(cancel=True)
+            if ray_address is None:
+                folder.remove_dead_temps()
             write_manifest()
     pool.close()
     # A task cut short (its worker or node died, then run again elsewhere) leaves its staging
     # folder; nothing of this build runs any more.
     folder.remove_leftovers()
->>>>>>> issue44-cluster
     return result
 
 

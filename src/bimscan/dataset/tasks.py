@@ -207,13 +207,8 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
                                            "scan_write_s": round(scan_s, 3),
                                            "total_s": round(time.perf_counter() - start, 3),
                                            "threads": job.recipe.threads,
-<<<<<<< HEAD
-                                           "points_per_s": round(kept.points / max(scan_s, 1e-9))})
-        replace_path(staged, folder.unit_dir(job.unit), kind="unit")
-=======
                                            "points_per_s": round(kept.points / max(scan_s, 1e-9)), **place})
-        replace_path(staged, folder.unit_dir(job.unit))
->>>>>>> issue44-cluster
+        replace_path(staged, folder.unit_dir(job.unit), kind="unit")
         staged = None
         return UnitOutcome(unit=job.unit, status="done", points=kept.points, files=files, load_s=load_s,
                            seconds=time.perf_counter() - start, site_s=site_s,
