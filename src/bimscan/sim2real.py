@@ -303,7 +303,7 @@ def _holdout_spec(experiment: Experiment) -> DatasetSpec | None:
 
     folder = experiment.path.parent
     names = [Path(p).stem for p in holdout.ifc]
-    config: dict[str, Any] = {**holdout.config, "name": "holdout"}
+    config = holdout.scan_config()
     return parse_spec({"name": f"{experiment.name}-holdout", "seed": holdout.seed, "formats": ["npy"],
                        "scenes": [{"name": n, "ifc": str(resolve_path(folder, p).resolve())}
                                   for n, p in zip(names, holdout.ifc, strict=True)],

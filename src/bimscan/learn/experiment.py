@@ -95,9 +95,16 @@ class HoldoutTable:
 
     ifc: tuple[str, ...] = ()
     seed: int = 0
-    config: dict[str, Any] = field(default_factory=lambda: {"preset": "exp3"})
+    config: dict[str, Any] = field(default_factory=dict)
+
+    def scan_config(self) -> dict[str, Any]:
+        """The configuration table the holdout is scanned with: ``config`` over a default preset
+        (exp3, unless ``config`` gives explicit ``settings``)."""
+        default = {} if "settings" in self.config else {"preset": HOLDOUT_PRESET}
+        return {**default, **self.config, "name": "holdout"}
 
 
+HOLDOUT_PRESET = "exp3"
 # [holdout] keys of earlier versions, now keys of its dataset configuration table
 HOLDOUT_MOVED = ("preset", "head_deg_per_s", "clutter", "stage", "realism", "sensor")
 
