@@ -4,14 +4,14 @@ Run: python benchmarks/bench_learn.py [--full-cpu] [--steps K] [--baseline-src O
 
 Rows, measured side by side in one run:
 
-- CPU, tiny model (configs/train_tiny_cpu.toml's network): one training step (forward,
+- CPU, tiny model (configs/training/tiny_cpu.toml's network): one training step (forward,
   masked loss, backward, Adam, BatchNorm commit, EMA) at batch 2, and inference passes
   (forward + softmax + vote accumulation, the code path of evaluate/predict) at batch 2.
 - CPU, full model (Table 2, 2.4M parameters) with --full-cpu: about 25 s per training step on
   2 cores (PERFORMANCE.md), so off by default.
 - CUDA, full model, when a GPU is visible: AMP float16 with GradScaler as in training, and
   bfloat16; the same functions the training loop and the block runner call.
-- CPU, the CPU recipe's network and inputs (configs/sim2real_cpu.toml: 55k parameters, 10 input
+- CPU, the CPU recipe's network and inputs (configs/experiments/sim2real_cpu.toml: 55k parameters, 10 input
   channels) at its batch, 4 blocks of 1024 points: one training step with no block padded and
   with every block padded as the recipe's point dropout pads them (each block loses a random
   share up to AugmentConfig's dropout_max; padded points are masked), and their ratio. With ``--baseline-src`` the same two rows for the network module
@@ -55,7 +55,7 @@ RECIPE_POINTS = 1024
 
 
 def tiny_model_config() -> ModelConfig:
-    config, _ = load_train_config(CONFIGS / "train_tiny_cpu.toml")
+    config, _ = load_train_config(CONFIGS / "training" / "tiny_cpu.toml")
     return config.model
 
 
@@ -132,7 +132,7 @@ def measure(name: str, config: ModelConfig, device: torch.device, amp: str, repe
 def recipe_network() -> tuple[ModelConfig, int, int]:
     """The CPU recipe's model config, input channels and batch size, read from its experiment file
     by the config parser the experiment uses (its shared sections; no data paths are checked)."""
-    path = CONFIGS / "sim2real_cpu.toml"
+    path = CONFIGS / "experiments" / "sim2real_cpu.toml"
     data = load_toml(path)
     model = build_dataclass(ModelConfig, data["model"], where=f"{path} [model]")
     inputs = build_dataclass(InputConfig, data["input"], where=f"{path} [input]")

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from bimscan.cli.main import main
-from bimscan.dataset.demo import demo_spec
+from bimscan.demo import demo_spec
 
 
 @pytest.mark.slow

@@ -162,13 +162,13 @@ def test_build_refuses_a_spec_that_is_not_toml(tmp_path: Path, capsys: pytest.Ca
 
 
 def test_the_shipped_example_specs_load(tmp_path: Path) -> None:
-    from bimscan.dataset.demo import demo_spec
+    from bimscan.demo import demo_spec
 
     root = Path(__file__).resolve().parents[2]
-    demo = load_spec(root / "configs" / "dataset_demo.toml")
-    assert (root / "configs" / "dataset_demo.toml").read_text() == demo_spec()  # the demo builds this very file
+    demo = load_spec(root / "configs" / "datasets" / "demo.toml")
+    assert (root / "configs" / "datasets" / "demo.toml").read_text() == demo_spec()  # the demo builds this very file
     assert len(demo.unit_ids()) == 12 and [c.preset for c in demo.configs] == [f"exp{i}" for i in range(1, 7)]
-    spc = root / "configs" / "dataset_spc.toml"
+    spc = root / "configs" / "datasets" / "spc.toml"
     if not (root.parent / "shared" / "data" / "ifc" / "duplex.ifc").is_file():
         pytest.skip("the SPC-scale example uses the shared sample models, absent here")
     spec = load_spec(spc)
@@ -201,21 +201,6 @@ def test_a_bad_base_is_one_clear_error(spec_folder: Path, text: str, error: type
     (spec_folder / "middle.toml").write_text('base = "root.toml"\n')
     with pytest.raises(error, match=message):
         load_spec(_write(spec_folder, text))
-
-
-def test_the_companion_sim2real_specs_scan_the_same_units_as_their_base() -> None:
-    root = Path(__file__).resolve().parents[2] / "configs"
-    base = load_spec(root / "sim2real_cpu_dataset_one_storey.toml")
-    for name, change in (("empty", {"clutter": 0.0}), ("full", {"realism": "full"})):
-        companion = load_spec(root / f"sim2real_cpu_dataset_{name}.toml")
-        assert companion.scenes == base.scenes and companion.configs == base.configs
-        assert companion.name != base.name
-        recipe = companion.recipe(companion.scenes[0], companion.configs[0])
-        original = base.recipe(base.scenes[0], base.configs[0])
-        if "clutter" in change:
-            assert recipe.site.is_bare and not original.site.is_bare and recipe.sensor == original.sensor
-        else:
-            assert companion.realism == "full" and recipe.sensor != original.sensor and recipe.site == original.site
 
 
 MOBILE = """\

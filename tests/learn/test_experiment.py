@@ -10,6 +10,7 @@ import json
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 from bimscan.cli.main import main
 from bimscan.errors import ConfigError, IfcError, InputFileError, LearnError
@@ -95,12 +96,32 @@ def _config(variant: object) -> _Sections:
     return _Sections(training_sections(variant))  # type: ignore[arg-type]
 
 
-def _shipped_configs(why: str) -> Path:
-    """The project's configs folder; the test skips (saying ``why``) without the shared S3DIS rooms."""
-    real = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "s3dis_area6"
-    if not real.is_dir():
-        pytest.skip(f"{real} absent: {why}")
-    return Path(__file__).resolve().parents[2] / "configs"
+SHARED_ROOMS = ("Area_6_office_1", "Area_6_hallway_3", "Area_6_copyRoom_1")
+
+
+@pytest.fixture
+def shipped_configs(tmp_path: Path, box_room_ifc: Path) -> Path:
+    """The project's configs/ copied beside a stand-in for ../shared (the four sample IFC models, a
+    box room each, and three tiny labelled S3DIS rooms): every shipped config loads as on a fresh
+    clone, with or without the shared folder."""
+    import shutil
+
+    configs = tmp_path / "project" / "configs"
+    shutil.copytree(Path(__file__).resolve().parents[2] / "configs", configs)
+    models = tmp_path / "shared" / "data" / "ifc"
+    models.mkdir(parents=True)
+    for name in ("duplex", "AC20-FZK-Haus", "IfcOpenHouse_IFC4", "example"):
+        shutil.copy(box_room_ifc, models / f"{name}.ifc")
+    names = {0: "wall", 1: "beam", 2: "ceiling", 3: "floor", 4: "table"}
+    for k, room in enumerate(SHARED_ROOMS):
+        folder = tmp_path / "shared" / "data" / "real" / "s3dis_area6" / room / "Annotations"
+        folder.mkdir(parents=True)
+        cloud = make_room(40 + k, points_per_m2=20)
+        for label, name in names.items():
+            xyz = cloud.xyz[cloud.label == label]
+            np.savetxt(folder / f"{name}_1.txt", np.column_stack([xyz, np.full((len(xyz), 3), 128.0)]),
+                       fmt="%.4f %.4f %.4f %d %d %d")
+    return configs
 
 
 @pytest.fixture
@@ -184,91 +205,68 @@ def test_real_scenes_on_the_command_line_replace_those_of_the_file(experiment_di
     assert config.data.val is not None and config.data.val.scenes == parsed.real.scenes
 
 
-def test_the_shipped_experiments_are_valid() -> None:
-    configs = _shipped_configs("the shipped experiments score on the shared S3DIS rooms")
-    for name in ("sim2real_cpu_ablation.toml", "sim2real_table2.toml"):
-        parsed = load_experiment(configs / name)
-        assert [v.name for v in parsed.variants][0] == "paper-baseline"
-        baseline = _config(parsed.variants[0])
-        assert baseline.input.features == ("xyz",) and baseline.input.grid_m == 0
-        assert not baseline.augment.enabled and baseline.train.class_weights == "none"
-        assert baseline.blocks.train_columns == "scene"
-        assert _config(parsed.variants[-1]).blocks.train_columns == "station"
-    recipe = load_experiment(configs / "sim2real_cpu.toml")
+def test_every_shipped_experiment_and_spec_loads_on_a_fresh_clone(shipped_configs: Path) -> None:
+    from bimscan.dataset.spec import load_spec
+
+    experiments = sorted((shipped_configs / "experiments").glob("*.toml"))
+    specs = sorted((shipped_configs / "datasets").glob("*.toml"))
+    assert len(experiments) >= 4 and len(specs) >= 5
+    for path in experiments:
+        assert load_experiment(path).variants, path.name
+    for path in specs:
+        assert load_spec(path).unit_ids(), path.name
+    listed = (shipped_configs / "README.md").read_text(encoding="utf-8")
+    for path in shipped_configs.rglob("*.toml"):  # the README's table names every shipped file
+        assert f"`{path.relative_to(shipped_configs).as_posix()}`" in listed, path
+
+
+def test_the_shipped_experiments_train_the_one_cpu_recipe(shipped_configs: Path) -> None:
+    """Every CPU variant trains the recipe's network and schedule as written once, in
+    sim2real_cpu.toml; a variant states only how it departs from it."""
+    from bimscan.learn.train_config import AdaptationSchedule
+
+    experiments = shipped_configs / "experiments"
+    recipe = load_experiment(experiments / "sim2real_cpu.toml")
     assert [v.name for v in recipe.variants] == ["sim2real-recipe", "sim2real-handheld"]
     assert len(recipe.holdout.ifc) == 4
+    assert recipe.holdout.config == {"preset": "exp3", "head_deg_per_s": 75.0, "clutter": {"density": 0.3}}
+    whole = _config(recipe.variants[0])
+    assert (whole.blocks.train_columns, whole.train.epochs, whole.train.cpu_threads) == ("both", 3, 2)
+    for variant in recipe.variants[1:]:
+        assert training_sections(variant) == training_sections(recipe.variants[0]), variant.name
     # the handheld variant: the same recipe on the same buildings, walked with the handheld scanner
     from bimscan.dataset.spec import load_spec
 
     tripod, handheld = (load_spec(v.specs[0]) for v in recipe.variants)
     assert [s.generate for s in tripod.scenes] == [s.generate for s in handheld.scenes]
     assert [c.platform for c in handheld.configs] == ["handheld"]
-    for section in ("blocks", "input", "augment", "model", "train"):
-        assert getattr(_config(recipe.variants[0]), section) == getattr(_config(recipe.variants[1]), section)
-    assert all((configs / f).is_file() for f in recipe.holdout.ifc)
-    assert recipe.holdout.config == {"preset": "exp3", "head_deg_per_s": 75.0, "clutter": {"density": 0.3}}
-    ablation = load_experiment(configs / "sim2real_cpu_ablation.toml")
-    whole, last_row = _config(recipe.variants[0]), _config(ablation.variants[-1])
-    for section in ("input", "augment", "model"):
-        assert getattr(whole, section) == getattr(last_row, section), section  # the ablation's last row: the recipe
-    # on single storeys per station (bimscan's default), 4 epochs; on whole buildings per station and
-    # merged, 3 epochs of the 1.5 times as many blocks
-    assert dataclasses.replace(whole.blocks, train_columns="station") == last_row.blocks
-    assert (whole.blocks.train_columns, last_row.blocks.train_columns) == ("both", "station")
-    assert dataclasses.replace(whole.train, epochs=4) == last_row.train and whole.train.epochs == 3
-    assert (whole.eval.stride_m, whole.eval.votes, last_row.eval.stride_m, last_row.eval.votes) == (1.5, 1, 1.0, 4)
+
+    finetune = {v.name: v for v in load_experiment(experiments / "finetune_cpu.toml").variants}
+    assert list(finetune) == ["synthetic-only", "real-only-12", "finetune-1", "finetune-3", "finetune-12"]
+    assert [len(finetune[f"finetune-{n}"].rooms) for n in (1, 3)] == [1, 3] and finetune["finetune-12"].rooms == "all"
+    assert training_sections(finetune["synthetic-only"]) == training_sections(recipe.variants[0])
+
+    adapt = load_experiment(experiments / "sim2real_adapt_cpu.toml")
+    variants = {v.name: v for v in adapt.variants}
+    assert list(variants) == ["synthetic-only", "adapt-transductive", "adapt-inductive"]
+    assert (variants["adapt-transductive"].adapt_to, variants["adapt-inductive"].adapt_to) == ("scored", "others")
+    assert training_sections(variants["synthetic-only"]) == training_sections(recipe.variants[0])
+    schedule = AdaptationSchedule()  # bimscan adapt's: the experiment measures what users run
+    for name in ("adapt-transductive", "adapt-inductive"):
+        config = _config(variants[name])
+        assert variants[name].init == "synthetic-only" and variants[name].specs == variants["synthetic-only"].specs
+        assert config.train.epochs == schedule.epochs
+        assert config.train.max_lr == pytest.approx(whole.train.max_lr * schedule.lr_factor)
+        assert dataclasses.replace(config.train, epochs=whole.train.epochs, max_lr=whole.train.max_lr) == whole.train
 
 
-def test_the_shipped_label_efficiency_experiment_is_valid() -> None:
-    configs = _shipped_configs("the label-efficiency experiment trains and scores on the shared S3DIS rooms")
-    parsed = load_experiment(configs / "finetune_cpu.toml")
-    variants = {v.name: v for v in parsed.variants}
-    assert list(variants) == ["synthetic-only", "real-only-12", "finetune-1", "finetune-3", "finetune-12"]
-    assert not variants["synthetic-only"].rooms and variants["real-only-12"].rooms == "all"
-    assert [len(variants[f"finetune-{n}"].rooms) for n in (1, 3)] == [1, 3] and variants["finetune-12"].rooms == "all"
-    assert {variants[f"finetune-{n}"].init for n in (1, 3, 12)} == {"synthetic-only"}
-    recipe = _config(load_experiment(configs / "sim2real_cpu.toml").variants[0])
-    # the fine-tuned variants start from the shipped recipe's model, trained the same way
-    synthetic = _config(variants["synthetic-only"])
-    assert (synthetic.model, synthetic.blocks, synthetic.train) == (recipe.model, recipe.blocks, recipe.train)
-    assert parsed.holdout.ifc == ()
-
-
-def test_the_shipped_companion_experiments_match_the_ablation() -> None:
-    """The data rows, the seed spread and the scale rows train the ablation's model and schedule."""
-    configs = _shipped_configs("the shipped experiments score on the shared S3DIS rooms")
-    ablation = load_experiment(configs / "sim2real_cpu_ablation.toml")
-    recipe = _config(ablation.variants[-1])
-    for name in ("sim2real_cpu_data.toml", "sim2real_cpu_seeds.toml", "sim2real_cpu_scale.toml",
-                 "sim2real_cpu_without.toml"):
-        parsed = load_experiment(configs / name)
-        assert parsed.holdout.ifc == (), name  # measured on the real rooms only
-        for variant in parsed.variants:
-            config = _config(variant)
-            assert config.model == recipe.model and config.blocks.size_m == recipe.blocks.size_m, variant.name
-            assert config.train.max_lr == recipe.train.max_lr, variant.name
-            assert config.train.cpu_threads == recipe.train.cpu_threads == 2, variant.name  # comparable sums
-            if name != "sim2real_cpu_scale.toml":  # the scale rows set their epochs to equal steps
-                assert config.train.epochs == recipe.train.epochs, variant.name
-    seeds = load_experiment(configs / "sim2real_cpu_seeds.toml")
-    assert sorted({_config(v).train.seed for v in seeds.variants}) == [1, 2]
-
-
-def test_the_shipped_mix_trains_the_cpu_recipe_on_both_building_sets() -> None:
-    configs = _shipped_configs("the shipped experiments score on the shared S3DIS rooms")
-    shipped = load_experiment(configs / "sim2real_cpu.toml")
-    mix = load_experiment(configs / "sim2real_cpu_mix.toml")
-    (variant,) = mix.variants
-    assert [p.name for p in variant.specs] == ["sim2real_cpu_dataset.toml", "sim2real_cpu_dataset_one_storey.toml"]
-    def where(paths: tuple[str, ...]) -> list[Path]:
-        return [(configs / p).resolve() for p in paths]
-
-    assert where(mix.holdout.ifc) == where(shipped.holdout.ifc)
-    assert dataclasses.replace(mix.holdout, ifc=()) == dataclasses.replace(shipped.holdout, ifc=())  # scanned alike
-    assert where(mix.real.scenes) == where(shipped.real.scenes)
-    recipe, mixed = _config(shipped.variants[0]), _config(variant)
-    assert (mixed.model, mixed.train, mixed.blocks, mixed.input, mixed.eval) == (
-        recipe.model, recipe.train, recipe.blocks, recipe.input, recipe.eval)
+def test_the_shipped_gpu_experiment_starts_from_the_papers_baseline(shipped_configs: Path) -> None:
+    parsed = load_experiment(shipped_configs / "experiments" / "sim2real_table2.toml")
+    assert [v.name for v in parsed.variants][0] == "paper-baseline"
+    baseline = _config(parsed.variants[0])
+    assert baseline.input.features == ("xyz",) and baseline.input.grid_m == 0
+    assert not baseline.augment.enabled and baseline.train.class_weights == "none"
+    assert baseline.blocks.train_columns == "scene"
 
 
 COMPANION = """\

@@ -194,7 +194,7 @@ def demo(out_dir: Path, workers: int | None, executor: str, head_deg_per_s: floa
     minutes), then `bimscan stats` and pictures of each scene. Run it again to resume.
     OUT_DIR/dataset.toml is the spec: change it and run `bimscan build` on it for your own.
     """
-    from bimscan.dataset.demo import run_demo
+    from bimscan.demo import run_demo
     from bimscan.errors import DatasetError
 
     result = run_demo(out_dir, workers=workers, executor=executor, head_deg_per_s=head_deg_per_s,

@@ -205,7 +205,7 @@ def adapt(checkpoint: Path, scans: tuple[Path, ...], out_dir: Path, synthetic: t
 @click.option("--device", type=DEVICES, default=None, help="Replaces [train] device of the file.")
 def sim2real(experiment: Path, out_dir: Path, real: tuple[Path, ...], device: str | None) -> None:
     """Train variants (synthetic scans, real rooms, fine-tuned) and score each on real scans it never
-    saw (see configs/sim2real_cpu.toml, configs/finetune_cpu.toml).
+    saw (see configs/experiments/sim2real_cpu.toml, configs/experiments/finetune_cpu.toml).
 
     Builds the variants' datasets and the holdout buildings' scans (resumable), trains one PCT per
     variant (or per fold, when it trains on the scored rooms), evaluates each on the real scenes it

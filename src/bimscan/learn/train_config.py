@@ -3,9 +3,9 @@
 Sections ``[data]``, ``[blocks]``, ``[input]``, ``[augment]``, ``[model]``, ``[train]`` and
 ``[eval]``; unknown keys are errors. Keys Table 2 gives default to its value; the sim-to-real
 recipe (``[input]``, ``[augment]``, ``[train] class_weights``) defaults to what the ablation in
-docs/results/sim2real.md measured best, and ``configs/train_table2.toml`` switches it off to stay
+docs/results/sim2real.md measured best, and ``configs/training/table2.toml`` switches it off to stay
 the paper's baseline. Relative paths in the file are relative to the file's folder. See
-``configs/train_table2.toml`` for a commented example.
+``configs/training/table2.toml`` for a commented example.
 """
 
 from __future__ import annotations
