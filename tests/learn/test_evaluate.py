@@ -110,9 +110,9 @@ def test_a_bimscan_cloud_is_also_scored_per_ifc_class(tmp_path: Path, trained_ru
     files = write_evaluation([result], tmp_path / "eval", result.class_names)
     assert files.elements is not None and files.elements in files.paths()
     table = list(csv.reader(files.elements.read_text(encoding="utf-8").splitlines()))
-    assert table[0][:4] == ["scene", "ifc_class", "labelled", "points"] and len(table) == 1 + 2 * len(rows)
+    assert table[0][:4] == ["scene", "source_class", "labelled", "points"] and len(table) == 1 + 2 * len(rows)
     markdown = files.markdown.read_text(encoding="utf-8")
-    assert "Where each IFC class's points went" in markdown and "| IfcColumn | Wall&Column |" in markdown
+    assert "Where each source class's points went" in markdown and "| IfcColumn | Wall&Column |" in markdown
 
 
 def test_a_scene_without_ground_truth_is_refused(tmp_path: Path, trained_run: Path,
@@ -287,3 +287,30 @@ def test_the_stripes_of_a_killed_evaluation_are_removed_from_tmpdir_by_the_next_
     evaluate_checkpoint(checkpoint, [tmp_path / "scene.txt"], device="cpu")
 
     assert list(scratch.iterdir()) == []
+
+
+def test_an_s3dis_room_is_also_scored_per_annotation_class(tmp_path: Path, trained_run: Path) -> None:
+    """Where a real room's boards, doors and walls went: one row per S3DIS class, each point once,
+    labelled with the class the shipped mapping gives it."""
+    rng = np.random.default_rng(0)
+    notes = tmp_path / "Area_9" / "office_1" / "Annotations"
+    notes.mkdir(parents=True)
+    grid = np.stack(np.meshgrid(np.arange(0.0, 4.0, 0.1), np.arange(0.0, 3.0, 0.1)), -1).reshape(-1, 2)
+    parts = {"floor": np.c_[grid, np.zeros(len(grid))], "ceiling": np.c_[grid, np.full(len(grid), 2.8)],
+             "wall": np.c_[rng.uniform(0, 4, 300), np.zeros(300), rng.uniform(0, 2.8, 300)],
+             "board": np.c_[rng.uniform(1, 2, 40), np.full(40, 0.02), rng.uniform(1, 2, 40)],
+             "chair": np.c_[rng.uniform(1, 1.5, 50), rng.uniform(1, 1.5, 50), rng.uniform(0, 0.9, 50)]}
+    for name, xyz in parts.items():
+        np.savetxt(notes / f"{name}_1.txt", np.c_[xyz, np.full((len(xyz), 3), 128)], fmt="%.4f")
+
+    (result,) = evaluate_checkpoint(trained_run / "run" / "last.pt", [tmp_path / "Area_9" / "office_1"], device="cpu")
+
+    breakdown = result.elements
+    assert breakdown is not None
+    rows = {name: (truth, int(points)) for name, truth, points in
+            zip(breakdown.ifc_class, breakdown.truth, breakdown.points, strict=True)}
+    assert rows == {"board": ("Others", 40), "ceiling": ("Covering", len(grid)), "chair": ("Others", 50),
+                    "floor": ("Slab", len(grid)), "wall": ("Wall&Column", 300)}
+    assert int(breakdown.counts.sum()) == result.labels.points
+    files = write_evaluation([result], tmp_path / "eval", result.class_names)
+    assert "| board | Others | 40 |" in files.markdown.read_text()

@@ -183,8 +183,13 @@ def iter_raw_chunks(
 
 def iter_scene_chunks(
     source: SceneSource, *, class_names: Sequence[str] = DEFAULT_CLASS_NAMES, chunk_points: int = CHUNK_POINTS,
+    source_classes: bool = False,
 ) -> Iterator[PointCloud]:
     """The scene chunk by chunk with labels mapped to training ids (255 where unlabelled).
+
+    ``source_classes``: an S3DIS room's chunks carry each point's own S3DIS class (its index in
+    ``S3DIS_CLASSES``) as their ``component``, as a bimscan cloud's carry the component a point
+    lies on: where each class of the source went (evaluation's breakdown).
 
     Every chunk carries ``label`` (N,) uint8; coordinates are checked to be finite. A foreign
     LAS/LAZ whose ``classification`` holds only ASPRS 0/1 ("never classified"/"unclassified")
@@ -205,6 +210,8 @@ def iter_scene_chunks(
             if asprs and not classified:
                 classified = bool((chunk.label > max(ASPRS_UNCLASSIFIED)).any())
             label = apply_label_table(chunk.label, table, where=str(source.path))
+        if source_classes and source.kind == "s3dis" and chunk.label is not None:
+            chunk = replace(chunk, component=chunk.label.astype(np.int32))
         yield replace(chunk, label=label)
     if asprs and not classified:
         raise LearnError(

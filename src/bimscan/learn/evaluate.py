@@ -11,8 +11,9 @@ each class per scene and over all points. Files written by ``write_evaluation``:
   accuracy (recall) and support per class name, and the confusion matrix (rows = ground truth,
   columns = prediction, counts); NaN (an absent class) is written as null;
 - ``confusion.csv`` (counts) and ``confusion.png`` (row-normalised): the pooled matrix;
-- for bimscan clouds (whose points carry the component they lie on): ``elements.csv``, where the
-  points of each IFC class went (per scene and over all points), and the same over all points
+- for bimscan clouds (whose points carry the component they lie on) and S3DIS rooms (whose points
+  carry their annotation class): ``elements.csv``, where the points of each source class went (an
+  IFC class; wall, board, door, ...), per scene and over all points, and the same over all points
   as a last table in ``evaluation.md``.
 """
 
@@ -31,13 +32,14 @@ import numpy as np
 from bimscan.errors import LearnError
 from bimscan.files import dump_json, write_atomic
 from bimscan.learn.checkpoint import load_trained_model
-from bimscan.learn.data import list_scenes, stored_header
+from bimscan.io.s3dis import S3DIS_CLASSES
+from bimscan.learn.data import build_scene_label_table, list_scenes, stored_header
 from bimscan.learn.infer import SceneLabels, label_scene
 from bimscan.learn.mapping import LabelMapping
 from bimscan.learn.metrics import METRIC_NAMES, SegmentationMetrics, compute_metrics
 from bimscan.learn.model import pick_device
 from bimscan.learn.plots import plot_confusion
-from bimscan.learn.train_config import EvalConfig
+from bimscan.learn.train_config import IGNORE_LABEL, EvalConfig
 from bimscan.types import CloudHeader
 
 HEADINGS = {"oa": "OA", "miou": "mIoU", "macc": "mAcc", "fwiou": "FWIoU", "kappa": "κ"}
@@ -48,10 +50,11 @@ ELEMENT_TABLE_MIN_SHARE = 0.005  # evaluation.md lists the IFC classes holding a
 
 @dataclass(frozen=True)
 class ElementBreakdown:
-    """Where the points of each IFC class went, in a bimscan cloud (its points carry component ids).
+    """Where the points of each source class went: the IFC classes of a bimscan cloud (its points
+    carry component ids), the annotation classes of an S3DIS room (wall, board, door, ...).
 
-    One row per (IFC class, the class its components carry in the scene's labels): ``ifc_class``
-    and ``truth`` name it, ``counts`` (R, C) int64 holds its points per predicted class (the
+    One row per (source class, the class it carries in the scene's labels): ``ifc_class`` and
+    ``truth`` name it, ``counts`` (R, C) int64 holds its points per predicted class (the
     checkpoint's classes). Points on no component are the row (``NO_COMPONENT``, "").
     """
 
@@ -68,6 +71,13 @@ class ElementBreakdown:
         keys = [(str(c), names.get(int(label), str(int(label))))
                 for c, label in zip(components.ifc_class, components.label, strict=True)] + [(NO_COMPONENT, "")]
         return _grouped(keys, element_counts)
+
+    @staticmethod
+    def of_s3dis(class_counts: np.ndarray, truth: Sequence[str]) -> ElementBreakdown:
+        """Group an S3DIS room's per-class counts ((K + 1, C), rows in ``S3DIS_CLASSES`` order, the
+        last for none) by class; ``truth``: each S3DIS class's training class (or "" for none)."""
+        keys = [(name, truth[k]) for k, name in enumerate(S3DIS_CLASSES)] + [(NO_COMPONENT, "")]
+        return _grouped(keys, class_counts)
 
     @property
     def points(self) -> np.ndarray:
@@ -105,7 +115,7 @@ class SceneEvaluation:
     metrics: SegmentationMetrics
     class_names: tuple[str, ...]
     evaluation: EvalConfig  # how the scene was labelled
-    elements: ElementBreakdown | None = None  # bimscan clouds: where each IFC class's points went
+    elements: ElementBreakdown | None = None  # bimscan clouds, S3DIS rooms: where each source class's points went
 
 
 def evaluate_checkpoint(
@@ -128,11 +138,12 @@ def evaluate_checkpoint(
     for source in sources:
         header = stored_header(source)
         components = header.components if header is not None else None
+        kinds = len(S3DIS_CLASSES) if source.kind == "s3dis" else 0  # S3DIS rooms: a breakdown by their classes
         labels = label_scene(
             trained.model, source, class_names=trained.class_names, blocks=trained.config.blocks,
             evaluation=evaluation, device=torch_device, amp=trained.config.train.amp, work_dir=work_dir,
             inputs=trained.config.input, warn=warn,
-            elements=0 if components is None else len(components.ifc_class),
+            elements=kinds if components is None else len(components.ifc_class),
         )
         if labels.labelled == 0:
             raise LearnError(
@@ -142,6 +153,10 @@ def evaluate_checkpoint(
         elements = None
         if header is not None and labels.element_counts is not None:
             elements = ElementBreakdown.of(labels.element_counts, header)
+        elif kinds and labels.element_counts is not None:
+            table = build_scene_label_table(source, class_names=trained.class_names)
+            truth = [trained.class_names[t] if t != IGNORE_LABEL else "" for t in table[:len(S3DIS_CLASSES)].tolist()]
+            elements = ElementBreakdown.of_s3dis(labels.element_counts, truth)
         results.append(SceneEvaluation(
             source.name, source.path, labels, compute_metrics(labels.confusion), trained.class_names, evaluation,
             elements,
@@ -287,11 +302,11 @@ def _scene_mean(values: Sequence[np.ndarray]) -> np.ndarray:
 
 def format_elements_markdown(breakdown: ElementBreakdown, class_names: Sequence[str], *,
                              min_share: float = ELEMENT_TABLE_MIN_SHARE) -> str:
-    """Where each IFC class's points went, as Markdown (percent of the row's points, one decimal),
+    """Where each source class's points went, as Markdown (percent of the row's points, one decimal),
     largest first; rows under ``min_share`` of all points are left out (and counted below)."""
     points = breakdown.points
     total = max(int(points.sum()), 1)
-    lines = ["| IFC class | labelled | points | share | " + " | ".join(c.replace("|", "\\|") for c in class_names)
+    lines = ["| source class | labelled | points | share | " + " | ".join(c.replace("|", "\\|") for c in class_names)
              + " | right |", "|---|---|---:|---:|" + "---:|" * (len(class_names) + 1)]
     order = np.argsort(-points, kind="stable")
     shown = [int(i) for i in order if points[i] >= min_share * total]
@@ -316,7 +331,7 @@ def format_elements_csv(results: Sequence[SceneEvaluation], pooled: ElementBreak
     class, its labelled class, points and the points per predicted class."""
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(["scene", "ifc_class", "labelled", "points", *(f"predicted_{c}" for c in class_names)])
+    writer.writerow(["scene", "source_class", "labelled", "points", *(f"predicted_{c}" for c in class_names)])
     rows = [(r.scene, r.elements) for r in results if r.elements is not None]
     for scene, breakdown in rows + [("all points", pooled)]:
         for ifc_class, truth, counts in zip(breakdown.ifc_class, breakdown.truth, breakdown.counts, strict=True):
@@ -365,8 +380,9 @@ def write_evaluation(results: Sequence[SceneEvaluation], out_dir: Path, class_na
     pooled = pool_confusion(results) if results else np.zeros((len(class_names),) * 2, np.int64)
     markdown = format_markdown(results)
     if elements is not None and files.elements is not None:  # the one implies the other; the type checker needs both
-        markdown += ("\nWhere each IFC class's points went, all points (percent of its points; 'right': the "
-                     "class its components are labelled):\n\n" + format_elements_markdown(elements, class_names))
+        markdown += ("\nWhere each source class's points went (the IFC classes of bimscan clouds, the annotation "
+                     "classes of S3DIS rooms), all points (percent of its points; 'right': the class it is "
+                     "labelled):\n\n" + format_elements_markdown(elements, class_names))
         write_atomic(files.elements, format_elements_csv(results, elements, class_names).encode("utf-8"))
     write_atomic(files.markdown, markdown.encode("utf-8"))
     write_atomic(files.table, format_csv(results, class_names).encode("utf-8"))

@@ -253,7 +253,8 @@ class _Labeller:
         upper = np.full(3, -np.inf)
         origin: np.ndarray | None = None
         total = 0
-        chunks = (iter_scene_chunks(self.source, class_names=self.class_names, chunk_points=chunk_points)
+        chunks = (iter_scene_chunks(self.source, class_names=self.class_names, chunk_points=chunk_points,
+                                    source_classes=self.elements > 0)
                   if self.use_labels else iter_raw_chunks(self.source, chunk_points=chunk_points, labels=False))
         for chunk in chunks:
             n = len(chunk)
