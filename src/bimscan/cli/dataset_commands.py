@@ -8,8 +8,10 @@ from typing import TYPE_CHECKING
 import click
 
 from bimscan.cli.ifc_commands import SCHEME_HELP
+from bimscan.dataset.executors import USER_EXECUTORS
+from bimscan.demo import DEFAULT_HEAD_DEG_PER_S
+from bimscan.render.cloud import COLOR_MODES, CUT_MODES, DEFAULT_MAX_POINTS
 
-EXECUTOR_CHOICES = ["local", "ray"]
 SIZE_HELP = "Picture size in pixels, WIDTHxHEIGHT."
 
 if TYPE_CHECKING:
@@ -56,7 +58,7 @@ def _report_build(report: BuildReport) -> None:
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--workers", type=click.IntRange(min=1), default=None,
               help="Units built at once (default: one per core); each casts on cores // workers threads.")
-@click.option("--executor", type=click.Choice(EXECUTOR_CHOICES), default="local", show_default=True,
+@click.option("--executor", type=click.Choice(USER_EXECUTORS), default="local", show_default=True,
               help="local: spawned processes on this machine; ray: Ray tasks.")
 @click.option("--ray-address", default=None,
               help="Address of a running Ray cluster (with --executor ray; OUT_DIR must be on storage all nodes see). "
@@ -115,13 +117,13 @@ def stats(dataset_dir: Path, out_dir: Path | None, from_clouds: bool, verify: bo
 @click.command("render")
 @click.argument("cloud", type=click.Path(path_type=Path))
 @click.argument("out", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--color", type=click.Choice(["label", "station", "intensity", "component", "height", "rgb", "returns"]),
+@click.option("--color", type=click.Choice(COLOR_MODES),
               default="label", show_default=True,
               help="What the colours show (rgb: the points' own colour; returns: single / first / last returns).")
-@click.option("--max-points", type=click.IntRange(min=1), default=3_000_000, show_default=True,
+@click.option("--max-points", type=click.IntRange(min=1), default=DEFAULT_MAX_POINTS, show_default=True,
               help="Uniform random sample drawn (the whole file is streamed).")
 @click.option("--size", default="1600x800", show_default=True, help=SIZE_HELP)
-@click.option("--cut", type=click.Choice(["auto", "none"]), default="auto", show_default=True,
+@click.option("--cut", type=click.Choice(CUT_MODES), default="auto", show_default=True,
               help="auto: open the top storey (floor plan on top, rooms from above); none: the whole cloud.")
 @click.option("--trajectory", default="auto", show_default=True,
               help="A mobile scan's walk drawn over the top view: 'auto' (CLOUD.trajectory.csv when it is there), "
@@ -155,9 +157,10 @@ def render(cloud: Path, out: Path, color: str, max_points: int, size: str, cut: 
 @click.option("--real", type=click.Path(path_type=Path), default=None,
               help="A real scan of the same building, drawn as a third panel.")
 @click.option("--scheme", default=None, help=SCHEME_HELP)
-@click.option("--max-points", type=int, default=3_000_000, show_default=True, help="Points drawn per cloud.")
+@click.option("--max-points", type=click.IntRange(min=1), default=DEFAULT_MAX_POINTS, show_default=True,
+              help="Points drawn per cloud.")
 @click.option("--size", default="1800x700", show_default=True, help=SIZE_HELP)
-@click.option("--cut", type=click.Choice(["auto", "none"]), default="auto", show_default=True,
+@click.option("--cut", type=click.Choice(CUT_MODES), default="auto", show_default=True,
               help="auto: cut every panel at the top storey's plan height; none: no cut.")
 def figure(model: Path, cloud: Path, out: Path, real: Path | None, scheme: str | None, max_points: int, size: str,
            cut: str) -> None:
@@ -183,9 +186,9 @@ def figure(model: Path, cloud: Path, out: Path, real: Path | None, scheme: str |
 @click.command("demo")
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--workers", type=click.IntRange(min=1), default=None, help="Units built at once (default: one per core).")
-@click.option("--executor", type=click.Choice(EXECUTOR_CHOICES), default="local", show_default=True)
+@click.option("--executor", type=click.Choice(USER_EXECUTORS), default="local", show_default=True)
 @click.option("--head-speed", "head_deg_per_s", type=click.FloatRange(min=0.0, max=3600.0, min_open=True),
-              default=60.0, show_default=True,
+              default=DEFAULT_HEAD_DEG_PER_S, show_default=True,
               help="Head rotation in deg/s for every configuration (the presets turn at 10; faster: fewer points).")
 def demo(out_dir: Path, workers: int | None, executor: str, head_deg_per_s: float) -> None:
     """The whole pipeline on generated buildings: dataset, statistics, pictures, in OUT_DIR.

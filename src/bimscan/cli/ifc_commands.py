@@ -10,6 +10,7 @@ from typing import Any
 import click
 
 from bimscan.cli.site_options import site_options
+from bimscan.scan.device import DEFAULT_PRESET, DEFAULT_SCANNER, PRESETS
 from bimscan.ifc.units import LENGTH_UNITS
 
 SCHEME_HELP = "Label scheme: a built-in name (spc5) or a TOML file. Default: spc5, the paper's five classes."
@@ -66,10 +67,10 @@ HELIOS_HELP = ("Also write HELIOS++ inputs: helios/scene.xml (one <part> per com
 @click.option("--helios", is_flag=True, help=HELIOS_HELP)
 @click.option("--stations", default=None,
               help="With --helios: 'auto' (planned as 'bimscan scan' plans them; the default) or a station CSV file.")
-@click.option("--preset", default=None, help="With --helios: scan settings exp1..exp6 or a settings TOML file "
-                                             "(default: exp3, as 'bimscan scan').")
-@click.option("--scanner", default=None, help="With --helios: riegl_vz400 (default) or a scanner TOML file that keeps "
-                                              "that name (HELIOS++ has its own definition of the device).")
+@click.option("--preset", default=None, help=f"With --helios: scan settings {', '.join(PRESETS)} or a settings TOML "
+                                             f"file (default: {DEFAULT_PRESET}, as 'bimscan scan').")
+@click.option("--scanner", default=None, help=f"With --helios: {DEFAULT_SCANNER} (default) or a scanner TOML file that "
+                                              "keeps that name (HELIOS++ has its own definition of the device).")
 @click.option("--head-speed", "head_deg_per_s", type=float, default=None,
               help="With --helios: head rotation in deg/s, overriding the preset.")
 @click.option("--platform", default=None,

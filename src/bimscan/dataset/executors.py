@@ -277,6 +277,7 @@ EXECUTORS: dict[str, Callable[..., TaskExecutor]] = {
     "ray": RayExecutor,
     "serial": SerialExecutor,
 }
+USER_EXECUTORS = ("local", "ray")  # what --executor offers ("serial": one process, for tests and debugging)
 
 
 def make_executor(name: str, *, workers: int, environment: dict[str, str] | None = None,

@@ -27,8 +27,10 @@ if TYPE_CHECKING:
 
 DEFAULT_REFLECTANCE = 0.5
 _POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.int64)
-INTENSITY_REFERENCE_M = 5.0
-MAX_MOUNTS = 4  # lidars on one platform at most (survey.platform.MAX_MOUNTS): a pass's noise keys  # intensity falls with (5 m / range)^2 beyond 5 m
+INTENSITY_REFERENCE_M = 5.0  # intensity falls with (5 m / range)^2 beyond 5 m
+# lidars on one platform at most: LAS 1.4's scanner_channel numbers four scanners, and each
+# pass's noise keys leave room for that many (survey.platform checks platforms against it)
+MAX_MOUNTS = 4
 
 
 class StationRecipe(Protocol):

@@ -23,10 +23,10 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.errors import ConfigError
+from bimscan.scan.virtual_scanner import MAX_MOUNTS
 from bimscan.toml_files import build_dataclass, load_toml
 
 TRIPOD = "tripod"
-MAX_MOUNTS = 4  # LAS 1.4 scanner_channel numbers four scanners
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """The README's picture of sensor realism: one room of a generated building scanned from one
 station with the paper's scanner and with every sensor effect on, side by side.
 
-Run: python docs/realism_figure.py [OUT.png]   (default: docs/realism.png)
+Run: python benchmarks/realism_figure.py [OUT.png]   (default: docs/realism.png)
 
 Panels: the ideal scan (realism "paper") by class, the full scan by class (points behind the
 windows, mixed pixels, as-built walls), and the full scan in its own RGB colour. Same seed,
@@ -23,13 +23,13 @@ def main() -> None:
     from bimscan.render.cloud import draw_points, point_colors
     from bimscan.render.compose import Panel, compose_png
     from bimscan.render.view import OBLIQUE, Camera
-    from bimscan.scan.recipe import ScanRecipe
+    from bimscan.survey.recipe import ScanRecipe
     from bimscan.scan.sensor import SensorModel
     from bimscan.survey.survey import place_scanner, prepare_survey
     from bimscan.survey.stations import plan_stations
     from bimscan.types import PointCloud
 
-    out = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).with_name("realism.png")
+    out = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[1] / "docs" / "realism.png"
     work = Path(tempfile.mkdtemp(prefix="bimscan-realism-"))
     make_building(work / "house.ifc", seed=3, storeys=1)
     scene = load_scene(work / "house.ifc")
