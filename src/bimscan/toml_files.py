@@ -128,6 +128,24 @@ def resolve_path(base: Path, value: str) -> Path:
     return candidate if candidate.is_absolute() else base / candidate
 
 
+def over_base(own: Mapping[str, Any], base: Mapping[str, Any], *,
+              keys: tuple[str, ...] | None = None) -> dict[str, Any]:
+    """A file over its ``base`` file (dataset specs and experiments alike): every key of ``base``
+    (of ``keys`` only, when given) this file does not set is taken as it is; a table both set is
+    merged key by key, one level deep (this file's keys replace the base's, the others stay);
+    any other value this file sets replaces the base's. ``base``'s relative paths must already be
+    made absolute by the caller (they are relative to the base file)."""
+    merged = dict(own)
+    for key, value in base.items():
+        if keys is not None and key not in keys:
+            continue
+        if key not in own:
+            merged[key] = value
+        elif isinstance(value, Mapping) and isinstance(own[key], Mapping):
+            merged[key] = {**value, **own[key]}
+    return merged
+
+
 def base_file(value: Any, path: Path, *, where: str, kind: str) -> Path:
     """The file that the ``base`` key (at ``where`` in ``path``) names, relative to ``path``'s folder
     (``~`` expanded), checked: text, not ``path`` itself, present. ``kind``: what the file must be

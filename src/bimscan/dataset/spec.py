@@ -97,7 +97,7 @@ from bimscan.survey.platform import TRIPOD
 from bimscan.survey.recipe import AUTO_STATIONS, DEFAULT_MAX_STATION_PULSES, DEFAULT_MAX_WALK_PULSES, ScanRecipe
 from bimscan.scan.sensor import merge_sensor_tables
 from bimscan.site.model import ClutterSettings, SiteModel, StageSettings, stage_table
-from bimscan.toml_files import base_file, build_dataclass, load_toml
+from bimscan.toml_files import base_file, build_dataclass, load_toml, over_base
 from bimscan.types import LabelScheme
 
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
@@ -242,7 +242,7 @@ def _with_base(data: dict[str, Any], path: Path) -> dict[str, Any]:
     def local(value: Any) -> Any:  # a file next to the base (a registry name stays as it is)
         return _local_path(value, folder) if isinstance(value, str) else value
 
-    inherited = {k: v for k, v in base.items() if k not in data}
+    inherited = dict(base)
     for key in ("scheme", "scanner"):
         if key in inherited:
             inherited[key] = local(inherited[key])
@@ -252,7 +252,7 @@ def _with_base(data: dict[str, Any], path: Path) -> dict[str, Any]:
         inherited["scenes"] = [_scene_paths(raw, folder) for raw in inherited["scenes"]]
     if isinstance(inherited.get("configs"), list):
         inherited["configs"] = [_config_paths(raw, folder) for raw in inherited["configs"]]
-    return inherited | {k: v for k, v in data.items() if k != "base"}
+    return over_base({k: v for k, v in data.items() if k != "base"}, inherited)
 
 
 def _config_paths(raw: Any, folder: Path) -> Any:

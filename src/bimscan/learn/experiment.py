@@ -62,7 +62,7 @@ from bimscan.constraints import Checked, Range, setting
 from bimscan.errors import ConfigError, InputFileError, LearnError
 from bimscan.learn.data import SceneSource
 from bimscan.learn.train_config import TRAINING_SECTIONS, SceneSet, check_moved_keys, scene_sets
-from bimscan.toml_files import base_file, build_dataclass, load_toml, resolve_path
+from bimscan.toml_files import base_file, build_dataclass, load_toml, over_base, resolve_path
 
 DATA_RECORD = "synthetic_data.digest"  # in a variant's folder: the data its models were trained on
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9+][A-Za-z0-9._+-]{0,63}$")
@@ -361,9 +361,10 @@ def _variant_rooms(names: tuple[str, ...] | str, sources: list[SceneSource], *,
 
 
 def _with_base(data: dict[str, Any], path: Path) -> dict[str, Any]:
-    """``data`` on top of its ``[experiment] base`` file: the base's ``[real]``, ``[rooms]``,
-    ``[holdout]`` and training sections are the defaults, this file's keys replace them key by
-    key (its variants are not taken). Companion experiments so share one model and schedule."""
+    """``data`` on top of its ``[experiment] base`` file (``toml_files.over_base``, as a dataset
+    spec over its base): the base's ``[real]``, ``[rooms]``, ``[holdout]`` and training sections,
+    merged key by key with this file's (its ``[experiment]`` and variants are not taken).
+    Companion experiments so share one model and schedule."""
     head = data.get("experiment", {})
     if not isinstance(head, dict) or "base" not in head:
         return dict(data)
@@ -371,30 +372,27 @@ def _with_base(data: dict[str, Any], path: Path) -> dict[str, Any]:
     base = load_toml(base_path)
     if isinstance(base.get("experiment"), dict) and "base" in base["experiment"]:
         raise ConfigError(f"{path} [experiment] base: {base_path.name} has a base of its own; name the file at the root")
-    merged = dict(data)
 
     def from_base(value: Any) -> Any:  # the base's relative paths are relative to the base file
         return str(resolve_path(base_path.parent, value).resolve()) if isinstance(value, str) else value
 
-    for section in ("real", "rooms"):
+    inherited, own = dict(base), dict(data)
+    for section in ("real", "rooms"):  # scene sets, as tables on both sides
         if section in base:
             table = _one_set(base[section], where=f"{base_path} [{section}]")
             table = {**table, "scenes": [from_base(v) for v in table.get("scenes", [])]}
             if "mapping" in table:
                 table["mapping"] = from_base(table["mapping"])
-            own = data.get(section, {})
-            own = _one_set(own, where=f"{path} [{section}]") if own else {}
-            merged[section] = {**table, **own}
-    holdout = base.get("holdout")
-    if isinstance(holdout, dict):
-        holdout = {**holdout, "ifc": [from_base(v) for v in holdout.get("ifc", [])]}
-        merged["holdout"] = {**holdout, **data.get("holdout", {})}
+            inherited[section] = table
+        if own.get(section):
+            own[section] = _one_set(own[section], where=f"{path} [{section}]")
+    if isinstance(base.get("holdout"), dict):
+        inherited["holdout"] = {**base["holdout"], "ifc": [from_base(v) for v in base["holdout"].get("ifc", [])]}
     for section in TRAINING_SECTIONS:
-        defaults, own = base.get(section, {}), data.get(section, {})
-        if not isinstance(defaults, dict) or not isinstance(own, dict):
-            raise ConfigError(f"{path} [{section}] (or its base's): expected a table")
-        merged[section] = {**defaults, **own}
-    return merged
+        for where, table in ((base_path, base.get(section, {})), (path, own.get(section, {}))):
+            if not isinstance(table, dict):
+                raise ConfigError(f"{where} [{section}]: expected a table")
+    return over_base(own, inherited, keys=("real", "rooms", "holdout", *TRAINING_SECTIONS))
 
 
 @dataclass(frozen=True)
