@@ -15,18 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.files import atomic_output, write_atomic
-from bimscan.types import (
-    ComponentSurfaces,
-    ComponentTable,
-    FailedElement,
-    IfcIssue,
-    IfcLoadReport,
-    IfcRepair,
-    ParsedModel,
-    SceneMesh,
-    Space,
-    Storey,
-)
+from bimscan.ifc.report import FailedElement, IfcIssue, IfcLoadReport, IfcRepair
+from bimscan.types import ComponentSurfaces, ComponentTable, ParsedModel, SceneMesh, Space, Storey
 
 _TABLE_COLUMNS = ("global_id", "ifc_class", "predefined_type", "name", "storey", "parent_class")
 

@@ -37,17 +37,8 @@ from bimscan.ifc import step
 from bimscan.ifc.materials import read_surfaces
 from bimscan.ifc.schema import SUPPORTED_SCHEMAS, class_ancestry
 from bimscan.ifc.units import GUESS_MM_ABOVE_M
-from bimscan.types import (
-    ComponentTable,
-    FailedElement,
-    IfcIssue,
-    IfcLoadReport,
-    IfcRepair,
-    ParsedModel,
-    SceneMesh,
-    Space,
-    Storey,
-)
+from bimscan.ifc.report import FailedElement, IfcIssue, IfcLoadReport, IfcRepair
+from bimscan.types import ComponentTable, ParsedModel, SceneMesh, Space, Storey
 
 Emit = Callable[[str, Any], None]
 # One element's triangles: vertices (V, 3) float64, faces (F, 3) int32, each face's style transparency (F,) float32.

@@ -125,7 +125,7 @@ class Statement:
 
 @dataclass(frozen=True)
 class Problem:
-    """A problem at a place in the file (kind: one of ``bimscan.types.ISSUE_KINDS``)."""
+    """A problem at a place in the file (kind: one of ``bimscan.ifc.report.ISSUE_KINDS``)."""
 
     kind: str
     line: int

@@ -7,7 +7,8 @@ from collections import Counter
 from typing import Any
 
 from bimscan.ifc.units import unit_name
-from bimscan.types import BimScene, IfcLoadReport, ParsedModel
+from bimscan.ifc.report import IfcLoadReport
+from bimscan.types import BimScene, ParsedModel
 
 # What each issue kind is called in a report line ("3 dangling references").
 ISSUE_WORDS = {

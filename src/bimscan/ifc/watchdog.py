@@ -42,7 +42,8 @@ from typing import Any
 from bimscan.errors import BimscanError, ConfigError, IfcError
 from bimscan.processes import die_with_parent
 from bimscan.progress import progress_bar
-from bimscan.types import FailedElement, ParsedModel
+from bimscan.ifc.report import FailedElement
+from bimscan.types import ParsedModel
 
 ELEMENT_TIMEOUT_S = 120.0  # longest a single element may take (OpenCascade booleans on big walls take seconds)
 READ_S_PER_MB = 2.0  # extra allowance for the phases that read the whole file (IfcOpenShell reads ~50 MB/s)
