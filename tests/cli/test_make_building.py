@@ -69,7 +69,7 @@ def test_make_building_writes_the_chosen_style_and_says_so(
 
 
 def test_the_summary_says_which_roof_the_building_has(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from bimscan.ifc.generate.layout import plan_building
+    from bimscan.ifc.generate.floor_plan import plan_building
 
     home = next(seed for seed in range(50) if plan_building(seed=seed, storeys=1, style="residential").roof)
     assert main(["make-building", str(tmp_path / "home.ifc"), "--seed", str(home), "--storeys", "1",

@@ -16,7 +16,7 @@ import pytest
 
 from bimscan.errors import ConfigError, OutputError
 from bimscan.ifc.generate import GeneratedBuilding, build_building_model, make_building
-from bimscan.ifc.generate.layout import plan_building
+from bimscan.ifc.generate.floor_plan import plan_building
 from bimscan.ifc.generate.styles import STYLES
 
 TOLERANCE_M = 0.03  # door casings stand 5 mm proud of the walls; anything more is a bug

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from bimscan.ifc.generate import make_building
-from bimscan.ifc.generate.layout import BuildingPlan, plan_building, planned_elements, storey_name
+from bimscan.ifc.generate.floor_plan import BuildingPlan, plan_building, planned_elements, storey_name
 from bimscan.ifc.generate.styles import STYLES
 from bimscan.pipeline import load_scene
 from bimscan.types import BimScene

@@ -1,4 +1,4 @@
-"""Procedural IFC4 buildings (the embedded demo data): a seeded plan (``layout``) drawn from a
+"""Procedural IFC4 buildings (the embedded demo data): a seeded plan (``floor_plan``) drawn from a
 style table (``styles``), authored as IFC (``building``). ``make_building`` is the entry point.
 
 The authoring names load on first use: importing the style table (plain data, as the command

@@ -2,7 +2,7 @@
 
 The embedded default of bimscan: the quickstart, the demo dataset and most tests scan these
 buildings. Each is a seeded corridor block of one style (``office``, ``residential``, ``site``;
-see ``layout.py`` for the plan rules and ``styles.py`` for every number they draw from)
+see ``floor_plan.py`` for the plan rules and ``styles.py`` for every number they draw from)
 authored with ``ifcopenshell.api``: project, site, building, storeys in metres; exterior walls
 along a rectilinear outline and interior walls, with door and window openings cut by
 IfcOpeningElements and filled with parametric doors and windows (one IfcDoorType or
@@ -48,7 +48,7 @@ from ifcopenshell.util.shape_builder import ShapeBuilder
 
 from bimscan.files import atomic_output, check_replaceable
 from bimscan.errors import ConfigError, OutputError
-from bimscan.ifc.generate.layout import (
+from bimscan.ifc.generate.floor_plan import (
     ATTIC_NAME,
     FURNITURE_TYPES,
     GABLE_PARTS,
@@ -99,7 +99,7 @@ class GeneratedBuilding:
     footprint_m: (xmin, ymin, xmax, ymax) of the exterior walls' outer faces, metres.
     height_m: top of the building (flat roof slab or gable ridge), world Z in metres (ground
         floor slab top at 0).
-    plan: the plan the file was authored from (``layout.planned_elements(plan)`` lists what it holds).
+    plan: the plan the file was authored from (``floor_plan.planned_elements(plan)`` lists what it holds).
     """
 
     path: Path | None

@@ -2,7 +2,7 @@
 
 A *style* (``office``, ``residential``, ``site``) is a row of ``STYLES``: ranges that plan
 dimensions are drawn from (uniformly, metres) and the odds of building-wide choices (footprint
-shape, ceiling system, window type, where perimeter columns stand). ``layout.plan_building``
+shape, ceiling system, window type, where perimeter columns stand). ``floor_plan.plan_building``
 draws from the row; nothing else in the generator holds a dimension.
 
 Sources of the ranges (docs/guide/generated-buildings.md has the table):

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from bimscan.ifc.generate.layout import (
+from bimscan.ifc.generate.floor_plan import (
     BuildingPlan,
     Rect,
     StoreyPlan,
