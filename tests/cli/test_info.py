@@ -19,7 +19,7 @@ def test_info_json_has_the_documented_fields(shared_ifc, capsys):
     assert all(lo < hi for lo, hi in zip(summary["bounds"]["min"], summary["bounds"]["max"]))
 
 
-def test_info_report_lists_failures(tiny_model, tmp_path, capsys):
+def test_info_report_lists_every_element_that_failed(tiny_model, tmp_path, capsys):
     model = tiny_model("IFC4")
     model.add_box("IfcWall", size=(4.0, 0.2, 3.0))
     model.add_broken("IfcColumn")

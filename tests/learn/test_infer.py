@@ -188,7 +188,7 @@ def test_a_block_that_fits_one_pass_is_not_passed_again_for_its_votes(
     assert np.array_equal(index1, index3) and np.array_equal(labels1, labels3)
 
 
-def test_blocks_overlap_as_configured(scene: tuple[Path, PointCloud], model: torch.nn.Module) -> None:
+def test_columns_overlap_as_the_stride_says(scene: tuple[Path, PointCloud], model: torch.nn.Module) -> None:
     path, cloud = scene
     corner = cloud.xyz.min(axis=0)  # columns count from the scene's own corner
     x_columns = np.unique(np.floor((cloud.xyz[:, 0] - corner[0]) / 1.0)).size

@@ -107,7 +107,7 @@ def test_augmented_blocks_are_identical_for_the_same_key_and_aligned(tmp_path: P
     assert np.all(height[label == SLAB] < 0.2) and np.all(height[label == COVERING] > 0.8)
 
 
-def test_features_height_and_normals() -> None:
+def test_a_floor_gets_upward_normals_and_its_height_in_storeys_and_a_wall_horizontal_normals() -> None:
     rng = np.random.default_rng(0)
     floor = np.column_stack([rng.random(500) * 2, rng.random(500) * 2, np.full(500, 1.0)])
     wall = np.column_stack([np.full(500, 3.0), rng.random(500) * 2, 1.0 + rng.random(500) * 2])

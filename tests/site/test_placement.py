@@ -107,7 +107,7 @@ def test_fixtures_hang_just_under_a_soffit_in_a_grid_and_clear_of_heads(office_s
     assert gaps.min() > 0.5 and np.median(gaps.min(axis=1)) < 2.7 + 0.6
 
 
-def test_doorways_stay_clear(office_scene, dressed_office):
+def test_furniture_keeps_every_doorway_clear(office_scene, dressed_office):
     doors = np.flatnonzero(office_scene.components.ifc_class == "IfcDoor")
     assert len(doors)
     on_ceiling = set(fixtures(dressed_office, office_scene).tolist())  # above the way through, 2.1 m up
