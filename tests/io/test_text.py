@@ -160,3 +160,23 @@ def test_labels_that_are_not_wanted_are_neither_read_nor_checked(tmp_path: Path)
 def test_writing_into_a_missing_folder_is_refused(tmp_path: Path) -> None:
     with pytest.raises(OutputError, match="does not exist"):
         write_text_cloud(tmp_path / "missing" / "scan.txt", _cloud(3))
+
+
+def test_colours_round_trip_and_name_their_columns_in_a_header_or_by_count(tmp_path: Path) -> None:
+    from bimscan.io.text import iter_text_chunks, write_text_cloud
+
+    rng = np.random.default_rng(0)
+    cloud = PointCloud(xyz=rng.random((50, 3)), label=rng.integers(0, 5, 50).astype(np.uint8),
+                       rgb=rng.integers(0, 256, (50, 3)).astype(np.uint8))
+    write_text_cloud(tmp_path / "c.txt", cloud)
+    (back,) = iter_text_chunks(tmp_path / "c.txt")
+    assert np.array_equal(back.rgb, cloud.rgb) and np.array_equal(back.label, cloud.label)
+    (tmp_path / "named.csv").write_text("x,y,z,red,green,blue\n1,2,3,10,20,30\n")
+    (named,) = iter_text_chunks(tmp_path / "named.csv")
+    assert named.rgb.tolist() == [[10, 20, 30]] and named.label is None
+    (tmp_path / "scan.pts").write_text("1\n1 2 3 -100 10 20 30\n")  # Leica: intensity before the colour
+    (pts,) = iter_text_chunks(tmp_path / "scan.pts")
+    assert pts.rgb.tolist() == [[10, 20, 30]]
+    (tmp_path / "plain.xyz").write_text("1 2 3\n")
+    (plain,) = iter_text_chunks(tmp_path / "plain.xyz")
+    assert plain.rgb is None

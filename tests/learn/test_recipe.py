@@ -305,3 +305,54 @@ def test_a_config_stored_before_the_recipe_reads_back_as_the_paper_baseline() ->
     assert old.blocks.train_columns == "scene" and old.train.class_weights == "none"
     today = parse_config(dump_config(TrainRunConfig(data=DataConfig(train=("a",)))), where="new.pt")
     assert today.input.features == ("xyz", "height", "normals", "shape") and today.blocks.train_columns == "station"
+
+
+def test_colour_is_an_input_read_from_real_and_synthetic_scans_and_grey_where_a_scan_has_none(
+    tmp_path: Path,
+) -> None:
+    """Tiles keep each point's own colour (the S3DIS reader keeps its r g b); a scene without
+    colour reads as mid grey; the feature is the colour centred on zero."""
+    from bimscan.io.s3dis import read_s3dis_room
+    from bimscan.learn.data import GREY
+
+    rng = np.random.default_rng(0)
+    notes = tmp_path / "Area_1" / "room_1" / "Annotations"
+    notes.mkdir(parents=True)
+    floor = np.c_[rng.uniform(0, 3, 4000), rng.uniform(0, 3, 4000), np.zeros(4000)]
+    wall = np.c_[rng.uniform(0, 3, 4000), np.zeros(4000), rng.uniform(0, 2.8, 4000)]
+    np.savetxt(notes / "floor_1.txt", np.c_[floor, np.tile([200, 10, 10], (4000, 1))], fmt="%.4f")
+    np.savetxt(notes / "wall_1.txt", np.c_[wall, np.tile([10, 10, 240], (4000, 1))], fmt="%.4f")
+    room = read_s3dis_room(tmp_path / "Area_1" / "room_1")
+    assert room.rgb is not None and {tuple(c) for c in room.rgb.tolist()} == {(200, 10, 10), (10, 10, 240)}
+
+    blocks = BlockConfig(size_m=3.0, points=256, min_points=32, cache_points=512)
+    (source,) = list_scenes([tmp_path / "Area_1" / "room_1"])
+    tiles = collect_scene_tiles(source, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=0, colour=True)
+    assert tiles.rgb is not None and len(tiles.rgb) == len(tiles.label)
+    slab = tiles.label == 3  # floor -> Slab: red; wall -> Wall&Column: blue
+    assert (tiles.rgb[slab] == [200, 10, 10]).all() and (tiles.rgb[tiles.label == 0] == [10, 10, 240]).all()
+    write_text_cloud(tmp_path / "bare.xyz", PointCloud(xyz=np.concatenate([floor, wall])))
+    (bare,) = list_scenes([tmp_path / "bare.xyz"])
+    grey = collect_scene_tiles(bare, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=0, colour=True,
+                               labelled=False)
+    assert grey.rgb is not None and (grey.rgb == GREY).all()
+    features = extra_features(floor[:5], features=("xyz", "rgb"), height_m=None, height_scale_m=3.0, neighbours=8,
+                              rgb=np.tile([255, 0, 128], (5, 1)).astype(np.uint8))
+    assert np.allclose(features, [[0.5, -0.5, 128 / 255 - 0.5]] * 5, atol=1e-6)
+    assert collect_scene_tiles(source, blocks=blocks, class_names=DEFAULT_CLASS_NAMES, seed=0).rgb is None
+
+
+def test_colour_randomisation_draws_nothing_when_off_and_keeps_colours_in_range() -> None:
+    from bimscan.learn.augment import augment_colour
+
+    rgb = np.random.default_rng(1).integers(0, 256, (500, 3)).astype(np.uint8)
+    rng = np.random.default_rng(2)
+    assert augment_colour(rgb, config=AugmentConfig(), rng=rng) is rgb
+    assert rng.random() == np.random.default_rng(2).random()  # no draw taken
+    jittered = augment_colour(rgb, config=AugmentConfig(colour_gain_sigma=0.2, colour_noise=0.05),
+                              rng=np.random.default_rng(3))
+    assert jittered.dtype == np.uint8 and jittered.shape == rgb.shape and not np.array_equal(jittered, rgb)
+    dropped = augment_colour(rgb, config=AugmentConfig(colour_drop=1.0), rng=np.random.default_rng(4))
+    assert (dropped == 128).all()
+    grey = augment_colour(rgb, config=AugmentConfig(colour_grey=1.0), rng=np.random.default_rng(5))
+    assert (grey[:, 0] == grey[:, 1]).all() and (grey[:, 1] == grey[:, 2]).all()

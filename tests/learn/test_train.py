@@ -382,3 +382,35 @@ def test_resuming_with_another_start_checkpoint_is_refused_and_with_the_same_one
     resumed = _load(_run(path, resume=True, init=parent))
     assert resumed["epoch"] == 2 and resumed["init"]["checkpoint"] == str(parent)
     assert _load(scratch)["init"] is None
+
+
+def test_a_network_that_reads_colour_trains_on_coloured_scans_and_labels_one_without_colour(
+    tmp_path: Path, tiny_config: Callable[..., Path], room: Callable[..., PointCloud],
+) -> None:
+    import numpy as np
+
+    from bimscan.learn.checkpoint import load_trained_model
+    from bimscan.learn.data import list_scenes
+    from bimscan.learn.infer import label_scene
+
+    rng = np.random.default_rng(0)
+    train = []
+    for i in range(2):
+        cloud = room(i, size_m=(4.0 + i, 3.0), points_per_m2=40)
+        palette = rng.integers(0, 256, (5, 3)).astype(np.uint8)  # a colour per class, as surface styles give
+        write_text_cloud(tmp_path / f"room{i}.txt", PointCloud(xyz=cloud.xyz, label=cloud.label,
+                                                               rgb=palette[cloud.label]))
+        train.append(f"room{i}.txt")
+    write_text_cloud(tmp_path / "real.txt", room(100, size_m=(4.0, 4.0), points_per_m2=40))
+    path = tiny_config(tmp_path, train=train, val=["real.txt"], epochs=1, out_dir="colour")
+    path.write_text(path.read_text() + '\n[input]\nfeatures = ["xyz", "height", "rgb"]\n\n[augment]\n'
+                    'colour_gain_sigma = 0.1\ncolour_drop = 0.2\n')
+
+    checkpoint = _run(path)
+
+    trained = load_trained_model(checkpoint)
+    assert trained.config.input.features == ("xyz", "height", "rgb")
+    (source,) = list_scenes([tmp_path / "real.txt"])  # no colour: read as mid grey
+    labels = label_scene(trained.model, source, class_names=trained.class_names, blocks=trained.config.blocks,
+                         evaluation=trained.config.eval, inputs=trained.config.input)
+    assert labels.labelled == labels.points > 0

@@ -4,8 +4,8 @@ Every annotation file is one object instance of one of 13 classes (ceiling floor
 column window door table chair sofa bookcase board clutter). A room is read into one
 :class:`~bimscan.types.PointCloud`: ``label`` is the index of the class in ``S3DIS_CLASSES``
 (or in ``class_map`` when given), ``component`` is the index of the annotation file in sorted
-order (the instance), xyz in metres. Colours are dropped. Files are read in sorted name order
-so the same folder always gives the same point order.
+order (the instance), xyz in metres, ``rgb`` the colour (when every file has its r g b columns).
+Files are read in sorted name order so the same folder always gives the same point order.
 
 Through :mod:`bimscan.io` a room is the cloud format ``s3dis`` (``read_cloud``,
 ``iter_cloud_chunks``, ``count_points`` take the room folder); labels are then the indices in
@@ -81,7 +81,8 @@ def read_s3dis_room(path: str | Path, *, class_map: Mapping[str, int] | None = N
 
     ``class_map`` maps S3DIS class names to label ids (values 0..255; 255 is "unlabelled" by
     bimscan's convention); without it the label is the class's index in ``S3DIS_CLASSES``.
-    Returns xyz (N, 3) float64 metres, label (N,) uint8, component (N,) int32 instance index.
+    Returns xyz (N, 3) float64 metres, label (N,) uint8, component (N,) int32 instance index,
+    rgb (N, 3) uint8 (None when a file has no colour columns).
     ``labels`` False: the class names are not read (a room with classes of its own labels as
     well; prediction needs the points only) and ``label`` is None.
     """
@@ -101,14 +102,21 @@ def read_s3dis_room(path: str | Path, *, class_map: Mapping[str, int] | None = N
             if not 0 <= label_id <= 255:
                 raise InputFileError(f"class map sends {name!r} to {label_id}; label ids must be in 0..255")
         try:
-            xyz = np.loadtxt(file, dtype=np.float64, usecols=(0, 1, 2), ndmin=2)
+            table_ = np.loadtxt(file, dtype=np.float64, ndmin=2)
         except ValueError as exc:
             raise InputFileError(f"{file}: unreadable point line ({exc}); fix or remove that line") from exc
+        if table_.size and table_.shape[1] < 3:
+            raise InputFileError(f"{file}: {table_.shape[1]} column(s) per line; an S3DIS annotation holds x y z r g b")
+        table_ = table_.reshape(-1, max(table_.shape[1], 3)) if table_.size else np.zeros((0, 6))
+        rgb = np.clip(np.rint(table_[:, 3:6]), 0, 255).astype(np.uint8) if table_.shape[1] >= 6 else None
         parts.append(PointCloud(
-            xyz=np.ascontiguousarray(xyz),
-            label=np.full(len(xyz), label_id, dtype=np.uint8),
-            component=np.full(len(xyz), instance, dtype=np.int32),
+            xyz=np.ascontiguousarray(table_[:, :3]),
+            label=np.full(len(table_), label_id, dtype=np.uint8),
+            component=np.full(len(table_), instance, dtype=np.int32),
+            rgb=None if rgb is None else np.ascontiguousarray(rgb),
         ))
+    if any(p.rgb is None for p in parts):  # a room is coloured whole or not at all
+        parts = [replace(p, rgb=None) for p in parts]
     cloud = PointCloud.concatenate(parts)
     if len(cloud) == 0:
         raise InputFileError(f"{path}: the room's annotation files hold no points; check the download")

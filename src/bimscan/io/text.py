@@ -18,9 +18,10 @@ columns     meaning                     in Leica ``.pts`` files
 
 Read them through :mod:`bimscan.io` (format ``text``, suffixes ``TEXT_SUFFIXES``):
 ``read_cloud``, ``iter_cloud_chunks``, ``count_points``. A first line holding one integer (the
-point count of ``.pts`` files) is skipped. Colours and intensities are read past and dropped:
-:class:`~bimscan.types.PointCloud` carries no colour, and ``.pts`` intensities (-2048..2047) are
-no LAS intensity. Labels must be integers in 0..255 (uint8, as everywhere in bimscan).
+point count of ``.pts`` files) is skipped. Colours become ``rgb`` (0..255 per channel; a header
+names them ``r g b`` or ``red green blue``); intensities are read past (``.pts`` intensities,
+-2048..2047, are no LAS intensity). Labels must be integers in 0..255 (uint8, as everywhere in
+bimscan).
 """
 
 from __future__ import annotations
@@ -44,6 +45,9 @@ LABEL_NAMES = ("label", "labels", "class", "classification", "scalar_label", "sc
 # label column by column count, for files without a header line
 LABEL_COLUMN = {3: None, 4: 3, 6: None, 7: 6}
 PTS_LABEL_COLUMN = {3: None, 4: None, 6: None, 7: None}  # Leica: intensity, not a label
+RGB_COLUMNS = {6: (3, 4, 5), 7: (3, 4, 5)}  # first colour column by column count, without a header
+PTS_RGB_COLUMNS = {6: (3, 4, 5), 7: (4, 5, 6)}  # Leica: x y z intensity r g b
+RGB_NAMES = (("r", "g", "b"), ("red", "green", "blue"))
 _COMMENT = ("#", "//")
 _COMMENT_BYTES = tuple(c.encode() for c in _COMMENT)
 _SPLIT = re.compile(r"[,\s]+")
@@ -56,6 +60,7 @@ class _Layout:
     label: int | None
     columns: int
     data_start: int  # number of lines before the first data line
+    rgb: tuple[int, int, int] | None = None
 
 
 def _is_number(token: str) -> bool:
@@ -92,7 +97,9 @@ def _detect_layout(path: Path, handle: TextIO, *, label_field: str | None = None
             wanted = (label_field.lower(),) if label_field is not None else LABEL_NAMES
             label = next((names.index(n) for n in wanted if n in names), None)
             xyz = (names.index("x"), names.index("y"), names.index("z"))
-            return _Layout(delimiter, xyz, label if labels else None, len(names), consumed)
+            rgb = next((tuple(names.index(n) for n in trio) for trio in RGB_NAMES if all(n in names for n in trio)),
+                       None)
+            return _Layout(delimiter, xyz, label if labels else None, len(names), consumed, rgb)  # type: ignore[arg-type]
         if label_field is not None:
             raise InputFileError(
                 f"{path}: no header line naming its columns, so label field {label_field!r} cannot apply; "
@@ -105,7 +112,8 @@ def _detect_layout(path: Path, handle: TextIO, *, label_field: str | None = None
                 "4 (x y z label), 6 (x y z r g b) or 7 (x y z r g b label), or a header line naming them"
             )
         label = layouts[len(tokens)] if labels else None
-        return _Layout(delimiter, (0, 1, 2), label, len(tokens), consumed - 1)
+        colours = PTS_RGB_COLUMNS if path.suffix.lower() == ".pts" else RGB_COLUMNS
+        return _Layout(delimiter, (0, 1, 2), label, len(tokens), consumed - 1, colours.get(len(tokens)))
     raise InputFileError(f"{path}: holds no points; pass a text file with one 'x y z [r g b] [label]' per line")
 
 
@@ -140,7 +148,10 @@ def _parse_lines(path: Path, lines: list[str], layout: _Layout, first_line: int)
                 "in 0..255; labels must be class ids 0..255"
             )
         label = raw.astype(np.uint8)
-    return PointCloud(xyz=xyz, label=label)
+    rgb = None
+    if layout.rgb is not None:
+        rgb = np.ascontiguousarray(np.clip(np.rint(np.nan_to_num(table[:, list(layout.rgb)])), 0, 255).astype(np.uint8))
+    return PointCloud(xyz=xyz, label=label, rgb=rgb)
 
 
 def iter_text_chunks(
@@ -201,7 +212,8 @@ def count_text_points(path: str | Path) -> int:
 
 
 def write_text_cloud(path: str | Path, cloud: PointCloud, *, overwrite: bool = False) -> Path:
-    """Write ``x y z label`` lines (``x y z`` without labels); atomic, deterministic bytes.
+    """Write ``x y z [r g b] [label]`` lines (colour and labels when the cloud has them); atomic,
+    deterministic bytes.
 
     Coordinates are written with 6 decimals (micrometres for metre units), so a round trip
     keeps xyz within 5e-7 m and the labels exactly.
@@ -209,13 +221,15 @@ def write_text_cloud(path: str | Path, cloud: PointCloud, *, overwrite: bool = F
     path = Path(path)
     check_output_path(path, overwrite=overwrite)
     with atomic_output(path) as temp, temp.open("w", encoding="utf-8", newline="\n") as out:
-        out.write("# x y z" + (" label\n" if cloud.label is not None else "\n"))
+        out.write("# x y z" + (" r g b" if cloud.rgb is not None else "")
+                  + (" label\n" if cloud.label is not None else "\n"))
         step = 500_000  # bounded formatting memory for big clouds
+        fmt = "%.6f %.6f %.6f" + (" %d %d %d" if cloud.rgb is not None else "") + (" %d" if cloud.label is not None else "")
         for start in range(0, len(cloud), step):
-            xyz = cloud.xyz[start:start + step]
-            if cloud.label is None:
-                np.savetxt(out, xyz, fmt="%.6f %.6f %.6f")
-            else:
-                table = np.column_stack([xyz, cloud.label[start:start + step].astype(np.float64)])
-                np.savetxt(out, table, fmt="%.6f %.6f %.6f %d")
+            columns = [cloud.xyz[start:start + step]]
+            if cloud.rgb is not None:
+                columns.append(cloud.rgb[start:start + step].astype(np.float64))
+            if cloud.label is not None:
+                columns.append(cloud.label[start:start + step].astype(np.float64)[:, None])
+            np.savetxt(out, np.hstack(columns), fmt=fmt)
     return path

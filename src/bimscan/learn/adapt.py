@@ -108,6 +108,7 @@ def pseudo_label_tiles(
     for index in range(len(tiles)):
         lo, hi = int(tiles.offsets[index]), int(tiles.offsets[index + 1])
         xyz, _, height = tiles.tile_points(index)
+        rgb = tiles.tile_rgb(index)
         lower, upper = xyz.min(axis=0), xyz.max(axis=0)
         rng = np.random.default_rng(np.random.SeedSequence([seed, _PSEUDO_STREAM, epoch, index]))
         order = rng.permutation(hi - lo)
@@ -115,7 +116,7 @@ def pseudo_label_tiles(
             group = np.sort(order[start:start + points])
             extra = extra_features(xyz[group], features=inputs.features, height_m=height[group],
                                    height_scale_m=inputs.height_scale_m, neighbours=inputs.normal_neighbours,
-                                   wide_neighbours=inputs.wide_neighbours)
+                                   wide_neighbours=inputs.wide_neighbours, rgb=None if rgb is None else rgb[group])
             block = pad_block(xyz[group], None, group, points=points, lower=lower, upper=upper, extra=extra)
             queue.append((block, lo + group))
             if len(queue) >= batch_size:
@@ -173,19 +174,23 @@ class AdaptedBlocks:
         t = int(rng.integers(len(self.target)))
         lo, hi = int(self.target.offsets[t]), int(self.target.offsets[t + 1])
         xyz, _, height = self.target.tile_points(t)
+        rgb = self.target.tile_rgb(t)
         label = self.pseudo[lo:hi]
         cells = self.config.mix_cells
         synthetic = mixed_cells(cells, rng)
         if synthetic.any():
             s = int(rng.integers(len(self.source)))
             s_xyz, s_label, s_height = self.source.tile_points(s)
+            s_rgb = self.source.tile_rgb(s)
             # both tiles' coordinates are relative to their column's corner: cells line up
             own = ~synthetic[_cell(xyz, cells, self.size_m)]
             taken = synthetic[_cell(s_xyz, cells, self.size_m)]
             xyz = np.concatenate([xyz[own], s_xyz[taken]])
             label = np.concatenate([label[own], s_label[taken]])
             height = np.concatenate([height[own], s_height[taken]])
-        return draw_block(xyz, label, height, points=self.points, rng=rng, inputs=self.inputs, augment=self.augment)
+            rgb = None if rgb is None or s_rgb is None else np.concatenate([rgb[own], s_rgb[taken]])
+        return draw_block(xyz, label, height, points=self.points, rng=rng, inputs=self.inputs, augment=self.augment,
+                          rgb=rgb)
 
     def batch(self, epoch: int, first_slot: int, count: int) -> dict[str, torch.Tensor]:
         """``count`` blocks of slots ``first_slot`` .. + count - 1, stacked as tensors."""

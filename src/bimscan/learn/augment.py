@@ -57,6 +57,24 @@ def augment_points(xyz: np.ndarray, *, config: AugmentConfig,
     return xyz[keep], keep, float(factors[2] if config.anisotropic else factors[0])
 
 
+def augment_colour(rgb: np.ndarray, *, config: AugmentConfig, rng: np.random.Generator) -> np.ndarray:
+    """Randomise (M, 3) uint8 colours of one block (``AugmentConfig``'s colour keys): a gain and an
+    offset per channel, noise per point, at random its grey value or mid grey; returns uint8.
+    Draws nothing from ``rng`` when every colour key is 0 (the block's other draws stay as they were)."""
+    if not (config.colour_gain_sigma or config.colour_noise or config.colour_grey or config.colour_drop):
+        return rgb
+    colour = np.asarray(rgb, dtype=np.float64) / 255.0
+    gain = rng.normal(1.0, config.colour_gain_sigma, size=3)
+    offset = rng.normal(0.0, config.colour_gain_sigma / 2.0, size=3)
+    colour = colour * gain + offset + rng.normal(0.0, config.colour_noise, size=colour.shape)
+    grey, drop = rng.random(2)
+    if grey < config.colour_grey:
+        colour = np.repeat(colour @ np.array([[0.299], [0.587], [0.114]]), 3, axis=1)
+    if drop < config.colour_drop:
+        colour = np.full_like(colour, 128.0 / 255.0)
+    return np.clip(np.rint(colour * 255.0), 0, 255).astype(np.uint8)
+
+
 def elastic_distortion(
     xyz: np.ndarray, *, granularity: float, magnitude: float, rng: np.random.Generator,
 ) -> np.ndarray:

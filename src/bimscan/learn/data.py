@@ -42,7 +42,8 @@ from bimscan.learn.mapping import (
 )
 from bimscan.types import CloudHeader, PointCloud
 
-ASPRS_UNCLASSIFIED = (0, 1)  # LAS classification "created, never classified" and "unclassified"
+ASPRS_UNCLASSIFIED = (0, 1)
+GREY = 128  # the colour of a point whose scene has none, for a network that reads colour  # LAS classification "created, never classified" and "unclassified"
 CHUNK_POINTS = 1_000_000
 
 
@@ -257,6 +258,7 @@ class TileSet:
     scene: np.ndarray
     scene_names: tuple[str, ...]
     height: np.ndarray
+    rgb: np.ndarray | None = None  # (P, 3) uint8 colour of each point (tiles collected with colour)
 
     def __len__(self) -> int:
         return int(len(self.offsets) - 1)
@@ -266,6 +268,12 @@ class TileSet:
         the floor of one tile."""
         lo, hi = int(self.offsets[index]), int(self.offsets[index + 1])
         return self.xyz[lo:hi].astype(np.float64), self.label[lo:hi], self.height[lo:hi].astype(np.float64)
+
+    def tile_rgb(self, index: int) -> np.ndarray | None:
+        """(M, 3) uint8 colour of one tile's points (None: collected without colour)."""
+        if self.rgb is None:
+            return None
+        return self.rgb[int(self.offsets[index]):int(self.offsets[index + 1])]
 
     @staticmethod
     def concatenate(parts: Sequence[TileSet]) -> TileSet:
@@ -287,6 +295,7 @@ class TileSet:
             scene=np.concatenate(scenes).astype(np.int32) if parts else np.empty(0, np.int32),
             scene_names=tuple(names),
             height=np.concatenate([p.height for p in parts]) if parts else np.empty(0, np.float32),
+            rgb=np.concatenate([p.rgb for p in parts]) if parts and all(p.rgb is not None for p in parts) else None,
         )
 
 
@@ -298,8 +307,12 @@ def _scene_seed(seed: int, source: SceneSource) -> np.random.SeedSequence:
 def collect_scene_tiles(
     source: SceneSource, *, blocks: BlockConfig, class_names: Sequence[str], seed: int,
     chunk_points: int = CHUNK_POINTS, grid_m: float = 0.0, per_station: bool = False, labelled: bool = True,
+    colour: bool = False,
 ) -> TileSet:
     """Stream one scene into its training columns, keeping <= ``blocks.cache_points`` each.
+
+    ``colour``: keep each point's colour too (``TileSet.rgb``); a scene without colour gets mid
+    grey (128), as a network trained with colour sees a scan without it.
 
     Each point gets a random key; each column keeps its points with the smallest keys, i.e. a
     uniform random subset without replacement, independent of how the stream is chunked.
@@ -326,7 +339,8 @@ def collect_scene_tiles(
     # kept: the smallest keys per column so far, sorted by (column, key); pending: later
     # candidates in stream order, merged in by _keep_smallest once they are a quarter of kept
     kept_key, kept_prio = np.empty(0, np.int64), np.empty(0, np.float64)
-    kept_xyz, kept_label = np.empty((0, 3), np.float64), np.empty(0, np.uint8)
+    kept_xyz = np.empty((0, 3), np.float64)
+    kept_label = np.empty((0, 4) if colour else 0, np.uint8)
     pending: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
     pending_points = 0
     full_key = np.empty(0, np.int64)  # columns holding `limit` kept points, with their largest key
@@ -359,6 +373,9 @@ def collect_scene_tiles(
         column_keys.append(unique)
         column_counts.append(unique_counts)
         xyz, label = chunk.xyz, chunk.label
+        if colour:  # the colour rides along with the label: (label, r, g, b) columns
+            rgb = chunk.rgb if chunk.rgb is not None else np.full((len(chunk), 3), GREY, dtype=np.uint8)
+            label = np.column_stack([label, rgb])
         if grid_m > 0:
             voxel = voxel_hash(xyz, grid_m, seed=seed)
             # one point per (column, voxel) within the chunk (smallest coordinate hash), as
@@ -401,8 +418,10 @@ def collect_scene_tiles(
     else:
         counts = {}
     height = kept_xyz[:, 2] - floor_map.floor_under(kept_xyz)
+    kept_rgb = kept_label[:, 1:4] if colour else None
+    kept_label = kept_label[:, 0] if colour else kept_label
     return _tiles_from_points(source, kept_key, kept_xyz, kept_label, height, counts, blocks=blocks,
-                              labelled=labelled)
+                              labelled=labelled, rgb=kept_rgb)
 
 
 _STATION_SHIFT = 1 << 20  # per-station columns: column x index + station x this (|x index| < 2**19)
@@ -505,11 +524,11 @@ def _sort_by_column_and_key(key: np.ndarray, prio: np.ndarray) -> tuple[np.ndarr
 
 def _tiles_from_points(
     source: SceneSource, key: np.ndarray, xyz: np.ndarray, label: np.ndarray, height: np.ndarray,
-    counts: dict[int, int], *, blocks: BlockConfig, labelled: bool = True,
+    counts: dict[int, int], *, blocks: BlockConfig, labelled: bool = True, rgb: np.ndarray | None = None,
 ) -> TileSet:
     starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]]) if len(key) else np.empty(0, np.int64)
     ends = np.r_[starts[1:], len(key)].astype(np.int64)
-    parts_xyz, parts_label, parts_height, offsets, origins, keys, totals = [], [], [], [0], [], [], []
+    parts_xyz, parts_label, parts_height, parts_rgb, offsets, origins, keys, totals = [], [], [], [], [0], [], [], []
     for start, end in zip(starts.tolist(), ends.tolist(), strict=True):
         column = int(key[start])
         labels = label[start:end]
@@ -521,6 +540,8 @@ def _tiles_from_points(
         parts_xyz.append((xyz[start:end] - origin).astype(np.float32))
         parts_label.append(labels)
         parts_height.append(height[start:end].astype(np.float32))
+        if rgb is not None:
+            parts_rgb.append(rgb[start:end])
         offsets.append(offsets[-1] + end - start)
         origins.append(origin)
         keys.append(column)
@@ -535,6 +556,7 @@ def _tiles_from_points(
         scene=np.zeros(len(keys), dtype=np.int32),
         scene_names=(source.name,),
         height=np.concatenate(parts_height) if parts_height else np.empty(0, np.float32),
+        rgb=None if rgb is None else (np.concatenate(parts_rgb) if parts_rgb else np.empty((0, 3), np.uint8)),
     )
 
 
@@ -552,14 +574,14 @@ def _fingerprint(path: Path) -> list[object]:
 
 def name_tile_cache(
     source: SceneSource, *, blocks: BlockConfig, class_names: Sequence[str], seed: int, grid_m: float = 0.0,
-    per_station: bool = False, labelled: bool = True,
+    per_station: bool = False, labelled: bool = True, colour: bool = False,
 ) -> str:
     """File name of a scene's cached tiles: a digest of everything the tiles depend on."""
     recipe = {  # version: what collecting does (7: a slab seen from both sides gives its top as the floor)
         "version": 7, "scene": _fingerprint(source.path), "name": source.name, "kind": source.kind,
         "label_field": source.label_field, "mapping": None if source.mapping is None else asdict(source.mapping),
         "blocks": asdict(blocks), "class_names": list(class_names), "seed": seed, "grid_m": grid_m,
-        "per_station": per_station, **({} if labelled else {"unlabelled": True}),
+        "per_station": per_station, **({} if labelled else {"unlabelled": True}), **({"colour": True} if colour else {}),
     }
     digest = hashlib.sha256(json.dumps(recipe, sort_keys=True, default=str).encode()).hexdigest()[:24]
     return f"tiles-{digest}.npz"
@@ -568,7 +590,7 @@ def name_tile_cache(
 def load_or_collect_tiles(
     source: SceneSource, *, blocks: BlockConfig, class_names: Sequence[str], seed: int,
     cache_dir: Path | None = None, build: bool = True, grid_m: float = 0.0, per_station: bool = False,
-    labelled: bool = True,
+    labelled: bool = True, colour: bool = False,
 ) -> TileSet:
     """Tiles of one scene, from ``cache_dir`` when cached there, else collected (and cached).
 
@@ -577,25 +599,26 @@ def load_or_collect_tiles(
     """
     if cache_dir is None:
         return collect_scene_tiles(source, blocks=blocks, class_names=class_names, seed=seed, grid_m=grid_m,
-                                   per_station=per_station, labelled=labelled)
+                                   per_station=per_station, labelled=labelled, colour=colour)
     path = cache_dir / name_tile_cache(source, blocks=blocks, class_names=class_names, seed=seed, grid_m=grid_m,
-                                       per_station=per_station, labelled=labelled)
+                                       per_station=per_station, labelled=labelled, colour=colour)
     if path.is_file():
         with np.load(path) as data:
             return TileSet(
                 xyz=data["xyz"], label=data["label"], offsets=data["offsets"], origin=data["origin"],
                 key=data["key"], count=data["count"], scene=data["scene"], scene_names=(source.name,),
-                height=data["height"],
+                height=data["height"], rgb=data["rgb"] if "rgb" in data.files else None,
             )
     if not build:
         raise LearnError(f"{path}: tile cache missing (rank 0 should have written it); rerun the training")
     tiles = collect_scene_tiles(source, blocks=blocks, class_names=class_names, seed=seed, grid_m=grid_m,
-                                per_station=per_station, labelled=labelled)
+                                per_station=per_station, labelled=labelled, colour=colour)
     cache_dir.mkdir(parents=True, exist_ok=True)
     with atomic_output(path) as temp, temp.open("wb") as out:
         np.savez(
             out, xyz=tiles.xyz, label=tiles.label, offsets=tiles.offsets, origin=tiles.origin,
             key=tiles.key, count=tiles.count, scene=tiles.scene, height=tiles.height,
+            **({} if tiles.rgb is None else {"rgb": tiles.rgb}),
         )
     return tiles
 
@@ -631,26 +654,31 @@ class TileDataset:
         if self.augment is None and self.inputs.features == ("xyz",):
             block = sample_block(xyz, label, points=self.points, rng=rng)  # the paper's block, bit for bit
             return {"xyz": block.xyz, "label": block.label, "mask": block.mask}
-        return draw_block(xyz, label, height, points=self.points, rng=rng, inputs=self.inputs, augment=self.augment)
+        return draw_block(xyz, label, height, points=self.points, rng=rng, inputs=self.inputs, augment=self.augment,
+                          rgb=self.tiles.tile_rgb(index))
 
 
 def draw_block(xyz: np.ndarray, label: np.ndarray, height: np.ndarray, *, points: int, rng: np.random.Generator,
-               inputs: InputConfig, augment: AugmentConfig | None) -> dict[str, np.ndarray]:
-    """One training block of a tile's points (M, 3) float64 metres with their labels (M,) uint8 and
-    heights above the floor (M,): ``points`` drawn without replacement, augmented (``augment``,
-    None: not), its input features computed; a dict of ``xyz`` (N, D) float32, ``label`` (N,) int64
-    and ``mask`` (N,) bool (see ``TileDataset``)."""
-    from bimscan.learn.augment import augment_points
+               inputs: InputConfig, augment: AugmentConfig | None,
+               rgb: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """One training block of a tile's points (M, 3) float64 metres with their labels (M,) uint8,
+    heights above the floor (M,) and colours (M, 3) uint8 (or None): ``points`` drawn without
+    replacement, augmented (``augment``, None: not), its input features computed; a dict of
+    ``xyz`` (N, D) float32, ``label`` (N,) int64 and ``mask`` (N,) bool (see ``TileDataset``)."""
+    from bimscan.learn.augment import augment_colour, augment_points
 
     m = len(xyz)
     lower, upper = xyz.min(axis=0), xyz.max(axis=0)  # the whole block's box, as sample_block and inference use
     chosen = np.sort(rng.choice(m, size=points, replace=False)) if m > points else np.arange(m)
     xyz, label, height = xyz[chosen], label[chosen], height[chosen]
+    rgb = None if rgb is None else rgb[chosen]
     if augment is not None and augment.enabled:
         xyz, kept, z_scale = augment_points(xyz, config=augment, rng=rng)
         label, chosen, height = label[kept], chosen[kept], height[kept] * z_scale  # a taller storey
         lower, upper = xyz.min(axis=0), xyz.max(axis=0)
+        if rgb is not None:
+            rgb = augment_colour(rgb[kept], config=augment, rng=rng)
     extra = extra_features(xyz, features=inputs.features, height_m=height, height_scale_m=inputs.height_scale_m,
-                           neighbours=inputs.normal_neighbours, wide_neighbours=inputs.wide_neighbours)
+                           neighbours=inputs.normal_neighbours, wide_neighbours=inputs.wide_neighbours, rgb=rgb)
     block = pad_block(xyz, label, chosen, points=points, lower=lower, upper=upper, extra=extra)
     return {"xyz": block.xyz, "label": block.label, "mask": block.mask}

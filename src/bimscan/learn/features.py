@@ -22,13 +22,16 @@
   across in a recipe block): a second scale, as in Weinmann et al.'s multi-scale features. A
   wall stays planar at the wide scale; a cabinet's side, whose neighbourhood there takes in its
   top and front, does not.
+- ``rgb``: the point's colour, each channel / 255 - 0.5 (a scan without colour: mid grey, 0).
+  Real scans carry photographs' colours, bimscan's scans their surface styles' (``--rgb``); the
+  training augmentation randomises them (:mod:`bimscan.learn.augment`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-FEATURE_CHANNELS = {"xyz": 3, "height": 1, "normals": 3, "shape": 3, "shape_wide": 3}
+FEATURE_CHANNELS = {"xyz": 3, "height": 1, "normals": 3, "shape": 3, "shape_wide": 3, "rgb": 3}
 
 
 def input_channels(features: tuple[str, ...]) -> int:
@@ -78,12 +81,13 @@ def estimate_normals(xyz: np.ndarray, *, neighbours: int) -> np.ndarray:
 
 def extra_features(
     xyz: np.ndarray, *, features: tuple[str, ...], height_m: np.ndarray | None, height_scale_m: float, neighbours: int,
-    wide_neighbours: int = 0,
+    wide_neighbours: int = 0, rgb: np.ndarray | None = None,
 ) -> np.ndarray | None:
     """(M, E) float32 channels after xyz for (M, 3) points, or None for XYZ only.
 
     ``height_m``: (M,) metres above the floor under each point (needed with ``height``); only
     the differences of ``xyz`` matter. ``wide_neighbours``: the neighbourhood of ``shape_wide``.
+    ``rgb``: (M, 3) uint8 colour (with ``rgb``; None: mid grey).
     """
     scales = []  # one neighbour search serves both neighbourhoods
     if "normals" in features or "shape" in features:
@@ -103,4 +107,8 @@ def extra_features(
             parts.append(geometry[neighbours][0] if name == "normals" else geometry[neighbours][1])
         elif name == "shape_wide":
             parts.append(geometry[wide_neighbours][1])
+        elif name == "rgb":
+            colour = np.zeros((len(xyz), 3), dtype=np.float32) if rgb is None else \
+                np.asarray(rgb, dtype=np.float32) / 255.0 - 0.5
+            parts.append(colour.astype(np.float32))
     return np.concatenate(parts, axis=1) if parts else None

@@ -47,7 +47,7 @@ from torch import nn
 from bimscan.errors import LearnError
 from bimscan.files import work_folder
 from bimscan.learn.blocks import Block, pad_block, plan_passes
-from bimscan.learn.data import CHUNK_POINTS, SceneSource, iter_raw_chunks, iter_scene_chunks
+from bimscan.learn.data import CHUNK_POINTS, GREY, SceneSource, iter_raw_chunks, iter_scene_chunks
 from bimscan.learn.density import voxel_representatives
 from bimscan.learn.features import extra_features
 from bimscan.learn.floors import TILE_M, FloorMap, FloorMapBuilder, storey_of
@@ -60,7 +60,13 @@ from bimscan.types import PointCloud
 SPREAD_CHUNK = 262_144  # points interpolated at a time (see spread_votes)
 SPREAD_CELLS = 1.5  # voxels per cell of the vote-spreading grid (bimscan.learn.neighbours)
 RECORD = np.dtype([("xyz", "<f8", (3,)), ("label", "u1"), ("index", "<i8")])
-RECORD_WITH_COMPONENT = np.dtype(RECORD.descr + [("component", "<i4")])  # when predictions are counted per component
+
+
+def stripe_record(*, components: bool, colour: bool) -> np.dtype:
+    """A stripe file's record: ``RECORD``, with the point's component (predictions counted per
+    component) and its colour (a network that reads colour) when asked."""
+    fields = RECORD.descr + ([("component", "<i4")] if components else []) + ([("rgb", "u1", (3,))] if colour else [])
+    return np.dtype(fields)
 STRIPES_NAME = "bimscan-stripes"  # the work folder: .bimscan-stripes.<pid>-<random>.tmp in work_dir or $TMPDIR
 MIN_PADDED = 16  # blocks smaller than N run padded to a power of two at least this
 BUILDING_EXTENT_M = 2_000.0  # wider than this, or taller than BUILDING_HEIGHT_M: likely not metres
@@ -221,7 +227,7 @@ class _Labeller:
         self.confusion = np.zeros((classes, classes), dtype=np.int64)
         if self.elements > 0:
             self.element_counts = np.zeros((self.elements + 1, classes), dtype=np.int64)
-            self.record = RECORD_WITH_COMPONENT
+        self.record = stripe_record(components=self.elements > 0, colour="rgb" in self.inputs.features)
         self.stride = self.evaluation.stride_for(self.blocks.size_m)
         self.k = int(round(self.blocks.size_m / self.stride))
         self.runner = BlockRunner(self.model, device=self.device, batch_size=self.evaluation.batch_size, amp=self.amp)
@@ -270,6 +276,8 @@ class _Labeller:
             records["index"] = np.arange(total, total + n, dtype=np.int64)
             if self.element_counts is not None:
                 records["component"] = chunk.component if chunk.component is not None else -1
+            if "rgb" in self.record.names:  # a scan without colour: mid grey, as in training
+                records["rgb"] = chunk.rgb if chunk.rgb is not None else GREY
             total += n
             lower = np.minimum(lower, chunk.xyz.min(axis=0))
             upper = np.maximum(upper, chunk.xyz.max(axis=0))
@@ -360,6 +368,7 @@ class _Labeller:
         k = self.k
         xyz = np.concatenate([w.records["xyz"][w.reps] for w in window])
         height = np.concatenate([w.height for w in window]) if "height" in self.inputs.features else None
+        rgb = np.concatenate([w.records["rgb"][w.reps] for w in window]) if "rgb" in self.record.names else None
         storey = np.concatenate([w.storey for w in window])
         cy = np.concatenate([w.cy for w in window])
         offsets = np.cumsum([0] + [len(w.reps) for w in window])
@@ -375,18 +384,19 @@ class _Labeller:
                 continue
             in_row = np.sort(order[lo:hi])
             for level in np.unique(storey[in_row]).tolist():  # one block per storey of the column
-                self._block(column, row, level, in_row[storey[in_row] == level], xyz, height)
+                self._block(column, row, level, in_row[storey[in_row] == level], xyz, height, rgb)
         self.runner.flush()
         for w, a, b in zip(window, offsets[:-1], offsets[1:], strict=True):
             w.votes += self.runner.votes[a:b]
 
     def _block(self, column: int, row: int, level: int, members: np.ndarray, xyz: np.ndarray,
-               height: np.ndarray | None) -> None:
+               height: np.ndarray | None, rgb: np.ndarray | None = None) -> None:
         """The passes of one block (a column's row of cells, one storey): its points shuffled and
         cut into groups of N, ``votes`` times."""
         blocks, evaluation = self.blocks, self.evaluation
         points = xyz[members]
         heights = None if height is None else height[members]
+        colours = None if rgb is None else rgb[members]
         box_lower, box_upper = points.min(axis=0), points.max(axis=0)
         # not seeded by the storey: a storey's blocks are cut as they would be were it scanned alone
         rng = np.random.default_rng(_seed(self.seed, column, row))
@@ -400,7 +410,8 @@ class _Labeller:
             extra = extra_features(points[group], features=self.inputs.features,
                                    height_m=None if heights is None else heights[group],
                                    height_scale_m=self.inputs.height_scale_m, neighbours=self.inputs.normal_neighbours,
-                                   wide_neighbours=self.inputs.wide_neighbours)
+                                   wide_neighbours=self.inputs.wide_neighbours,
+                                   rgb=None if colours is None else colours[group])
             self.runner.add(pad_block(points[group], None, members[group], points=padded_size(len(group), blocks.points),
                                       lower=box_lower, upper=box_upper, extra=extra), weight)
         self.block_count += 1

@@ -346,6 +346,7 @@ def _collect_tiles(
         return load_or_collect_tiles(
             source, blocks=config.blocks, class_names=config.data.class_names, seed=config.train.seed,
             cache_dir=cache_dir, build=build, grid_m=config.input.grid_m, per_station=per_station, labelled=labelled,
+            colour="rgb" in config.input.features,
         )
 
     def cut(source: SceneSource, *, build: bool = True) -> list[TileSet]:

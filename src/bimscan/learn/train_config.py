@@ -152,7 +152,12 @@ class InputConfig(Checked):
 class AugmentConfig(Checked):
     """Training augmentations (:mod:`bimscan.learn.augment`); ``enabled = false`` is the paper's
     baseline. Each effect is off at its neutral value (rotate_z false, scale_range [1, 1],
-    flip_probability 0, jitter_sigma_m 0, dropout_max 0, elastic [])."""
+    flip_probability 0, jitter_sigma_m 0, dropout_max 0, elastic [], the colour ones 0). The colour
+    randomisation acts on blocks read with colour (``[input] features`` with ``rgb``):
+    ``colour_gain_sigma`` (each channel scaled by a gain ~ N(1, sigma) and shifted by ~ N(0,
+    sigma / 2) of full scale, per block: white balance, exposure), ``colour_noise`` (per point
+    sigma, of full scale), ``colour_grey`` (the chance a block's colour becomes its grey value)
+    and ``colour_drop`` (the chance it becomes mid grey: a scan without colour)."""
 
     enabled: bool = True
     rotate_z: bool = True
@@ -163,6 +168,10 @@ class AugmentConfig(Checked):
     jitter_clip_m: float = setting(0.05, within=Range(0.0, 1.0))
     dropout_max: float = setting(0.2, within=Range(0.0, 1.0, high_open=True))
     elastic: tuple[tuple[float, float], ...] = setting(((0.2, 0.4), (0.8, 1.6)), each=Range(0, 100))
+    colour_gain_sigma: float = setting(0.0, within=Range(0.0, 1.0))
+    colour_noise: float = setting(0.0, within=Range(0.0, 1.0))
+    colour_grey: float = setting(0.0, within=Range(0.0, 1.0))
+    colour_drop: float = setting(0.0, within=Range(0.0, 1.0))
 
     def check(self) -> None:
         low, high = self.scale_range
