@@ -202,3 +202,64 @@ def test_a_scanned_two_storey_house_gets_each_storeys_floor(tmp_path):
     truth = storeys[np.maximum(np.searchsorted(storeys, xyz[:, 2] + 0.15, side="right") - 1, 0)]
     found = floor_of(xyz).floor_under(xyz)
     assert np.mean(np.abs(found - truth) < 0.3) > 0.95
+
+
+@pytest.mark.parametrize("roof_over_ceiling_m", [0.12, 0.15, 0.4])
+def test_a_ceiling_just_under_a_roof_seen_from_above_keeps_the_floor_of_its_room(roof_over_ceiling_m: float):
+    """A one-storey house with a station on its flat roof: the roof's top is a floor (what stands
+    on it stands on it), and the ceiling a thin roof slab above it is the room's below, however
+    close under the roof's top it lies: its height stays its room's, and it stays in its storey."""
+    from bimscan.learn.floors import storey_of
+
+    rng = np.random.default_rng(7)
+    ceiling_m = 2.6
+    roof_m = ceiling_m + roof_over_ceiling_m
+    parts = [_plane(rng, (0, 12), (0, 8), 0.0, 40_000), _plane(rng, (0, 12), (0, 8), ceiling_m, 40_000),
+             _plane(rng, (0, 12), (0, 8), roof_m, 30_000)]  # the roof's top, from the roof station
+    parts.extend(_outer_walls(rng, (12.0, 8.0), (0.0, ceiling_m)))
+    parts.append(_wall(rng, (0, 12), (-0.05, 0.0), (ceiling_m, roof_m + 0.9), 4_000))  # a parapet
+    xyz = np.concatenate(parts)
+    floor_map = floor_of(xyz)
+    floor = floor_map.floor_under(xyz)
+    ceiling = np.abs(xyz[:, 2] - ceiling_m) < 0.02
+    roof = np.abs(xyz[:, 2] - roof_m) < 0.02
+    walls = (xyz[:, 2] > 0.1) & (xyz[:, 2] < ceiling_m - 0.1)
+    assert np.allclose(floor[ceiling], 0.0, atol=0.06)  # 2.6 m above its floor, not 0.1 under the roof
+    assert np.allclose(floor[walls], 0.0, atol=0.06)
+    assert np.allclose(floor[roof], roof_m, atol=0.06)
+    storey = storey_of(floor_map, floor)
+    assert (storey[ceiling] == storey[walls][0]).all()  # cut into the room's blocks, not the roof's
+
+
+@pytest.mark.slow
+def test_a_scanned_house_with_a_station_on_its_flat_roof_keeps_every_rooms_floor(tmp_path):
+    """bimscan's scan of a one-storey house from every room and from its flat roof: the roof's top
+    takes the roof as its floor, and the rooms' ceilings, walls and furniture keep the ground
+    floor, exactly as they do without the roof station."""
+    from bimscan.ifc.generate import make_building
+    from bimscan.io import read_cloud, read_cloud_header
+    from bimscan.pipeline import load_scene, scan_model
+    from bimscan.survey.recipe import ScanRecipe
+
+    model = make_building(tmp_path / "house.ifc", seed=11, storeys=1, style="residential").path
+    scene = load_scene(model)
+    roof = next(i for i, name in enumerate(scene.components.name) if name == "Roof slab")
+    top = float(scene.mesh.vertices[scene.mesh.faces[scene.mesh.face_component == roof]].reshape(-1, 3)[:, 2].max())
+    rooms = tmp_path / "rooms.laz"
+    scan_model(model, rooms, ScanRecipe.resolve(preset="exp1", head_deg_per_s=60.0), progress=False)
+    stations = [s.position for s in read_cloud_header(rooms).stations]
+    csv = tmp_path / "stations.csv"
+    centre = scene.mesh.vertices.mean(axis=0)
+    csv.write_text("x,y,z\n" + "".join(f"{x},{y},{z}\n" for x, y, z in stations) + f"{centre[0]},{centre[1]},{top + 1.7}\n")
+    both = tmp_path / "both.laz"
+    scan_model(model, both, ScanRecipe.resolve(preset="exp1", head_deg_per_s=60.0, stations_from=str(csv)),
+               progress=False)
+    cloud = read_cloud(both)
+    on_roof = cloud.station == len(stations)
+    inside = ~on_roof
+    origin = cloud.xyz.min(axis=0)
+    found = floor_of(cloud.xyz, origin).floor_under(cloud.xyz)
+    alone = floor_of(cloud.xyz[inside], origin).floor_under(cloud.xyz)  # the rooms' scan only
+    roof_top = on_roof & (cloud.component == roof) & (np.abs(cloud.xyz[:, 2] - top) < 0.05)
+    assert roof_top.sum() > 1000 and np.mean(np.abs(found[roof_top] - top) < 0.1) > 0.95
+    assert np.mean(np.abs(found[inside] - alone[inside]) < 0.06) > 0.99

@@ -577,8 +577,8 @@ def name_tile_cache(
     per_station: bool = False, labelled: bool = True, colour: bool = False,
 ) -> str:
     """File name of a scene's cached tiles: a digest of everything the tiles depend on."""
-    recipe = {  # version: what collecting does (7: a slab seen from both sides gives its top as the floor)
-        "version": 7, "scene": _fingerprint(source.path), "name": source.name, "kind": source.kind,
+    recipe = {  # version: what collecting does (8: a ceiling under a thin slab seen from above keeps its room's floor)
+        "version": 8, "scene": _fingerprint(source.path), "name": source.name, "kind": source.kind,
         "label_field": source.label_field, "mapping": None if source.mapping is None else asdict(source.mapping),
         "blocks": asdict(blocks), "class_names": list(class_names), "seed": seed, "grid_m": grid_m,
         "per_station": per_station, **({} if labelled else {"unlabelled": True}), **({"colour": True} if colour else {}),

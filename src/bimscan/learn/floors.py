@@ -37,8 +37,10 @@ up more often than down; one away from every scene floor is a floor of its own (
 only when it covers most of its tile, what stands on it rises from it (walls, furniture, seen
 within ``NEAR_M`` to ``FAR_M`` above it, against below it), and the scene's floor under it is
 hidden in its tile (a table stands over a floor that shows). A point's floor is the highest
-floor of its tile at most ``ABOVE_TOLERANCE_M`` above it (the floor's own points lie on it); a
-point below every floor takes the lowest. Tiles without a floor (a floor hidden under furniture,
+floor of its tile at most ``ABOVE_TOLERANCE_M`` above it (the floor's own points lie on it), or
+less where a ceiling (a layer facing down) lies closer under the floor: under a thin slab seen
+from above (a flat roof with a station on it, a terrace over rooms), the ceiling is the room's
+below, whose floor is lower (``_reach``); a point below every floor takes the lowest. Tiles without a floor (a floor hidden under furniture,
 a tile of wall only) take the scene's floors, and a tile's floors are completed by the scene
 floors it does not show.
 
@@ -165,6 +167,8 @@ class FloorMap:
     floors: np.ndarray
     scene_floors: np.ndarray
     origin: np.ndarray  # (3,) metres: tiles are counted from it (floors are absolute)
+    reach: np.ndarray | None = None  # (F,) how far below each floor its own points lie (None: ABOVE_TOLERANCE_M)
+    scene_reach: np.ndarray | None = None  # (S,) the same for the scene's floors
 
     def floor_under(self, xyz: np.ndarray) -> np.ndarray:
         """(N,) float64: the floor under each of (N, 3) points (see the module docs)."""
@@ -176,12 +180,16 @@ class FloorMap:
         position = np.searchsorted(known, key)
         found = (position < len(known)) & (known[np.minimum(position, len(known) - 1)] == key) if len(known) else \
             np.zeros(len(xyz), dtype=bool)
+        reach = self.reach if self.reach is not None else np.full(len(self.floors), ABOVE_TOLERANCE_M)
         for k in np.unique(position[found]):
             rows = np.flatnonzero(found & (position == k))
-            out[rows] = _highest_below(self.floors[self.starts[k]:self.starts[k + 1]], xyz[rows, 2])
+            span = slice(self.starts[k], self.starts[k + 1])
+            out[rows] = _highest_below(self.floors[span], reach[span], xyz[rows, 2])
         rest = np.flatnonzero(~found)
         if len(rest):
-            out[rest] = _highest_below(self.scene_floors, xyz[rest, 2])
+            scene_reach = self.scene_reach if self.scene_reach is not None else \
+                np.full(len(self.scene_floors), ABOVE_TOLERANCE_M)
+            out[rest] = _highest_below(self.scene_floors, scene_reach, xyz[rest, 2])
         return out
 
 
@@ -204,10 +212,26 @@ def _tile_key(tile: np.ndarray) -> np.ndarray:
     return ((tile[:, 0] + _TILE_OFFSET) << 24) | (tile[:, 1] + _TILE_OFFSET)
 
 
-def _highest_below(floors: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """For each z, the highest of ``floors`` (ascending) at most ABOVE_TOLERANCE_M above it, else the lowest."""
-    index = np.searchsorted(floors, z + ABOVE_TOLERANCE_M, side="right") - 1
+def _highest_below(floors: np.ndarray, reach: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """For each z, the highest of ``floors`` (ascending) at most its ``reach`` above it, else the
+    lowest (floors are more than ABOVE_TOLERANCE_M >= reach apart, so floors - reach ascend too)."""
+    index = np.searchsorted(floors - reach, z, side="right") - 1
     return floors[np.maximum(index, 0)]
+
+
+def _reach(column: _Column, z: float) -> float:
+    """How far below floor ``z`` (metres from the map's origin, a bin boundary) a point still lies on
+    it: ``ABOVE_TOLERANCE_M``, or less when a ceiling lies closer under it. A ceiling is a layer
+    whose surfaces face down (room air under them) over a candidate's share of the column's cells;
+    its run of bins starts at its bottom bin and may take the next, and the floor's own run is
+    another (an empty bin parts them), so the floor's points lie above the ceiling's run."""
+    top = int(round(z / BIN_M)) - column.low
+    many = max(UPWARD_FRACTION * column.footprint, 3)
+    for depth in range(1, int(round(ABOVE_TOLERANCE_M / BIN_M)) + 3):
+        b = top - depth
+        if 0 <= b < len(column.downward) and column.downward[b] >= many and column.downward[b] > column.upward[b]:
+            return min(ABOVE_TOLERANCE_M, max(depth - 2, 0) * BIN_M)
+    return ABOVE_TOLERANCE_M
 
 
 def _decode(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -290,20 +314,24 @@ def floor_map_of_tiles(tiles: dict[int, _Column], *, origin: np.ndarray) -> Floo
     scene = _floors(whole, scene_floors=None)
     if len(scene) == 0:  # no floor anywhere: the lowest occupied height, as a last resort
         scene = np.array([float(whole.low) * BIN_M])
-    keys, offsets, floors = [], [0], []
+    keys, offsets, floors, reach = [], [0], [], []
     for key in sorted(tiles):
         found = _floors(tiles[key], scene_floors=scene)
         if len(found):
             # the scene's floors fill the storeys the tile does not show (a floor under furniture)
             missing = [z for z in scene if np.abs(found - z).min() > SCENE_MATCH_M]
             keys.append(key)
-            floors.extend(np.sort(np.concatenate([found, missing])).tolist())
+            tile_floors = np.sort(np.concatenate([found, missing])).tolist()
+            floors.extend(tile_floors)
+            reach.extend(_reach(tiles[key], z) for z in tile_floors)
             offsets.append(len(floors))
     key_array = np.asarray(keys, dtype=np.int64)
     tile_index = np.column_stack([(key_array >> 24) - _TILE_OFFSET, (key_array & 0xFFFFFF) - _TILE_OFFSET])
     return FloorMap(tiles=tile_index.reshape(-1, 2), starts=np.asarray(offsets, np.int64),
                     floors=np.asarray(floors, dtype=np.float64) + origin[2],
-                    scene_floors=np.asarray(scene, dtype=np.float64) + origin[2], origin=origin)
+                    scene_floors=np.asarray(scene, dtype=np.float64) + origin[2], origin=origin,
+                    reach=np.asarray(reach, dtype=np.float64),
+                    scene_reach=np.asarray([_reach(whole, z) for z in scene], dtype=np.float64))
 
 
 def _layers(column: _Column) -> list[int]:
@@ -360,7 +388,10 @@ def _floors(column: _Column, *, scene_floors: np.ndarray | None) -> np.ndarray:
     for layer in _layers(column):
         z = (column.low + layer + 1) * BIN_M  # the boundary of the layer's two bins
         window = slice(max(layer - 1, 0), layer + 3)  # the layer's bins and one either side (noise)
-        up, down = int(column.upward[window].sum()), int(column.downward[window].sum())
+        # a surface facing down is this layer's when it starts in its bins or the one over them; one
+        # starting lower is another surface (a ceiling under a thin slab seen from above: a roof
+        # with a station on it), which upward runs ending in the layer cannot be
+        up, down = int(column.upward[window].sum()), int(column.downward[layer:layer + 3].sum())
         bottom = scene_floors[:1] if scene_floors is not None else out[:1]  # the lowest floor known
         if len(bottom) and z - bottom[0] >= STOREY_M - 1e-9:
             # nothing scanned under a surface makes it a floor only in the bottom storey (a
