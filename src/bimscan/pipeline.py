@@ -335,7 +335,7 @@ def plan_model(model: str | Path, out: str | Path, recipe: ScanRecipe, config: P
     from bimscan.files import check_input_file
     from bimscan.io import iter_cloud_chunks, read_cloud_header
     from bimscan.render.survey_plan import draw_plan_pictures
-    from bimscan.survey.planning.measure import count_points, patch_density, patch_matrix
+    from bimscan.survey.planning.measure import patch_density, patch_matrix, points_per_sample
     from bimscan.survey.planning.plan import check_survey, evaluate, plan_survey, prepare_space
     from bimscan.survey.planning.report import check_plan_output, write_plan_folder
 
@@ -386,10 +386,11 @@ def plan_model(model: str | Path, out: str | Path, recipe: ScanRecipe, config: P
     scan_evaluation, ratio = None, None
     if cloud is not None:
         start = time.perf_counter()
-        positions = {s.id: np.asarray(s.position, dtype=np.float64) for s in header.stations}
+        # the cloud's stations are the checked ones, in order (checked above): the candidates after the spots
+        columns = {s.id: space.n_spots + i for i, s in enumerate(header.stations)}
         with step_line("measuring the scan", enabled=progress):
-            counts = count_points(iter_cloud_chunks(cloud), space.samples, positions,
-                                  max_incidence_deg=config.max_incidence_deg, threads=recipe.threads or -1)
+            counts = points_per_sample(iter_cloud_chunks(cloud), space.samples, space.visibility, columns,
+                                       counted=space.klass >= 0, threads=recipe.threads or -1)
             patches = patch_matrix(space.samples)
             measured = patch_density(counts, space.samples, per_area=True, patches=patches)
             estimate = patch_density(evaluation.density, space.samples, per_area=False, patches=patches)
@@ -400,9 +401,12 @@ def plan_model(model: str | Path, out: str | Path, recipe: ScanRecipe, config: P
             ratio = (float(q[0]), float(q[1]), float(q[2]))
         steps["measure"] = time.perf_counter() - start
     if evaluation.parts > 1:
+        why = (f"the candidate spots themselves form {evaluation.spot_parts} parts no station can join"
+               if evaluation.parts == evaluation.spot_parts else "a checked plan")
         say(f"the registration graph of the {len(plan.stations)} stations falls into {evaluation.parts} parts that "
-            f"share too little surface (--overlap {config.overlap:g}); closed doors between rooms? plan and scan "
-            "with --stage-exclude IfcDoor (doors open), lower --overlap, or register with targets")
+            f"share too little surface (--overlap {config.overlap:g}; {why}): closed doors between rooms? plan and "
+            "scan with --stage-exclude IfcDoor (doors open); storeys or wings no spot sees both of? register them "
+            "with targets")
     start = time.perf_counter()
     summary = plan_summary(plan, evaluation, scan_evaluation, recipe, mode="check" if check else "plan",
                            density_ratio=ratio)
@@ -470,7 +474,8 @@ def plan_summary(plan: SurveyPlan, evaluation: PlanEvaluation, scan: PlanEvaluat
                       "room": s.room} for s in plan.stations],
         "classes": classes,
         "met": evaluation.met(),
-        "registration": {"edges": len(evaluation.edges), "parts": evaluation.parts},
+        "registration": {"edges": len(evaluation.edges), "parts": evaluation.parts,
+                         "spot_parts": evaluation.spot_parts},
         "elements": dict(sorted(statuses.items())),
     }
     if scan is not None:

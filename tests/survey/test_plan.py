@@ -17,7 +17,7 @@ from bimscan.scan.probe import Prober
 from bimscan.site.model import SiteModel, StageSettings
 from bimscan.survey.planning.config import PlanConfig
 from bimscan.survey.planning.graph import normal_bins, scan_order
-from bimscan.survey.planning.measure import count_points, patch_density, patch_matrix
+from bimscan.survey.planning.measure import patch_density, patch_matrix, points_per_sample
 from bimscan.survey.planning.plan import check_survey, evaluate, impossible_line, plan_survey, prepare_space
 from bimscan.survey.planning.surface import sample_surfaces, triangle_areas
 from bimscan.survey.planning.visibility import BeamGrid
@@ -222,8 +222,9 @@ def test_the_scan_of_a_plan_shows_the_coverage_the_plan_estimates(box_room_ifc, 
     stations.write_text(format_stations(plan.stations), "utf-8")
     cloud = scan_model(box_room_ifc, tmp_path / "scan", recipe.with_fields(stations_from=str(stations)),
                        progress=False).path
-    positions = {s.id: np.array(s.position) for s in read_cloud_header(cloud).stations}
-    counts = count_points(iter_cloud_chunks(cloud), space.samples, positions, max_incidence_deg=70.0)
+    columns = {s.id: int(plan.chosen[s.id]) for s in read_cloud_header(cloud).stations}  # the plan's, in order
+    counts = points_per_sample(iter_cloud_chunks(cloud), space.samples, space.visibility, columns,
+                               counted=space.klass >= 0)
     patches = patch_matrix(space.samples)
     measured = patch_density(counts, space.samples, per_area=True, patches=patches)
     estimate = evaluate(plan)
@@ -238,19 +239,22 @@ def test_the_scan_of_a_plan_shows_the_coverage_the_plan_estimates(box_room_ifc, 
     assert 0.9 <= ratio <= 1.1
 
 
-def test_points_beyond_the_incidence_limit_do_not_count_on_the_scan(box_room_ifc):
+def test_a_scan_point_counts_on_the_face_its_station_sees_within_the_incidence_limit(box_room_ifc):
     space = plan_space(box_room_ifc, classes=("Wall&Column",))
-    samples = space.samples
-    wall = int(np.flatnonzero(np.abs(samples.normal[:, 1]) > 0.99)[0])  # a sample on a wall facing +-y
-    point = samples.xyz[wall]
+    samples, visibility = space.samples, space.visibility
+    within = visibility.density_pts_m2 > 0
+    edge_on = ~within
+    assert within.any() and edge_on.any()
+    i, j = visibility.sample[within][0], visibility.sample[edge_on][0]
+    seen_by, grazed_by = int(visibility.station[within][0]), int(visibility.station[edge_on][0])
     from bimscan.types import PointCloud
 
-    chunk = PointCloud(xyz=np.array([point, point]), component=np.full(2, samples.component[wall], dtype=np.int32),
-                       station=np.array([0, 1], dtype=np.uint16))
-    facing = point + 3.0 * samples.normal[wall]  # straight in front: incidence 0
-    grazing = point + np.array([3.0, 0.0, 0.0]) + 0.3 * samples.normal[wall]  # about 84 degrees
-    counts = count_points([chunk], samples, {0: facing, 1: grazing}, max_incidence_deg=70.0)
-    assert counts[wall] == 1 and counts.sum() == 1
+    points = PointCloud(xyz=samples.xyz[[i, j]], component=samples.component[[i, j]].astype(np.int32),
+                        station=np.array([0, 1], dtype=np.uint16))
+    counts = points_per_sample([points], samples, visibility, {0: seen_by, 1: grazed_by})
+    assert counts[i] == 1 and counts.sum() == 1  # the point seen only beyond the limit does not count
+    # a point of a station the plan does not know is skipped
+    assert points_per_sample([points], samples, visibility, {1: grazed_by}).sum() == 0
 
 
 def test_planning_the_same_model_twice_gives_the_same_stations(box_room_ifc):

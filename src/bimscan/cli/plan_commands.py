@@ -48,7 +48,7 @@ def _fractions(text: str) -> tuple[float, ...]:
 @click.option("--grid", "grid_m", type=float, default=None,
               help=f"Spacing of the candidate spots, metres. Default: {_DEFAULTS.grid_m:g}.")
 @click.option("--solver", type=click.Choice(list(SOLVERS)), default=None,
-              help="greedy (greedy cover and local search), milp (then scipy's HiGHS within --time-limit) or auto "
+              help="greedy (greedy cover, then local and iterated greedy search), milp (then scipy's HiGHS within --time-limit) or auto "
                    "(the MILP on small models, its answer when proved optimal). Default: auto.")
 @click.option("--time-limit", "milp_time_limit_s", type=float, default=None,
               help=f"Seconds the MILP may take. Default: {_DEFAULTS.milp_time_limit_s:g}.")
@@ -114,7 +114,7 @@ def plan(model: Path, out: Path, classes: str | None, coverage: str | None, dens
     solver_line = ""
     if plan_.solver is not None:
         s = plan_.solver
-        solver_line = f" (greedy {s.greedy}, local search {s.improved}"
+        solver_line = f" (greedy {s.greedy}, after search {s.improved}"
         if s.milp_status != "not run":
             bound = f", lower bound {s.milp_bound:.0f}" if s.milp_bound is not None else ""
             solver_line += f", MILP {s.milp_status}{'' if s.milp is None else f' {s.milp}'}{bound}"
@@ -136,7 +136,8 @@ def plan(model: Path, out: Path, classes: str | None, coverage: str | None, dens
         stations_by_storey[station.storey or "-"] = stations_by_storey.get(station.storey or "-", 0) + 1
     click.echo("  stations per storey: " + ", ".join(f"{k} {v}" for k, v in stations_by_storey.items()))
     click.echo(f"  registration graph: {len(evaluation.edges)} edges, "
-               + ("connected" if evaluation.parts <= 1 else f"{evaluation.parts} parts"))
+               + ("connected" if evaluation.parts <= 1 else f"{evaluation.parts} parts (the candidate spots allow "
+                                                            f"no fewer than {evaluation.spot_parts})"))
     if run.density_ratio is not None:
         q1, median, q3 = run.density_ratio
         click.echo(f"  scan density / estimate: median {median:.2f} (quartiles {q1:.2f}-{q3:.2f})")

@@ -42,7 +42,7 @@ class PlanConfig:
     spot rules of ``survey.spots``), coarser on models with more grid cells than max_candidates.
     samples_per_m2, min_samples: surface samples per square metre of each element, and at least
     this many per element. solver: ``greedy`` (the connected greedy cover, pruned, then improved
-    by local search), ``milp`` (that, then scipy's HiGHS on the exact problem within
+    by local search and ``search_rounds`` rounds of iterated greedy, seeded by ``seed``), ``milp`` (that, then scipy's HiGHS on the exact problem within
     ``milp_time_limit_s``; its answer, repaired, is used even when the time limit stopped it, so
     it may differ between machines) or ``auto`` (the MILP only on models of at most
     ``milp_max_groups`` surface groups, and its answer only when it proved it optimal: the same
@@ -53,7 +53,7 @@ class PlanConfig:
     coverage: tuple[float, ...] = (0.95,)
     density_pts_m2: float = 1000.0
     max_incidence_deg: float = 70.0
-    overlap: float = 0.3
+    overlap: float = 0.1
     overlap_density_pts_m2: float = 100.0
     min_direction_share: float = 0.03
     grid_m: float = 1.0
@@ -62,6 +62,7 @@ class PlanConfig:
     samples_per_m2: float = 25.0
     min_samples: int = 8
     solver: str = "auto"
+    search_rounds: int = 200
     milp_max_groups: int = 3000
     milp_time_limit_s: float = 30.0
     seed: int = 0
@@ -94,6 +95,8 @@ class PlanConfig:
                               "every direction alike holds 1/3 in each); give at most 0.33")
         if not (math.isfinite(self.clearance_m) and self.clearance_m >= 0):
             raise ConfigError(f"clearance_m = {self.clearance_m} is impossible; give metres >= 0")
+        if self.search_rounds < 0:
+            raise ConfigError(f"search_rounds = {self.search_rounds} is impossible; give 0 (no search) or more")
         for name in ("max_candidates", "min_samples", "milp_max_groups"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} = {getattr(self, name)} is impossible; give 1 or more")

@@ -25,7 +25,7 @@ from bimscan.scan.probe import Prober
 from bimscan.survey.planning.config import PlanConfig
 from bimscan.survey.planning.graph import Overlaps, compute_overlaps, graph_parts, scan_order
 from bimscan.survey.planning.select import (
-    CoverProblem, greedy_cover, improve_cover, milp_cover, prune_cover, repair_cover,
+    CoverProblem, greedy_cover, improve_cover, iterated_greedy, milp_cover, prune_cover, repair_cover,
 )
 from bimscan.survey.planning.surface import SurfaceSamples, sample_surfaces, triangle_areas
 from bimscan.survey.planning.visibility import BeamGrid, Visibility, compute_visibility
@@ -140,8 +140,8 @@ def prepare_space(scene: BimScene, scanner: ScannerModel, settings: ScanSettings
     n = len(config.classes)
     visible = np.bincount(klass[reachable], weights=samples.area_m2[reachable], minlength=n)
     need = np.array([config.coverage_of(c) for c in config.classes]) * visible
-    problem = CoverProblem(density=visibility.matrix, area_m2=samples.area_m2, klass=np.where(reachable, klass, -1),
-                           need_m2=need, threshold_pts_m2=config.density_pts_m2, edges=edges)
+    problem = CoverProblem.of(visibility.matrix, samples.area_m2, np.where(reachable, klass, -1), need,
+                              config.density_pts_m2, edges)
     return PlanningSpace(scene=scene, scanner=scanner, settings=settings, config=config, grid=grid, samples=samples,
                          klass=klass, heads=heads, floors=floors, headings_deg=headings, n_spots=n_spots,
                          visibility=visibility, overlaps=overlaps, edges=edges, problem=problem, seconds=seconds)
@@ -188,8 +188,8 @@ def impossible_line(space: PlanningSpace) -> str | None:
     """The one-line reason no choice reaches the asked coverage (None when every candidate spot
     together does): the best coverage each short class reaches, and what holds the rest back."""
     config, problem = space.config, space.problem
-    everything = problem.summed(np.arange(space.n_spots))
-    covered = problem.covered_m2(everything)
+    everything = space.visibility.density_of(np.arange(space.n_spots))
+    covered = problem.covered_m2(problem.summed(np.arange(space.n_spots)))
     _, visible, _ = space.class_areas()
     short = [k for k in range(len(config.classes)) if covered[k] < problem.need_m2[k] * (1 - 1e-9)]
     if not short:
@@ -239,19 +239,19 @@ def _choose(space: PlanningSpace, allowed: np.ndarray, *, progress: bool) -> tup
     """The cover of the allowed candidates: greedy, pruned, improved; then the MILP (see
     ``PlanConfig.solver``), its answer repaired on the whole surface and taken when it is smaller."""
     config, problem = space.config, space.problem
-    with step_line("greedy cover and local search", enabled=progress):
+    with step_line("greedy cover and search", enabled=progress):
         greedy = prune_cover(problem, greedy_cover(problem, allowed=allowed))
         if not problem.covers(greedy):
             raise StationError(impossible_line(space) or f"{space.scene.source}: no plan found; give stations in a file")
         improved = improve_cover(problem, greedy, allowed=allowed)
+        improved = iterated_greedy(problem, improved, allowed=allowed, rounds=config.search_rounds, seed=config.seed)
     report = SolverReport(greedy=len(greedy), improved=len(improved), chosen_by="greedy" if len(improved) == len(greedy)
                           else "local search")
     if config.solver == "greedy" or len(improved) <= 1:
         return improved, report
     index = np.flatnonzero(allowed)
-    restricted = CoverProblem(density=problem.density[:, index], area_m2=problem.area_m2, klass=problem.klass,
-                              need_m2=problem.need_m2, threshold_pts_m2=problem.threshold_pts_m2,
-                              edges=problem.edges[np.ix_(index, index)])
+    restricted = CoverProblem.of(problem.density[:, index], problem.area_m2, problem.klass, problem.need_m2,
+                                 problem.threshold_pts_m2, problem.edges[np.ix_(index, index)])
     max_groups = config.milp_max_groups if config.solver == "auto" else len(problem.klass)
     with step_line("exact cover (HiGHS)", enabled=progress):
         result = milp_cover(restricted, at_most=len(improved) - 1, max_groups=max_groups,
@@ -313,12 +313,15 @@ class ElementCoverage:
 class PlanEvaluation:
     """A plan's figures: per element; per class (area, visible, covered, asked fraction); the
     chosen stations' registration edges (pairs of station ids with shared m2, the shared fraction of
-    the smaller's view and the weakest direction's share) and how many parts the graph has."""
+    the smaller's view and the weakest direction's share), how many parts the graph has, and in
+    how many parts of the candidate spots' own graph the stations stand (no choice of spots joins
+    those: a plan with as many parts is as connected as the spots allow)."""
 
     elements: tuple[ElementCoverage, ...]
     classes: dict[str, dict[str, float]]
     edges: tuple[tuple[int, int, float, float, float], ...]
     parts: int
+    spot_parts: int
     density: np.ndarray  # (S,) summed density of the stations on every sample
 
     def met(self) -> bool:
@@ -330,7 +333,7 @@ def evaluate(plan: SurveyPlan, *, density: np.ndarray | None = None) -> PlanEval
     judge instead of the plan's own estimate (e.g. measured on its scan)."""
     space = plan.space
     config, samples = space.config, space.samples
-    summed = space.problem.summed(plan.chosen) if density is None else density
+    summed = space.visibility.density_of(plan.chosen) if density is None else density
     counted = space.klass >= 0
     seen = space.visibility.reachable & counted
     edge_on = space.visibility.seen & ~seen & counted
@@ -374,4 +377,6 @@ def evaluate(plan: SurveyPlan, *, density: np.ndarray | None = None) -> PlanEval
                 edges.append((a, b, float(shared[i, j]), float(shared[i, j] / smaller) if smaller > 0 else 0.0,
                               float(space.overlaps.weakest_share[i, j])))
     parts = int(graph_parts(space.edges, chosen).max() + 1) if len(chosen) else 0
-    return PlanEvaluation(elements=tuple(elements), classes=classes, edges=tuple(edges), parts=parts, density=summed)
+    spot_parts = len(np.unique(graph_parts(space.edges)[chosen])) if len(chosen) else 0
+    return PlanEvaluation(elements=tuple(elements), classes=classes, edges=tuple(edges), parts=parts,
+                          spot_parts=spot_parts, density=summed)

@@ -19,6 +19,9 @@ rest cannot be joined by any choice).
   surface; connectivity by cuts added while the solution falls apart (for a part C of the chosen
   set and a chosen station b outside it: some neighbour of C must be chosen). Asked to beat the
   greedy count, within a time budget.
+- ``improve_cover`` (two stations that register to each other replaced by one) and
+  ``iterated_greedy`` (Jacobs and Brusco 1995: take a few neighbouring stations out, complete the
+  rest greedily, keep what is no worse) improve the greedy answer.
 - ``repair_cover`` and ``prune_cover``: a choice made on the sample is completed greedily on the
   whole surface, then any station whose removal keeps the cover and the graph is dropped.
 """
@@ -43,7 +46,9 @@ PATH_TRIALS = 8  # candidates whose path from the chosen set is evaluated exactl
 class CoverProblem:
     """density: (S, K) sparse points/m^2 of every candidate on every sample (within the incidence
     limit); area_m2 (S,); klass (S,) int64 class index (-1: not to be covered); need_m2 (N,) area of
-    each class to cover; threshold_pts_m2: the asked density; edges (K, K) bool registration graph."""
+    each class to cover; threshold_pts_m2: the asked density; edges (K, K) bool registration graph.
+    Build it with ``CoverProblem.of``: only the samples that count, in CSC order, with each
+    candidate's column kept apart for fast sums."""
 
     density: sparse.csc_matrix
     area_m2: np.ndarray
@@ -52,6 +57,16 @@ class CoverProblem:
     threshold_pts_m2: float
     edges: np.ndarray
 
+    @staticmethod
+    def of(density: sparse.spmatrix, area_m2: np.ndarray, klass: np.ndarray, need_m2: np.ndarray,
+           threshold_pts_m2: float, edges: np.ndarray) -> CoverProblem:
+        """The problem on the samples that count (klass >= 0): the others never change a choice."""
+        rows = np.flatnonzero(klass >= 0)
+        matrix = sparse.csc_matrix(density)[rows]
+        matrix.sort_indices()
+        return CoverProblem(density=matrix, area_m2=area_m2[rows], klass=klass[rows], need_m2=need_m2,
+                            threshold_pts_m2=threshold_pts_m2, edges=edges)
+
     @property
     def n_candidates(self) -> int:
         return int(self.density.shape[1])
@@ -59,9 +74,12 @@ class CoverProblem:
     def summed(self, chosen: np.ndarray | list[int]) -> np.ndarray:
         """(S,) float64: the chosen candidates' summed density on every sample."""
         chosen = np.asarray(chosen, dtype=np.int64)
+        d = self.density
         if len(chosen) == 0:
-            return np.zeros(self.density.shape[0])
-        return np.asarray(self.density[:, chosen].sum(axis=1)).ravel()
+            return np.zeros(d.shape[0])
+        parts = [slice(d.indptr[j], d.indptr[j + 1]) for j in chosen]
+        return np.bincount(np.concatenate([d.indices[p] for p in parts]),
+                           weights=np.concatenate([d.data[p] for p in parts]), minlength=d.shape[0])
 
     def covered_m2(self, summed: np.ndarray) -> np.ndarray:
         """(N,) area of each class covered by a summed density (S,)."""
@@ -204,19 +222,22 @@ def repair_cover(problem: CoverProblem, chosen: list[int]) -> list[int]:
 
 
 def _connect(problem: CoverProblem, chosen: list[int]) -> list[int]:
-    """Join the parts of a choice along shortest graph paths (where the graph joins them)."""
+    """Join the parts of a choice along shortest graph paths, wherever the graph joins them."""
     chosen = list(chosen)
     while True:
         parts = graph_parts(problem.edges, np.array(chosen))
-        if parts.max() == 0:
+        joined = False
+        for part in range(int(parts.max()) + 1):
+            members = [c for c, p in zip(chosen, parts) if p == part]
+            hops, parent = _paths_from(problem.edges, members)
+            others = [c for c, p in zip(chosen, parts) if p != part and hops[c] > 0]
+            if others:
+                target = min(others, key=lambda c: hops[c])
+                chosen.extend(p for p in _path(parent, hops, target)[:-1] if p not in chosen)
+                joined = True
+                break
+        if not joined:
             return chosen
-        first = [c for c, p in zip(chosen, parts) if p == 0]
-        hops, parent = _paths_from(problem.edges, first)
-        others = [c for c, p in zip(chosen, parts) if p != 0 and hops[c] > 0]
-        if not others:
-            return chosen  # the graph cannot join them
-        target = min(others, key=lambda c: hops[c])
-        chosen.extend(p for p in _path(parent, hops, target)[:-1] if p not in chosen)
 
 
 def improve_cover(problem: CoverProblem, chosen: list[int], *, allowed: np.ndarray | None = None,
@@ -247,6 +268,40 @@ def improve_cover(problem: CoverProblem, chosen: list[int], *, allowed: np.ndarr
         if not replaced:
             break
     return chosen
+
+
+def iterated_greedy(problem: CoverProblem, chosen: list[int], *, allowed: np.ndarray | None = None,
+                    rounds: int = 200, seed: int = 0) -> list[int]:
+    """Iterated greedy search (Jacobs and Brusco 1995, for set covering): take out a station and
+    up to two of the chosen stations it registers to, complete the rest again greedily (joined in
+    the graph first), prune and improve; keep the result when it has no more stations and graph
+    parts than the current one (equal moves let the search drift). ``rounds`` and ``seed`` fix the
+    search: the same problem gives the same answer."""
+    allowed = np.ones(problem.n_candidates, dtype=bool) if allowed is None else allowed
+    rng = np.random.default_rng(seed)
+    current = list(chosen)
+    best = list(chosen)
+    parts = problem.parts(current)
+    for round_ in range(rounds):
+        if len(current) <= 1:
+            break
+        first = current[int(rng.integers(len(current)))]
+        linked = [c for c in current if c != first and problem.edges[first, c]]
+        out = {first, *(linked[i] for i in rng.permutation(len(linked))[:round_ % 3])}
+        rest = [c for c in current if c not in out]
+        if len(rest) > 1 and problem.parts(rest) > parts:
+            rest = _connect(problem, rest)
+        trial = greedy_cover(problem, start=rest, allowed=allowed)
+        if not problem.covers(trial):
+            continue
+        trial = prune_cover(problem, trial)
+        if problem.parts(trial) > parts or len(trial) > len(current):
+            continue
+        current = trial
+        if len(current) < len(best):
+            best = improve_cover(problem, current, allowed=allowed)
+            current = list(best)
+    return best
 
 
 def _newly_covered(problem: CoverProblem, summed: np.ndarray) -> np.ndarray:

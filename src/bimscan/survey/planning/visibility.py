@@ -13,8 +13,9 @@ expected point density on the surface is
 (docs/guide/planning.md derives it and checks it against scans). A sample is **seen** from a
 position when the ray from the beam origin to it, cast through the scene's Embree BVH (the
 ``Prober``, the same engine the station checks use), first meets the sample's own component at
-the sample's range (a surface in front of it, or the element's own front face when the sample is
-on its back face, hides it), the range lies in the scanner's limits, the direction in its
+the sample's range, on a face turned the way the sample's is (a surface in front of it, or the
+element's own front face when the sample is on its back face, hides it: the two faces of a 6 mm
+steel flange lie closer than any range tolerance), the range lies in the scanner's limits, the direction in its
 elevation window (and head rotation, for a partial station), and the incidence is at most
 ``VISIBLE_INCIDENCE_DEG``. Its points count towards coverage only within the asked incidence limit.
 
@@ -138,6 +139,7 @@ def compute_visibility(prober: Prober, samples: SurfaceSamples, heads: np.ndarra
     cos_limit = math.cos(math.radians(max_incidence_deg))
     full_turn = grid.azimuth_span_rad >= 2 * math.pi - 1e-9
     face_component = prober.face_component
+    face_normal = prober.face_normals
     pairs_sample, pairs_station, pairs_density = [], [], []
     batch: list[tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
     batch_rays = 0
@@ -153,8 +155,11 @@ def compute_visibility(prober: Prober, samples: SurfaceSamples, heads: np.ndarra
         for k, idx, _, r, density in batch:
             end = start + len(idx)
             tri = triangle[start:end]
-            hit_component = np.where(tri >= 0, face_component[np.maximum(tri, 0)], -1)
-            seen = (hit_component == samples.component[idx]) & (np.abs(t[start:end] - r) <= HIT_TOLERANCE_M)
+            safe = np.maximum(tri, 0)
+            hit_component = np.where(tri >= 0, face_component[safe], -1)
+            # the sample's own face, not the element's other side a few millimetres in front of it
+            same_side = np.einsum("ij,ij->i", face_normal[safe], samples.normal[idx]) > 0.5
+            seen = (hit_component == samples.component[idx]) & (np.abs(t[start:end] - r) <= HIT_TOLERANCE_M) & same_side
             pairs_sample.append(idx[seen])
             pairs_station.append(np.full(int(seen.sum()), k, dtype=np.int64))
             pairs_density.append(density[seen])
