@@ -14,7 +14,8 @@ For each model it prints:
   (the same pipeline, its checked chunks counted instead of written), each class's coverage
   measured on the scan's labelled points, the largest gap between estimate and scan, and the
   median of the scan's density over the estimate on the surface patches;
-- the per-room plan of ``--stations auto``: its stations, the coverage it reaches, and the
+- the per-room plan of ``--stations auto``: its stations (and with spots added along shortest
+  paths until its registration graph is as connected as the spots allow), the coverage it reaches, and the
   planner's station count when asked for that same coverage, class by class: with its registration
   graph connected (as far as the spots allow), and with registration left out as the per-room plan
   leaves it (any two stations count as linked: registration by targets);
@@ -82,6 +83,14 @@ def unlinked_count(plan) -> int:
     return len(iterated_greedy(free, chosen, rounds=plan.space.config.search_rounds, seed=plan.space.config.seed))
 
 
+def joined_count(run) -> int:
+    """The per-room plan's stations with the candidate spots added along shortest graph paths
+    until its registration graph is as connected as the spots allow."""
+    from bimscan.survey.planning.select import join_parts
+
+    return len(join_parts(run.plan.space.problem, [int(c) for c in run.plan.chosen]))
+
+
 def fractions(evaluation) -> dict[str, float]:
     return {name: c["covered_fraction"] for name, c in evaluation.classes.items() if c["visible_m2"] > 0}
 
@@ -134,19 +143,23 @@ def main() -> None:
             milp = f"{solver.milp_status}" + (f" {solver.milp}" if solver.milp is not None else "")
             met = "yes" if on_scan and all(v >= config.coverage_of(c) for c, v in on_scan.items()) else (
                 "-" if not on_scan else "no")
+            graph = f"{run.evaluation.parts} / {run.evaluation.spot_parts} / {auto.evaluation.parts}"
+            per_room = f"{len(auto.plan.stations)} / {joined_count(auto)}"
+            at_per_room = f"{len(at_auto.plan.stations)} / {unlinked_count(at_auto.plan)}"
             summary_rows.append(
-                f"| {name} | {run.plan.space.n_spots} | {len(run.plan.stations)} | {solver.greedy} / {solver.improved} / "
-                f"{milp} | {plan_seconds:.0f} | {met} | {100 * gap:.1f} | {ratio:.2f} | {len(auto.plan.stations)} | "
-                f"{len(at_auto.plan.stations)} / {unlinked_count(at_auto.plan)} | {run.evaluation.parts} / {run.evaluation.spot_parts} / "
-                f"{auto.evaluation.parts} |")
+                f"| {name} | {run.plan.space.n_spots} | {len(run.plan.stations)} | "
+                f"{solver.greedy} / {solver.improved} / "
+                f"{milp} | {plan_seconds:.0f} | {met} | {100 * gap:.1f} | {ratio:.2f} | {per_room} | {at_per_room} | "
+                f"{graph} |")
             print(summary_rows[-1], flush=True)
             for c in estimate:
-                class_rows.append(f"| {name} | {c} | {100 * estimate[c]:.1f} | "
-                                  f"{100 * on_scan[c]:.1f} | " if on_scan else f"| {name} | {c} | {100 * estimate[c]:.1f} | - | ")
-                class_rows[-1] += f"{100 * auto_fraction.get(c, math.nan):.1f} |"
+                scanned = f"{100 * on_scan[c]:.1f}" if on_scan else "-"
+                class_rows.append(f"| {name} | {c} | {100 * estimate[c]:.1f} | {scanned} | "
+                                  f"{100 * auto_fraction.get(c, math.nan):.1f} |")
     print()
     print("| model | spots | stations | greedy / after search / MILP | plan s | scan meets 95 % | max gap (points) | "
-          "scan/estimate density | per-room stations | planner at per-room coverage: linked / registration left out | "
+          "scan/estimate density | per-room stations: as planned / joined | planner at per-room coverage: linked / "
+          "registration left out | "
           "graph parts: plan / spots allow / per-room |")
     print("|---|---:|---:|---|---:|---|---:|---:|---:|---:|---|")
     print("\n".join(summary_rows))

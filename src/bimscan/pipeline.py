@@ -347,7 +347,8 @@ def plan_model(model: str | Path, out: str | Path, recipe: ScanRecipe, config: P
     header = None
     if cloud is not None:
         if check is None:
-            raise ConfigError("--cloud measures the scan of a checked plan; give its stations with --check STATIONS.csv")
+            raise ConfigError("--cloud measures the scan of a checked plan; give its stations with "
+                              "--check STATIONS.csv")
         header = read_cloud_header(check_input_file(cloud, what="a point cloud file or folder", folders=True))
         if header is None or not header.stations:
             raise InputFileError(f"{cloud}: not a cloud bimscan scanned (no stations stored with it); measure a "

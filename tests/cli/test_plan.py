@@ -111,6 +111,19 @@ def test_an_existing_folder_bimscan_did_not_write_is_never_replaced(box_room_ifc
     assert {r["class"] for r in rows(plan / "coverage.csv")} == {"Slab"}
 
 
+def test_a_config_file_sets_the_planner_and_the_flags_override_it(box_room_ifc, tmp_path, capsys):
+    config = tmp_path / "plan.toml"
+    config.write_text('classes = ["Wall&Column"]\ndensity_pts_m2 = 150.0\nsearch_rounds = 5\n')
+    out = tmp_path / "plan"
+    assert main(["plan", str(box_room_ifc), str(out), *FAST, "--config", str(config), "--density", "120"]) == 0
+    summary = json.loads((out / "plan.json").read_text("utf-8"))
+    assert summary["config"]["classes"] == ["Wall&Column"] and summary["config"]["density_pts_m2"] == 120.0
+    assert summary["config"]["search_rounds"] == 5
+    config.write_text("densty = 3\n")
+    assert main(["plan", str(box_room_ifc), str(tmp_path / "other"), *FAST, "--config", str(config)]) == 1
+    assert "unknown key(s) 'densty'" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize(("args", "message"), [
     (["--classes", "Walls"], "unknown class 'Walls'"),
     (["--coverage", "0.9,0.8"], "one per class"),

@@ -40,11 +40,13 @@ def l_shaped_room(tiny_model, path):
     """An L of two 4 m wide legs, 9 m long on the outside: x 0..9 by y 0..4, and x 0..4 by y 0..9."""
     model = tiny_model("IFC4")
     for z, kind in ((-S, "FLOOR"), (3.0, "ROOF")):
-        model.add_box("IfcSlab", origin=(-W, -W, z), size=(9 + 2 * W, 4 + 2 * W, S), predefined_type=kind, name=f"{kind} A")
+        model.add_box("IfcSlab", origin=(-W, -W, z), size=(9 + 2 * W, 4 + 2 * W, S), predefined_type=kind,
+                      name=f"{kind} A")
         model.add_box("IfcSlab", origin=(-W, 4 + W, z), size=(4 + 2 * W, 5, S), predefined_type=kind, name=f"{kind} B")
-    for name, origin, size in (("south", (-W, -W, 0.0), (9 + 2 * W, W, 3.0)), ("east A", (9.0, 0.0, 0.0), (W, 4.0, 3.0)),
-                               ("north A", (4.0, 4.0, 0.0), (5 + W, W, 3.0)), ("east B", (4.0, 4 + W, 0.0), (W, 5 - W, 3.0)),
-                               ("north B", (-W, 9.0, 0.0), (4 + 2 * W, W, 3.0)), ("west", (-W, 0.0, 0.0), (W, 9.0, 3.0))):
+    walls = (("south", (-W, -W, 0.0), (9 + 2 * W, W, 3.0)), ("east A", (9.0, 0.0, 0.0), (W, 4.0, 3.0)),
+             ("north A", (4.0, 4.0, 0.0), (5 + W, W, 3.0)), ("east B", (4.0, 4 + W, 0.0), (W, 5 - W, 3.0)),
+             ("north B", (-W, 9.0, 0.0), (4 + 2 * W, W, 3.0)), ("west", (-W, 0.0, 0.0), (W, 9.0, 3.0)))
+    for name, origin, size in walls:
         model.add_box("IfcWall", origin=origin, size=size, name=name)
     return model.write(path)
 

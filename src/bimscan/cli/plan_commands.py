@@ -48,8 +48,8 @@ def _fractions(text: str) -> tuple[float, ...]:
 @click.option("--grid", "grid_m", type=float, default=None,
               help=f"Spacing of the candidate spots, metres. Default: {_DEFAULTS.grid_m:g}.")
 @click.option("--solver", type=click.Choice(list(SOLVERS)), default=None,
-              help="greedy (greedy cover, then local and iterated greedy search), milp (then scipy's HiGHS within --time-limit) or auto "
-                   "(the MILP on small models, its answer when proved optimal). Default: auto.")
+              help="greedy (greedy cover, then local and iterated greedy search), milp (then scipy's HiGHS within "
+                   "--time-limit) or auto (the MILP on small models, its answer when proved optimal). Default: auto.")
 @click.option("--time-limit", "milp_time_limit_s", type=float, default=None,
               help=f"Seconds the MILP may take. Default: {_DEFAULTS.milp_time_limit_s:g}.")
 @click.option("--config", "config_file", default=None,

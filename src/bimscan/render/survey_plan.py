@@ -64,7 +64,8 @@ def draw_plan_pictures(plan: SurveyPlan, evaluation: PlanEvaluation, folder: Pat
                                            for s in plan.stations]), np.zeros(len(plan.stations)), elevations)
     written = []
     for index, name in enumerate(names):
-        stations = [s for s, b in zip(plan.stations, floor_band) if (s.storey == name if s.storey in names else b == index)]
+        stations = [s for s, b in zip(plan.stations, floor_band)
+                    if (s.storey == name if s.storey in names else b == index)]
         mine = (band == index) & (space.klass >= 0)  # the classes to cover
         if not mine.any() and not stations:
             continue
@@ -106,7 +107,8 @@ def _draw_storey(plan: SurveyPlan, evaluation: PlanEvaluation, states: np.ndarra
             index = index[:: int(np.ceil(len(index) / MAX_DOTS))]
         # never seen at the bottom, then covered, then what falls short on top: what a plan misses shows
         index = index[np.argsort(DRAW_ORDER[states[index]], kind="stable")]
-        axis.scatter(samples.xyz[index, 0], samples.xyz[index, 1], s=1.5, c=colors[states[index]], linewidths=0,
+        axis.scatter(samples.xyz[index, 0], samples.xyz[index, 1], s=2.0, c=colors[states[index]], linewidths=0,
+                     antialiased=False,
                      rasterized=True)
         for component in np.unique(samples.component[index]):
             element = by_component[int(component)]

@@ -42,7 +42,8 @@ class PlanConfig:
     spot rules of ``survey.spots``), coarser on models with more grid cells than max_candidates.
     samples_per_m2, min_samples: surface samples per square metre of each element, and at least
     this many per element. solver: ``greedy`` (the connected greedy cover, pruned, then improved
-    by local search and ``search_rounds`` rounds of iterated greedy, seeded by ``seed``), ``milp`` (that, then scipy's HiGHS on the exact problem within
+    by local search and ``search_rounds`` rounds of iterated greedy, seeded by ``seed``), ``milp``
+    (that, then scipy's HiGHS on the exact problem within
     ``milp_time_limit_s``; its answer, repaired, is used even when the time limit stopped it, so
     it may differ between machines) or ``auto`` (the MILP only on models of at most
     ``milp_max_groups`` surface groups, and its answer only when it proved it optimal: the same

@@ -41,7 +41,8 @@ class Overlaps:
         """(K, K) bool: the pairs that register (see the module docs); no self-loops."""
         seen = np.diag(self.shared_m2)
         smaller = np.minimum(seen[:, None], seen[None, :])
-        joined = (self.shared_m2 >= overlap * smaller) & (self.shared_m2 > 0) & (self.weakest_share >= min_direction_share)
+        joined = (self.shared_m2 >= overlap * smaller) & (self.shared_m2 > 0) & \
+            (self.weakest_share >= min_direction_share)
         np.fill_diagonal(joined, False)
         return joined
 

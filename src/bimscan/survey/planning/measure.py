@@ -37,7 +37,8 @@ def _keyed(xyz: np.ndarray, component: np.ndarray) -> np.ndarray:
 
 
 def points_per_sample(chunks: Iterable[PointCloud], samples: SurfaceSamples, visibility: Visibility,
-                      columns: Mapping[int, int], *, counted: np.ndarray | None = None, threads: int = -1) -> np.ndarray:
+                      columns: Mapping[int, int], *, counted: np.ndarray | None = None,
+                      threads: int = -1) -> np.ndarray:
     """(S,) int64 points of the cloud ``chunks`` given to each sample (see the module docs).
     ``columns``: the visibility column (candidate) of each station id the cloud's points carry;
     ``counted`` (S,) bool: the samples to count on (None: all); points of unknown stations, or of
@@ -80,8 +81,8 @@ def _count(chunks: Iterable[PointCloud], samples: SurfaceSamples, index: np.ndar
         target = np.full(len(xyz), -1, dtype=np.int64)
         left = np.arange(len(xyz))
         for k in NEIGHBOURS:  # narrow faces (a 100 mm steel tube) have few samples of their own near a point
-            target[left] = _assign(tree, keyed[left], xyz[left], column[left], samples, pair_keys, visibility.n_stations,
-                                   k, threads)
+            target[left] = _assign(tree, keyed[left], xyz[left], column[left], samples, pair_keys,
+                                   visibility.n_stations, k, threads)
             left = left[target[left] < 0]
             if len(left) == 0:
                 break
@@ -117,8 +118,9 @@ def patch_matrix(samples: SurfaceSamples) -> sparse.csr_matrix:
     pairs = tree.query_pairs(SMOOTH_RADIUS_M, output_type="ndarray")
     if len(pairs):
         a, b = pairs[:, 0], pairs[:, 1]
+        offset = np.abs(np.einsum("nj,nj->n", samples.xyz[b] - samples.xyz[a], samples.normal[a]))
         same_face = (np.einsum("nj,nj->n", samples.normal[a], samples.normal[b]) >= SAME_FACE_COS) & \
-                    (np.abs(np.einsum("nj,nj->n", samples.xyz[b] - samples.xyz[a], samples.normal[a])) <= PLANE_TOLERANCE_M)
+            (offset <= PLANE_TOLERANCE_M)
         a, b = a[same_face], b[same_face]
     else:
         a = b = np.zeros(0, dtype=np.int64)

@@ -198,8 +198,9 @@ def impossible_line(space: PlanningSpace) -> str | None:
     parts = []
     for k in short:
         sparse_area = space.samples.area_m2[(space.klass == k) & reachable & (everything < config.density_pts_m2)].sum()
-        parts.append(f"{config.classes[k]} {100 * covered[k] / visible[k]:.1f} % of the {config.coverage_of(config.classes[k]) * 100:g} "
-                     f"% asked ({sparse_area:.1f} m2 of its visible surface stay under it)")
+        asked = 100 * config.coverage_of(config.classes[k])
+        parts.append(f"{config.classes[k]} {100 * covered[k] / visible[k]:.1f} % of the {asked:g} % asked "
+                     f"({sparse_area:.1f} m2 of its visible surface stay under it)")
     return (f"{space.scene.source}: no plan reaches the coverage asked at {config.density_pts_m2:g} points/m2: all "
             f"{space.n_spots} candidate spots together reach " + ", ".join(parts) +
             "; lower --coverage or --density, or scan denser (--preset, --head-speed)")
@@ -242,7 +243,8 @@ def _choose(space: PlanningSpace, allowed: np.ndarray, *, progress: bool) -> tup
     with step_line("greedy cover and search", enabled=progress):
         greedy = prune_cover(problem, greedy_cover(problem, allowed=allowed))
         if not problem.covers(greedy):
-            raise StationError(impossible_line(space) or f"{space.scene.source}: no plan found; give stations in a file")
+            raise StationError(impossible_line(space) or
+                               f"{space.scene.source}: no plan found; give stations in a file")
         improved = improve_cover(problem, greedy, allowed=allowed)
         improved = iterated_greedy(problem, improved, allowed=allowed, rounds=config.search_rounds, seed=config.seed)
     report = SolverReport(greedy=len(greedy), improved=len(improved), chosen_by="greedy" if len(improved) == len(greedy)

@@ -217,12 +217,13 @@ def repair_cover(problem: CoverProblem, chosen: list[int]) -> list[int]:
     greedily connected, then pruned."""
     chosen = list(chosen)
     if len(chosen) > 1 and problem.parts(chosen) > 1:
-        chosen = _connect(problem, chosen)
+        chosen = join_parts(problem, chosen)
     return prune_cover(problem, greedy_cover(problem, start=chosen))
 
 
-def _connect(problem: CoverProblem, chosen: list[int]) -> list[int]:
-    """Join the parts of a choice along shortest graph paths, wherever the graph joins them."""
+def join_parts(problem: CoverProblem, chosen: list[int]) -> list[int]:
+    """The choice with candidates added along shortest graph paths until its parts are joined,
+    wherever the graph joins them (a part at a time, to its nearest other part)."""
     chosen = list(chosen)
     while True:
         parts = graph_parts(problem.edges, np.array(chosen))
@@ -290,7 +291,7 @@ def iterated_greedy(problem: CoverProblem, chosen: list[int], *, allowed: np.nda
         out = {first, *(linked[i] for i in rng.permutation(len(linked))[:round_ % 3])}
         rest = [c for c in current if c not in out]
         if len(rest) > 1 and problem.parts(rest) > parts:
-            rest = _connect(problem, rest)
+            rest = join_parts(problem, rest)
         trial = greedy_cover(problem, start=rest, allowed=allowed)
         if not problem.covers(trial):
             continue
@@ -311,7 +312,8 @@ def _newly_covered(problem: CoverProblem, summed: np.ndarray) -> np.ndarray:
     column = np.repeat(np.arange(problem.n_candidates), np.diff(d.indptr))
     klass = problem.klass[rows]
     before = summed[rows]
-    newly = problem.area_m2[rows] * ((before < problem.threshold_pts_m2) & (before + d.data >= problem.threshold_pts_m2))
+    threshold = problem.threshold_pts_m2
+    newly = problem.area_m2[rows] * ((before < threshold) & (before + d.data >= threshold))
     counted = klass >= 0
     shape = (problem.n_candidates, len(problem.need_m2))
     index = (column * shape[1] + np.maximum(klass, 0))[counted]
