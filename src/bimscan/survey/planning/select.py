@@ -277,15 +277,19 @@ def iterated_greedy(problem: CoverProblem, chosen: list[int], *, allowed: np.nda
     up to two of the chosen stations it registers to, complete the rest again greedily (joined in
     the graph first), prune and improve; keep the result when it has no more stations and graph
     parts than the current one (equal moves let the search drift). ``rounds`` and ``seed`` fix the
-    search: the same problem gives the same answer."""
+    search: the same problem gives the same answer. It stops early once ``max(20, 10 x stations)``
+    rounds in a row gave back the choice they started from."""
     allowed = np.ones(problem.n_candidates, dtype=bool) if allowed is None else allowed
     rng = np.random.default_rng(seed)
     current = list(chosen)
     best = list(chosen)
     parts = problem.parts(current)
+    unchanged = 0
     for round_ in range(rounds):
-        if len(current) <= 1:
+        # a plan of a few stations has few neighbours to try: stop once they all came back unchanged
+        if len(current) <= 1 or unchanged >= max(20, 10 * len(current)):
             break
+        unchanged += 1
         first = current[int(rng.integers(len(current)))]
         linked = [c for c in current if c != first and problem.edges[first, c]]
         out = {first, *(linked[i] for i in rng.permutation(len(linked))[:round_ % 3])}
@@ -298,6 +302,8 @@ def iterated_greedy(problem: CoverProblem, chosen: list[int], *, allowed: np.nda
         trial = prune_cover(problem, trial)
         if problem.parts(trial) > parts or len(trial) > len(current):
             continue
+        if sorted(trial) != sorted(current):
+            unchanged = 0
         current = trial
         if len(current) < len(best):
             best = improve_cover(problem, current, allowed=allowed)
