@@ -124,8 +124,8 @@ def prepare_space(scene: BimScene, scanner: ScannerModel, settings: ScanSettings
         headings = np.concatenate([headings, [s.heading_deg for s in given]])
     seconds["candidates"] = time.perf_counter() - start
     start = time.perf_counter()
-    samples = sample_surfaces(scene.mesh, np.ones(len(component_class), dtype=bool),
-                              samples_per_m2=config.samples_per_m2, min_samples=config.min_samples, seed=config.seed)
+    samples = sample_surfaces(scene.mesh, np.ones(len(component_class), dtype=bool), seed=config.seed,
+                              samples_per_m2=config.samples_per_m2, min_samples=config.min_samples)
     klass = component_class[samples.component]
     grid = BeamGrid.of(settings, scanner)
     visibility = compute_visibility(prober, samples, heads, grid, max_incidence_deg=config.max_incidence_deg,
@@ -133,7 +133,8 @@ def prepare_space(scene: BimScene, scanner: ScannerModel, settings: ScanSettings
     seconds["visibility"] = time.perf_counter() - start
     start = time.perf_counter()
     with step_line("registration graph", enabled=progress):
-        overlaps = compute_overlaps(visibility, samples, density_pts_m2=config.overlap_density_pts_m2, seed=config.seed)
+        overlaps = compute_overlaps(visibility, samples, density_pts_m2=config.overlap_density_pts_m2,
+                                    seed=config.seed)
         edges = overlaps.edges(overlap=config.overlap, min_direction_share=config.min_direction_share)
     seconds["graph"] = time.perf_counter() - start
     reachable = visibility.reachable & (klass >= 0)
@@ -149,7 +150,8 @@ def prepare_space(scene: BimScene, scanner: ScannerModel, settings: ScanSettings
 
 @dataclass(frozen=True)
 class SolverReport:
-    """How the stations were chosen: the greedy count, after local search, the MILP's (None when
+    """How the stations were chosen: the greedy count, after the search (local and iterated
+    greedy), the MILP's (None when
     not run or without an answer), its status ("not run", "too large", "optimal", "time limit",
     "infeasible"), the lower bound it proved on the station count, its surface groups, cut
     rounds and seconds, and which answer was taken."""
@@ -246,9 +248,10 @@ def _choose(space: PlanningSpace, allowed: np.ndarray, *, progress: bool) -> tup
             raise StationError(impossible_line(space) or
                                f"{space.scene.source}: no plan found; give stations in a file")
         improved = improve_cover(problem, greedy, allowed=allowed)
-        improved = iterated_greedy(problem, improved, allowed=allowed, rounds=config.search_rounds, seed=config.seed)
-    report = SolverReport(greedy=len(greedy), improved=len(improved), chosen_by="greedy" if len(improved) == len(greedy)
-                          else "local search")
+        improved = iterated_greedy(problem, improved, allowed=allowed, rounds=config.search_rounds,
+                                   seed=config.seed)
+    report = SolverReport(greedy=len(greedy), improved=len(improved),
+                          chosen_by="greedy" if len(improved) == len(greedy) else "search")
     if config.solver == "greedy" or len(improved) <= 1:
         return improved, report
     index = np.flatnonzero(allowed)
@@ -260,7 +263,7 @@ def _choose(space: PlanningSpace, allowed: np.ndarray, *, progress: bool) -> tup
                             time_limit_s=config.milp_time_limit_s)
     milp = None
     if result.chosen is not None and (config.solver == "milp" or result.status == "optimal"):
-        milp = repair_cover(problem, [int(index[j]) for j in result.chosen])
+        milp = repair_cover(problem, [int(index[j]) for j in result.chosen], allowed=allowed)
         if not (problem.covers(milp) and problem.parts(milp) <= problem.parts(improved)):
             milp = None
     better = milp is not None and len(milp) < len(improved)

@@ -13,17 +13,17 @@ rest cannot be joined by any choice).
   link counts as stations too). Gain is the area newly covered where a class still lacks some,
   plus a quarter of the progress towards the density on samples not yet covered (two stations
   that each give 600 points/m^2 cover together what neither covers alone).
-- ``milp_cover``: the exact problem as a mixed-integer program for scipy's HiGHS: binary ``x_j``
-  (candidate chosen) and ``y_s`` (sample covered), ``y_s <= sum_j min(1, d_sj / D) x_j`` (covered only
-  when the chosen densities reach D), ``sum_{s in k} a_s y_s >= need_k``, on a stratified sample of the
-  surface; connectivity by cuts added while the solution falls apart (for a part C of the chosen
-  set and a chosen station b outside it: some neighbour of C must be chosen). Asked to beat the
-  greedy count, within a time budget.
 - ``improve_cover`` (two stations that register to each other replaced by one) and
   ``iterated_greedy`` (Jacobs and Brusco 1995: take a few neighbouring stations out, complete the
   rest greedily, keep what is no worse) improve the greedy answer.
-- ``repair_cover`` and ``prune_cover``: a choice made on the sample is completed greedily on the
-  whole surface, then any station whose removal keeps the cover and the graph is dropped.
+- ``milp_cover``: the exact problem as a mixed-integer program for scipy's HiGHS on surface groups
+  (the samples the same candidates cover alone, merged): binary ``x_j`` (candidate chosen) and
+  ``y_g`` (group covered), ``y_g <= sum_{j covers g alone} x_j``, ``sum_{g in k} a_g y_g >= need_k``;
+  connectivity by cuts added while the solution falls apart (for a part C of the chosen set and a
+  chosen station b outside it: some neighbour of C must be chosen). Asked to beat the search's
+  count, within a time budget; a solution also covers with the densities summed.
+- ``repair_cover`` and ``prune_cover``: a choice is completed greedily (joined in the graph
+  first), then any station whose removal keeps the cover and the graph is dropped.
 """
 
 from __future__ import annotations
@@ -38,7 +38,6 @@ from scipy import sparse
 from bimscan.survey.planning.graph import graph_parts
 
 SOFT_GAIN = 0.25  # weight of the progress towards the density on samples not yet covered
-MILP_MARGIN = 0.005  # the MILP's sampled classes must reach the need plus this share of their area
 PATH_TRIALS = 8  # candidates whose path from the chosen set is evaluated exactly each greedy step
 
 
@@ -212,13 +211,13 @@ def prune_cover(problem: CoverProblem, chosen: list[int]) -> list[int]:
     return chosen
 
 
-def repair_cover(problem: CoverProblem, chosen: list[int]) -> list[int]:
+def repair_cover(problem: CoverProblem, chosen: list[int], *, allowed: np.ndarray | None = None) -> list[int]:
     """Complete a choice that falls short on the whole surface (or falls apart in the graph):
     greedily connected, then pruned."""
     chosen = list(chosen)
     if len(chosen) > 1 and problem.parts(chosen) > 1:
         chosen = join_parts(problem, chosen)
-    return prune_cover(problem, greedy_cover(problem, start=chosen))
+    return prune_cover(problem, greedy_cover(problem, start=chosen, allowed=allowed))
 
 
 def join_parts(problem: CoverProblem, chosen: list[int]) -> list[int]:
