@@ -25,8 +25,7 @@ def main() -> None:
     from bimscan.render.view import OBLIQUE, Camera
     from bimscan.survey.recipe import ScanRecipe
     from bimscan.scan.sensor import SensorModel
-    from bimscan.survey.survey import place_scanner, prepare_survey
-    from bimscan.survey.stations import plan_stations
+    from bimscan.survey.survey import choose_stations, prepare_survey
     from bimscan.types import PointCloud
 
     out = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[1] / "docs" / "realism.png"
@@ -34,7 +33,7 @@ def main() -> None:
     make_building(work / "house.ifc", seed=3, storeys=1)
     scene = load_scene(work / "house.ifc")
     paper = ScanRecipe.resolve(preset="exp3", head_deg_per_s=20.0, seed=1)
-    stations, _ = plan_stations(scene, place_scanner(scene, paper))
+    stations, _ = choose_stations(scene, paper)
     windows = np.flatnonzero(scene.components.ifc_class == "IfcWindow")
     # the station of the room with the most windows in view: the one nearest to most windows
     centres = np.array([scene.mesh.vertices[scene.mesh.faces[scene.mesh.face_component == w]].reshape(-1, 3).mean(0)

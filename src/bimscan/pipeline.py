@@ -1,5 +1,5 @@
 """The pipeline composed: IFC -> labelled scene -> site as scanned -> planned survey -> streamed,
-checked cloud file.
+checked cloud file; and IFC -> survey plan folder (``plan_model``, ``bimscan plan``).
 
 This thin layer joins the stages for the CLI and for the dataset builder; each stage stays
 usable alone (``load_ifc``, ``label_model``, ``dress_scene``, ``VirtualScanner``,
@@ -15,11 +15,11 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from bimscan.errors import ConfigError, OutputError, StationError
+from bimscan.errors import ConfigError, InputFileError, OutputError, StationError
 from bimscan.process.checks import check_semantics, filter_invalid
 from bimscan.process.summary import CloudSummary
 from bimscan.progress import progress_bar, step_line
@@ -31,6 +31,10 @@ from bimscan.survey.trajectory import Trajectory, read_trajectory, trajectory_pa
 from bimscan.survey.walk import WalkReport
 from bimscan.survey.survey import Survey, cloud_header, prepare_survey, run_survey
 from bimscan.types import BimScene, BuildDates, LabelScheme, PointCloud, Station
+
+if TYPE_CHECKING:
+    from bimscan.survey.planning.config import PlanConfig
+    from bimscan.survey.planning.plan import PlanEvaluation, SurveyPlan
 
 
 @dataclass(frozen=True)
@@ -314,3 +318,184 @@ def rooms_without_station_line(plan: PlanReport) -> str:
     shown = ", ".join(rooms[:20]) + (f" and {len(rooms) - 20} more" if len(rooms) > 20 else "")
     return (f"{len(rooms)} rooms without a station (no level floor with headroom and a clear tripod spot in them): "
             f"{shown}")
+
+
+@dataclass(frozen=True)
+class PlanRun:
+    """What ``plan_model`` did: the plan (chosen or checked), its evaluation on the plan's own
+    estimate and, with a cloud, on the scan; the files written into OUT, seconds per step, and the
+    quartiles of the scan's density over the estimate's (surface patches with an estimate of at
+    least 10 % of the asked density; None without a cloud)."""
+
+    plan: SurveyPlan
+    evaluation: PlanEvaluation
+    scan: PlanEvaluation | None
+    files: list[str]
+    steps: dict[str, float]
+    density_ratio: tuple[float, float, float] | None = None
+
+
+def plan_model(model: str | Path, out: str | Path, recipe: ScanRecipe, config: PlanConfig, *, check: str | None = None,
+               cloud: str | Path | None = None, scheme: str | Path | LabelScheme | None = None,
+               overwrite: bool = False, progress: bool = True, length_unit: str | None = None,
+               warn: Callable[[str], None] | None = None) -> PlanRun:
+    """IFC file -> survey plan folder: the whole of ``bimscan plan``.
+
+    Without ``check``: the fewest stations reaching ``config`` (a ``survey.planning.PlanConfig``)
+    on the scene dressed as ``recipe.site`` has it. With ``check`` (a station file, or "auto" for
+    the per-room plan of ``--stations auto``): those stations' figures, on the scene dressed as
+    ``bimscan scan`` dresses it for them; with ``cloud`` too (a bimscan scan from those
+    stations), the coverage measured on the scan. Output and input errors come before the parse.
+    """
+    from bimscan.files import check_input_file
+    from bimscan.io import iter_cloud_chunks, read_cloud_header
+    from bimscan.render.survey_plan import draw_plan_pictures
+    from bimscan.survey.planning.measure import patch_density, patch_matrix, points_per_sample
+    from bimscan.survey.planning.plan import check_survey, evaluate, plan_survey, prepare_space
+    from bimscan.survey.planning.report import check_plan_output, write_plan_folder
+
+    say = warn or (lambda line: None)
+    out = Path(out)
+    check_plan_output(out, overwrite=overwrite)
+    if recipe.mobile is not None:
+        raise ConfigError("a survey plan is made for tripod stations; leave --platform out")
+    header = None
+    if cloud is not None:
+        if check is None:
+            raise ConfigError("--cloud measures the scan of a checked plan; give its stations with "
+                              "--check STATIONS.csv")
+        header = read_cloud_header(check_input_file(cloud, what="a point cloud file or folder", folders=True))
+        if header is None or not header.stations:
+            raise InputFileError(f"{cloud}: not a cloud bimscan scanned (no stations stored with it); measure a "
+                                 "cloud written by 'bimscan scan'")
+    if check is not None and check != AUTO_STATIONS:
+        check_input_file(check, what="a station file")
+    for warning in recipe.warnings + recipe.site.warnings:
+        say(warning)
+    steps: dict[str, float] = {}
+    start = time.perf_counter()
+    scene = load_scene(model, scheme=scheme, threads=recipe.threads or None, strict=recipe.strict,
+                       length_unit=length_unit)
+    steps["load"] = time.perf_counter() - start
+    start = time.perf_counter()
+    if check is None:
+        if not recipe.site.is_bare:
+            from bimscan.survey.survey import require_tripod_spots
+
+            require_tripod_spots(scene, recipe)  # a model where no tripod can stand fails before the dressing
+        dressed, _ = build_site_timed(scene, recipe, progress=progress)
+        given: tuple[Station, ...] = ()
+    else:
+        chosen = site_and_stations(scene, recipe.with_fields(stations_from=check), progress=progress)
+        dressed, given = chosen.scene, chosen.stations
+        if header is not None:
+            _check_cloud_stations(cloud, header.stations, given)
+    steps["site and stations"] = time.perf_counter() - start
+    start = time.perf_counter()
+    space = prepare_space(dressed, recipe.scanner, recipe.settings, config, given=given, threads=recipe.threads,
+                          progress=progress)
+    steps |= space.seconds
+    start = time.perf_counter()
+    plan = check_survey(space, given) if check is not None else plan_survey(space, progress=progress)
+    steps["choose"] = time.perf_counter() - start
+    evaluation = evaluate(plan)
+    scan_evaluation, ratio = None, None
+    if cloud is not None:
+        start = time.perf_counter()
+        # the cloud's stations are the checked ones, in order (checked above): the candidates after the spots
+        columns = {s.id: space.n_spots + i for i, s in enumerate(header.stations)}
+        with step_line("measuring the scan", enabled=progress):
+            counts = points_per_sample(iter_cloud_chunks(cloud), space.samples, space.visibility, columns,
+                                       counted=space.klass >= 0, threads=recipe.threads or -1)
+            patches = patch_matrix(space.samples)
+            measured = patch_density(counts, space.samples, per_area=True, patches=patches)
+            estimate = patch_density(evaluation.density, space.samples, per_area=False, patches=patches)
+        scan_evaluation = evaluate(plan, density=measured)
+        useful = space.visibility.reachable & (estimate >= 0.1 * config.density_pts_m2)
+        if useful.any():
+            q = np.percentile(measured[useful] / estimate[useful], [25, 50, 75])
+            ratio = (float(q[0]), float(q[1]), float(q[2]))
+        steps["measure"] = time.perf_counter() - start
+    if evaluation.parts > 1:
+        why = (f"the candidate spots themselves form {evaluation.spot_parts} parts no station can join"
+               if evaluation.parts == evaluation.spot_parts else "a checked plan")
+        say(f"the registration graph of the {len(plan.stations)} stations falls into {evaluation.parts} parts that "
+            f"share too little surface (--overlap {config.overlap:g}; {why}): closed doors between rooms? plan and "
+            "scan with --stage-exclude IfcDoor (doors open); storeys or wings no spot sees both of? register them "
+            "with targets")
+    start = time.perf_counter()
+    summary = plan_summary(plan, evaluation, scan_evaluation, recipe, mode="check" if check else "plan",
+                           density_ratio=ratio)
+    title = f"{Path(scene.source).name}: {len(plan.stations)} stations"
+    files = write_plan_folder(out, plan, evaluation, summary=summary, scan=scan_evaluation, overwrite=overwrite,
+                              pictures=lambda folder: draw_plan_pictures(plan, evaluation, folder, title=title))
+    steps["write"] = time.perf_counter() - start
+    return PlanRun(plan=plan, evaluation=evaluation, scan=scan_evaluation, files=files, steps=steps,
+                   density_ratio=ratio)
+
+
+def _check_cloud_stations(cloud: str | Path, stored: Sequence[Station], given: Sequence[Station]) -> None:
+    """StationError when the cloud was not scanned from the checked stations (count or a position
+    more than 1 cm off)."""
+    if len(stored) != len(given) or any(
+            np.linalg.norm(np.subtract(a.position, b.position)) > 0.01 for a, b in zip(stored, given)):
+        raise StationError(f"{cloud} was scanned from {len(stored)} stations that are not the {len(given)} checked "
+                           "ones; give the station file the cloud was scanned with to --check")
+
+
+def _finite(value: Any) -> Any:
+    """JSON-able: NaN becomes None (the plan's figures are NaN where a class has no visible surface)."""
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    return value
+
+
+def plan_summary(plan: SurveyPlan, evaluation: PlanEvaluation, scan: PlanEvaluation | None, recipe: ScanRecipe, *,
+                 mode: str,
+                 density_ratio: tuple[float, float, float] | None = None) -> dict[str, Any]:
+    """The ``plan.json`` document of a plan (JSON-able, the same bytes for the same inputs)."""
+    from bimscan import __version__
+
+    space = plan.space
+    scene, config, grid = space.scene, space.config, space.grid
+    classes = {}
+    for name, figures in evaluation.classes.items():
+        entry = {k: (round(v, 6) if isinstance(v, float) else v) for k, v in figures.items()}
+        if scan is not None:
+            entry["scan_covered_fraction"] = round(scan.classes[name]["covered_fraction"], 6)
+        classes[name] = entry
+    statuses: dict[str, int] = {}
+    for element in evaluation.elements:
+        statuses[element.status] = statuses.get(element.status, 0) + 1
+    document = {
+        "mode": mode,
+        "software": f"bimscan {__version__}",
+        "source": {"file": Path(scene.source).name, "sha256": scene.file_sha256, "schema": scene.schema},
+        "config": config.to_json(),
+        "scanner": recipe.scanner.name,
+        "preset": recipe.preset,
+        "angular_step_deg": {"vertical": round(float(np.degrees(grid.vertical_step_rad)), 6),
+                             "horizontal": round(float(np.degrees(grid.horizontal_step_rad)), 6)},
+        "reach_m": round(grid.reach_m(config.density_pts_m2), 3),
+        "site": None if scene.site is None else scene.site.to_json(),
+        "candidate_spots": space.n_spots,
+        "surface_samples": len(space.samples),
+        "solver": None if plan.solver is None else plan.solver.to_json(),
+        "stations": [{"id": s.id, "position": [round(v, 4) for v in s.position],
+                      "floor_z": None if s.floor_z is None else round(s.floor_z, 4), "storey": s.storey,
+                      "room": s.room} for s in plan.stations],
+        "classes": classes,
+        "met": evaluation.met(),
+        "registration": {"edges": len(evaluation.edges), "parts": evaluation.parts,
+                         "spot_parts": evaluation.spot_parts},
+        "elements": dict(sorted(statuses.items())),
+    }
+    if scan is not None:
+        document["scan_met"] = scan.met()
+        document["scan_density_over_estimate_quartiles"] = None if density_ratio is None else [
+            round(v, 4) for v in density_ratio]
+    return _finite(document)

@@ -44,9 +44,11 @@ def cli() -> None:
 
 
 def _register() -> None:
-    from bimscan.cli import dataset_commands, generate_commands, ifc_commands, learn_commands, scan_commands
+    from bimscan.cli import (
+        dataset_commands, generate_commands, ifc_commands, learn_commands, plan_commands, scan_commands,
+    )
 
-    for module in (ifc_commands, generate_commands, scan_commands, dataset_commands, learn_commands):
+    for module in (ifc_commands, generate_commands, scan_commands, plan_commands, dataset_commands, learn_commands):
         for command in module.COMMANDS:
             cli.add_command(command)
 

@@ -6,7 +6,8 @@ Station files are CSV (comma or whitespace separated) with a header naming the c
 ``x, y`` (metres) and either ``z`` (absolute height of the beam origin) or ``height`` (beam
 origin above the floor below; without z and height the scanner's tripod + beam offset), with
 ``storey`` naming the storey of floor-relative stations when the building has more than one;
-``heading_deg`` is optional. Lines starting with ``#`` are comments.
+``heading_deg`` is optional. With both ``z`` and ``height`` the floor is ``z - height`` (the file
+``format_stations`` writes keeps it so). Lines starting with ``#`` are comments.
 
 ``plan_stations`` places stations on the floors the geometry has (``survey.spots``: level
 surfaces a tripod can stand on, with headroom and a clear circle), level by level (floor heights
@@ -106,6 +107,8 @@ def read_stations(path: str | Path, scene: BimScene, prober: Prober, scanner: Sc
                 raise StationError(f"{path}: station {number} at ({x:g}, {y:g}) has no floor under it on storey "
                                    f"{storey_name!r}; move it inside the building")
             z = floor_z + height
+        elif height is not None:  # z and height: the station says where its floor is
+            floor_z = z - height
         stations.append(Station(id=number - 1, position=(x, y, z), heading_deg=heading, floor_z=floor_z,
                                 storey=storey_name))
     for station in stations:
@@ -242,15 +245,54 @@ def _station(number: int, floor: np.ndarray, rooms: list[Space], room_spots: lis
     and storey (the room's, else the highest storey at or below the floor)."""
     x, y, floor_z = (float(v) for v in floor)
     room = next((r for r, members in zip(rooms, room_spots) if members[spot]), None)
-    if room is not None and room.storey:
-        storey = room.storey
-    else:
-        below = [s for s in scene.storeys if s.elevation_m <= floor_z + 0.5]
-        pick = max(below, key=lambda s: s.elevation_m) if below else min(scene.storeys, key=lambda s: s.elevation_m,
-                                                                             default=None)
-        storey = pick.name if pick is not None else ""
+    storey = room.storey if room is not None and room.storey else storey_at(scene, floor_z)
     return Station(id=number, position=(x, y, floor_z + instrument), floor_z=floor_z, storey=storey,
                    room=room.name if room is not None else "")
+
+
+def station_on_floor(number: int, floor: np.ndarray, scene: BimScene, instrument: float) -> Station:
+    """The station ``number`` whose tripod stands at ``floor`` (3,) (x, y, floor z) metres, the beam
+    origin ``instrument`` above it, with its room and storey as ``plan_stations`` gives them."""
+    rooms = rooms_of(scene)
+    point = np.asarray(floor, dtype=np.float64)[None, :]
+    return _station(number, point[0], rooms, [in_room(room, point) for room in rooms], 0, scene, instrument)
+
+
+def storey_at(scene: BimScene, floor_z: float) -> str:
+    """The name of the highest storey at or below a floor height (0.5 m of slack; the lowest storey
+    below all of them; "" for a model without storeys)."""
+    below = [s for s in scene.storeys if s.elevation_m <= floor_z + 0.5]
+    pick = max(below, key=lambda s: s.elevation_m) if below else min(scene.storeys, key=lambda s: s.elevation_m,
+                                                                      default=None)
+    return pick.name if pick is not None else ""
+
+
+STATION_COLUMNS = ("x", "y", "z", "height", "storey", "heading_deg")
+
+
+def station_rows(stations: tuple[Station, ...] | list[Station]) -> list[dict[str, str]]:
+    """The stations as rows of a station file (``STATION_COLUMNS``): ``z`` the beam origin,
+    ``height`` its height above the floor (so the file keeps the floor; empty when unknown)."""
+    rows = []
+    for s in stations:
+        x, y, z = s.position
+        height = "" if s.floor_z is None else f"{z - s.floor_z:.4f}"
+        rows.append({"x": f"{x:.4f}", "y": f"{y:.4f}", "z": f"{z:.4f}", "height": height, "storey": s.storey,
+                     "heading_deg": f"{s.heading_deg:g}"})
+    return rows
+
+
+def format_stations(stations: tuple[Station, ...] | list[Station], *, comments: tuple[str, ...] = ()) -> str:
+    """A station file's text (see the module docs) that ``read_stations`` reads back to the same
+    stations (positions to 0.1 mm): ``comments`` first, as ``#`` lines, then a header and one row
+    per station in id order."""
+    out = io.StringIO()
+    for line in comments:
+        out.write(f"# {line}\n")
+    writer = csv.DictWriter(out, fieldnames=STATION_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(station_rows(sorted(stations, key=lambda s: s.id)))
+    return out.getvalue()
 
 
 def _choose(prober: Prober, scanner: ScannerModel, spots: TripodSpots, members: np.ndarray,

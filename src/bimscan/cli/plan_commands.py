@@ -1,0 +1,148 @@
+"""``bimscan plan``: the fewest tripod stations that cover a model's surfaces as asked, or the
+figures of a given plan (``--check``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import click
+
+from bimscan.cli.ifc_commands import LENGTH_UNIT_HELP, SCHEME_HELP
+from bimscan.cli.site_options import site_options
+from bimscan.ifc.units import LENGTH_UNITS
+from bimscan.scan.device import DEFAULT_PRESET, DEFAULT_SCANNER, PRESETS, SCANNERS
+from bimscan.survey.planning.config import DEFAULT_CLASSES, SOLVERS, PlanConfig
+from bimscan.survey.recipe import ScanRecipe
+
+if TYPE_CHECKING:
+    from bimscan.site.model import SiteModel
+
+_DEFAULTS = PlanConfig()
+
+
+def _fractions(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError as exc:
+        raise click.BadParameter(f"{text!r}: give a fraction (0.95) or one per class (0.95,0.9,0.9,0.8)") from exc
+
+
+@click.command("plan")
+@click.argument("model", type=click.Path(path_type=Path))
+@click.argument("out", type=click.Path(path_type=Path))
+@click.option("--classes", default=None,
+              help=f"Comma-separated classes of the label scheme to cover. Default: {','.join(DEFAULT_CLASSES)}.")
+@click.option("--coverage", default=None,
+              help=f"Fraction of each class's visible surface to cover: one value, or one per class. "
+                   f"Default: {_DEFAULTS.coverage[0]:g}.")
+@click.option("--density", "density_pts_m2", type=float, default=None,
+              help=f"Points per square metre a surface needs to count as covered (the stations summed). "
+                   f"Default: {_DEFAULTS.density_pts_m2:g}.")
+@click.option("--max-incidence-deg", type=float, default=None,
+              help=f"A station's points count only where its beam meets the surface at most this far from the "
+                   f"normal. Default: {_DEFAULTS.max_incidence_deg:g}.")
+@click.option("--overlap", type=float, default=None,
+              help=f"Two stations register when the surface both see is at least this fraction of what the smaller "
+                   f"sees (and pins every direction). Default: {_DEFAULTS.overlap:g}.")
+@click.option("--grid", "grid_m", type=float, default=None,
+              help=f"Spacing of the candidate spots, metres. Default: {_DEFAULTS.grid_m:g}.")
+@click.option("--solver", type=click.Choice(list(SOLVERS)), default=None,
+              help="greedy (greedy cover, then local and iterated greedy search), milp (then scipy's HiGHS within "
+                   "--time-limit) or auto (the MILP on small models, its answer when proved optimal). Default: auto.")
+@click.option("--time-limit", "milp_time_limit_s", type=float, default=None,
+              help=f"Seconds the MILP may take. Default: {_DEFAULTS.milp_time_limit_s:g}.")
+@click.option("--config", "config_file", default=None,
+              help="A TOML file of planner settings (the keys of PlanConfig); the flags above override it.")
+@click.option("--check", default=None,
+              help="Report the figures of a given plan instead: a station file, or 'auto' for the per-room plan "
+                   "of 'bimscan scan --stations auto'.")
+@click.option("--cloud", default=None, type=click.Path(path_type=Path),
+              help="With --check: a cloud 'bimscan scan' made from those stations; coverage is measured on it too.")
+@click.option("--preset", default=None,
+              help=f"Scan settings of every station: {', '.join(PRESETS)} or a settings TOML file. "
+                   f"Default: {DEFAULT_PRESET}.")
+@click.option("--scanner", default=None,
+              help=f"Scanner: a name ({', '.join(SCANNERS)}) or a scanner TOML file. Default: {DEFAULT_SCANNER}.")
+@click.option("--head-speed", "head_deg_per_s", type=float, default=None,
+              help="Head rotation in deg/s, overriding the preset (fewer points per station when faster).")
+@click.option("--seed", default=ScanRecipe.seed, show_default=True, type=int,
+              help="The scan's seed: the site is dressed with it (give 'bimscan scan' the same).")
+@click.option("--scheme", default=None, help=SCHEME_HELP)
+@click.option("--length-unit", type=click.Choice(list(LENGTH_UNITS)), default=None, help=LENGTH_UNIT_HELP)
+@click.option("--threads", default=ScanRecipe.threads, show_default=True, type=int, help="Cores to use (0 = all).")
+@click.option("--overwrite", is_flag=True, help="Replace OUT if it is a plan folder bimscan wrote.")
+@site_options
+def plan(model: Path, out: Path, classes: str | None, coverage: str | None, density_pts_m2: float | None,
+         max_incidence_deg: float | None, overlap: float | None, grid_m: float | None, solver: str | None,
+         milp_time_limit_s: float | None, config_file: str | None, check: str | None, cloud: Path | None,
+         preset: str | None, scanner: str | None, head_deg_per_s: float | None, seed: int, scheme: str | None,
+         length_unit: str | None, threads: int, overwrite: bool, site: SiteModel) -> None:
+    """Plan a tripod survey of MODEL.ifc into the folder OUT: the fewest stations such that the
+    chosen classes reach the asked coverage at the asked point density, with a connected
+    registration graph.
+
+    OUT gets stations.csv (in scan order; 'bimscan scan --stations OUT/stations.csv' takes it as it
+    is), coverage.csv (per element: GlobalId, class, storey, covered fraction, median density, what
+    no spot sees), registration.csv (which stations register to which), plan.json and a picture
+    per storey. With --check STATIONS.csv (or 'auto') the same figures for a given plan; with
+    --cloud as well, measured on its scan. Give the site flags (--clutter, --stage, ...) and
+    --seed that the scan will get.
+    """
+    from bimscan.toml_files import build_dataclass, load_toml
+
+    overrides: dict[str, Any] = {"density_pts_m2": density_pts_m2, "max_incidence_deg": max_incidence_deg,
+                                 "overlap": overlap, "grid_m": grid_m, "solver": solver,
+                                 "milp_time_limit_s": milp_time_limit_s}
+    if classes is not None:
+        overrides["classes"] = tuple(c.strip() for c in classes.split(",") if c.strip())
+    if coverage is not None:
+        overrides["coverage"] = _fractions(coverage)
+    table = dict(load_toml(config_file)) if config_file is not None else {}
+    table |= {key: value for key, value in overrides.items() if value is not None}
+    config = build_dataclass(PlanConfig, table, where=f"{config_file} with the flags" if config_file else "the flags")
+    recipe = ScanRecipe.resolve(preset=preset, scanner=scanner, head_deg_per_s=head_deg_per_s, seed=seed,
+                                site=site, threads=threads)
+    if cloud is not None and check is None:
+        raise click.UsageError("--cloud needs --check STATIONS.csv: the stations the cloud was scanned from")
+    from bimscan.pipeline import plan_model
+
+    run = plan_model(model, out, recipe, config, check=check, cloud=cloud, scheme=scheme, overwrite=overwrite,
+                     length_unit=length_unit, warn=lambda line: click.echo(f"warning: {line}", err=True))
+    evaluation, plan_ = run.evaluation, run.plan
+    what = "checked" if check is not None else "planned"
+    solver_line = ""
+    if plan_.solver is not None:
+        s = plan_.solver
+        solver_line = f" (greedy {s.greedy}, after search {s.improved}"
+        if s.milp_status != "not run":
+            bound = f", lower bound {s.milp_bound:.0f}" if s.milp_bound is not None else ""
+            solver_line += f", MILP {s.milp_status}{'' if s.milp is None else f' {s.milp}'}{bound}"
+        solver_line += ")"
+    click.echo(f"{out}: {len(plan_.stations)} stations {what}{solver_line}, {plan_.space.n_spots} candidate spots")
+    header = "  class            asked   visible m2   covered" + ("   on the scan" if run.scan is not None else "")
+    click.echo(header)
+    for name, figures in evaluation.classes.items():
+        if figures["visible_m2"] <= 0:
+            click.echo(f"  {name:<15}  {100 * figures['asked']:4.0f} %   nothing in view")
+            continue
+        line = (f"  {name:<15}  {100 * figures['asked']:4.0f} %   {figures['visible_m2']:10.1f}   "
+                f"{100 * figures['covered_fraction']:6.1f} %")
+        if run.scan is not None:
+            line += f"   {100 * run.scan.classes[name]['covered_fraction']:6.1f} %"
+        click.echo(line)
+    stations_by_storey: dict[str, int] = {}
+    for station in plan_.stations:
+        stations_by_storey[station.storey or "-"] = stations_by_storey.get(station.storey or "-", 0) + 1
+    click.echo("  stations per storey: " + ", ".join(f"{k} {v}" for k, v in stations_by_storey.items()))
+    click.echo(f"  registration graph: {len(evaluation.edges)} edges, "
+               + ("connected" if evaluation.parts <= 1 else f"{evaluation.parts} parts (the candidate spots allow "
+                                                            f"no fewer than {evaluation.spot_parts})"))
+    if run.density_ratio is not None:
+        q1, median, q3 = run.density_ratio
+        click.echo(f"  scan density / estimate: median {median:.2f} (quartiles {q1:.2f}-{q3:.2f})")
+    click.echo("  files: " + ", ".join(run.files))
+    click.echo("  seconds: " + ", ".join(f"{step} {seconds:.1f}" for step, seconds in run.steps.items()))
+
+
+COMMANDS: list[click.Command] = [plan]

@@ -1,0 +1,124 @@
+"""The plan folder: what ``bimscan plan`` writes, and the one place that knows its layout.
+
+- ``stations.csv``: the stations in scan order, a station file ``bimscan scan --stations`` reads
+  as it is (``survey.stations.format_stations``);
+- ``coverage.csv``: one row per element of the chosen classes (GlobalId, IFC class, class,
+  storey, name, areas, covered fraction, median density, status; with a scan measured, the same
+  figures on the scan);
+- ``registration.csv``: the registration graph's edges between the stations;
+- ``plan.json``: the settings, the per-class figures, the stations and how they were chosen;
+- ``plan_<n>_<storey>.png``: a picture per storey (``render.survey_plan``).
+
+The folder is written under a temporary name and renamed when complete. An existing OUT is
+replaced only with ``overwrite`` and only when it is a plan folder (it holds ``plan.json`` written
+by ``bimscan plan`` and nothing but plan files): bimscan never removes what it did not write.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from bimscan.errors import OutputError
+from bimscan.files import dump_json, remove_path, replace_path, temp_path
+from bimscan.survey.planning.plan import PlanEvaluation, SurveyPlan
+from bimscan.survey.stations import format_stations
+
+STATIONS_FILE = "stations.csv"
+COVERAGE_FILE = "coverage.csv"
+REGISTRATION_FILE = "registration.csv"
+SUMMARY_FILE = "plan.json"
+PLAN_KIND = "bimscan plan"
+COVERAGE_COLUMNS = ("global_id", "ifc_class", "class", "storey", "name", "area_m2", "visible_m2", "edge_on_m2",
+                    "covered_fraction", "median_density_pts_m2", "status")
+SCAN_COLUMNS = ("scan_covered_fraction", "scan_median_density_pts_m2", "scan_status")
+
+
+def _is_plan_file(name: str) -> bool:
+    return name in (STATIONS_FILE, COVERAGE_FILE, REGISTRATION_FILE, SUMMARY_FILE) or (
+        name.startswith("plan_") and name.endswith(".png"))
+
+
+def check_plan_output(out: Path, *, overwrite: bool) -> None:
+    """Raise OutputError now (before any slow work) when the plan folder cannot be written."""
+    if not out.parent.is_dir():
+        raise OutputError(f"output folder {out.parent} does not exist; create it first or choose another OUT")
+    if not (out.exists() or out.is_symlink()):
+        return
+    if not overwrite:
+        raise OutputError(f"{out} already exists; pass --overwrite to replace a plan folder, or choose another OUT")
+    if not out.is_dir() or out.is_symlink():
+        raise OutputError(f"{out} exists and is not a plan folder; choose another OUT (bimscan replaces only a "
+                          "folder it wrote)")
+    names = [p.name for p in out.iterdir()]
+    try:
+        kind = json.loads((out / SUMMARY_FILE).read_text("utf-8")).get("kind")
+    except (OSError, ValueError, AttributeError):
+        kind = None
+    if kind != PLAN_KIND or not all(_is_plan_file(n) for n in names):
+        raise OutputError(f"{out} exists and is not a plan folder bimscan wrote (it holds other files); "
+                          "choose another OUT")
+
+
+def _number(value: float, digits: int = 4) -> str:
+    return "" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
+
+
+def coverage_rows(evaluation: PlanEvaluation, scan: PlanEvaluation | None = None) -> list[dict[str, str]]:
+    """The rows of ``coverage.csv``: by storey, class, then GlobalId."""
+    measured = {e.component: e for e in scan.elements} if scan is not None else {}
+    rows = []
+    for e in sorted(evaluation.elements, key=lambda e: (e.storey, e.klass, e.global_id)):
+        row = {"global_id": e.global_id, "ifc_class": e.ifc_class, "class": e.klass, "storey": e.storey,
+               "name": e.name, "area_m2": _number(e.area_m2, 3), "visible_m2": _number(e.visible_m2, 3),
+               "edge_on_m2": _number(e.edge_on_m2, 3), "covered_fraction": _number(e.covered_fraction),
+               "median_density_pts_m2": _number(e.median_density_pts_m2, 1), "status": e.status}
+        if scan is not None:
+            m = measured[e.component]
+            row |= {"scan_covered_fraction": _number(m.covered_fraction),
+                    "scan_median_density_pts_m2": _number(m.median_density_pts_m2, 1), "scan_status": m.status}
+        rows.append(row)
+    return rows
+
+
+def _csv(rows: list[dict[str, str]], columns: tuple[str, ...]) -> bytes:
+    out = io.StringIO()
+    writer = csv.DictWriter(out, fieldnames=columns, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    return out.getvalue().encode("utf-8")
+
+
+def write_plan_folder(out: Path, plan: SurveyPlan, evaluation: PlanEvaluation, *, summary: dict[str, Any],
+                      scan: PlanEvaluation | None = None, overwrite: bool = False,
+                      pictures: Callable[[Path], list[str]] | None = None) -> list[str]:
+    """Write the plan folder (see the module docs) atomically; returns the names written.
+    ``summary``: the ``plan.json`` document (``kind`` is added); ``pictures(folder)`` draws the
+    pictures into the staged folder and returns their names."""
+    check_plan_output(out, overwrite=overwrite)
+    staged = temp_path(out)
+    staged.mkdir()
+    try:
+        config = plan.space.config
+        comments = (f"bimscan plan of {Path(plan.space.scene.source).name}: {len(plan.stations)} stations in scan "
+                    f"order, for {', '.join(config.classes)} at {config.density_pts_m2:g} points/m2",)
+        (staged / STATIONS_FILE).write_text(format_stations(plan.stations, comments=comments), "utf-8")
+        columns = COVERAGE_COLUMNS + (SCAN_COLUMNS if scan is not None else ())
+        (staged / COVERAGE_FILE).write_bytes(_csv(coverage_rows(evaluation, scan), columns))
+        edges = [{"station_a": str(a), "station_b": str(b), "shared_m2": _number(shared, 2),
+                  "shared_fraction": _number(fraction), "weakest_direction_share": _number(weakest)}
+                 for a, b, shared, fraction, weakest in evaluation.edges]
+        (staged / REGISTRATION_FILE).write_bytes(_csv(edges, ("station_a", "station_b", "shared_m2", "shared_fraction",
+                                                              "weakest_direction_share")))
+        names = pictures(staged) if pictures is not None else []
+        document = {"kind": PLAN_KIND, **summary, "pictures": names}
+        (staged / SUMMARY_FILE).write_bytes(dump_json(document))
+        replace_path(staged, out)
+    finally:
+        remove_path(staged)  # gone already when the rename succeeded
+    return [STATIONS_FILE, COVERAGE_FILE, REGISTRATION_FILE, SUMMARY_FILE, *names]

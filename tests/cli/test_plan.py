@@ -1,0 +1,137 @@
+"""``bimscan plan`` end to end: a plan folder a scan takes as it is, checks of given plans and of
+their scans, and refusals that leave nothing behind."""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+
+import numpy as np
+import pytest
+
+from bimscan.cli.main import main
+from bimscan.io import read_cloud_header
+
+FAST = ["--preset", "exp1", "--head-speed", "60"]  # 1/12 of the default preset's points per station
+PLAN = [*FAST, "--density", "100"]
+
+
+def rows(path):
+    return list(csv.DictReader(line for line in path.read_text("utf-8").splitlines() if not line.startswith("#")))
+
+
+def test_a_plan_folder_holds_stations_coverage_graph_summary_and_pictures(box_room_ifc, tmp_path, capsys):
+    out = tmp_path / "plan"
+    assert main(["plan", str(box_room_ifc), str(out), *PLAN]) == 0
+    printed = capsys.readouterr().out
+    assert "stations planned" in printed and "Wall&Column" in printed and "registration graph" in printed
+    names = sorted(p.name for p in out.iterdir())
+    assert names == ["coverage.csv", "plan.json", "plan_1_L0.png", "registration.csv", "stations.csv"]
+    summary = json.loads((out / "plan.json").read_text("utf-8"))
+    assert summary["kind"] == "bimscan plan" and summary["mode"] == "plan" and summary["met"] is True
+    assert summary["config"]["density_pts_m2"] == 100.0 and summary["preset"] == "exp1"
+    coverage = rows(out / "coverage.csv")
+    assert {r["class"] for r in coverage} == {"Wall&Column", "Slab"}  # the box room has no beams or coverings
+    assert all(r["global_id"] and r["status"] in ("covered", "short", "never seen", "seen only edge-on")
+               for r in coverage)
+    assert len(rows(out / "stations.csv")) == len(summary["stations"]) >= 1
+    assert not list(tmp_path.glob(".*tmp*"))
+
+
+def test_the_plans_stations_scan_as_they_are(box_room_ifc, tmp_path):
+    out = tmp_path / "plan"
+    assert main(["plan", str(box_room_ifc), str(out), *PLAN]) == 0
+    cloud = tmp_path / "scan.laz"
+    assert main(["scan", str(box_room_ifc), str(cloud), *FAST, "--stations", str(out / "stations.csv")]) == 0
+    planned = json.loads((out / "plan.json").read_text("utf-8"))["stations"]
+    scanned = read_cloud_header(cloud).stations
+    assert len(scanned) == len(planned)
+    for a, b in zip(planned, scanned):
+        assert np.allclose(a["position"], b.position, atol=1e-4) and b.floor_z == pytest.approx(a["floor_z"], abs=1e-4)
+
+
+@pytest.mark.slow
+def test_checking_a_scan_reports_the_coverage_measured_on_it(box_room_ifc, tmp_path, capsys):
+    plan = tmp_path / "plan"
+    assert main(["plan", str(box_room_ifc), str(plan), *PLAN]) == 0
+    cloud = tmp_path / "scan"
+    assert main(["scan", str(box_room_ifc), str(cloud), *FAST, "--stations", str(plan / "stations.csv")]) == 0
+    capsys.readouterr()
+    check = tmp_path / "check"
+    assert main(["plan", str(box_room_ifc), str(check), *PLAN, "--check", str(plan / "stations.csv"),
+                 "--cloud", str(cloud)]) == 0
+    assert "on the scan" in capsys.readouterr().out
+    summary = json.loads((check / "plan.json").read_text("utf-8"))
+    assert summary["mode"] == "check" and summary["solver"] is None and summary["scan_met"] is True
+    q1, median, q3 = summary["scan_density_over_estimate_quartiles"]
+    assert 0.85 <= median <= 1.15 and q1 <= median <= q3
+    for name, figures in summary["classes"].items():
+        if figures["visible_m2"]:
+            assert abs(figures["scan_covered_fraction"] - figures["covered_fraction"]) <= 0.05, name
+    assert "scan_covered_fraction" in rows(check / "coverage.csv")[0]
+
+
+def test_check_auto_reports_the_per_room_plan(box_room_ifc, tmp_path, capsys):
+    out = tmp_path / "auto"
+    assert main(["plan", str(box_room_ifc), str(out), *PLAN, "--check", "auto"]) == 0
+    assert "1 stations checked" in capsys.readouterr().out
+    assert json.loads((out / "plan.json").read_text("utf-8"))["mode"] == "check"
+
+
+def test_same_inputs_same_bytes(box_room_ifc, tmp_path):
+    digests = []
+    for name in ("a", "b"):
+        out = tmp_path / name
+        assert main(["plan", str(box_room_ifc), str(out), *PLAN]) == 0
+        digests.append({p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(out.iterdir())})
+    assert digests[0] == digests[1]
+
+
+def test_an_impossible_ask_is_one_error_line_and_writes_nothing(box_room_ifc, tmp_path, capsys):
+    out = tmp_path / "plan"
+    assert main(["plan", str(box_room_ifc), str(out), *FAST, "--density", "1e9"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len([line for line in err if line.startswith("error:")]) == 1
+    assert "no plan reaches the coverage asked" in err[-1] and "--density" in err[-1]
+    assert not out.exists() and not list(tmp_path.glob(".*tmp*"))
+
+
+def test_an_existing_folder_bimscan_did_not_write_is_never_replaced(box_room_ifc, tmp_path, capsys):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep me")
+    assert main(["plan", str(box_room_ifc), str(mine), *PLAN, "--overwrite"]) == 1
+    assert "not a plan folder" in capsys.readouterr().err
+    assert (mine / "notes.txt").read_text() == "keep me"
+    plan = tmp_path / "plan"
+    assert main(["plan", str(box_room_ifc), str(plan), *PLAN]) == 0
+    assert main(["plan", str(box_room_ifc), str(plan), *PLAN]) == 1  # exists: --overwrite needed
+    assert main(["plan", str(box_room_ifc), str(plan), *PLAN, "--classes", "Slab", "--overwrite"]) == 0
+    assert {r["class"] for r in rows(plan / "coverage.csv")} == {"Slab"}
+
+
+def test_a_config_file_sets_the_planner_and_the_flags_override_it(box_room_ifc, tmp_path, capsys):
+    config = tmp_path / "plan.toml"
+    config.write_text('classes = ["Wall&Column"]\ndensity_pts_m2 = 150.0\nsearch_rounds = 5\n')
+    out = tmp_path / "plan"
+    assert main(["plan", str(box_room_ifc), str(out), *FAST, "--config", str(config), "--density", "120"]) == 0
+    summary = json.loads((out / "plan.json").read_text("utf-8"))
+    assert summary["config"]["classes"] == ["Wall&Column"] and summary["config"]["density_pts_m2"] == 120.0
+    assert summary["config"]["search_rounds"] == 5
+    config.write_text("densty = 3\n")
+    assert main(["plan", str(box_room_ifc), str(tmp_path / "other"), *FAST, "--config", str(config)]) == 1
+    assert "unknown key(s) 'densty'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--classes", "Walls"], "unknown class 'Walls'"),
+    (["--coverage", "0.9,0.8"], "one per class"),
+    (["--cloud", "scan.laz"], "--cloud needs --check"),
+    (["--check", "missing.csv"], "missing.csv"),
+])
+def test_bad_asks_are_one_line(box_room_ifc, tmp_path, capsys, args, message):
+    assert main(["plan", str(box_room_ifc), str(tmp_path / "out"), *PLAN, *args]) != 0
+    err = capsys.readouterr().err
+    assert message in err and err.count("error:") == 1
+    assert not (tmp_path / "out").exists()
