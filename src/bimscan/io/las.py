@@ -205,7 +205,8 @@ class LasCloudWriter(StreamingCloudWriter):
         while start < len(chunk):
             take = min(len(chunk) - start, BLOCK_POINTS - self._fill)
             part = chunk if take == len(chunk) else chunk.take(slice(start, start + take))
-            self._encode(part, self._block[self._fill : self._fill + take])
+            with self.clock.step("encode"):
+                self._encode(part, self._block[self._fill : self._fill + take])
             self._fill += take
             start += take
             if self._fill == BLOCK_POINTS:
@@ -217,7 +218,8 @@ class LasCloudWriter(StreamingCloudWriter):
             # (known from _encode) and the return counts (all 1) with a sort of every block.
             record = PackedPointRecord(self._block[: self._fill], self._point_format)
             try:
-                self._writer.point_writer.write_points(record)
+                with self.clock.step("compress" if self.compress else "store"):
+                    self._writer.point_writer.write_points(record)
             except (LaspyException, RuntimeError) as exc:  # lazrs raises LazrsError(RuntimeError)
                 raise OutputError(f"could not write {self.path} ({exc}); check the disk and run again") from exc
         self._fill = 0
