@@ -135,6 +135,7 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
     from bimscan.survey.trajectory import write_trajectory
 
     start = time.perf_counter()
+    started_at = time.time()
     clock = StageClock()
     folder = DatasetFolder(job.out_dir)
     staged: Path | None = None
@@ -206,7 +207,8 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
                                            "scan_write_s": round(scan_s, 3), "total_s": round(total_s, 3),
                                            "threads": job.recipe.threads,
                                            "points_per_s": round(kept.points / max(scan_s, 1e-9)),
-                                           "pulses": survey.pulses(), "stages_s": stages})
+                                           "pulses": survey.pulses(), "stages_s": stages,
+                                           "started_at": round(started_at, 3)})  # Unix time: the build's timeline
         replace_path(staged, folder.unit_dir(job.unit))
         staged = None
         return UnitOutcome(unit=job.unit, status="done", points=kept.points, files=files, load_s=load_s,
