@@ -190,3 +190,14 @@ def test_a_foreign_las_gives_its_return_numbers_and_colour(tmp_path):
     cloud = read_cloud(tmp_path / "foreign.las")
     assert cloud.return_number.tolist() == [1, 2, 1, 1] and cloud.number_of_returns.tolist() == [2, 2, 1, 1]
     assert cloud.rgb[:, 0].tolist() == [0, 255, 7, 2] and (cloud.rgb[:, 2] == 255).all()
+
+
+def test_the_parallel_laz_compressor_writes_the_single_threaded_ones_bytes(tmp_path, header, cloud_factory, monkeypatch):
+    import bimscan.io.las as las
+
+    cloud = cloud_factory(180_000, seed=9)  # 4 LAZ chunks, the last one partial
+    write(tmp_path / "parallel.laz", header, cloud)
+    monkeypatch.setattr(las, "LAZ_BACKENDS", (laspy.LazBackend.Lazrs,))
+    write(tmp_path / "single.laz", header, cloud)
+    assert (tmp_path / "parallel.laz").read_bytes() == (tmp_path / "single.laz").read_bytes()
+    assert laspy.LazBackend.LazrsParallel.is_available()  # else both ran single-threaded and proved nothing

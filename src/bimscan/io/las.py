@@ -62,6 +62,9 @@ LAS_SCALE_M = 1e-4  # 0.1 mm coordinate step
 MAX_RETURNS = 15  # return numbers of point formats 6-10 are 4 bits
 RGB_SCALE = 257  # 8-bit colour to LAS's 16 bits: 255 -> 65535, and back exactly by // 257
 LAZ_CHUNK_POINTS = 50_000  # lazrs' default LAZ chunk; BLOCK_POINTS must stay a multiple of it
+# lazrs' parallel compressor first: it compresses a block's LAZ chunks on every core and writes the
+# bytes of the single-threaded one (the same chunks, each compressed alone), which is the fallback
+LAZ_BACKENDS = (laspy.LazBackend.LazrsParallel, laspy.LazBackend.Lazrs)
 BIMSCAN_USER_ID = "bimscan"
 BIMSCAN_RECORD_ID = 1
 SYSTEM_IDENTIFIER = "bimscan virtual TLS"
@@ -165,7 +168,7 @@ class LasCloudWriter(StreamingCloudWriter):
     def _begin(self, columns: tuple[str, ...]) -> None:
         las_header = _las_header(self.header, columns)
         self._file = self._open_file(self.path)
-        backend = (laspy.LazBackend.LazrsParallel, laspy.LazBackend.Lazrs) if self.compress else None
+        backend = LAZ_BACKENDS if self.compress else None
         self._writer = laspy.LasWriter(
             self._file, las_header, do_compress=self.compress, laz_backend=backend, closefd=False
         )
