@@ -225,9 +225,11 @@ class VirtualScanner:
             rays = self._work("mobile_rays", (n, 6), np.float32)
             origin = self._work("mobile_origin", (n, 3), np.float64)
             pulse_time = self._work("mobile_time", (n,), np.float64)
-            moving_rays(np.int64(first), np.int64(n), np.int64(n_beams), lidar.firing_cycle_us * 1e-6, float(t[0]),
-                        firing, cos_el, sin_el, azimuth_offset, 2 * math.pi * mobile.rotation_hz, t, xyz_track, ypr,
-                        lever, rotation, 2 * math.pi * mount.head_rotation_hz, centre, rays, origin, pulse_time)
+            with self.clock.step("rays"):
+                moving_rays(np.int64(first), np.int64(n), np.int64(n_beams), lidar.firing_cycle_us * 1e-6,
+                            float(t[0]), firing, cos_el, sin_el, azimuth_offset, 2 * math.pi * mobile.rotation_hz, t,
+                            xyz_track, ypr, lever, rotation, 2 * math.pi * mount.head_rotation_hz, centre, rays, origin,
+                            pulse_time)
             t_hit, triangle = self.cast(rays)
             if on_pulses is not None:
                 on_pulses(n)
@@ -392,8 +394,10 @@ class VirtualScanner:
             n_all = int(offsets[-1])
             rays = self._work("rays", (n_all, 6), np.float32)
             pulse = self._work("pulse", (n_all,), np.int64)
-            generate_rays(start, stop, offsets[:-1], halo_lo, pattern.dphase, pattern.sweep_deg, pattern.head_start_deg,
-                          pattern.head_deg_per_pulse, station.heading_deg, origin_local, rays, pulse)
+            with self.clock.step("rays"):
+                generate_rays(start, stop, offsets[:-1], halo_lo, pattern.dphase, pattern.sweep_deg,
+                              pattern.head_start_deg, pattern.head_deg_per_pulse, station.heading_deg, origin_local,
+                              rays, pulse)
             t0, tri0 = self.cast(rays)
             flagged = np.zeros(n_all, dtype=np.bool_)  # pulses that get the whole sub-ray pattern
             if footprint and n_sub:

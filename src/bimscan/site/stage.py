@@ -202,7 +202,6 @@ def cut_openings(mesh: SceneMesh, cut: np.ndarray, openings: list[np.ndarray]) -
     return _replace_faces(mesh, removed, parts.take(keep), mesh.face_component[candidates[owner[keep]]])
 
 
-
 def _cut_one(parts: Polygons, rect: tuple[np.ndarray, ...]) -> tuple[Polygons, np.ndarray, np.ndarray]:
     """``parts`` with one opening cut (``_rectangle``'s tuple): every part that reaches into it
     replaced in place by its pieces outside it. Returns the new parts, the part each came from
@@ -238,7 +237,7 @@ def _cut_one(parts: Polygons, rect: tuple[np.ndarray, ...]) -> tuple[Polygons, n
 def _boxes_meeting(a_lo: np.ndarray, a_hi: np.ndarray, b_lo: np.ndarray,
                    b_hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The (a, b) index pairs of xy boxes (rows of (N, 2) low and high corners) that overlap with
-    positive area, a by a. One comparison per pair, in blocks of rows (bounded memory)."""
+    positive area, ordered by a. One comparison per pair, in blocks of rows (bounded memory)."""
     rows: list[np.ndarray] = []
     columns: list[np.ndarray] = []
     block = max(1, 4_000_000 // max(len(b_lo), 1))
