@@ -29,6 +29,7 @@ import argparse
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -149,6 +150,7 @@ def main() -> None:
                              f"{per_object[len(per_object) // 2]:.1f}, max {per_object[-1]:.1f}; slowest room "
                              f"{slowest[0]!r} ({slowest[1]} objects, {slowest[2]:.2f} s)")
     print("\n" + "\n".join(notes))
+    shutil.rmtree(work, ignore_errors=True)
 
 
 if __name__ == "__main__":
