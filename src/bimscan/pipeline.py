@@ -22,7 +22,7 @@ import numpy as np
 from bimscan.errors import ConfigError, InputFileError, OutputError, StationError
 from bimscan.process.checks import check_semantics, filter_invalid
 from bimscan.process.summary import CloudSummary
-from bimscan.progress import progress_bar, step_line
+from bimscan.progress import StageClock, progress_bar, step_line
 from bimscan.survey.recipe import AUTO_STATIONS, ScanRecipe
 from bimscan.site import DressTimings, dress_scene_timed
 from bimscan.survey.mobile import AUTO_TRAJECTORY
@@ -192,21 +192,24 @@ def furnish_model(model: str | Path, out: str | Path, recipe: ScanRecipe, *,
     return dressed
 
 
-def stream_checked(survey: Survey, *, summary: CloudSummary,
-                   on_pulses: Callable[[int], None] | None = None) -> Iterator[PointCloud]:
+def stream_checked(survey: Survey, *, summary: CloudSummary, on_pulses: Callable[[int], None] | None = None,
+                   clock: StageClock | None = None) -> Iterator[PointCloud]:
     """The survey's merged cloud as filtered, semantically checked chunks (stage 6 on stage 4).
 
     Every chunk has its invalid points dropped (counted in ``summary.dropped_invalid``) and is
     checked against the component table (``SemanticError`` on a contradiction) before it is
     yielded; ``summary`` accumulates counts, extents and histograms of what is yielded. A chunk
     is valid until the next one is requested (the scanner reuses its buffers): write it out or
-    copy it first.
+    copy it first. ``clock``: gets the checks' time as its "checks" step.
     """
     for chunk in run_survey(survey, on_pulses=on_pulses, reuse_buffers=True):
+        start = time.perf_counter()
         chunk, dropped = filter_invalid(chunk)
         summary.dropped_invalid += dropped
         check_semantics(chunk, survey.scene.components)
         summary.add(chunk)
+        if clock is not None:
+            clock.add("checks", time.perf_counter() - start)
         yield chunk
 
 

@@ -48,3 +48,36 @@ def step_line(text: str, *, enabled: bool = True) -> Iterator[None]:
     finally:
         if shown:
             print(f" {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
+
+
+class StageClock:
+    """Seconds spent per named step, summed over every time the step ran: a profile of a long job
+    that costs two clock reads per step (``timings.json`` of a dataset unit, the benchmarks)."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+
+    def add(self, step: str, seconds: float) -> None:
+        self.seconds[step] = self.seconds.get(step, 0.0) + seconds
+
+    @contextmanager
+    def step(self, name: str) -> Iterator[None]:
+        """Time the block as step ``name`` (also when it raises)."""
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.add(name, time.perf_counter() - start)
+
+    def timed(self, name: str, items: Iterator[Any]) -> Iterator[Any]:
+        """``items`` with the time spent producing each item added to step ``name`` (not the time
+        the consumer spends between items)."""
+        while True:
+            start = time.perf_counter()
+            try:
+                item = next(items)
+            except StopIteration:
+                self.add(name, time.perf_counter() - start)
+                return
+            self.add(name, time.perf_counter() - start)
+            yield item

@@ -20,6 +20,7 @@ import pytest
 
 from bimscan.dataset.build import build_dataset
 from bimscan.dataset.spec import load_spec
+from bimscan.dataset.tasks import UNIT_STAGES
 from bimscan.io import read_cloud
 
 from .conftest import UNIT_IDS, BuiltDataset, reproducible_files
@@ -81,6 +82,12 @@ def test_unit_metadata_records_inputs_counts_and_checksums_that_match_the_files(
         timings = json.loads((folder / "timings.json").read_text())
         assert timings["total_s"] > 0
         assert timings["host"] == socket.gethostname() and "ray_node" not in timings  # where it was built
+        # where the unit's time went, step by step: every step named, the steps add up to the whole
+        stages = timings["stages_s"]
+        assert set(stages) == set(UNIT_STAGES) and min(stages.values()) >= 0
+        assert sum(stages.values()) == pytest.approx(timings["total_s"], abs=0.02)
+        assert stages["cast"] > 0 and stages["compress"] > 0 and stages["checksum"] > 0
+        assert timings["pulses"] >= meta["points"]
 
 
 def test_every_configuration_of_a_scene_scans_from_the_same_stations(reference_dataset: BuiltDataset) -> None:

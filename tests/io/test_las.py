@@ -7,10 +7,12 @@ import json
 import laspy
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from bimscan.errors import InputFileError, OutputError
 from bimscan.io import open_cloud_writer, read_cloud, read_cloud_header
-from bimscan.io.las import LAS_SCALE_M, lookup_name
+from bimscan.io.las import LAS_SCALE_M, lookup_name, quantise_xyz
 from bimscan.types import PointCloud
 
 
@@ -82,6 +84,24 @@ def test_points_beyond_the_int32_range_around_the_origin_are_refused(tmp_path, h
     with pytest.raises(OutputError, match="does not fit LAS 0.1 mm steps"):
         write(tmp_path / "cloud.laz", header, cloud)
     assert list(tmp_path.iterdir()) == []
+
+
+@given(st.integers(min_value=0, max_value=10_000))
+def test_the_one_pass_quantiser_gives_numpys_steps_bounds_and_first_bad_coordinate(seed):
+    rng = np.random.default_rng(seed)
+    n = 2000
+    origin = rng.uniform(-1e3, 1e3, 3)
+    xyz = origin + rng.uniform(-500, 500, (n, 3))
+    xyz[: n // 4] = origin + (np.round(rng.uniform(-1e6, 1e6, (n // 4, 3))) + 0.5) * LAS_SCALE_M  # ties to even
+    expected = np.rint(np.divide(np.subtract(xyz, origin), LAS_SCALE_M))
+    steps = np.zeros((3, n), dtype=np.int32)
+    low, high = np.full(3, np.inf), np.full(3, -np.inf)
+    assert quantise_xyz(xyz, origin, LAS_SCALE_M, steps[0], steps[1], steps[2], low, high) == -1
+    assert np.array_equal(steps, expected.T.astype(np.int32))
+    assert np.array_equal(low, expected.min(axis=0)) and np.array_equal(high, expected.max(axis=0))
+    row, axis = int(rng.integers(n)), int(rng.integers(3))
+    xyz[row, axis] = [np.nan, np.inf, origin[axis] + 3e5][seed % 3]  # 300 km: beyond 2^31 steps
+    assert quantise_xyz(xyz, origin, LAS_SCALE_M, steps[0], steps[1], steps[2], low, high) == 3 * row + axis
 
 
 def test_nan_coordinates_are_refused(tmp_path, header, cloud_factory):
@@ -212,3 +232,14 @@ def test_ctrl_c_while_lazrs_writes_stops_the_writer_as_an_interrupt_not_a_write_
         timer.join()
         assert written < 200  # the signal came while the cloud was being written
         assert list(tmp_path.iterdir()) == []  # no output, no temporary
+
+
+def test_the_parallel_laz_compressor_writes_the_single_threaded_ones_bytes(tmp_path, header, cloud_factory, monkeypatch):
+    import bimscan.io.las as las
+
+    cloud = cloud_factory(180_000, seed=9)  # 4 LAZ chunks, the last one partial
+    write(tmp_path / "parallel.laz", header, cloud)
+    monkeypatch.setattr(las, "LAZ_BACKENDS", (laspy.LazBackend.Lazrs,))
+    write(tmp_path / "single.laz", header, cloud)
+    assert (tmp_path / "parallel.laz").read_bytes() == (tmp_path / "single.laz").read_bytes()
+    assert laspy.LazBackend.LazrsParallel.is_available()  # else both ran single-threaded and proved nothing

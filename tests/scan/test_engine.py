@@ -136,3 +136,23 @@ def test_asking_for_warp_where_it_is_not_installed_says_how_to_install_it(monkey
         engine_module.warp_sees_cuda.cache_clear()
     with pytest.raises(ConfigError, match="choose one of open3d, embreex, warp, auto"):
         resolve_engine("optix")
+
+
+def test_open3d_is_imported_without_its_plotly_viewer_which_still_works_when_called():
+    import subprocess
+    import sys
+
+    script = """
+import sys
+import numpy as np
+from bimscan.scan.engine import import_open3d
+o3d = import_open3d()
+assert "dash" not in sys.modules and "plotly" not in sys.modules, "the web viewer was imported"
+cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.random.default_rng(0).random((10, 3))))
+figure = o3d.visualization.get_plotly_fig([cloud])
+assert type(figure).__name__ == "Figure" and "dash" in sys.modules
+assert o3d.visualization.draw_plotly.__module__ == "open3d.visualization.draw_plotly"  # the real function now
+print("ok")
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr[-2000:]

@@ -219,7 +219,7 @@ def _run(folder: DatasetFolder, rows: dict[str, ManifestEntry], unit_jobs: dict[
                     for job in by_scene[name]:
                         finish_unit(UnitOutcome(unit=job.unit, status="failed",
                                                 error=f"scene {name[0]!r}: {scene_outcome.error}"))
-        position = {unit: k for k, unit in enumerate(rows)}
+        position = {unit: k for k, unit in enumerate(unit_jobs)}  # the plan's order: each scene's largest first
         jobs = sorted((job for name in ready for job in by_scene[name]), key=lambda job: position[job.unit])
         if jobs:
             # 2. The output's size against the free space, before any unit writes.

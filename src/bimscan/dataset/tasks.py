@@ -34,6 +34,7 @@ from bimscan.dataset.layout import (
 from bimscan.dataset.plan import SceneJob, UnitJob
 from bimscan.errors import BimscanError, DatasetError, SemanticError
 from bimscan.files import file_sha256, replace_path
+from bimscan.progress import StageClock
 from bimscan.survey.recipe import AUTO_STATIONS
 from bimscan.types import Station
 
@@ -51,10 +52,11 @@ class SceneOutcome:
     notes: tuple[str, ...] = ()
     site_tag: str = ""
     site_s: float = 0.0  # dressing the scene (stage, free floor, placement)
-    placement_s: float = 0.0  # of which placing the objects
+    placement_s: float = 0.0  # of which placing the objects (and cutting the tiles of lay-in fittings)
     site_rooms: int = 0
     points_per_pulse: float = 0.0  # measured on a thinned pattern from the stations (size estimate)
     probe_s: float = 0.0  # measuring it
+    stations_s: float = 0.0  # planning (or checking) the stations, writing them and the dressed scene
 
 
 @dataclass(frozen=True)
@@ -118,7 +120,6 @@ def run_scene_job(job: SceneJob) -> SceneOutcome:
         scene, stations, plan, timings = chosen.scene, chosen.stations, chosen.plan, chosen.timings
         if site_path is not None:
             write_site_scene(site_path, scene, job.stations_key)
-        site_s = time.perf_counter() - site_start
         notes: list[str] = []
         if plan is not None and plan.rooms_without_station:
             notes.append(rooms_without_station_line(plan))
@@ -128,8 +129,9 @@ def run_scene_job(job: SceneJob) -> SceneOutcome:
         probe_start = time.perf_counter()
         per_pulse = probe_points_per_pulse(scene, job.recipe, stations)
         return SceneOutcome(scene=job.scene, n_stations=len(stations), parse_s=parse_s, notes=loading + tuple(notes),
-                            site_tag=job.site_tag, site_s=site_s, placement_s=timings.placement_s,
-                            site_rooms=timings.rooms, points_per_pulse=per_pulse,
+                            site_tag=job.site_tag, site_s=timings.total_s,
+                            placement_s=timings.placement_s + timings.cut_s, site_rooms=timings.rooms,
+                            stations_s=probe_start - site_start - timings.total_s, points_per_pulse=per_pulse,
                             probe_s=time.perf_counter() - probe_start)
     except (BimscanError, OSError) as exc:
         return SceneOutcome(scene=job.scene, error=_one_line(exc), site_tag=job.site_tag)
@@ -146,43 +148,53 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
     from bimscan.survey.trajectory import write_trajectory
 
     start = time.perf_counter()
+    started_at = time.time()
+    clock = StageClock()
     folder = DatasetFolder(job.out_dir)
     staged: Path | None = None
     writers: dict[str, CloudWriter] = {}
     try:
-        scene = load_scene(job.ifc, scheme=job.scheme, threads=job.recipe.threads, strict=job.recipe.strict,
-                           length_unit=job.length_unit)
+        with clock.step("load"):
+            scene = load_scene(job.ifc, scheme=job.scheme, threads=job.recipe.threads, strict=job.recipe.strict,
+                               length_unit=job.length_unit)
         load_s = time.perf_counter() - start
-        stations = folder.read_stations(job.scene, job.site_tag)
-        if job.site_tag:  # the scene task's dressed scene, else dressed again (the same bytes)
-            stored = read_site_scene(folder.site_scene_path(job.scene, job.site_tag), scene, job.site_key)
-            keep_clear = stations if job.inputs["stations"] != AUTO_STATIONS else ()  # the scene's station file
-            scene = stored if stored is not None else build_site(scene, job.recipe, keep_clear=keep_clear)
+        with clock.step("site"):
+            stations = folder.read_stations(job.scene, job.site_tag)
+            if job.site_tag:  # the scene task's dressed scene, else dressed again (the same bytes)
+                stored = read_site_scene(folder.site_scene_path(job.scene, job.site_tag), scene, job.site_key)
+                keep_clear = stations if job.inputs["stations"] != AUTO_STATIONS else ()  # the scene's station file
+                scene = stored if stored is not None else build_site(scene, job.recipe, keep_clear=keep_clear)
         site_s = time.perf_counter() - start - load_s
-        trajectory = walk = None
-        if job.recipe.mobile is not None:  # a walk through the scene's stations (or the scene's trajectory file)
-            trajectory, walk = choose_trajectory(scene, job.recipe, stations=stations)
-        survey = prepare_survey(scene, job.recipe, stations=stations, trajectory=trajectory, walk=walk)
-        header = cloud_header(survey, extra_metadata={
-            "unit": {"id": job.unit, "scene": job.scene, "config": job.config, "voxel_size_m": job.voxel_size_m,
-                     "fingerprint": job.fingerprint}})
-        staged = folder.staging_dir(job.unit)
-        writers = {fmt: open_cloud_writer(staged / FORMAT_FILES[fmt], header=header) for fmt in job.formats}
+        with clock.step("survey"):
+            trajectory = walk = None
+            if job.recipe.mobile is not None:  # a walk through the scene's stations (or the scene's trajectory file)
+                trajectory, walk = choose_trajectory(scene, job.recipe, stations=stations)
+            survey = prepare_survey(scene, job.recipe, stations=stations, trajectory=trajectory, walk=walk)
+            header = cloud_header(survey, extra_metadata={
+                "unit": {"id": job.unit, "scene": job.scene, "config": job.config, "voxel_size_m": job.voxel_size_m,
+                         "fingerprint": job.fingerprint}})
+            staged = folder.staging_dir(job.unit)
+            writers = {fmt: open_cloud_writer(staged / FORMAT_FILES[fmt], header=header) for fmt in job.formats}
         scanned = CloudSummary()
         kept = CloudSummary() if job.voxel_size_m else scanned  # without subsampling, what is kept is what was scanned
         subsampler = VoxelSubsampler(job.voxel_size_m, origin=header.origin) if job.voxel_size_m else None
         scan_start = time.perf_counter()
-        for chunk in stream_checked(survey, summary=scanned, on_pulses=functools.partial(report_pulses, unit=job.unit)):
+        for chunk in stream_checked(survey, summary=scanned, on_pulses=functools.partial(report_pulses, unit=job.unit),
+                                    clock=clock):
             if not driver_alive():
                 raise DatasetError("the build driver is gone; unit abandoned (run the build again to finish it)")
             if subsampler is not None:
-                chunk = subsampler.filter(chunk)
-                kept.add(chunk)
-            for writer in writers.values():
-                writer.write(chunk)
-        written = {fmt: writer.close() for fmt, writer in writers.items()}
+                with clock.step("subsample"):
+                    chunk = subsampler.filter(chunk)
+                    kept.add(chunk)
+            with clock.step("write"):
+                for writer in writers.values():
+                    writer.write(chunk)
+        with clock.step("write"):
+            written = {fmt: writer.close() for fmt, writer in writers.items()}
         scan_s = time.perf_counter() - scan_start
-        check_written(kept, written)
+        with clock.step("verify"):
+            check_written(kept, written)
         checksums: dict[str, str] = {}
         n_bytes = 0
         for cloud in written.values():
@@ -201,13 +213,17 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
             checksums=checksums, bytes=n_bytes, site={} if scene.site is None else scene.site.to_json(),
             ifc={"report": report_document(scene.report), "failed": [dataclasses.asdict(f) for f in scene.failed]},
         )
-        write_unit_record(staged, record)
+        with clock.step("record"):
+            write_unit_record(staged, record)
+        total_s = time.perf_counter() - start
+        stages = unit_stages(clock, survey.scanner.clock, [writer.clock for writer in writers.values()], total_s)
         place = worker_node()
         write_json(staged / TIMINGS_NAME, {"load_s": round(load_s, 3), "site_s": round(site_s, 3),
-                                           "scan_write_s": round(scan_s, 3),
-                                           "total_s": round(time.perf_counter() - start, 3),
+                                           "scan_write_s": round(scan_s, 3), "total_s": round(total_s, 3),
                                            "threads": job.recipe.threads,
-                                           "points_per_s": round(kept.points / max(scan_s, 1e-9)), **place})
+                                           "points_per_s": round(kept.points / max(scan_s, 1e-9)),
+                                           "pulses": survey.pulses(), "stages_s": stages,
+                                           "started_at": round(started_at, 3), **place})  # Unix time: the timeline
         replace_path(staged, folder.unit_dir(job.unit), kind="unit")
         staged = None
         return UnitOutcome(unit=job.unit, status="done", points=kept.points, files=files, load_s=load_s,
@@ -220,6 +236,34 @@ def run_unit_job(job: UnitJob) -> UnitOutcome:
             writer.abort()  # a no-op for writers that closed
         if staged is not None:
             shutil.rmtree(staged, ignore_errors=True)
+
+
+UNIT_STAGES = ("load", "site", "survey", "rays", "cast", "hits", "checks", "subsample", "encode", "compress",
+               "store", "checksum", "write_other", "verify", "record", "other")
+
+
+def unit_stages(unit: StageClock, scanner: StageClock, writers: list[StageClock], total_s: float) -> dict[str, float]:
+    """Where a unit task's ``total_s`` seconds went (``UNIT_STAGES``, rounded to the millisecond):
+    the scene read from the cache (load) and its dressing (site), the scanner placed in it (survey:
+    the BVH, the face tables, the writers opened), ray generation, the engine's casts, the rest of
+    the scan (hits: noise, labels, intensity, compaction), the semantic checks, voxel subsampling,
+    then the writers' own steps (LAS/LAZ encoding and compression or storing, checksums) and the
+    rest of writing, the read-back check, the records, and what no step claims (other). The
+    stations' clouds stream one after another into the writers: merging them costs nothing."""
+    writer_steps: dict[str, float] = {}
+    for clock in writers:
+        for step, seconds in clock.seconds.items():
+            writer_steps[step] = writer_steps.get(step, 0.0) + seconds
+    scan = scanner.seconds.get("scan", 0.0)
+    rays, cast = scanner.seconds.get("rays", 0.0), scanner.seconds.get("cast", 0.0)
+    stages = {step: unit.seconds.get(step, 0.0) for step in ("load", "site", "survey")}
+    stages |= {"rays": rays, "cast": cast, "hits": max(scan - rays - cast, 0.0),
+               "checks": unit.seconds.get("checks", 0.0), "subsample": unit.seconds.get("subsample", 0.0)}
+    stages |= {step: writer_steps.get(step, 0.0) for step in ("encode", "compress", "store", "checksum")}
+    stages["write_other"] = max(unit.seconds.get("write", 0.0) - sum(writer_steps.values()), 0.0)
+    stages |= {step: unit.seconds.get(step, 0.0) for step in ("verify", "record")}
+    stages["other"] = max(total_s - sum(stages.values()), 0.0)
+    return {step: round(stages[step], 3) for step in UNIT_STAGES}
 
 
 def check_written(kept: CloudSummary, written: Mapping[str, WrittenCloud]) -> None:

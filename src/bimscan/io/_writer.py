@@ -27,6 +27,7 @@ from typing import BinaryIO, Protocol, Self
 from bimscan.errors import OutputError
 from bimscan.files import check_input_file, check_replaceable, file_sha256, remove_path, replace_path, temp_path
 from bimscan.io._header import dump_json, header_to_document, present_columns
+from bimscan.progress import StageClock
 from bimscan.types import CloudHeader, PointCloud
 
 BLOCK_POINTS = 1_000_000  # rows encoded per step: bounds a writer's memory whatever the chunk size
@@ -178,6 +179,7 @@ class StreamingCloudWriter:
         self._state = "open"
         self._result: WrittenCloud | None = None
         self._handles: list[WatchedFile] = []
+        self.clock = StageClock()  # the format's own steps (LAS/LAZ: "encode", "compress" or "store"), "checksum"
         check_output_path(self.path, overwrite=overwrite, extra=self._outputs()[1:], kind=self.FOLDER_KIND)
         dump_json(header_to_document(header, columns=(), n_points=0))  # fail now, not after the points
 
@@ -276,7 +278,8 @@ class StreamingCloudWriter:
                     files.append(name)
                     n_bytes += member.stat().st_size
                     if self.checksum:
-                        sha256[name.relative_to(self.path.parent).as_posix()] = file_sha256(member)
+                        with self.clock.step("checksum"):
+                            sha256[name.relative_to(self.path.parent).as_posix()] = file_sha256(member)
             for temp, final, kind in self._staged:
                 commit_output(temp, final, overwrite=self.overwrite, kind=kind)
         except Exception as exc:

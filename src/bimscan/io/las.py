@@ -35,7 +35,6 @@ Layout of a bimscan LAS/LAZ file:
 from __future__ import annotations
 
 import datetime as dt
-import os
 import struct
 import unicodedata
 import uuid
@@ -44,6 +43,7 @@ from pathlib import Path
 from typing import Any
 
 import laspy
+import numba as nb
 import numpy as np
 from laspy.errors import LaspyException
 from laspy.point.record import PackedPointRecord
@@ -67,6 +67,9 @@ LAS_SCALE_M = 1e-4  # 0.1 mm coordinate step
 MAX_RETURNS = 15  # return numbers of point formats 6-10 are 4 bits
 RGB_SCALE = 257  # 8-bit colour to LAS's 16 bits: 255 -> 65535, and back exactly by // 257
 LAZ_CHUNK_POINTS = 50_000  # lazrs' default LAZ chunk; BLOCK_POINTS must stay a multiple of it
+# lazrs' parallel compressor first: it compresses a block's LAZ chunks on every core and writes the
+# bytes of the single-threaded one (the same chunks, each compressed alone), which is the fallback
+LAZ_BACKENDS = (laspy.LazBackend.LazrsParallel, laspy.LazBackend.Lazrs)
 BIMSCAN_USER_ID = "bimscan"
 BIMSCAN_RECORD_ID = 1
 SYSTEM_IDENTIFIER = "bimscan virtual TLS"
@@ -126,6 +129,29 @@ def _las_header(header: CloudHeader, columns: tuple[str, ...]) -> laspy.LasHeade
     return las_header
 
 
+@nb.njit(cache=True, nogil=True)
+def quantise_xyz(xyz: np.ndarray, origin: np.ndarray, scale: float, x: np.ndarray, y: np.ndarray, z: np.ndarray,
+                 low: np.ndarray, high: np.ndarray) -> int:
+    """Coordinates (N, 3) float64 metres -> int32 steps of ``scale`` around ``origin`` (3,), written to
+    ``x``, ``y``, ``z`` (N,) (the record block's fields), in one pass: ``rint((v - origin) / scale)``,
+    the operations ``np.subtract``, ``np.divide`` and ``np.rint`` do, so the same steps. ``low`` and
+    ``high`` (3,) float64 take the running bounds in steps. Returns -1, or ``3 * row + axis`` of the
+    first coordinate whose step is not finite or does not fit an int32 (nothing is written from it on)."""
+    lowest, highest = -2147483648.0, 2147483647.0
+    out = (x, y, z)
+    for i in range(xyz.shape[0]):
+        for axis in range(3):
+            step = np.rint((xyz[i, axis] - origin[axis]) / scale)
+            if not (step >= lowest and step <= highest):  # also NaN
+                return 3 * i + axis
+            out[axis][i] = np.int32(step)
+            if step < low[axis]:
+                low[axis] = step
+            if step > high[axis]:
+                high[axis] = step
+    return -1
+
+
 class LasCloudWriter(StreamingCloudWriter):
     """Streams ``PointCloud`` chunks into a LAS 1.4 (``compress=False``) or LAZ file."""
 
@@ -138,7 +164,7 @@ class LasCloudWriter(StreamingCloudWriter):
         self._writer: laspy.LasWriter | None = None
         self._point_format: laspy.PointFormat | None = None
         self._block: np.ndarray | None = None  # (BLOCK_POINTS,) packed point records being filled
-        self._scratch: np.ndarray | None = None  # (BLOCK_POINTS,) f8 work space for quantising
+        self._scratch: np.ndarray | None = None  # (BLOCK_POINTS,) f8 work space for quantising beam origins
         self._fill = 0
         self._low = np.full(3, np.inf)  # bounds in coordinate steps, for the LAS header
         self._high = np.full(3, -np.inf)
@@ -147,34 +173,27 @@ class LasCloudWriter(StreamingCloudWriter):
     def _begin(self, columns: tuple[str, ...]) -> None:
         las_header = _las_header(self.header, columns)
         self._file = self._open_file(self.path)
-        backend = (laspy.LazBackend.LazrsParallel, laspy.LazBackend.Lazrs) if self.compress else None
+        backend = LAZ_BACKENDS if self.compress else None
         self._writer = laspy.LasWriter(
             self._file, las_header, do_compress=self.compress, laz_backend=backend, closefd=False
         )
         self._point_format = self._writer.header.point_format
         self._block = np.zeros(BLOCK_POINTS, dtype=self._point_format.dtype())
-        self._block["bit_fields"] = 0b0001_0001  # return 1 of 1 (LAS 1.4 forbids return number 0)
-        self._scratch = np.empty(BLOCK_POINTS, dtype=np.float64)
+        # zeros, touched only where rows are encoded (a small unit never faults most of its pages in)
 
     def _encode(self, chunk: PointCloud, out: np.ndarray) -> None:
         """Quantise and pack ``chunk`` into ``out`` (rows of the point record block)."""
-        assert self._scratch is not None
         origin = self.header.origin
-        steps = self._scratch[: len(chunk)]
-        for axis, name in enumerate("XYZ"):
-            np.subtract(chunk.xyz[:, axis], origin[axis], out=steps)
-            np.divide(steps, LAS_SCALE_M, out=steps)
-            np.rint(steps, out=steps)
-            low, high = steps.min(), steps.max()
-            if not (low >= _INT32[0] and high <= _INT32[1]):  # also catches NaN
-                worst = chunk.xyz[np.argmax(np.abs(np.nan_to_num(steps, nan=np.inf))), axis]
+        if len(chunk):
+            xyz = np.ascontiguousarray(chunk.xyz, dtype=np.float64)
+            bad = quantise_xyz(xyz, np.asarray(origin, dtype=np.float64), LAS_SCALE_M, out["X"], out["Y"], out["Z"],
+                               self._low, self._high)
+            if bad >= 0:
+                axis, row = bad % 3, bad // 3
                 raise OutputError(
-                    f"{self.path}: {'xyz'[axis]} = {worst} m does not fit LAS 0.1 mm steps around the "
+                    f"{self.path}: {'xyz'[axis]} = {xyz[row, axis]} m does not fit LAS 0.1 mm steps around the "
                     f"origin {origin[axis]} m (+-214 km); use finite coordinates and set CloudHeader.origin near the data"
                 )
-            self._low[axis] = min(self._low[axis], low)
-            self._high[axis] = max(self._high[axis], high)
-            out[name] = steps
         if chunk.label is not None:
             out["classification"] = chunk.label
         if chunk.intensity is not None:
@@ -191,6 +210,7 @@ class LasCloudWriter(StreamingCloudWriter):
             out["bit_fields"] = number | (np.clip(chunk.number_of_returns, number, MAX_RETURNS) << 4)
             self._by_return += np.bincount(number, minlength=16)
         else:
+            out["bit_fields"] = 0b0001_0001  # return 1 of 1 (LAS 1.4 forbids return number 0)
             self._by_return[1] += len(chunk)
         if chunk.rgb is not None:
             for channel, name in enumerate(("red", "green", "blue")):
@@ -200,6 +220,9 @@ class LasCloudWriter(StreamingCloudWriter):
         if chunk.channel is not None:  # LAS 1.4 scanner_channel: bits 4-5 of the classification flags byte
             out["classification_flags"] = (out["classification_flags"] & 0b1100_1111) | (chunk.channel.astype(np.uint8) << 4)
         if chunk.sensor_xyz is not None:
+            if self._scratch is None:
+                self._scratch = np.empty(BLOCK_POINTS, dtype=np.float64)
+            steps = self._scratch[: len(chunk)]
             for axis, name in enumerate(SENSOR_DIMENSIONS):
                 np.subtract(chunk.sensor_xyz[:, axis], origin[axis], out=steps)
                 np.divide(steps, LAS_SCALE_M, out=steps)
@@ -211,7 +234,8 @@ class LasCloudWriter(StreamingCloudWriter):
         while start < len(chunk):
             take = min(len(chunk) - start, BLOCK_POINTS - self._fill)
             part = chunk if take == len(chunk) else chunk.take(slice(start, start + take))
-            self._encode(part, self._block[self._fill : self._fill + take])
+            with self.clock.step("encode"):
+                self._encode(part, self._block[self._fill : self._fill + take])
             self._fill += take
             start += take
             if self._fill == BLOCK_POINTS:
@@ -223,7 +247,8 @@ class LasCloudWriter(StreamingCloudWriter):
             # (known from _encode) and the return counts (all 1) with a sort of every block.
             record = PackedPointRecord(self._block[: self._fill], self._point_format)
             try:
-                with signals_held():  # lazrs would turn a Ctrl-C inside its write callback into an IoError
+                # lazrs would turn a Ctrl-C inside its write callback into an IoError: signals wait
+                with signals_held(), self.clock.step("compress" if self.compress else "store"):
                     self._writer.point_writer.write_points(record)
             except (LaspyException, RuntimeError) as exc:  # lazrs raises LazrsError(RuntimeError)
                 raise OutputError(f"could not write {self.path} ({exc}); check the disk and run again") from exc

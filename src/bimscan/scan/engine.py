@@ -23,8 +23,10 @@ from __future__ import annotations
 
 import ctypes
 import functools
+import importlib
 import importlib.util
 import sys
+import types
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
@@ -52,13 +54,52 @@ def mesh_centre(mesh: SceneMesh) -> np.ndarray:
     return np.round((lo + hi) / 2.0)
 
 
+_PLOTLY_VIEWER = "open3d.visualization.draw_plotly"
+_PLOTLY_NAMES = ("get_plotly_fig", "draw_plotly", "draw_plotly_server")
+
+
+def import_open3d() -> types.ModuleType:
+    """Open3D, imported without its Plotly/Dash web viewer until something calls the viewer.
+
+    ``import open3d`` imports ``open3d.visualization.draw_plotly``, and with it Plotly and the
+    Dash web framework: about half of Open3D's import (0.7-0.9 s of 1.4-1.8 s on the 2-core
+    machine), paid by every process that casts rays (each ``bimscan scan``, each build worker)
+    and never used by bimscan. A stand-in takes that module's place while Open3D is imported; its
+    three functions import the real viewer on their first call and put the real functions in
+    ``open3d.visualization``, so code in the same process that draws with Plotly loses nothing."""
+    if "open3d" in sys.modules:
+        return sys.modules["open3d"]
+    stand_in = types.ModuleType(_PLOTLY_VIEWER, "Open3D's Plotly viewer, imported on first use (bimscan.scan.engine)")
+    for name in _PLOTLY_NAMES:
+        setattr(stand_in, name, _viewer_on_first_call(name))
+    sys.modules[_PLOTLY_VIEWER] = stand_in
+    try:
+        import open3d
+    finally:
+        if sys.modules.get(_PLOTLY_VIEWER) is stand_in:
+            del sys.modules[_PLOTLY_VIEWER]  # the next import of the viewer is the real one
+    return open3d
+
+
+def _viewer_on_first_call(name: str) -> Callable[..., object]:
+    def call(*args: object, **kwargs: object) -> object:
+        viewer = importlib.import_module(_PLOTLY_VIEWER)
+        visualization = sys.modules["open3d.visualization"]
+        for each in _PLOTLY_NAMES:  # as ``from .draw_plotly import ...`` leaves them
+            setattr(visualization, each, getattr(viewer, each))
+        return getattr(viewer, name)(*args, **kwargs)
+
+    call.__name__ = call.__qualname__ = name
+    return call
+
+
 class Open3DEngine:
     """Embree via Open3D's RaycastingScene; casts on all cores (or ``threads``)."""
 
     name = "open3d"
 
     def __init__(self, mesh: SceneMesh, *, threads: int = 0) -> None:
-        import open3d as o3d
+        o3d = import_open3d()
 
         self._o3d = o3d
         self.centre = mesh_centre(mesh)

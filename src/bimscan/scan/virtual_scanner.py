@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -19,6 +20,7 @@ from bimscan.scan import waveform
 from bimscan.scan.device import ScannerModel, ScanSettings
 from bimscan.scan.pattern import PulsePattern
 from bimscan.scan.sensor import SensorModel
+from bimscan.progress import StageClock
 from bimscan.types import ComponentSurfaces, ComponentTable, PointCloud, SceneMesh, Station
 
 if TYPE_CHECKING:
@@ -98,6 +100,17 @@ class VirtualScanner:
         self._ray_buffer = np.empty((0, 6), dtype=np.float32)
         self._pulse_buffer = np.empty(0, dtype=np.int64)
         self._output_buffers: tuple[np.ndarray, ...] = (np.empty((0, 3)),)
+        # where the scans' time goes: "rays" (generating them), "cast" (the engine's queries); the
+        # survey adds "scan" (all of it), so the rest (noise, labels, compaction) is scan - rays - cast
+        self.clock = StageClock()
+
+    def cast(self, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The engine's ``cast`` of ``rays`` (N, 6), timed as the clock's "cast" step."""
+        start = time.perf_counter()
+        try:
+            return self.engine.cast(rays)
+        finally:
+            self.clock.add("cast", time.perf_counter() - start)
 
     def _set_threads(self) -> None:
         if self.threads:
@@ -152,7 +165,8 @@ class VirtualScanner:
                 if on_pulses is not None:
                     on_pulses(n)
                 lines = LineChunk(first_line=first_line, start=start, stop=stop, offsets=offsets, n=n)
-                kept = fused(pattern, station.heading_deg, lines, hits, self._face_tables, columns)
+                with self.clock.step("cast"):  # rays made, cast and finished in one device call
+                    kept = fused(pattern, station.heading_deg, lines, hits, self._face_tables, columns)
                 if kept:
                     yield self._chunk_cloud(columns, kept, registration, origin_world)
                 continue
@@ -160,9 +174,11 @@ class VirtualScanner:
                 self._ray_buffer = np.empty((n, 6), dtype=np.float32)
                 self._pulse_buffer = np.empty(n, dtype=np.int64)
             rays, pulse = self._ray_buffer[:n], self._pulse_buffer[:n]
-            generate_rays(start, stop, offsets, first_line, pattern.dphase, pattern.sweep_deg, pattern.head_start_deg,
-                          pattern.head_deg_per_pulse, station.heading_deg, origin_local.astype(np.float32), rays, pulse)
-            t_hit, triangle = self.engine.cast(rays)
+            with self.clock.step("rays"):
+                generate_rays(start, stop, offsets, first_line, pattern.dphase, pattern.sweep_deg,
+                              pattern.head_start_deg, pattern.head_deg_per_pulse, station.heading_deg,
+                              origin_local.astype(np.float32), rays, pulse)
+            t_hit, triangle = self.cast(rays)
             xyz, label, component, station_column, intensity, time = self._outputs(n, reuse_buffers)
             if on_pulses is not None:
                 on_pulses(n)
@@ -211,10 +227,12 @@ class VirtualScanner:
             rays = self._work("mobile_rays", (n, 6), np.float32)
             origin = self._work("mobile_origin", (n, 3), np.float64)
             pulse_time = self._work("mobile_time", (n,), np.float64)
-            moving_rays(np.int64(first), np.int64(n), np.int64(n_beams), lidar.firing_cycle_us * 1e-6, float(t[0]),
-                        firing, cos_el, sin_el, azimuth_offset, 2 * math.pi * mobile.rotation_hz, t, xyz_track, ypr,
-                        lever, rotation, 2 * math.pi * mount.head_rotation_hz, centre, rays, origin, pulse_time)
-            t_hit, triangle = self.engine.cast(rays)
+            with self.clock.step("rays"):
+                moving_rays(np.int64(first), np.int64(n), np.int64(n_beams), lidar.firing_cycle_us * 1e-6,
+                            float(t[0]), firing, cos_el, sin_el, azimuth_offset, 2 * math.pi * mobile.rotation_hz, t,
+                            xyz_track, ypr, lever, rotation, 2 * math.pi * mount.head_rotation_hz, centre, rays, origin,
+                            pulse_time)
+            t_hit, triangle = self.cast(rays)
             if on_pulses is not None:
                 on_pulses(n)
             if recipe.sensor.is_paper:
@@ -378,9 +396,11 @@ class VirtualScanner:
             n_all = int(offsets[-1])
             rays = self._work("rays", (n_all, 6), np.float32)
             pulse = self._work("pulse", (n_all,), np.int64)
-            generate_rays(start, stop, offsets[:-1], halo_lo, pattern.dphase, pattern.sweep_deg, pattern.head_start_deg,
-                          pattern.head_deg_per_pulse, station.heading_deg, origin_local, rays, pulse)
-            t0, tri0 = self.engine.cast(rays)
+            with self.clock.step("rays"):
+                generate_rays(start, stop, offsets[:-1], halo_lo, pattern.dphase, pattern.sweep_deg,
+                              pattern.head_start_deg, pattern.head_deg_per_pulse, station.heading_deg, origin_local,
+                              rays, pulse)
+            t0, tri0 = self.cast(rays)
             flagged = np.zeros(n_all, dtype=np.bool_)  # pulses that get the whole sub-ray pattern
             if footprint and n_sub:
                 if adaptive:
@@ -453,7 +473,7 @@ class VirtualScanner:
         np.cumsum(_POPCOUNT[probe_bits], out=probe_offsets[1:])
         probes = np.empty((int(probe_offsets[-1]), 6), dtype=np.float32)
         waveform.probe_rays(rays, candidates, probe_bits, probe_offsets, device.beam_divergence_rad / 2.0, probes)
-        t_probe, tri_probe = self.engine.cast(probes)
+        t_probe, tri_probe = self.cast(probes)
         return candidates[waveform.straddling(candidates, probe_offsets, t0, tri0, t_probe, tri_probe,
                                               self.face_component, device.min_range_m, device.max_range_m,
                                               edge_depth_m)]
@@ -471,7 +491,7 @@ class VirtualScanner:
         parts = []
         if layers:
             centre = slice(first, first + n_int)
-            index, layer, t, tri = waveform.cast_layers(self.engine, rays[centre], t0[centre], tri0[centre],
+            index, layer, t, tri = waveform.cast_layers(self, rays[centre], t0[centre], tri0[centre],
                                                         tables.transparent_face, layers)
             parts.append((index + first, np.zeros(len(index), np.int64), layer, t, tri))
         flagged_index = np.flatnonzero(flagged)
@@ -479,14 +499,14 @@ class VirtualScanner:
             sub_rays = np.empty((len(flagged_index) * n_sub, 6), dtype=np.float32)
             waveform.footprint_rays(rays, flagged_index, np.cos(off[1:]), np.sin(off[1:]), np.cos(azimuth[1:]),
                                     np.sin(azimuth[1:]), sub_rays)
-            t_sub, tri_sub = self.engine.cast(sub_rays)
+            t_sub, tri_sub = self.cast(sub_rays)
             sub_pulse = np.repeat(flagged_index, n_sub)
             sub_id = np.tile(np.arange(1, n_sub + 1, dtype=np.int64), len(flagged_index))
             hit = tri_sub < n_faces
             parts.append((sub_pulse[hit], sub_id[hit], np.zeros(int(hit.sum()), np.int64),
                           t_sub[hit].astype(np.float64), tri_sub[hit]))
             if layers:
-                index, layer, t, tri = waveform.cast_layers(self.engine, sub_rays, t_sub, tri_sub,
+                index, layer, t, tri = waveform.cast_layers(self, sub_rays, t_sub, tri_sub,
                                                             tables.transparent_face, layers)
                 parts.append((sub_pulse[index], sub_id[index], layer, t, tri))
         if not parts:

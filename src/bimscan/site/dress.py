@@ -47,10 +47,13 @@ class DressTimings:
     floor_s: float = 0.0  # probing the free floor of every room
     placement_s: float = 0.0  # placing the objects
     rooms: int = 0
+    cut_s: float = 0.0  # cutting the ceiling tiles where lay-in fittings sit
+    # per room, in order: (name, objects placed, seconds placing them)
+    per_room: tuple[tuple[str, int, float], ...] = ()
 
     @property
     def total_s(self) -> float:
-        return self.stage_s + self.floor_s + self.placement_s
+        return self.stage_s + self.floor_s + self.placement_s + self.cut_s
 
 
 def default_kinds(site: SiteModel) -> tuple[str, ...]:
@@ -90,7 +93,8 @@ def dress_scene_timed(scene: BimScene, site: SiteModel, *, seed: int,
     stage_s = time.perf_counter() - start
 
     placed: list[PlacedObject] = []
-    floor_s = placement_s = 0.0
+    floor_s = placement_s = cut_s = 0.0
+    per_room: list[tuple[str, int, float]] = []
     rooms_count, free_floor = 0, 0.0
     wants_props = stage.props_fraction > 0
     kinds = select_kinds(default_kinds(site)) if site.clutter.density > 0 else ()
@@ -109,6 +113,7 @@ def dress_scene_timed(scene: BimScene, site: SiteModel, *, seed: int,
         bar = progress_bar(total=len(rooms), desc="dressing rooms", unit="room", enabled=progress)
         for room in rooms:
             bar.update(1)
+            room_start = time.perf_counter()
             free_floor += room.free_area_m2()
             rng = np.random.default_rng(np.random.SeedSequence(
                 [seed, zlib.crc32(scene.file_sha256.encode()), zlib.crc32(room.key.encode())]))
@@ -121,16 +126,20 @@ def dress_scene_timed(scene: BimScene, site: SiteModel, *, seed: int,
                 if rng.random() < kind.room_probability:
                     placer.place_ceiling_grid(kind, soffits, coverings)
             placed += placer.placed
+            per_room.append((room.name, len(placer.placed), time.perf_counter() - room_start))
         bar.close()
+        placement_s = time.perf_counter() - t0
+        t0 = time.perf_counter()
         openings = [p.footprint for p in placed if p.opening]
         if openings:  # lay-in fittings: the ceiling tiles are cut where they sit
             staged = dataclasses.replace(staged, mesh=cut_openings(staged.mesh, coverings, openings))
-        placement_s = time.perf_counter() - t0
+        cut_s = time.perf_counter() - t0
     state = SiteState(settings=site_settings(site, seed), removed=dict(sorted(removed.items())),
                       placed=dict(sorted(Counter(p.class_name for p in placed).items())), rooms=rooms_count,
                       free_floor_m2=free_floor)
     dressed = _append(staged, placed, seed=seed)
-    return dataclasses.replace(dressed, site=state), DressTimings(stage_s, floor_s, placement_s, rooms_count)
+    return dataclasses.replace(dressed, site=state), DressTimings(stage_s, floor_s, placement_s, rooms_count, cut_s,
+                                                                  tuple(per_room))
 
 
 def _place_clutter(placer: RoomPlacer, kinds: tuple[ClutterKind, ...], expected: float,

@@ -92,6 +92,23 @@ class Polygons:
             out = out.clip(axis, bound, keep_below=keep_below)
         return out
 
+    def bounds_xy(self) -> tuple[np.ndarray, np.ndarray]:
+        """(P, 2) lowest and highest x, y of each polygon's vertices (inf / -inf for an empty one)."""
+        valid = (np.arange(self.vertices.shape[1])[None, :] < self.count[:, None])[:, :, None]
+        xy = self.vertices[:, :, :2]
+        return np.where(valid, xy, np.inf).min(axis=1, initial=np.inf), np.where(valid, xy, -np.inf).max(
+            axis=1, initial=-np.inf)
+
+    def areas(self) -> np.ndarray:
+        """(P,) area of each polygon in square metres (in 3-D: a vertical polygon has its own area,
+        not its footprint's); 0 for fewer than 3 vertices."""
+        if self.vertices.shape[1] < 3:
+            return np.zeros(len(self.count))
+        spokes = self.vertices[:, 1:] - self.vertices[:, :1]  # from the first vertex to the others
+        fans = np.cross(spokes[:, :-1], spokes[:, 1:])  # (P, K - 2, 3): twice each fan triangle's area vector
+        used = np.arange(fans.shape[1])[None, :] < (self.count[:, None] - 2)
+        return np.linalg.norm(np.where(used[:, :, None], fans, 0.0).sum(axis=1), axis=1) / 2
+
     def fan_triangles(self, first_vertex: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The polygons as triangle fans: (vertices (V, 3) float64 in polygon order, faces (T, 3)
         int32 numbered from ``first_vertex``, polygon (T,) int64 each triangle's polygon).

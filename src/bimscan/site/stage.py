@@ -30,6 +30,7 @@ from bimscan.types import BimScene, BuildDates, SceneMesh
 
 CEILING_MODULE_M = 0.6  # suspended ceiling tiles, 600 x 600 mm (EN 13964)
 GRID_TOLERANCE_M = 0.3  # column centres this close lie on one grid line
+MIN_CUT_AREA_M2 = 1e-10  # a piece that reaches into an opening by less than this (it touches an edge) stays whole
 # aggregates whose parts are built with them (IFC2X3/IFC4 IfcBuildingElement, IFC4X3 IfcBuiltElement)
 PART_OWNERS = ("IfcBuildingElement", "IfcBuiltElement", "IfcFurnishingElement")
 
@@ -163,46 +164,111 @@ def ceiling_coverings(scene: BimScene) -> np.ndarray:
 def cut_openings(mesh: SceneMesh, cut: np.ndarray, openings: list[np.ndarray]) -> SceneMesh:
     """The mesh with vertical rectangular openings cut through the components in ``cut`` ((C,) bool):
     every opening is a rectangle of 4 world xy corners (in order, any orientation), and each of
-    those components' triangles that it meets is replaced by the parts of it outside the opening
+    those components' triangles that it overlaps is replaced by the parts of it outside the opening
     (a ceiling tile's underside and top alike, so a fitting set into it is seen through it).
-    Openings are cut one after another, each through every triangle it meets at once."""
+
+    Openings are cut one after another. An opening cuts only the pieces that reach into it (by
+    more than ``MIN_CUT_AREA_M2``), each into at most four (the strips beside the opening and the
+    parts before and after it); the other pieces keep their vertices. So a tile holding n fittings
+    ends in about 4 n pieces, and the work follows the fittings: openings and triangles are cut in
+    groups that share no triangle (a room's ceiling, usually), each group on its own pieces.
+    Triangles no opening cuts keep their place; the pieces of the cut ones follow the mesh's faces,
+    triangle by triangle in mesh order, each triangle's pieces in the order the cuts left them."""
     if not openings or not cut.any():
         return mesh
     candidates = np.flatnonzero(cut[mesh.face_component])
     corners3 = mesh.vertices[mesh.faces[candidates]]
     lo, hi = corners3[:, :, :2].min(axis=1), corners3[:, :, :2].max(axis=1)
     rects = [_rectangle(corners) for corners in openings]
-    meets = np.zeros(len(candidates), dtype=bool)
-    for _, _, _, rlo, rhi in rects:
-        meets |= ((lo < rhi) & (hi > rlo)).all(axis=1)
-    triangles = np.flatnonzero(meets)
-    parts = Polygons.of_triangles(corners3[triangles])
-    owner = np.arange(len(triangles))  # each part's triangle (index into ``triangles``), parts in order
-    for to_local, (x0, y0), (x1, y1), rlo, rhi in rects:
-        t_lo, t_hi = lo[triangles[owner]], hi[triangles[owner]]
-        affected = ~((t_lo >= rhi).any(axis=1) | (t_hi <= rlo).any(axis=1))
-        if not affected.any():
-            continue
-        local = parts.take(affected).rotated_xy(to_local.T)
-        inf = np.inf
-        regions = [local.clip_to_box(*bounds) for bounds in
-                   ((-inf, x0, -inf, inf), (x1, inf, -inf, inf), (x0, x1, -inf, y0), (x0, x1, y1, inf))]
-        # the parts outside the opening replace each affected part in place, region by region
-        position = np.flatnonzero(affected)
-        keys = [4 * np.flatnonzero(~affected)]
-        pieces = [parts.take(~affected)]
-        owners = [owner[~affected]]
-        for r, region in enumerate(regions):
-            whole = region.count >= 3
-            keys.append(4 * position[whole] + r)
-            pieces.append(region.take(whole).rotated_xy(to_local))
-            owners.append(owner[affected][whole])
-        order = np.argsort(np.concatenate(keys), kind="stable")
-        parts = Polygons.concatenate(pieces).take(order)
-        owner = np.concatenate(owners)[order]
+    opening, triangle = _boxes_meeting(np.array([r[3] for r in rects]), np.array([r[4] for r in rects]), lo, hi)
+    pieces: list[Polygons] = []
+    owners: list[np.ndarray] = []
+    changed = np.zeros(len(candidates), dtype=bool)  # triangles some opening cut
+    for group_openings, group_triangles in _linked_groups(opening, triangle, len(rects), len(candidates)):
+        parts, owner = Polygons.of_triangles(corners3[group_triangles]), group_triangles
+        for o in group_openings:
+            parts, source, fresh = _cut_one(parts, rects[o])
+            owner = owner[source]
+            changed[owner[fresh]] = True
+        pieces.append(parts)
+        owners.append(owner)
+    if not changed.any():
+        return mesh
+    parts, owner = Polygons.concatenate(pieces), np.concatenate(owners)
+    keep = np.flatnonzero(changed[owner])
+    keep = keep[np.argsort(owner[keep], kind="stable")]  # by triangle, each one's pieces in their order
     removed = np.zeros(len(mesh.faces), dtype=bool)
-    removed[candidates[meets]] = True
-    return _replace_faces(mesh, removed, parts, mesh.face_component[candidates[triangles[owner]]])
+    removed[candidates[changed]] = True
+    return _replace_faces(mesh, removed, parts.take(keep), mesh.face_component[candidates[owner[keep]]])
+
+
+def _cut_one(parts: Polygons, rect: tuple[np.ndarray, ...]) -> tuple[Polygons, np.ndarray, np.ndarray]:
+    """``parts`` with one opening cut (``_rectangle``'s tuple): every part that reaches into it
+    replaced in place by its pieces outside it. Returns the new parts, the part each came from
+    (index into ``parts``) and whether it is a new piece."""
+    to_local, (x0, y0), (x1, y1), rlo, rhi = rect
+    same = (parts, np.arange(len(parts)), np.zeros(len(parts), dtype=bool))
+    plo, phi = parts.bounds_xy()
+    near = np.flatnonzero(((plo < rhi) & (phi > rlo)).all(axis=1))
+    if len(near) == 0:
+        return same
+    local = parts.take(near).rotated_xy(to_local.T)
+    reaches = local.clip_to_box(x0, x1, y0, y1).areas() > MIN_CUT_AREA_M2
+    if not reaches.any():
+        return same
+    hit, local = near[reaches], local.take(reaches)
+    inf = np.inf
+    regions = [local.clip_to_box(*bounds) for bounds in
+               ((-inf, x0, -inf, inf), (x1, inf, -inf, inf), (x0, x1, -inf, y0), (x0, x1, y1, inf))]
+    untouched = np.ones(len(parts), dtype=bool)
+    untouched[hit] = False
+    kept = np.flatnonzero(untouched)
+    keys, pieces, sources, fresh = [4 * kept], [parts.take(kept)], [kept], [np.zeros(len(kept), dtype=bool)]
+    for r, region in enumerate(regions):
+        whole = region.count >= 3
+        keys.append(4 * hit[whole] + r)
+        pieces.append(region.take(whole).rotated_xy(to_local))
+        sources.append(hit[whole])
+        fresh.append(np.ones(int(whole.sum()), dtype=bool))
+    order = np.argsort(np.concatenate(keys), kind="stable")  # each cut part's pieces take its place
+    return Polygons.concatenate(pieces).take(order), np.concatenate(sources)[order], np.concatenate(fresh)[order]
+
+
+def _boxes_meeting(a_lo: np.ndarray, a_hi: np.ndarray, b_lo: np.ndarray,
+                   b_hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The (a, b) index pairs of xy boxes (rows of (N, 2) low and high corners) that overlap with
+    positive area, ordered by a. One comparison per pair, in blocks of rows (bounded memory)."""
+    rows: list[np.ndarray] = []
+    columns: list[np.ndarray] = []
+    block = max(1, 4_000_000 // max(len(b_lo), 1))
+    for start in range(0, len(a_lo), block):
+        lo, hi = a_lo[start:start + block, None, :], a_hi[start:start + block, None, :]
+        meet = ((b_lo[None] < hi) & (b_hi[None] > lo)).all(axis=2)
+        r, c = np.nonzero(meet)
+        rows.append(r + start)
+        columns.append(c)
+    return np.concatenate(rows), np.concatenate(columns)
+
+
+def _linked_groups(a: np.ndarray, b: np.ndarray, n_a: int, n_b: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The connected groups of the pairs (a[k], b[k]) as (sorted a's, sorted b's), items in no pair left out."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    if len(a) == 0:
+        return []
+    graph = coo_matrix((np.ones(len(a), dtype=np.int8), (a, n_a + b)), shape=(n_a + n_b, n_a + n_b))
+    _, label = connected_components(graph, directed=False)
+    used = np.zeros(n_a + n_b, dtype=bool)
+    used[a] = True
+    used[n_a + b] = True
+    nodes = np.flatnonzero(used)
+    order = nodes[np.argsort(label[nodes], kind="stable")]
+    bounds = np.flatnonzero(np.diff(label[order])) + 1
+    groups = []
+    for members in np.split(order, bounds):  # each group's members in increasing order
+        groups.append((members[members < n_a], members[members >= n_a] - n_a))
+    return groups
 
 
 def _rectangle(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

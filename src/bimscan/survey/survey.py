@@ -183,9 +183,10 @@ def run_survey(survey: Survey, *, on_pulses: Callable[[int], None] | None = None
         yield from _run_mobile(survey, on_pulses=on_pulses, reuse_buffers=reuse_buffers)
         return
     duration = survey.recipe.settings.duration_s()
+    clock = survey.scanner.clock
     for index, station in enumerate(survey.stations):
-        yield from survey.scanner.scan_station(station, survey.recipe, time0_s=index * duration, on_pulses=on_pulses,
-                                               reuse_buffers=reuse_buffers)
+        yield from clock.timed("scan", survey.scanner.scan_station(station, survey.recipe, time0_s=index * duration,
+                                                                   on_pulses=on_pulses, reuse_buffers=reuse_buffers))
 
 
 def _run_mobile(survey: Survey, *, on_pulses: Callable[[int], None] | None,
@@ -195,10 +196,12 @@ def _run_mobile(survey: Survey, *, on_pulses: Callable[[int], None] | None,
 
     recipe, trajectory = survey.recipe, survey.trajectory
     drift = None if recipe.mobile.drift.is_off else drift_track(trajectory, recipe.mobile.drift, recipe.seed)
+    clock = survey.scanner.clock
     for pass_id, part in enumerate(trajectory.pass_slices()):
         for mount_index in range(len(recipe.mobile.platform.mounts)):
-            yield from survey.scanner.scan_pass(trajectory, part, pass_id, mount_index, recipe, drift=drift,
-                                                on_pulses=on_pulses, reuse_buffers=reuse_buffers)
+            yield from clock.timed("scan", survey.scanner.scan_pass(trajectory, part, pass_id, mount_index, recipe,
+                                                                    drift=drift, on_pulses=on_pulses,
+                                                                    reuse_buffers=reuse_buffers))
 
 
 def probe_points_per_pulse(scene: BimScene, recipe: ScanRecipe, stations: tuple[Station, ...], *,
