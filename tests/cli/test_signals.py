@@ -51,18 +51,23 @@ def test_sigterm_and_ctrl_c_at_random_moments_of_a_mobile_scan_to_laz_say_so_and
     # A mobile scan spends about half its time in lazrs, whose write callback swallowed the signal's exception
     # ("could not write ...laz (IoError: Failed to call write); check the disk", exit 1, 5 tries in 8)
     moments = random.Random(41)
+    finished = 0
     for attempt in range(8):
         number = (signal.SIGTERM, signal.SIGINT)[attempt % 2]
         folder = tmp_path / str(attempt)
         folder.mkdir()
-        process = _start(["scan", str(box_room_ifc), "walk.laz", "--platform", "handheld"], folder)
+        process = _start(["scan", str(box_room_ifc), "walk.laz", "--platform", "backpack"], folder)
         _wait_for(lambda: any(p.name.startswith(".walk.laz.") for p in folder.iterdir()), process)
-        time.sleep(moments.uniform(0.0, 1.5))
+        time.sleep(moments.uniform(0.0, 1.0))
         process.send_signal(number)
         if attempt % 4 == 3:  # pressed twice
             time.sleep(moments.uniform(0.0, 0.3))
             process.send_signal(number)
         _, err = process.communicate(timeout=120)
+        if process.returncode == 0:  # the scan finished before the signal came: nothing to test this time
+            finished += 1
+            assert finished <= 2, "the scans finish before the signals: give them more to do"
+            continue
         what, status = ("terminated", 143) if number == signal.SIGTERM else ("interrupted", 130)
         # (a second signal that lands after the line, while Python shuts down, ends the process by that signal:
         # the shell shows the same status, 128 + the signal's number)

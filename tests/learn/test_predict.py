@@ -178,8 +178,8 @@ def test_a_foreign_las_without_return_numbers_is_predicted_to_e57(tmp_path: Path
     assert int(laspy.read(scan).return_number.max()) == 0
     checkpoint = trained_run / "run" / "last.pt"
 
-    result = predict_cloud(checkpoint, scan, tmp_path / "labelled.e57", device="cpu", max_passes=1)
-    predict_cloud(checkpoint, scan, tmp_path / "labelled.laz", device="cpu", max_passes=1)
+    result = predict_cloud(checkpoint, scan, tmp_path / "labelled.e57", device="cpu", evaluation=EvalConfig(max_passes=1))
+    predict_cloud(checkpoint, scan, tmp_path / "labelled.laz", device="cpu", evaluation=EvalConfig(max_passes=1))
 
     e57, laz = read_cloud(tmp_path / "labelled.e57"), read_cloud(tmp_path / "labelled.laz")
     assert len(e57) == len(laz) == result.points

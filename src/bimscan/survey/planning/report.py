@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from bimscan.errors import OutputError
-from bimscan.files import dump_json, remove_path, replace_path, temp_path
+from bimscan.files import FOLDER_OUTPUTS, FolderOutput, dump_json, folder_entries, remove_path, replace_path, temp_path
 from bimscan.survey.planning.plan import PlanEvaluation, SurveyPlan
 from bimscan.survey.stations import format_stations
 
@@ -42,6 +42,21 @@ SCAN_COLUMNS = ("scan_covered_fraction", "scan_median_density_pts_m2", "scan_sta
 def _is_plan_file(name: str) -> bool:
     return name in (STATIONS_FILE, COVERAGE_FILE, REGISTRATION_FILE, SUMMARY_FILE) or (
         name.startswith("plan_") and name.endswith(".png"))
+
+
+def foreign_plan_entries(folder: Path) -> list[str] | None:
+    """The entries of ``folder`` a plan did not write, or None when it is no plan folder (its
+    ``plan.json`` is missing or not a plan's): ``FOLDER_OUTPUTS["plan"]``."""
+    try:
+        kind = json.loads((folder / SUMMARY_FILE).read_text("utf-8")).get("kind")
+    except (OSError, ValueError, AttributeError):
+        return None
+    if kind != PLAN_KIND:
+        return None
+    return sorted(name for name in folder_entries(folder) if not _is_plan_file(name))
+
+
+FOLDER_OUTPUTS["plan"] = FolderOutput(what="a bimscan plan folder", foreign=foreign_plan_entries)
 
 
 def check_plan_output(out: Path, *, overwrite: bool) -> None:
@@ -118,7 +133,7 @@ def write_plan_folder(out: Path, plan: SurveyPlan, evaluation: PlanEvaluation, *
         names = pictures(staged) if pictures is not None else []
         document = {"kind": PLAN_KIND, **summary, "pictures": names}
         (staged / SUMMARY_FILE).write_bytes(dump_json(document))
-        replace_path(staged, out)
+        replace_path(staged, out, kind="plan")
     finally:
         remove_path(staged)  # gone already when the rename succeeded
     return [STATIONS_FILE, COVERAGE_FILE, REGISTRATION_FILE, SUMMARY_FILE, *names]
