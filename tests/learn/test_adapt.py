@@ -162,3 +162,22 @@ def test_adaptation_settings_are_checked_where_declared() -> None:
         AdaptConfig(pseudo_share=0.0)
     with pytest.raises(ConfigError, match=r"mix_cells must be an integer in 1..8, got 9"):
         AdaptConfig(mix_cells=9)
+
+
+def test_a_column_whose_points_all_lie_in_the_synthetic_cells_is_trained_alone() -> None:
+    """A real room's edge column fills part of its footprint: when the cells left to it hold
+    none of its points, the block is the unlabelled column alone, never an empty block."""
+    rng = np.random.default_rng(5)
+    corner = rng.random((3000, 3)) * [0.9, 0.9, 3.0]  # one corner cell of a 2 m column
+    target = _tiles(corner, np.full(len(corner), IGNORE_LABEL))
+    source = _tiles(rng.random((3000, 3)) * [2.0, 2.0, 3.0], np.full(3000, 1))
+    blocks = AdaptedBlocks(target, source, points=512, size_m=2.0, seed=0, inputs=InputConfig(grid_m=0.0),
+                           augment=None, config=AdaptConfig(mix_cells=2))
+    from bimscan.learn.adapt import PseudoLabels
+
+    blocks.set_pseudo_labels(PseudoLabels(label=np.zeros(len(corner), np.uint8), thresholds=np.zeros(5),
+                                          predicted=np.zeros(5, np.int64), kept=np.zeros(5, np.int64)))
+    for slot in range(40):
+        block = blocks.block(0, slot)
+        assert block["mask"].sum() > 0
+        assert (block["label"][block["mask"]] == 0).any()  # the real column's own points are always there

@@ -52,6 +52,9 @@ from bimscan.learn.train_config import (
 )
 
 _PSEUDO_STREAM = 17  # seed streams of this module (the training loop's are 7 and 11)
+# a mixed block keeps the unlabelled column alone when its own cells hold none of its points, or
+# when the mix would hold fewer than this (a column at a room's edge fills only part of its footprint)
+MIN_MIXED_POINTS = 64
 _MIX_STREAM = 19
 
 
@@ -185,10 +188,11 @@ class AdaptedBlocks:
             # both tiles' coordinates are relative to their column's corner: cells line up
             own = ~synthetic[_cell(xyz, cells, self.size_m)]
             taken = synthetic[_cell(s_xyz, cells, self.size_m)]
-            xyz = np.concatenate([xyz[own], s_xyz[taken]])
-            label = np.concatenate([label[own], s_label[taken]])
-            height = np.concatenate([height[own], s_height[taken]])
-            rgb = None if rgb is None or s_rgb is None else np.concatenate([rgb[own], s_rgb[taken]])
+            if own.any() and own.sum() + taken.sum() >= MIN_MIXED_POINTS:  # else the unlabelled column alone
+                xyz = np.concatenate([xyz[own], s_xyz[taken]])
+                label = np.concatenate([label[own], s_label[taken]])
+                height = np.concatenate([height[own], s_height[taken]])
+                rgb = None if rgb is None or s_rgb is None else np.concatenate([rgb[own], s_rgb[taken]])
         return draw_block(xyz, label, height, points=self.points, rng=rng, inputs=self.inputs, augment=self.augment,
                           rgb=rgb)
 
