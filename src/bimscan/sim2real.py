@@ -38,14 +38,14 @@ if TYPE_CHECKING:
 
 
 def load_experiment(path: str | Path, *, real: Sequence[str | Path] | None = None,
-                    device: str | None = None) -> Experiment:
+                    device: str | None = None, seed: int | None = None) -> Experiment:
     """Parse and check an experiment TOML before any work (one-line ConfigError/InputFileError):
     the file (:func:`bimscan.learn.experiment.parse_experiment`), its variants' dataset specs and
     its holdout models and their scan settings. ``real`` replaces the ``[real] scenes`` of the
-    file; ``device`` its ``[train] device``."""
+    file; ``device`` and ``seed`` the ``[train] device`` and ``[train] seed`` of every variant."""
     from bimscan.dataset.spec import load_spec
 
-    experiment = parse_experiment(path, real=real, device=device)
+    experiment = parse_experiment(path, real=real, device=device, seed=seed)
     for spec in sorted({s for v in experiment.variants for s in v.specs}):
         load_spec(spec)
     _holdout_spec(experiment)

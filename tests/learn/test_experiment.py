@@ -205,6 +205,17 @@ def test_real_scenes_on_the_command_line_replace_those_of_the_file(experiment_di
     assert config.data.val is not None and config.data.val.scenes == parsed.real.scenes
 
 
+def test_a_seed_on_the_command_line_replaces_every_variants_training_seed(experiment_dir: Path) -> None:
+    from bimscan.sim2real import _runs, _scored_scenes
+
+    parsed = load_experiment(experiment_dir / "exp.toml", seed=7)
+    for variant in parsed.variants:
+        config = training_config(parsed, _runs(parsed, variant, _scored_scenes(parsed))[0], experiment_dir / "out")
+        assert config.train.seed == 7
+    as_written = load_experiment(experiment_dir / "exp.toml")
+    assert {v.sections["train"].get("seed", 0) for v in as_written.variants} != {7}
+
+
 def test_every_shipped_experiment_and_spec_loads_on_a_fresh_clone(shipped_configs: Path) -> None:
     from bimscan.dataset.spec import load_spec
 

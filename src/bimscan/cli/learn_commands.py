@@ -203,7 +203,10 @@ def adapt(checkpoint: Path, scans: tuple[Path, ...], out_dir: Path, synthetic: t
 @click.option("--real", "real", multiple=True, type=click.Path(path_type=Path),
               help="Real labelled scenes to score on, replacing [real] scenes of the file (repeatable).")
 @click.option("--device", type=DEVICES, default=None, help="Replaces [train] device of the file.")
-def sim2real(experiment: Path, out_dir: Path, real: tuple[Path, ...], device: str | None) -> None:
+@click.option("--seed", type=click.IntRange(min=0), default=None,
+              help="Replaces [train] seed of every variant: a repeat with other weights and block order on the "
+                   "same scans (give each repeat its own OUT_DIR).")
+def sim2real(experiment: Path, out_dir: Path, real: tuple[Path, ...], device: str | None, seed: int | None) -> None:
     """Train variants (synthetic scans, real rooms, fine-tuned) and score each on real scans it never
     saw (see configs/experiments/sim2real_cpu.toml, configs/experiments/finetune_cpu.toml).
 
@@ -215,7 +218,7 @@ def sim2real(experiment: Path, out_dir: Path, real: tuple[Path, ...], device: st
     """
     from bimscan.sim2real import format_report, load_experiment, run_experiment
 
-    parsed = load_experiment(experiment, real=list(real) or None, device=device)
+    parsed = load_experiment(experiment, real=list(real) or None, device=device, seed=seed)
     results = run_experiment(parsed, out_dir, log=lambda text: click.echo(text, err=True))
     click.echo(format_report(results, parsed), nl=False)
 

@@ -191,11 +191,13 @@ class Experiment:
 
 
 def parse_experiment(path: str | Path, *, real: Sequence[str | Path] | None = None,
-                     device: str | None = None) -> Experiment:
+                     device: str | None = None, seed: int | None = None) -> Experiment:
     """Parse and check an experiment TOML (one-line ConfigError/InputFileError); its dataset specs
     and holdout models are checked by :func:`bimscan.sim2real.load_experiment`, which runs it.
 
-    ``real`` replaces the ``[real] scenes`` of the file; ``device`` its ``[train] device``.
+    ``real`` replaces the ``[real] scenes`` of the file; ``device`` and ``seed`` the ``[train]
+    device`` and ``[train] seed`` of every variant (a repeat of the experiment with other network
+    weights and block order, on the same scans).
     """
     path = Path(path).resolve()
     own = load_toml(path)
@@ -248,8 +250,8 @@ def parse_experiment(path: str | Path, *, real: Sequence[str | Path] | None = No
                 raise InputFileError(f"{item}: variant {table.name!r} data not found; fix the path in {path}")
             (specs if item.is_file() and item.suffix.lower() == ".toml" else folders).append(item)
         sections = {name: {**shared[name], **getattr(table, name)} for name in TRAINING_SECTIONS}
-        if device is not None:
-            sections["train"] = {**sections["train"], "device": device}
+        replaced = {key: value for key, value in (("device", device), ("seed", seed)) if value is not None}
+        sections["train"] = {**sections["train"], **replaced}
         check_moved_keys(sections, where=where)
         built = {name: build_dataclass(kind, sections[name], where=f"{where} [{name}]")
                  for name, kind in TRAINING_SECTIONS.items()}
