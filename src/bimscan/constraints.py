@@ -15,6 +15,11 @@ the CLI or Python, with one message shape: ``max_lr must be a number in (0, 1], 
 Checks across fields stay in the class's own ``check`` method, which runs after these.
 (scikit-learn's ``_parameter_constraints`` is the model: constraints are data, one validator.)
 
+A choice among a registry's names (a plain dict filled where it is defined, e.g. the IFC length
+units) is ``setting(..., among=REGISTRY)``, so the names stay in the registry alone. ``hint``
+says in the message what the number means where its name cannot (``sigma_m must be a number in
+[0, 1] (metres per 10 m walked), got 5``).
+
 ``setting(..., effect=...)`` also says what a change of the value touches: ``"model"`` (the
 default: what is computed), ``"scores"`` (how a trained model is evaluated, not the model), or
 ``"runtime"`` (where and how fast it runs, nothing computed). Resuming a training run accepts
@@ -28,6 +33,7 @@ import functools
 import math
 import types
 import typing
+from collections.abc import Collection
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -69,12 +75,19 @@ class Range:
             return f"{'<' if self.high_open else '<='} {show(high)}"
         return "finite"
 
+    @property
+    def bounded(self) -> bool:
+        return self.low is not None or self.high is not None
+
 
 def setting(default: Any = dataclasses.MISSING, *, factory: Any = dataclasses.MISSING, within: Range | None = None,
-            each: Range | None = None, effect: Effect = "model") -> Any:
+            each: Range | None = None, among: Collection[Any] | None = None, hint: str | None = None,
+            effect: Effect = "model") -> Any:
     """A dataclass field with its constraint: ``within`` for a number, ``each`` for every number of a
-    tuple (nested tuples too); ``effect``: see the module docs."""
-    metadata = {"within": within, "each": each, "effect": effect}
+    tuple (nested tuples too), ``among`` for a value that must be one of a registry's names (kept by
+    reference: the registry as it is when checked); ``hint``: what the value means, for the message
+    of a refusal (a unit, a reason); ``effect``: see the module docs."""
+    metadata = {"within": within, "each": each, "among": among, "hint": hint, "effect": effect}
     if factory is not dataclasses.MISSING:
         return dataclasses.field(default_factory=factory, metadata=metadata)
     return dataclasses.field(default=default, metadata=metadata)
@@ -89,9 +102,13 @@ def effect_of(cls: type, name: str) -> Effect:
 
 
 def choices_of(cls: type, name: str) -> tuple[Any, ...]:
-    """The values field ``name`` of settings class ``cls`` takes (its ``Literal``), for a CLI's
-    choice list: the one declaration, never a copy."""
+    """The values field ``name`` of settings class ``cls`` takes (its ``Literal``, or the registry
+    of its ``among``), for a CLI's choice list: the one declaration, never a copy."""
     choices = _literal_choices(_hints(cls).get(name))
+    if choices is None:
+        among = next((f.metadata.get("among") for f in dataclasses.fields(cls)  # type: ignore[arg-type]
+                      if f.name == name), None)
+        choices = None if among is None else tuple(among)
     if choices is None:
         raise KeyError(f"{cls.__name__}.{name} is not a choice")
     return choices
@@ -172,25 +189,38 @@ def check_settings(settings: Any) -> None:
         if value is None:
             continue
         hint = hints.get(item.name)
+        note = f" ({item.metadata['hint']})" if item.metadata.get("hint") else ""
         kind = _simple_type(hint)
         if kind is not None and not _of_type(value, kind):
-            raise refuse(f"{item.name} must be {_SIMPLE[kind]}, got {_show(value)}")
+            raise refuse(f"{item.name} must be {_SIMPLE[kind]}{note}, got {_show(value)}")
         choices = _literal_choices(hint)
         if choices is not None:
             values = value if isinstance(value, tuple) and typing.get_origin(hint) is tuple else (value,)
             wrong = [v for v in values if v not in choices]
             if wrong:
-                raise refuse(f"{item.name} takes {', '.join(map(repr, choices))}, got {wrong[0]!r}")
+                raise refuse(f"{item.name} takes {', '.join(map(repr, choices))}{note}, got {wrong[0]!r}")
+        among = item.metadata.get("among")
+        if among is not None and not _is_among(value, among):
+            raise refuse(f"{item.name} takes {', '.join(map(repr, among))}{note}, got {value!r}")
         within, each = item.metadata.get("within"), item.metadata.get("each")
         integer = _is_integer(hint)
         if within is not None and (isinstance(value, bool) or not within.admits(value)):
             kind_words = "an integer" if integer else "a number"
-            raise refuse(f"{item.name} must be {kind_words} {within.describe(integer=integer)}, got {_show(value)}")
+            allowed = (f"{kind_words} {within.describe(integer=integer)}" if within.bounded
+                       else f"a finite {kind_words.split()[-1]}")
+            raise refuse(f"{item.name} must be {allowed}{note}, got {_show(value)}")
         if each is not None:
             for number in _numbers(value):
                 if isinstance(number, bool) or not isinstance(number, int | float) or not each.admits(number):
-                    raise refuse(f"{item.name} takes numbers {each.describe(integer=False)}, got {_show(number)} "
-                                 f"in {list(value)}")
+                    allowed = f"numbers {each.describe(integer=False)}" if each.bounded else "finite numbers"
+                    raise refuse(f"{item.name} takes {allowed}{note}, got {_show(number)} in {list(value)}")
+
+
+def _is_among(value: Any, registry: Collection[Any]) -> bool:
+    try:
+        return value in registry
+    except TypeError:  # unhashable: no registry name
+        return False
 
 
 def _show(value: Any) -> str:
