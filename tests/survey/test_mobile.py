@@ -113,8 +113,11 @@ def test_drift_moves_each_sweep_rigidly_about_its_sensor():
 
 
 def test_impossible_drift_settings_are_refused():
-    with pytest.raises(ConfigError, match="metres per 10 m"):
+    with pytest.raises(ConfigError, match=r"^drift sigma_m must be a number in \[0, 1\] \(metres per 10 m walked\), "
+                                          r"got 5$"):
         DriftModel(sigma_m=5.0)
+    with pytest.raises(ConfigError, match=r"^drift smoothing_m must be a number in \[0, 100\], got inf$"):
+        DriftModel(smoothing_m=float("inf"))
 
 
 # -- planned walks ------------------------------------------------------------------------------------

@@ -9,12 +9,14 @@ import click
 
 from bimscan.cli.ifc_commands import LENGTH_UNIT_HELP, SCHEME_HELP
 from bimscan.cli.site_options import describe_site, site_options
+from bimscan.constraints import default_of
 from bimscan.ifc.units import LENGTH_UNITS
 from bimscan.scan.device import DEFAULT_PRESET, DEFAULT_SCANNER, PRESETS, SCANNERS
 from bimscan.scan.engine import AUTO_ENGINE, DEFAULT_ENGINE, ENGINES
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.sensor import REALISMS, RETURN_MODES, SensorModel
 from bimscan.scan.multibeam import LIDARS
+from bimscan.survey.drift import DriftModel
 from bimscan.survey.platform import PLATFORM_NAMES, TRIPOD
 from bimscan.survey.recipe import AUTO_STATIONS, DEFAULT_MAX_STATION_PULSES, DEFAULT_MAX_WALK_PULSES, ScanRecipe
 
@@ -58,7 +60,8 @@ if TYPE_CHECKING:
                    "back to its start; the default) or a CSV file t,x,y,z,roll,pitch,yaw (degrees).")
 @click.option("--drift", "drift_m", type=float, default=None,
               help="Mobile platforms: SLAM drift, the position error's sigma after 10 m walked (metres; heading "
-                   "drifts alike), pinned to zero at loop closures. Default: 0 (none).")
+                   "drifts alike), pinned to zero at loop closures. "
+                   f"Default: {default_of(DriftModel, 'sigma_m'):g} (none).")
 @click.option("--rotation-hz", type=float, default=None,
               help="Mobile platforms: the lidar's rotation rate. Default: the scanner's (VLP-16: 10 Hz).")
 @click.option("--head-speed", "head_deg_per_s", type=float, default=None,
@@ -129,7 +132,6 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
 
     prestart_worker()  # IfcOpenShell loads in the geometry worker while this process loads the scanner
     from bimscan.pipeline import scan_model
-    from bimscan.survey.drift import DriftModel
     from bimscan.survey.recipe import resolve_sensor
     from bimscan.toml_files import load_toml
 

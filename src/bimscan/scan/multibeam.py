@@ -104,10 +104,8 @@ class MultiBeamScanner(Checked):
         return ring
 
     def check_rotation(self, rotation_hz: float, *, strict: bool = False) -> list[str]:
-        """Raise for an impossible rotation rate; a warning line when outside the device's rates
-        (an error under ``strict``)."""
-        if not (math.isfinite(rotation_hz) and rotation_hz > 0):
-            raise ScannerSettingsError(f"rotation_hz = {rotation_hz:g} is impossible; allowed: a number > 0")
+        """A warning line when ``rotation_hz`` (a possible rate: ``MobileScan`` declares what is)
+        is outside the device's rates (an error under ``strict``)."""
         if self.rotation_hz_min <= rotation_hz <= self.rotation_hz_max:
             return []
         line = (f"rotation_hz = {rotation_hz:g} is outside {self.name}'s rotation rates "

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
+from bimscan.constraints import Checked, Range, setting
 from bimscan.errors import ConfigError
 from bimscan.survey.trajectory import Trajectory
 
@@ -44,23 +45,16 @@ KNOT_M = 1.0
 
 
 @dataclass(frozen=True)
-class DriftModel:
+class DriftModel(Checked):
     """See the module docs. sigma_m = 0: no drift (the points are where the true poses put them)."""
 
-    sigma_m: float = 0.0
-    heading_sigma_deg: float | None = None
-    vertical_ratio: float = 0.5
-    smoothing_m: float = 2.0
+    sigma_m: float = setting(0.0, within=Range(0.0, 1.0), hint="metres per 10 m walked")
+    heading_sigma_deg: float | None = setting(None, within=Range(0.0, 10.0), hint="degrees per 10 m walked")
+    vertical_ratio: float = setting(0.5, within=Range(0.0, 10.0))
+    smoothing_m: float = setting(2.0, within=Range(0.0, 100.0))
 
-    def __post_init__(self) -> None:
-        for name, high in (("sigma_m", 1.0), ("vertical_ratio", 10.0), ("smoothing_m", 100.0)):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and 0.0 <= value <= high):
-                raise ConfigError(f"drift {name} = {value} is impossible; allowed: 0..{high:g}"
-                                  + (" (metres per 10 m walked)" if name == "sigma_m" else ""))
-        if self.heading_sigma_deg is not None and not (math.isfinite(self.heading_sigma_deg)
-                                                       and 0.0 <= self.heading_sigma_deg <= 10.0):
-            raise ConfigError(f"drift heading_sigma_deg = {self.heading_sigma_deg} is impossible; allowed: 0..10")
+    def refusal(self, problem: str) -> ConfigError:
+        return ConfigError(f"drift {problem}")
 
     @property
     def is_off(self) -> bool:

@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from bimscan.constraints import Checked, Range, setting
+from bimscan.errors import ScannerSettingsError
 from bimscan.scan.multibeam import MultiBeamScanner
 from bimscan.survey.drift import DriftModel
 from bimscan.survey.platform import Platform
@@ -26,19 +28,23 @@ UNUSED_LIDAR_FIELDS = ("beam_divergence_rad", "wavelength_nm")  # recorded facts
 
 
 @dataclass(frozen=True)
-class MobileScan:
-    """See the module docs. rotation_hz None: the lidar's default rate."""
+class MobileScan(Checked):
+    """See the module docs. rotation_hz None: the lidar's default rate (set on construction); a rate
+    outside the lidar's own rates is a warning (``warnings``), an error under ``strict``."""
 
     platform: Platform
     lidar: MultiBeamScanner
-    rotation_hz: float | None = None
+    rotation_hz: float | None = setting(None, within=Range(0.0, None, low_open=True))
     trajectory_from: str = AUTO_TRAJECTORY
     drift: DriftModel = field(default_factory=DriftModel)
 
     def __post_init__(self) -> None:
         if self.rotation_hz is None:
             object.__setattr__(self, "rotation_hz", self.lidar.rotation_hz)
-        self.lidar.check_rotation(self.rotation_hz)  # raises for impossible rates
+        super().__post_init__()
+
+    def refusal(self, problem: str) -> ScannerSettingsError:
+        return ScannerSettingsError(problem)
 
     def warnings(self, *, strict: bool = False) -> list[str]:
         return self.lidar.check_rotation(self.rotation_hz, strict=strict)

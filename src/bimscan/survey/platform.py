@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bimscan.constraints import Checked, Range, setting
 from bimscan.errors import ConfigError
 from bimscan.scan.virtual_scanner import MAX_MOUNTS
 from bimscan.toml_files import build_dataclass, load_toml
@@ -30,25 +31,18 @@ TRIPOD = "tripod"
 
 
 @dataclass(frozen=True)
-class Mount:
+class Mount(Checked):
     """One lidar on the platform (see the module docs for the frames)."""
 
-    height_m: float = 1.3
-    forward_m: float = 0.0
-    lateral_m: float = 0.0
-    tilt_deg: float = 0.0
-    yaw_deg: float = 0.0
-    head_rotation_hz: float = 0.0
+    height_m: float = setting(1.3, within=Range(0.0, 5.0), hint="metres, for a walking operator")
+    forward_m: float = setting(0.0, within=Range())
+    lateral_m: float = setting(0.0, within=Range())
+    tilt_deg: float = setting(0.0, within=Range(-180.0, 180.0), hint="degrees")
+    yaw_deg: float = setting(0.0, within=Range())
+    head_rotation_hz: float = setting(0.0, within=Range(-10.0, 10.0), hint="Hz")
 
-    def __post_init__(self) -> None:
-        for name in ("height_m", "forward_m", "lateral_m", "tilt_deg", "yaw_deg", "head_rotation_hz"):
-            if not math.isfinite(getattr(self, name)):
-                raise ConfigError(f"mount {name} = {getattr(self, name)} is impossible; give a finite number")
-        if not 0.0 <= self.height_m <= 5.0:
-            raise ConfigError(f"mount height_m = {self.height_m} is impossible for a walking operator; allowed: 0..5")
-        if not -180.0 <= self.tilt_deg <= 180.0 or not abs(self.head_rotation_hz) <= 10.0:
-            raise ConfigError(f"mount tilt_deg = {self.tilt_deg} or head_rotation_hz = {self.head_rotation_hz} is "
-                              "impossible; allowed: tilt -180..180 degrees, head -10..10 Hz")
+    def refusal(self, problem: str) -> ConfigError:
+        return ConfigError(f"mount {problem}")
 
     def lever_arm(self) -> np.ndarray:
         """(3,) the sensor's position in the platform frame."""
@@ -63,7 +57,7 @@ class Mount:
 
 
 @dataclass(frozen=True)
-class Platform:
+class Platform(Checked):
     """A walking operator with one to four lidars.
 
     mounts: where each lidar sits (no default: a platform without a lidar placed is refused).
@@ -76,21 +70,18 @@ class Platform:
     mounts: tuple[Mount, ...]
     description: str = ""
     default_scanner: str = "velodyne_vlp16"
-    walking_speed_m_s: float = 1.0
-    stair_speed_m_s: float = 0.5
-    max_turn_deg_per_s: float = 60.0
-    body_radius_m: float = 0.25
-    headroom_m: float = 1.9
+    walking_speed_m_s: float = setting(1.0, within=Range(0.05, 5.0))
+    stair_speed_m_s: float = setting(0.5, within=Range(0.05, 5.0))
+    max_turn_deg_per_s: float = setting(60.0, within=Range(1.0, 720.0))
+    body_radius_m: float = setting(0.25, within=Range(0.05, 1.0))
+    headroom_m: float = setting(1.9, within=Range(0.5, 4.0))
 
-    def __post_init__(self) -> None:
+    def refusal(self, problem: str) -> ConfigError:
+        return ConfigError(f"platform {self.name!r}: {problem}")
+
+    def check(self) -> None:
         if not 1 <= len(self.mounts) <= MAX_MOUNTS:
-            raise ConfigError(f"platform {self.name!r}: give 1..{MAX_MOUNTS} mounts, got {len(self.mounts)}")
-        for name, low, high in (("walking_speed_m_s", 0.05, 5.0), ("stair_speed_m_s", 0.05, 5.0),
-                                ("max_turn_deg_per_s", 1.0, 720.0), ("body_radius_m", 0.05, 1.0),
-                                ("headroom_m", 0.5, 4.0)):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and low <= value <= high):
-                raise ConfigError(f"platform {self.name!r}: {name} = {value} is impossible; allowed: {low:g}..{high:g}")
+            raise self.refusal(f"give 1..{MAX_MOUNTS} mounts, got {len(self.mounts)}")
 
 
 def _platform_tables() -> dict[str, dict]:
