@@ -22,6 +22,7 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any
 
+from bimscan.constraints import Checked, Range, effect_of, setting
 from bimscan.files import dump_json, file_sha256
 from bimscan.scan.device import (
     DEFAULT_PRESET, DEFAULT_SCANNER, PRESETS, SCANNERS, SENSOR_DEVICE_FIELDS, ScannerModel, ScanSettings,
@@ -48,9 +49,6 @@ DEFAULT_MAX_STATION_PULSES = 500_000_000
 # of points uncompressed, so more is most likely a unit mistake in a trajectory's time column.
 DEFAULT_MAX_WALK_PULSES = 2_000_000_000
 AUTO_STATIONS = "auto"
-# Fields that change how a scan runs or what it refuses, not its output bytes (left out of the
-# fingerprint).
-RUNTIME_FIELDS = ("threads", "chunk_pulses", "max_station_pulses", "max_walk_pulses")
 
 
 def _json_value(value: Any) -> Any:
@@ -62,7 +60,7 @@ def _json_value(value: Any) -> Any:
 
 
 @dataclass(frozen=True)
-class ScanRecipe:
+class ScanRecipe(Checked):
     """How to scan a scene: the device, what each station does, noise, seed, engine, stations.
 
     scanner: the device model. settings: what one station does; ``preset`` names where they came
@@ -82,31 +80,38 @@ class ScanRecipe:
     ``scanner`` and ``stations_from`` are then the tripod plan's, which decides where a planned
     walk goes (``survey.walk``), ``settings`` and ``preset`` are unused, and none of them is
     recorded. max_walk_pulses: a walk whose lidars would fire more pulses in all is refused before
-    the scan (``check_walk``).
+    the scan (``check_walk``). The "runtime" settings (``RUNTIME_FIELDS``: threads, chunk_pulses
+    and the budgets) change how a scan runs or what it refuses, never its output bytes, and are left
+    out of the fingerprint.
     """
 
     scanner: ScannerModel = field(default_factory=lambda: SCANNERS[DEFAULT_SCANNER])
     settings: ScanSettings = field(default_factory=lambda: PRESETS[DEFAULT_PRESET])
     preset: str | None = DEFAULT_PRESET
     noise: NoiseModel = field(default_factory=NoiseModel)
-    seed: int = 0
+    seed: int = setting(0, within=Range(0, 2**64 - 1))
     noise_stream: str = ""
     engine: str = DEFAULT_ENGINE
     stations_from: str = AUTO_STATIONS
     strict: bool = False
     sensor: SensorModel = field(default_factory=SensorModel)
     site: SiteModel = field(default_factory=SiteModel)
-    threads: int = 0
-    chunk_pulses: int = DEFAULT_CHUNK_PULSES
-    max_station_pulses: int = DEFAULT_MAX_STATION_PULSES
+    threads: int = setting(0, within=Range(0, None), hint="0: all cores", effect="runtime")
+    chunk_pulses: int = setting(DEFAULT_CHUNK_PULSES, within=Range(1, None), effect="runtime")
+    max_station_pulses: int = setting(DEFAULT_MAX_STATION_PULSES, effect="runtime")
     mobile: MobileScan | None = None
-    max_walk_pulses: int = DEFAULT_MAX_WALK_PULSES
+    max_walk_pulses: int = setting(DEFAULT_MAX_WALK_PULSES, within=Range(1, None), effect="runtime")
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "noise", self.noise.resolved(self.mobile.lidar if self.mobile else self.scanner))
+        if self.mobile is not None and isinstance(self.sensor, SensorModel):
+            object.__setattr__(self, "sensor", self.sensor.for_mobile())
+        super().__post_init__()  # the declared ranges, then ``check``
+        # "auto" becomes the engine this machine runs, so the metadata records the one used
+        object.__setattr__(self, "engine", resolve_engine(self.engine))
+
+    def check(self) -> None:
         if self.mobile is not None:
-            if isinstance(self.sensor, SensorModel):
-                object.__setattr__(self, "sensor", self.sensor.for_mobile())
             if self.noise.registers_with_error:
                 raise ConfigError("a mobile scan has no stations to register: give its registration error as --drift "
                                   "(metres per 10 m walked), not as a station registration sigma")
@@ -118,16 +123,6 @@ class ScanRecipe:
             from bimscan.scan.surfaces import load_material_table
 
             load_material_table(self.sensor.material_table)  # a bad table fails now, before any work
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed < 2**64:
-            raise ConfigError(f"seed = {self.seed!r} is impossible; give an integer in 0..2^64-1")
-        # "auto" becomes the engine this machine runs, so the metadata records the one used
-        object.__setattr__(self, "engine", resolve_engine(self.engine))
-        if self.threads < 0:
-            raise ConfigError(f"threads = {self.threads} is impossible; give 0 (all cores) or more")
-        if self.chunk_pulses < 1:
-            raise ConfigError(f"chunk_pulses = {self.chunk_pulses} is impossible; give 1 or more")
-        if self.max_walk_pulses < 1:
-            raise ConfigError(f"max_walk_pulses = {self.max_walk_pulses} is impossible; give 1 or more")
         check_settings(self.settings, self.scanner, strict=self.strict)  # raises for impossible settings
         lines = self.settings.scan_freq_hz * self.settings.duration_s()
         pulses = self.settings.expected_pulses(self.scanner)
@@ -278,6 +273,10 @@ class ScanRecipe:
     def with_fields(self, **changes: Any) -> ScanRecipe:
         """A copy with fields replaced (validated again)."""
         return dataclasses.replace(self, **changes)
+
+
+# Fields that change how a scan runs or what it refuses, not its output bytes (left out of the fingerprint).
+RUNTIME_FIELDS = tuple(f.name for f in dataclasses.fields(ScanRecipe) if effect_of(ScanRecipe, f.name) == "runtime")
 
 
 def resolve_sensor(sensor: SensorModel | Mapping[str, Any] | str | Path | None = None, *,
