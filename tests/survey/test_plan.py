@@ -146,9 +146,15 @@ def test_an_unknown_class_names_the_schemes_classes(box_room_ifc):
 
 
 @pytest.mark.parametrize(("settings", "message"), [
-    ({"coverage": (1.5,)}, "coverage = 1.5"), ({"coverage": (0.9, 0.8)}, "one per class"),
-    ({"max_incidence_deg": 89.0}, "max_incidence_deg"), ({"density_pts_m2": -1.0}, "density_pts_m2"),
-    ({"solver": "cplex"}, "solver"), ({"overlap": 1.0}, "overlap"),
+    ({"coverage": (1.5,)}, r"^coverage takes numbers in \(0, 1\] \(fractions, e.g. 0.95\), got 1.5 in \[1.5\]$"),
+    ({"coverage": (0.9, 0.8)}, "one per class"),
+    ({"max_incidence_deg": 89.0}, r"^max_incidence_deg must be a number in \(0, 85\] \(degrees from the surface "
+                                  r"normal\), got 89$"),
+    ({"density_pts_m2": -1.0}, "^density_pts_m2 must be a number > 0, got -1$"),
+    ({"solver": "cplex"}, "^solver takes 'auto', 'greedy', 'milp', got 'cplex'$"),
+    ({"overlap": 1.0}, r"^overlap must be a number in \[0, 1\) \(a fraction\), got 1$"),
+    ({"min_direction_share": 0.34}, r"^min_direction_share must be a number in \[0, 0.333333\] \(a surface facing"),
+    ({"search_rounds": -1}, r"^search_rounds must be an integer >= 0 \(0: no search\), got -1$"),
 ])
 def test_impossible_settings_are_refused_with_the_value(settings, message):
     with pytest.raises(ConfigError, match=message):

@@ -10,9 +10,10 @@ import click
 
 from bimscan.cli.ifc_commands import LENGTH_UNIT_HELP, SCHEME_HELP
 from bimscan.cli.site_options import site_options
+from bimscan.constraints import choices_of, default_of
 from bimscan.ifc.units import LENGTH_UNITS
 from bimscan.scan.device import DEFAULT_PRESET, DEFAULT_SCANNER, PRESETS, SCANNERS
-from bimscan.survey.planning.config import DEFAULT_CLASSES, SOLVERS, PlanConfig
+from bimscan.survey.planning.config import DEFAULT_CLASSES, PlanConfig
 from bimscan.survey.recipe import ScanRecipe
 
 if TYPE_CHECKING:
@@ -47,9 +48,10 @@ def _fractions(text: str) -> tuple[float, ...]:
                    f"sees (and pins every direction). Default: {_DEFAULTS.overlap:g}.")
 @click.option("--grid", "grid_m", type=float, default=None,
               help=f"Spacing of the candidate spots, metres. Default: {_DEFAULTS.grid_m:g}.")
-@click.option("--solver", type=click.Choice(list(SOLVERS)), default=None,
+@click.option("--solver", type=click.Choice(choices_of(PlanConfig, "solver")), default=None,
               help="greedy (greedy cover, then local and iterated greedy search), milp (then scipy's HiGHS within "
-                   "--time-limit) or auto (the MILP on small models, its answer when proved optimal). Default: auto.")
+                   "--time-limit) or auto (the MILP on small models, its answer when proved optimal). "
+                   f"Default: {default_of(PlanConfig, 'solver')}.")
 @click.option("--time-limit", "milp_time_limit_s", type=float, default=None,
               help=f"Seconds the MILP may take. Default: {_DEFAULTS.milp_time_limit_s:g}.")
 @click.option("--config", "config_file", default=None,
