@@ -64,9 +64,10 @@ def test_a_stages_sweep_makes_one_unit_per_scene_configuration_and_stage(tmp_pat
     ('stages = ["structure"]', 'stage = "enclosed"', "sets its own 'stage'"),
     ('stages = ["structure", "structure"]', "", "more than once"),
     ("", 'clutter = { density = 0.2, kinds = ["piano"] }', r"\[\[configs\]\] #2 key 'clutter': unknown clutter kind 'piano'"),
-    ("", 'clutter = { density = -0.2 }', "clutter density = -0.2 is impossible"),
+    ("", 'clutter = { density = -0.2 }', r"key 'clutter': clutter density must be a number in \[0, 2\] \(objects per "
+                                         r"square metre of free floor, 0: none\), got -0.2"),
     ("", 'clutter = { denisty = 0.2 }', "unknown key"),
-    ('stage = "roughcast"', "", "unknown construction stage 'roughcast'"),
+    ('stage = "roughcast"', "", "key 'stage': stage name takes 'structure', 'enclosed', 'finished', got 'roughcast'"),
 ])
 def test_bad_site_settings_in_a_spec_are_refused_before_any_work(tmp_path, top, busy, message):
     with pytest.raises(ConfigError, match=message):

@@ -137,8 +137,9 @@ def test_a_stage_where_nothing_stands_is_refused(office_scene):
 
 
 @pytest.mark.parametrize("stage, message", [
-    ({"name": "roughcast"}, "unknown construction stage"),
-    ({"walls_missing_fraction": 1.5}, "fraction from 0 to 1"),
+    ({"name": "roughcast"}, "^stage name takes 'structure', 'enclosed', 'finished', got 'roughcast'$"),
+    ({"walls_missing_fraction": 1.5}, r"^stage walls_missing_fraction must be a number in \[0, 1\], got 1.5$"),
+    ({"props_fraction": float("nan")}, r"^stage props_fraction must be a number in \[0, 1\], got nan$"),
     ({"at": "next week"}, "YYYY-MM-DD"),
     ({"include": ("Wall",)}, "not an IFC class"),
 ])

@@ -17,11 +17,11 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from bimscan.constraints import Checked, Range, setting
 from bimscan.errors import ConfigError
 
 # Stage name -> the IFC classes built by then (an element is kept when its class, or the class of
@@ -41,7 +41,7 @@ MAX_DENSITY_PER_M2 = 2.0  # beyond this a floor is a warehouse, not a room being
 
 
 @dataclass(frozen=True)
-class StageSettings:
+class StageSettings(Checked):
     """The construction stage of the scene.
 
     name: ``structure`` (slabs, walls, columns, beams, stairs), ``enclosed`` (+ windows, doors,
@@ -54,28 +54,28 @@ class StageSettings:
     finished earlier, are not there (needs a work schedule in the model).
     """
 
-    name: str = DEFAULT_STAGE
+    name: str = setting(DEFAULT_STAGE, among=STAGES)
     include: tuple[str, ...] = ()
     exclude: tuple[str, ...] = ()
-    walls_missing_fraction: float = 0.0
-    ceilings_open_fraction: float = 0.0
-    props_fraction: float = 0.0
+    walls_missing_fraction: float = setting(0.0, within=Range(0.0, 1.0))
+    ceilings_open_fraction: float = setting(0.0, within=Range(0.0, 1.0))
+    props_fraction: float = setting(0.0, within=Range(0.0, 1.0))
     at: str | None = None
 
     def __post_init__(self) -> None:
-        if self.name not in STAGES:
-            raise ConfigError(f"unknown construction stage {self.name!r}; choose one of {', '.join(STAGES)}")
-        for what in ("walls_missing_fraction", "ceilings_open_fraction", "props_fraction"):
-            value = getattr(self, what)
-            if isinstance(value, bool) or not isinstance(value, int | float) or not 0.0 <= value <= 1.0:
-                raise ConfigError(f"{what} = {value!r} is impossible; give a fraction from 0 to 1")
+        if self.at is not None:  # a date in any form it is read in becomes its ISO text (or is refused)
+            object.__setattr__(self, "at", iso_date(self.at))
+        super().__post_init__()
+
+    def refusal(self, problem: str) -> ConfigError:
+        return ConfigError(f"stage {problem}")
+
+    def check(self) -> None:
         for what in ("include", "exclude"):
             for name in getattr(self, what):
                 if not isinstance(name, str) or not name.startswith("Ifc"):
                     raise ConfigError(f"stage {what} entry {name!r} is not an IFC class name; "
                                       "give names like 'IfcWall'")
-        if self.at is not None:
-            object.__setattr__(self, "at", iso_date(self.at))
         if self.ceilings_open_fraction > 0 and not self._builds("IfcCovering"):
             raise ConfigError(f"ceilings_open_fraction = {self.ceilings_open_fraction:g} does nothing at stage "
                               f"{self.name!r}: no ceiling is built yet; leave it out or use stage 'finished'")
@@ -95,7 +95,7 @@ class StageSettings:
 
 
 @dataclass(frozen=True)
-class ClutterSettings:
+class ClutterSettings(Checked):
     """Clutter and temporary works on the floors.
 
     density: objects per square metre of free floor (0 = none). kinds: kind names of the clutter
@@ -106,28 +106,27 @@ class ClutterSettings:
     counted in it.
     """
 
-    density: float = 0.0
+    density: float = setting(0.0, within=Range(0.0, MAX_DENSITY_PER_M2),
+                             hint="objects per square metre of free floor, 0: none")
     kinds: tuple[str, ...] = ()
 
-    def __post_init__(self) -> None:
-        value = self.density
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) \
-                or not 0.0 <= value <= MAX_DENSITY_PER_M2:
-            raise ConfigError(f"clutter density = {value!r} is impossible; give objects per square metre of free "
-                              f"floor from 0 (none) to {MAX_DENSITY_PER_M2:g}")
+    def refusal(self, problem: str) -> ConfigError:
+        return ConfigError(f"clutter {problem}")
+
+    def check(self) -> None:
         from bimscan.site.library import check_kinds
 
         check_kinds(self.kinds)
 
 
 @dataclass(frozen=True)
-class SiteModel:
+class SiteModel(Checked):
     """What the site looks like when scanned: the construction stage and the clutter on the floors."""
 
     stage: StageSettings = field(default_factory=StageSettings)
     clutter: ClutterSettings = field(default_factory=ClutterSettings)
 
-    def __post_init__(self) -> None:
+    def check(self) -> None:
         if self.clutter.kinds and self.clutter.density == 0.0:
             raise ConfigError(f"clutter kinds {', '.join(self.clutter.kinds)} are given with a clutter density of 0, "
                               "which places nothing; give a density (--clutter 0.3) or leave the kinds out")
