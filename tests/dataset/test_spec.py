@@ -123,7 +123,7 @@ def test_a_scheme_with_a_misspelt_ifc_class_is_refused_before_any_work(spec_fold
     (lambda t: t.replace("storeys = 3", "storeys = 40"), ConfigError, "storeys must be an integer in"),
     (lambda t: t.replace("storeys = 3", 'storeys = 3, style = "castle"'), ConfigError, "castle"),
     (lambda t: t.replace('stations = "stations.csv"', 'stations = "stations.csv"\nlength_unit = "furlong"'), ConfigError,
-     "length_unit 'furlong' is not one of"),
+     "length_unit takes 'm', 'cm', 'mm', 'ft', 'in', got 'furlong'"),
     (lambda t: t.replace('stations = "stations.csv"', 'stations = "nowhere.csv"'), InputFileError, "station file"),
     (lambda t: t.replace("range_sigma_m = 0.002", "range_sigma_m = -2"), ScannerSettingsError, "range_sigma_m"),
     (lambda t: t.replace('name = "two"', 'name = "two"\nstrict = true'), ScannerSettingsError, "outside the device's limits"),

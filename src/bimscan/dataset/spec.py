@@ -84,10 +84,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from bimscan.constraints import Checked, setting
 from bimscan.dataset.layout import FORMAT_FILES, UNIT_SEPARATOR, unit_id
 from bimscan.errors import BimscanError, ConfigError, InputFileError
 from bimscan.ifc.generate.styles import DEFAULT_STYLE
 from bimscan.ifc.load import check_ifc_file
+from bimscan.ifc.units import LENGTH_UNITS
 from bimscan.scan.device import DEFAULT_SCANNER, ScanSettings
 from bimscan.scan.engine import DEFAULT_ENGINE
 from bimscan.scan.noise import NoiseModel
@@ -113,21 +115,15 @@ class GeneratedScene:
 
 
 @dataclass(frozen=True)
-class SceneSpec:
+class SceneSpec(Checked):
     """One BIM scene: an IFC file (``ifc``, absolute once loaded) or a generated building."""
 
     name: str
     ifc: str | None = None
     generate: GeneratedScene | None = None
     stations: str = AUTO_STATIONS  # "auto" or a station CSV file (absolute once loaded)
-    length_unit: str | None = None  # read the IFC's lengths in this unit (bimscan.ifc.units.LENGTH_UNITS)
+    length_unit: str | None = setting(None, among=LENGTH_UNITS)  # read the IFC's lengths in this unit
     trajectory: str = AUTO_TRAJECTORY  # mobile configurations: "auto" or a trajectory CSV (absolute once loaded)
-
-    def __post_init__(self) -> None:
-        from bimscan.ifc.units import LENGTH_UNITS
-
-        if self.length_unit is not None and self.length_unit not in LENGTH_UNITS:
-            raise ConfigError(f"length_unit {self.length_unit!r} is not one of {', '.join(LENGTH_UNITS)}")
 
 
 @dataclass(frozen=True)
