@@ -476,7 +476,7 @@ def test_variants_training_on_real_rooms_are_never_scored_on_them(rooms_dir: Pat
     (('freeze = ["embedding"]', 'freeze = ["head"]'), "freeze"),
     (("stride_m = 1.5", "stride_m = 0.7"), r"#1 \(synthetic\): \[eval\] stride_m = 0.7 does not divide"),
     (("[rooms]", '[holdout]\nifc = ["house.ifc"]\nconfig = { clutter = { density = -1.0 } }\n\n[rooms]'),
-     r"\[holdout\].*clutter density = -1"),
+     r"\[holdout\].*clutter density must be a number in \[0, 2\] .*, got -1"),
     (("[rooms]", '[holdout]\nifc = ["house.ifc"]\nclutter = 0.3\n\n[rooms]'),
      r"\[holdout\] clutter: the holdout's scan settings are a dataset configuration table now"),
     (('train = { epochs = 2, freeze = ["embedding"] }', 'train = { epochs = 2 }\nmodel = { embed_dim = 16 }'),

@@ -80,3 +80,13 @@ def test_mapping_file_with_an_unknown_key_is_a_config_error(tmp_path: Path) -> N
 
     with pytest.raises(ConfigError, match="unknown key"):
         load_label_mapping(path)
+
+
+def test_a_mapping_whose_class_maps_to_a_number_is_refused_naming_the_file_and_the_source(tmp_path: Path) -> None:
+    path = tmp_path / "ids.toml"
+    path.write_text('name = "ids"\n[classes]\nwall = 0\n')
+
+    with pytest.raises(ConfigError, match=r"ids.toml: \[classes\] 'wall' must map to a class name \(text\), got 0") \
+            as caught:
+        load_label_mapping(path)
+    assert "\n" not in str(caught.value)

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bimscan.constraints import Checked
 from bimscan.toml_files import build_dataclass, load_toml
 from bimscan.errors import ConfigError, LearnError
 from bimscan.learn.train_config import IGNORE_LABEL
@@ -26,7 +27,7 @@ UNMAPPED = -1  # marks source ids a table does not accept
 
 
 @dataclass(frozen=True)
-class LabelMapping:
+class LabelMapping(Checked):
     """Source class (name or id as text) -> target class name; ``default`` for the rest."""
 
     name: str
@@ -34,7 +35,7 @@ class LabelMapping:
     default: str | None = None
     source: str = ""  # the file it came from, for messages
 
-    def __post_init__(self) -> None:
+    def check(self) -> None:
         for key, value in self.classes.items():
             if not isinstance(value, str):
                 raise ConfigError(f"{self.source or self.name}: [classes] {key!r} must map to a class name (text), got {value!r}")

@@ -319,7 +319,7 @@ class AdaptationSchedule(Checked):
 
 
 @dataclass(frozen=True)
-class TrainRunConfig:
+class TrainRunConfig(Checked):
     """A whole training experiment: the sections of the TOML file."""
 
     data: DataConfig
@@ -331,7 +331,7 @@ class TrainRunConfig:
     eval: EvalConfig = field(default_factory=EvalConfig)
     adapt: AdaptConfig = field(default_factory=AdaptConfig)
 
-    def __post_init__(self) -> None:
+    def check(self) -> None:
         self.eval.stride_for(self.blocks.size_m)  # a stride that does not divide the blocks fails now
 
 
