@@ -57,8 +57,8 @@ def test_a_date_keeps_what_the_schedule_has_built(tmp_path, tiny_model):
 
 
 @pytest.mark.parametrize("flags, message", [
-    (["--clutter", "-1"], "clutter density must be a number in [0, 2] (objects per square metre of free floor, 0: "
-                          "none), got -1"),
+    (["--clutter", "-1"], ("clutter density must be a number in [0, 2] (objects per square metre of free floor, 0: "
+                           "none), got -1")),
     (["--clutter", "0.2", "--clutter-kinds", "piano"], "unknown clutter kind 'piano'"),
     (["--at", "2024-01-01"], "links no element to a dated task"),
     (["--walls-missing", "2"], "stage walls_missing_fraction must be a number in [0, 1], got 2"),

@@ -64,8 +64,8 @@ def test_a_stages_sweep_makes_one_unit_per_scene_configuration_and_stage(tmp_pat
     ('stages = ["structure"]', 'stage = "enclosed"', "sets its own 'stage'"),
     ('stages = ["structure", "structure"]', "", "more than once"),
     ("", 'clutter = { density = 0.2, kinds = ["piano"] }', r"\[\[configs\]\] #2 key 'clutter': unknown clutter kind 'piano'"),
-    ("", 'clutter = { density = -0.2 }', r"key 'clutter': clutter density must be a number in \[0, 2\] \(objects per "
-                                         r"square metre of free floor, 0: none\), got -0.2"),
+    ("", 'clutter = { density = -0.2 }', (r"key 'clutter': clutter density must be a number in \[0, 2\] \(objects "
+                                          r"per square metre of free floor, 0: none\), got -0.2")),
     ("", 'clutter = { denisty = 0.2 }', "unknown key"),
     ('stage = "roughcast"', "", "key 'stage': stage name takes 'structure', 'enclosed', 'finished', got 'roughcast'"),
 ])

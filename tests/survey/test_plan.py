@@ -148,8 +148,8 @@ def test_an_unknown_class_names_the_schemes_classes(box_room_ifc):
 @pytest.mark.parametrize(("settings", "message"), [
     ({"coverage": (1.5,)}, r"^coverage takes numbers in \(0, 1\] \(fractions, e.g. 0.95\), got 1.5 in \[1.5\]$"),
     ({"coverage": (0.9, 0.8)}, "one per class"),
-    ({"max_incidence_deg": 89.0}, r"^max_incidence_deg must be a number in \(0, 85\] \(degrees from the surface "
-                                  r"normal\), got 89$"),
+    ({"max_incidence_deg": 89.0}, (r"^max_incidence_deg must be a number in \(0, 85\] \(degrees from the surface "
+                                   r"normal\), got 89$")),
     ({"density_pts_m2": -1.0}, "^density_pts_m2 must be a number > 0, got -1$"),
     ({"solver": "cplex"}, "^solver takes 'auto', 'greedy', 'milp', got 'cplex'$"),
     ({"overlap": 1.0}, r"^overlap must be a number in \[0, 1\) \(a fraction\), got 1$"),
