@@ -164,6 +164,14 @@ def test_adaptation_settings_are_checked_where_declared() -> None:
         AdaptConfig(mix_cells=9)
 
 
+def test_adaptation_settings_without_scans_to_adapt_to_are_refused(tmp_path: Path) -> None:
+    path = tmp_path / "train.toml"
+    path.write_text('[data]\ntrain = ["synthetic"]\n\n[adapt]\npseudo_share = 0.8\n')
+
+    with pytest.raises(ConfigError, match=r"\[adapt\]: its settings act only on unlabelled scans, and \[data\] adapt"):
+        load_train_config(path)
+
+
 def test_a_column_whose_points_all_lie_in_the_synthetic_cells_is_trained_alone() -> None:
     """A real room's edge column fills part of its footprint: when the cells left to it hold
     none of its points, the block is the unlabelled column alone, never an empty block."""

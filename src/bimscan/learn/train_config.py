@@ -364,6 +364,10 @@ def load_train_config(path: str | Path) -> tuple[TrainRunConfig, Path]:
     path = Path(path)
     data = load_toml(path)
     check_moved_keys(data, where=str(path))
+    table = data.get("data")
+    if "adapt" in data and not (isinstance(table, dict) and table.get("adapt")):
+        raise ConfigError(f"{path} [adapt]: its settings act only on unlabelled scans, and [data] adapt names none; "
+                          "add [data] adapt = [\"SCANS\"] or remove [adapt]")
     return build_dataclass(TrainRunConfig, with_scene_sets(data), where=str(path)), path.resolve().parent
 
 
