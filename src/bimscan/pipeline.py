@@ -287,7 +287,7 @@ def scan_model(model: str | Path, out: str | Path, recipe: ScanRecipe, *,
                             trajectory=chosen.trajectory, walk=chosen.walk)
     prepared = time.perf_counter()
     if survey.plan is not None and survey.plan.rooms_without_station:
-        say(rooms_without_station_line(survey.plan))
+        say(survey.plan.rooms_without_station_line())
     check_free_space(out, points=survey.pulses())
     result = scan_survey(survey, out, overwrite=overwrite, progress=progress)
     if survey.trajectory is not None:
@@ -313,14 +313,6 @@ def check_mobile_output(out: str | Path, *, overwrite: bool) -> None:
             raise OutputError(f"{beside} exists (the trajectory of a mobile scan goes there); pass --overwrite or "
                               "choose another OUT")
         check_replaceable(beside)
-
-
-def rooms_without_station_line(plan: PlanReport) -> str:
-    """The one warning line naming the rooms the plan left without a station."""
-    rooms = plan.rooms_without_station
-    shown = ", ".join(rooms[:20]) + (f" and {len(rooms) - 20} more" if len(rooms) > 20 else "")
-    return (f"{len(rooms)} rooms without a station (no level floor with headroom and a clear tripod spot in them): "
-            f"{shown}")
 
 
 @dataclass(frozen=True)
@@ -355,7 +347,7 @@ def plan_model(model: str | Path, out: str | Path, recipe: ScanRecipe, config: P
     from bimscan.render.survey_plan import draw_plan_pictures
     from bimscan.survey.planning.measure import patch_density, patch_matrix, points_per_sample
     from bimscan.survey.planning.plan import check_survey, evaluate, plan_survey, prepare_space
-    from bimscan.survey.planning.report import check_plan_output, write_plan_folder
+    from bimscan.survey.planning.report import check_plan_output, plan_summary, write_plan_folder
 
     say = warn or (lambda line: None)
     out = Path(out)
@@ -444,61 +436,3 @@ def _check_cloud_stations(cloud: str | Path, stored: Sequence[Station], given: S
             np.linalg.norm(np.subtract(a.position, b.position)) > 0.01 for a, b in zip(stored, given)):
         raise StationError(f"{cloud} was scanned from {len(stored)} stations that are not the {len(given)} checked "
                            "ones; give the station file the cloud was scanned with to --check")
-
-
-def _finite(value: Any) -> Any:
-    """JSON-able: NaN becomes None (the plan's figures are NaN where a class has no visible surface)."""
-    if isinstance(value, float) and not np.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_finite(v) for v in value]
-    return value
-
-
-def plan_summary(plan: SurveyPlan, evaluation: PlanEvaluation, scan: PlanEvaluation | None, recipe: ScanRecipe, *,
-                 mode: str,
-                 density_ratio: tuple[float, float, float] | None = None) -> dict[str, Any]:
-    """The ``plan.json`` document of a plan (JSON-able, the same bytes for the same inputs)."""
-    from bimscan import __version__
-
-    space = plan.space
-    scene, config, grid = space.scene, space.config, space.grid
-    classes = {}
-    for name, figures in evaluation.classes.items():
-        entry = {k: (round(v, 6) if isinstance(v, float) else v) for k, v in figures.items()}
-        if scan is not None:
-            entry["scan_covered_fraction"] = round(scan.classes[name]["covered_fraction"], 6)
-        classes[name] = entry
-    statuses: dict[str, int] = {}
-    for element in evaluation.elements:
-        statuses[element.status] = statuses.get(element.status, 0) + 1
-    document = {
-        "mode": mode,
-        "software": f"bimscan {__version__}",
-        "source": {"file": Path(scene.source).name, "sha256": scene.file_sha256, "schema": scene.schema},
-        "config": config.to_json(),
-        "scanner": recipe.scanner.name,
-        "preset": recipe.preset,
-        "angular_step_deg": {"vertical": round(float(np.degrees(grid.vertical_step_rad)), 6),
-                             "horizontal": round(float(np.degrees(grid.horizontal_step_rad)), 6)},
-        "reach_m": round(grid.reach_m(config.density_pts_m2), 3),
-        "site": None if scene.site is None else scene.site.to_json(),
-        "candidate_spots": space.n_spots,
-        "surface_samples": len(space.samples),
-        "solver": None if plan.solver is None else plan.solver.to_json(),
-        "stations": [{"id": s.id, "position": [round(v, 4) for v in s.position],
-                      "floor_z": None if s.floor_z is None else round(s.floor_z, 4), "storey": s.storey,
-                      "room": s.room} for s in plan.stations],
-        "classes": classes,
-        "met": evaluation.met(),
-        "registration": {"edges": len(evaluation.edges), "parts": evaluation.parts,
-                         "spot_parts": evaluation.spot_parts},
-        "elements": dict(sorted(statuses.items())),
-    }
-    if scan is not None:
-        document["scan_met"] = scan.met()
-        document["scan_density_over_estimate_quartiles"] = None if density_ratio is None else [
-            round(v, 4) for v in density_ratio]
-    return _finite(document)

@@ -99,7 +99,7 @@ def export_obj_command(model: Path, out_dir: Path, helios: bool, stations: str |
 
     prestart_worker()  # IfcOpenShell loads in the geometry worker while this process goes on
     from bimscan.io import export_obj
-    from bimscan.pipeline import build_site, load_scene, rooms_without_station_line, site_and_stations
+    from bimscan.pipeline import build_site, load_scene, site_and_stations
     from bimscan.survey.recipe import ScanRecipe
 
     survey_options = {"--stations": stations, "--preset": preset, "--scanner": scanner, "--head-speed": head_deg_per_s,
@@ -133,7 +133,7 @@ def export_obj_command(model: Path, out_dir: Path, helios: bool, stations: str |
         chosen = site_and_stations(scene, recipe)
         scene = chosen.scene
         if chosen.plan is not None and chosen.plan.rooms_without_station:
-            click.echo(f"warning: {rooms_without_station_line(chosen.plan)}", err=True)
+            click.echo(f"warning: {chosen.plan.rooms_without_station_line()}", err=True)
         if chosen.trajectory is not None:
             mobile_files = helios_mobile_files(chosen.trajectory, recipe.mobile, scene_id=helios_scene_id(scene.source),
                                                name=Path(scene.source).stem)

@@ -91,7 +91,7 @@ def _one_line(error: BaseException) -> str:
 def run_scene_job(job: SceneJob) -> SceneOutcome:
     """Parse the scene (filling the geometry cache), dress it, and plan or read its stations once."""
     from bimscan.ifc.summary import report_lines
-    from bimscan.pipeline import load_scene, rooms_without_station_line, site_and_stations
+    from bimscan.pipeline import load_scene, site_and_stations
     from bimscan.survey.survey import probe_points_per_pulse
 
     try:
@@ -122,7 +122,7 @@ def run_scene_job(job: SceneJob) -> SceneOutcome:
             write_site_scene(site_path, scene, job.stations_key)
         notes: list[str] = []
         if plan is not None and plan.rooms_without_station:
-            notes.append(rooms_without_station_line(plan))
+            notes.append(plan.rooms_without_station_line())
         write_json(path, {"format": STATIONS_FORMAT, "version": STATIONS_VERSION, "key": job.stations_key,
                           "scene": job.scene, "site": job.site_tag,
                           "stations": [dataclasses.asdict(s) for s in stations], "notes": notes})

@@ -47,6 +47,13 @@ class PlanReport:
     stations_per_storey: dict[str, int] = field(default_factory=dict)
     rooms_without_station: tuple[str, ...] = ()  # rooms (IfcSpace) with no spot a tripod can stand on
 
+    def rooms_without_station_line(self) -> str:
+        """The one warning line naming the rooms the planner left without a station."""
+        rooms = self.rooms_without_station
+        shown = ", ".join(rooms[:20]) + (f" and {len(rooms) - 20} more" if len(rooms) > 20 else "")
+        return (f"{len(rooms)} rooms without a station (no level floor with headroom and a clear tripod spot in "
+                f"them): {shown}")
+
 
 def read_stations(path: str | Path, scene: BimScene, prober: Prober, scanner: ScannerModel) -> tuple[Station, ...]:
     """Stations from a CSV file (see module docs); floor-relative rows are placed on the floor,

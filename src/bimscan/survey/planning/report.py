@@ -22,12 +22,17 @@ import json
 import math
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from bimscan.errors import OutputError
 from bimscan.files import FOLDER_OUTPUTS, FolderOutput, dump_json, folder_entries, remove_path, replace_path, temp_path
 from bimscan.survey.planning.plan import PlanEvaluation, SurveyPlan
 from bimscan.survey.stations import format_stations
+
+if TYPE_CHECKING:
+    from bimscan.survey.recipe import ScanRecipe
 
 STATIONS_FILE = "stations.csv"
 COVERAGE_FILE = "coverage.csv"
@@ -137,3 +142,61 @@ def write_plan_folder(out: Path, plan: SurveyPlan, evaluation: PlanEvaluation, *
     finally:
         remove_path(staged)  # gone already when the rename succeeded
     return [STATIONS_FILE, COVERAGE_FILE, REGISTRATION_FILE, SUMMARY_FILE, *names]
+
+
+def _finite(value: Any) -> Any:
+    """JSON-able: NaN becomes None (the plan's figures are NaN where a class has no visible surface)."""
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    return value
+
+
+def plan_summary(plan: SurveyPlan, evaluation: PlanEvaluation, scan: PlanEvaluation | None, recipe: ScanRecipe, *,
+                 mode: str,
+                 density_ratio: tuple[float, float, float] | None = None) -> dict[str, Any]:
+    """The ``plan.json`` document of a plan (JSON-able, the same bytes for the same inputs)."""
+    from bimscan import __version__
+
+    space = plan.space
+    scene, config, grid = space.scene, space.config, space.grid
+    classes = {}
+    for name, figures in evaluation.classes.items():
+        entry = {k: (round(v, 6) if isinstance(v, float) else v) for k, v in figures.items()}
+        if scan is not None:
+            entry["scan_covered_fraction"] = round(scan.classes[name]["covered_fraction"], 6)
+        classes[name] = entry
+    statuses: dict[str, int] = {}
+    for element in evaluation.elements:
+        statuses[element.status] = statuses.get(element.status, 0) + 1
+    document = {
+        "mode": mode,
+        "software": f"bimscan {__version__}",
+        "source": {"file": Path(scene.source).name, "sha256": scene.file_sha256, "schema": scene.schema},
+        "config": config.to_json(),
+        "scanner": recipe.scanner.name,
+        "preset": recipe.preset,
+        "angular_step_deg": {"vertical": round(float(np.degrees(grid.vertical_step_rad)), 6),
+                             "horizontal": round(float(np.degrees(grid.horizontal_step_rad)), 6)},
+        "reach_m": round(grid.reach_m(config.density_pts_m2), 3),
+        "site": None if scene.site is None else scene.site.to_json(),
+        "candidate_spots": space.n_spots,
+        "surface_samples": len(space.samples),
+        "solver": None if plan.solver is None else plan.solver.to_json(),
+        "stations": [{"id": s.id, "position": [round(v, 4) for v in s.position],
+                      "floor_z": None if s.floor_z is None else round(s.floor_z, 4), "storey": s.storey,
+                      "room": s.room} for s in plan.stations],
+        "classes": classes,
+        "met": evaluation.met(),
+        "registration": {"edges": len(evaluation.edges), "parts": evaluation.parts,
+                         "spot_parts": evaluation.spot_parts},
+        "elements": dict(sorted(statuses.items())),
+    }
+    if scan is not None:
+        document["scan_met"] = scan.met()
+        document["scan_density_over_estimate_quartiles"] = None if density_ratio is None else [
+            round(v, 4) for v in density_ratio]
+    return _finite(document)
