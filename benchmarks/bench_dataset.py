@@ -115,23 +115,14 @@ def _station_rays(recipe, survey, station) -> list:
     """A station's rays, chunk by chunk, made as ``VirtualScanner.scan_station`` makes them (paper path)."""
     import numpy as np
 
-    from bimscan.scan.kernels import generate_rays
     from bimscan.scan.pattern import PulsePattern
 
     engine, pattern = survey.scanner.engine, PulsePattern.of(recipe.settings, recipe.scanner)
     origin = (np.asarray(station.position) - engine.centre).astype(np.float32)
     chunks = []
-    for first_line, stop_line in pattern.chunks(recipe.chunk_pulses):
-        start, stop = pattern.line_pulses(first_line, stop_line)
-        counts = stop - start
-        offsets = np.zeros(len(counts), dtype=np.int64)
-        np.cumsum(counts[:-1], out=offsets[1:])
-        n = int(counts.sum())
-        if n == 0:
-            continue
-        rays, pulse = np.empty((n, 6), dtype=np.float32), np.empty(n, dtype=np.int64)
-        generate_rays(start, stop, offsets, first_line, pattern.dphase, pattern.sweep_deg, pattern.head_start_deg,
-                      pattern.head_deg_per_pulse, station.heading_deg, origin, rays, pulse)
+    for lines in pattern.line_chunks(recipe.chunk_pulses):
+        rays = np.empty((lines.n, 6), dtype=np.float32)
+        pattern.fill_rays(lines, station.heading_deg, origin, rays, np.empty(lines.n, dtype=np.int64))
         chunks.append(rays)
     return chunks
 

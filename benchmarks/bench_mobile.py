@@ -54,7 +54,6 @@ def main() -> None:
 
     from bimscan.pipeline import load_scene
     from bimscan.scan.device import ScanSettings
-    from bimscan.scan.kernels import generate_rays
     from bimscan.scan.multibeam import moving_rays
     from bimscan.scan.pattern import PulsePattern
     from bimscan.scan.probe import Prober
@@ -128,15 +127,9 @@ def main() -> None:
     pattern = PulsePattern.of(tripod_recipe.settings, tripod_recipe.scanner)
     origin_local = (np.asarray(stations[0].position) - scanner.engine.centre).astype(np.float32)
     tripod_chunks = []
-    for first_line, stop_line in pattern.chunks(tripod_recipe.chunk_pulses):
-        start_pulse, stop_pulse = pattern.line_pulses(first_line, stop_line)
-        counts = stop_pulse - start_pulse
-        offsets = np.zeros(len(counts), dtype=np.int64)
-        np.cumsum(counts[:-1], out=offsets[1:])
-        chunk_rays = np.empty((int(counts.sum()), 6), dtype=np.float32)
-        generate_rays(start_pulse, stop_pulse, offsets, first_line, pattern.dphase, pattern.sweep_deg,
-                      pattern.head_start_deg, pattern.head_deg_per_pulse, stations[0].heading_deg, origin_local,
-                      chunk_rays, np.empty(len(chunk_rays), dtype=np.int64))
+    for lines in pattern.line_chunks(tripod_recipe.chunk_pulses):
+        chunk_rays = np.empty((lines.n, 6), dtype=np.float32)
+        pattern.fill_rays(lines, stations[0].heading_deg, origin_local, chunk_rays, np.empty(lines.n, dtype=np.int64))
         tripod_chunks.append(chunk_rays)
 
     def tripod_raw_once() -> tuple[int, int]:

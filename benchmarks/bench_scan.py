@@ -81,7 +81,6 @@ def main() -> None:
     os.environ.setdefault("BIMSCAN_CACHE_DIR", tempfile.mkdtemp(prefix="bimscan-bench-"))
     from bimscan.pipeline import load_scene
     from bimscan.scan.engine import make_engine
-    from bimscan.scan.kernels import generate_rays
     from bimscan.scan.noise import NoiseModel
     from bimscan.scan.pattern import PulsePattern
     from bimscan.scan.device import SCANNERS, ScanSettings
@@ -106,16 +105,12 @@ def main() -> None:
     station = stations[int(np.argmax(useful))]
     settings = ScanSettings(pulse_freq_hz=300000, scan_freq_hz=120, head_deg_per_s=30)  # 1.5M pulses
     pattern = PulsePattern.of(settings, vz400)
-    start, stop = pattern.line_pulses(0, pattern.n_lines)
-    counts = stop - start
-    offsets = np.zeros(len(counts), dtype=np.int64)
-    np.cumsum(counts[:-1], out=offsets[1:])
-    n = int(counts.sum())
+    lines = next(pattern.line_chunks(1 << 62))  # the whole station as one chunk
+    n = lines.n
     rays = np.empty((n, 6), dtype=np.float32)
     pulse = np.empty(n, dtype=np.int64)
     origin = (np.asarray(station.position) - scanner.engine.centre).astype(np.float32)
-    generate_rays(start, stop, offsets, 0, pattern.dphase, pattern.sweep_deg, pattern.head_start_deg,
-                  pattern.head_deg_per_pulse, 0.0, origin, rays, pulse)
+    pattern.fill_rays(lines, 0.0, origin, rays, pulse)
     print(f"model {model.name}: {len(scene.components)} components, {scene.mesh.n_triangles} triangles; "
           f"station {station.id} ({station.room or 'no room'}) of {len(stations)}; {n:,} rays (300 kHz, 120 Hz, 30 deg/s); {os.cpu_count()} cores")
 

@@ -54,3 +54,25 @@ def test_chunks_cover_every_line_once():
     chunks = pattern.chunks(100_000)
     assert chunks[0][0] == 0 and chunks[-1][1] == pattern.n_lines
     assert all(a[1] == b[0] for a, b in zip(chunks, chunks[1:]))
+
+
+def test_line_chunks_hold_every_emitting_pulse_once_and_their_rays_are_the_whole_stations():
+    settings = ScanSettings(pulse_freq_hz=24000, scan_freq_hz=100, head_deg_per_s=36)
+    pattern = PulsePattern.of(settings, VZ400)
+    chunks = list(pattern.line_chunks(7_000))
+    assert len(chunks) > 1 and sum(c.n for c in chunks) == pattern.count()
+    for c in chunks:
+        assert c.offsets[0] == 0 and c.n == int((c.stop - c.start).sum())
+        assert np.array_equal(c.offsets[1:], np.cumsum(c.stop - c.start)[:-1])
+    origin = np.array([0.5, -1.0, 1.6], dtype=np.float32)
+    whole = next(pattern.line_chunks(1 << 62))
+    assert whole.n == pattern.count()
+    rays, pulse = np.empty((whole.n, 6), np.float32), np.empty(whole.n, np.int64)
+    pattern.fill_rays(whole, 30.0, origin, rays, pulse)
+    parts = []
+    for c in chunks:
+        part, part_pulse = np.empty((c.n, 6), np.float32), np.empty(c.n, np.int64)
+        pattern.fill_rays(c, 30.0, origin, part, part_pulse)
+        parts.append(part)
+    assert np.array_equal(np.concatenate(parts), rays)  # chunking does not change a ray
+    assert np.allclose(rays[:, :3], origin) and np.allclose(np.linalg.norm(rays[:, 3:], axis=1), 1, atol=1e-5)

@@ -34,6 +34,7 @@ from typing import Protocol
 import numpy as np
 
 from bimscan.errors import ConfigError
+from bimscan.scan.pattern import LineChunk  # noqa: F401  (the engines' chunk type, re-exported)
 from bimscan.types import SceneMesh
 
 MISS = np.uint32(0xFFFFFFFF)
@@ -218,21 +219,6 @@ class FaceTables:
     component: np.ndarray
     label: np.ndarray
     brightness: np.ndarray
-
-
-@dataclass(frozen=True)
-class LineChunk:
-    """The emitting pulses of mirror lines ``first_line .. first_line + L - 1`` (one scan chunk).
-
-    start, stop: (L,) int64 pulse index range [start, stop) of each line; offsets: (L,) int64
-    row where each line's rays begin in the chunk; n: rays in all (the sum of stop - start).
-    """
-
-    first_line: int
-    start: np.ndarray
-    stop: np.ndarray
-    offsets: np.ndarray
-    n: int
 
 
 @dataclass(frozen=True)

@@ -13,11 +13,27 @@ and ``lo, hi`` the window as fractions of the sweep, and a station emits
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
 
 from bimscan.scan.device import ScannerModel, ScanSettings
+
+@dataclass(frozen=True)
+class LineChunk:
+    """The emitting pulses of mirror lines ``first_line .. first_line + L - 1`` (one scan chunk).
+
+    start, stop: (L,) int64 pulse index range [start, stop) of each line; offsets: (L,) int64
+    row where each line's rays begin in the chunk; n: rays in all (the sum of stop - start).
+    """
+
+    first_line: int
+    start: np.ndarray
+    stop: np.ndarray
+    offsets: np.ndarray
+    n: int
+
 
 # Absorbs float rounding at exact line/window boundaries (a phase of 1/3 computed as 0.333...3).
 _EPS = 1e-7
@@ -89,3 +105,24 @@ class PulsePattern:
         per_line = max(1.0, (self.window_hi - self.window_lo) / self.dphase)
         lines = max(1, int(pulses_per_chunk // per_line))
         return [(k, min(self.n_lines, k + lines)) for k in range(0, self.n_lines, lines)]
+
+    def line_chunks(self, pulses_per_chunk: int) -> Iterator[LineChunk]:
+        """The station's emitting pulses as chunks of lines (``chunks``), each with its lines' pulse
+        ranges and row offsets; chunks that emit nothing are left out."""
+        for first_line, stop_line in self.chunks(pulses_per_chunk):
+            start, stop = self.line_pulses(first_line, stop_line)
+            counts = stop - start
+            offsets = np.zeros(len(counts), dtype=np.int64)
+            np.cumsum(counts[:-1], out=offsets[1:])
+            n = int(counts.sum())
+            if n:
+                yield LineChunk(first_line=first_line, start=start, stop=stop, offsets=offsets, n=n)
+
+    def fill_rays(self, lines: LineChunk, heading_deg: float, origin: np.ndarray, rays: np.ndarray,
+                  pulse: np.ndarray) -> None:
+        """Fill ``rays`` (n, 6) float32 and ``pulse`` (n,) int64 with the chunk's rays from ``origin``
+        (float32, the engine's local frame), as the scanner casts them (``kernels.generate_rays``)."""
+        from bimscan.scan.kernels import generate_rays
+
+        generate_rays(lines.start, lines.stop, lines.offsets, lines.first_line, self.dphase, self.sweep_deg,
+                      self.head_start_deg, self.head_deg_per_pulse, heading_deg, origin, rays, pulse)

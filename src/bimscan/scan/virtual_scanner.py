@@ -12,7 +12,7 @@ import numba
 import numpy as np
 
 from bimscan.scan.asbuilt import Deviations
-from bimscan.scan.engine import FaceTables, HitSettings, LineChunk, RayEngine, make_engine
+from bimscan.scan.engine import FaceTables, HitSettings, RayEngine, make_engine
 from bimscan.scan.kernels import finish_hits, generate_rays, noise_key, station_normals
 from bimscan.scan.multibeam import finish_moving_hits, moving_rays
 from bimscan.scan.noise import NoiseModel
@@ -152,19 +152,12 @@ class VirtualScanner:
                            range_sigma_m=noise.range_sigma_m, angle_sigma_rad=angle_sigma, time0_s=time0_s,
                            pulse_period_s=1.0 / pattern.pulse_freq_hz, intensity_ref_m=INTENSITY_REFERENCE_M,
                            station_id=station.id)
-        for first_line, stop_line in pattern.chunks(recipe.chunk_pulses):
-            start, stop = pattern.line_pulses(first_line, stop_line)
-            counts = stop - start
-            offsets = np.zeros(len(counts), dtype=np.int64)
-            np.cumsum(counts[:-1], out=offsets[1:])
-            n = int(counts.sum())
-            if n == 0:
-                continue
+        for lines in pattern.line_chunks(recipe.chunk_pulses):
+            n = lines.n
             if fused is not None:
                 columns = self._outputs(n, reuse_buffers)
                 if on_pulses is not None:
                     on_pulses(n)
-                lines = LineChunk(first_line=first_line, start=start, stop=stop, offsets=offsets, n=n)
                 with self.clock.step("cast"):  # rays made, cast and finished in one device call
                     kept = fused(pattern, station.heading_deg, lines, hits, self._face_tables, columns)
                 if kept:
@@ -175,9 +168,7 @@ class VirtualScanner:
                 self._pulse_buffer = np.empty(n, dtype=np.int64)
             rays, pulse = self._ray_buffer[:n], self._pulse_buffer[:n]
             with self.clock.step("rays"):
-                generate_rays(start, stop, offsets, first_line, pattern.dphase, pattern.sweep_deg,
-                              pattern.head_start_deg, pattern.head_deg_per_pulse, station.heading_deg,
-                              origin_local.astype(np.float32), rays, pulse)
+                pattern.fill_rays(lines, station.heading_deg, origin_local.astype(np.float32), rays, pulse)
             t_hit, triangle = self.cast(rays)
             xyz, label, component, station_column, intensity, time = self._outputs(n, reuse_buffers)
             if on_pulses is not None:
