@@ -189,3 +189,77 @@ def test_a_column_whose_points_all_lie_in_the_synthetic_cells_is_trained_alone()
         block = blocks.block(0, slot)
         assert block["mask"].sum() > 0
         assert (block["label"][block["mask"]] == 0).any()  # the real column's own points are always there
+
+
+def _wall_behind_a_desk(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A 3 m x 2.6 m wall (plane x = 0) on a 0.1 m grid, a desk's top (0.75 m, 1 m deep) before it,
+    and a pillar-like free-standing box (not in the wall's plane) 2 m out: points and the
+    teacher's prediction, which calls the wall below 0.8 m Others (furniture in front of it),
+    the desk Others and the box's faces Beam."""
+    y, z = np.meshgrid(np.arange(0.05, 3.0, 0.1), np.arange(0.05, 2.6, 0.1), indexing="ij")
+    wall = np.column_stack([np.zeros(y.size), y.ravel(), z.ravel()])
+    x, y = np.meshgrid(np.arange(0.15, 1.0, 0.1), np.arange(0.55, 2.5, 0.1), indexing="ij")
+    desk = np.column_stack([x.ravel(), y.ravel(), np.full(x.size, 0.75)])
+    y, z = np.meshgrid(np.arange(0.05, 0.6, 0.1), np.arange(0.05, 2.6, 0.1), indexing="ij")
+    box = np.column_stack([np.full(y.size, 2.0), 1.0 + y.ravel(), z.ravel()])
+    xyz = np.concatenate([wall, desk, box]) + rng.normal(0.0, 0.003, (len(wall) + len(desk) + len(box), 3))
+    prediction = np.concatenate([np.where(wall[:, 2] < 0.8, 4, 0), np.full(len(desk), 4), np.full(len(box), 1)])
+    return xyz, prediction
+
+
+def test_a_wall_behind_furniture_takes_its_planes_class() -> None:
+    from bimscan.learn.adapt import vote_in_planes
+
+    xyz, prediction = _wall_behind_a_desk(np.random.default_rng(6))
+    wall = np.abs(xyz[:, 0]) < 0.05
+    desk = (np.abs(xyz[:, 2] - 0.75) < 0.05) & (xyz[:, 0] > 0.1) & (xyz[:, 0] < 1.1)
+    prediction[desk] = np.where(xyz[desk, 0] < 0.7, 0, 4)  # mostly Wall: a vote would make it all Wall
+
+    voted = vote_in_planes(xyz, prediction, [0, 4], AdaptConfig(region_min_points=50))
+
+    assert (prediction[wall] == 4).sum() > 200  # the teacher's error is there to mend
+    # the plane is mostly wall above the desk: all of it is Wall (but a point or two at the desk's
+    # edge, whose nearest neighbours bend its normal out of the plane)
+    assert (voted[wall] == 4).sum() <= 3
+    assert (voted[desk] == prediction[desk]).all()  # horizontal: no vote
+    assert (voted[~wall & ~desk] == prediction[~wall & ~desk]).all()  # Beam is not a voting class
+    # a plane too small to vote keeps its labels, and so does every point without the vote
+    assert (vote_in_planes(xyz, prediction, [0, 4], AdaptConfig(region_min_points=10_000)) == prediction).all()
+    assert (vote_in_planes(xyz, prediction, [0, 1], AdaptConfig(region_min_points=50))[wall] == prediction[wall]).sum() \
+        > 200  # Others does not vote: the wall's Others points stay
+
+
+def test_a_plane_vote_follows_the_majority_of_its_voting_points() -> None:
+    from bimscan.learn.adapt import vote_in_planes
+
+    xyz, prediction = _wall_behind_a_desk(np.random.default_rng(7))
+    wall = np.abs(xyz[:, 0]) < 0.05
+    prediction[wall] = np.where(xyz[wall, 2] < 2.0, 4, 0)  # now most of the plane is called Others
+
+    voted = vote_in_planes(xyz, prediction, [0, 4], AdaptConfig(region_min_points=50))
+
+    assert (voted[wall] == 0).sum() <= 3
+
+
+def test_the_plane_regions_split_where_the_normal_turns() -> None:
+    from bimscan.learn.adapt import planar_regions
+
+    xyz, _ = _wall_behind_a_desk(np.random.default_rng(8))
+    region, normals = planar_regions(xyz, radius_m=0.2, angle_deg=15.0, offset_m=0.03)
+    wall = np.abs(xyz[:, 0]) < 0.05
+    inner = wall & (xyz[:, 2] > 0.9) & (xyz[:, 1] > 0.2) & (xyz[:, 1] < 2.8)
+
+    assert len(np.unique(region[inner])) == 1  # the wall above the desk: one plane
+    assert np.abs(normals[inner, 0]).min() > 0.95
+    box = np.abs(xyz[:, 0] - 2.0) < 0.05
+    assert not set(region[box]) & set(region[wall])  # 2 m apart: never joined
+
+
+def test_a_plane_vote_between_classes_the_run_lacks_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "train.toml"
+    path.write_text('[data]\ntrain = ["synthetic"]\nadapt = ["mine"]\n\n[adapt]\nregion_classes = ["Wall", "Others"]\n')
+
+    with pytest.raises(ConfigError, match=r"\[adapt\] region_classes: 'Wall' is not one of the run's classes"):
+        load_train_config(path)
+    with pytest.raises(ConfigError, match=r"region_classes names two or more different classes"):
+        AdaptConfig(region_classes=("Others",))
