@@ -16,13 +16,6 @@ plane). The parts, each a classic of unsupervised domain adaptation for segmenta
   ``max_threshold``. One global threshold would keep the easy classes (walls, floors) and drop
   the rare ones (beams), whose confidence is lower; per class, every class keeps its share. The
   other points are not trained on (label 255).
-- **Plane votes.** The teacher's commonest error on real rooms is a wall behind furniture,
-  called Others: it labels a wall by what stands in front of it. A wall is a plane it sees above
-  the furniture too, so before the thresholds each vertical planar region of a column (grown
-  from point to point through neighbours of like normal in each other's plane; a superpoint, as
-  superpoint-guided pseudo-labels in 3D domain adaptation use them) gives the class most of its
-  points got among ``region_classes`` (Wall&Column, Others) to all of those points. A point
-  keeps its own confidence: the vote changes its class, not how sure the teacher was.
 - **Column mixing** (after DODA's cuboid mixing, Ding et al. 2022, which mixes synthetic and
   real scenes in 3D cuboids). An adapted block is an unlabelled column with its pseudo-labels
   whose footprint is cut into ``mix_cells`` x ``mix_cells`` cells, of which a random half (at
@@ -47,15 +40,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 from torch import nn
 
 from bimscan.errors import LearnError
 from bimscan.learn.blocks import pad_block
 from bimscan.learn.data import TileSet, draw_block
-from bimscan.learn.features import estimate_normals, extra_features
+from bimscan.learn.features import extra_features
 from bimscan.learn.model import autocast_context, flush_denormals
 from bimscan.learn.train_config import (
     IGNORE_LABEL, AdaptationSchedule, AdaptConfig, AugmentConfig, InputConfig, TrainRunConfig,
@@ -66,29 +56,24 @@ _PSEUDO_STREAM = 17  # seed streams of this module (the training loop's are 7 an
 # when the mix would hold fewer than this (a column at a room's edge fills only part of its footprint)
 MIN_MIXED_POINTS = 64
 _MIX_STREAM = 19
-REGION_NORMAL_NEIGHBOURS = 12  # the normals the plane regions grow by: a 0.1 m grid's 12 nearest span ~0.2 m
-VERTICAL_NORMAL_Z = 0.3  # a region is vertical (a wall's plane) when its normals' mean |z| is below this (~17 deg)
 
 
 @dataclass(frozen=True)
 class PseudoLabels:
     """One round's pseudo-labels: ``label`` (P,) uint8 aligned with the unlabelled tiles' points
     (255 where a point's confidence is under its class's threshold), ``thresholds`` (C,) float64,
-    ``predicted`` and ``kept`` (C,) int64 points the teacher called each class (after the plane
-    votes) and kept; ``revoted``: points whose class a plane vote changed."""
+    ``predicted`` and ``kept`` (C,) int64 points the teacher called each class and kept."""
 
     label: np.ndarray
     thresholds: np.ndarray
     predicted: np.ndarray
     kept: np.ndarray
-    revoted: int = 0
 
     def describe(self, class_names: tuple[str, ...]) -> str:
         """One line: per class the points kept of those predicted, and the threshold."""
         parts = [f"{name} {int(k):,}/{int(p):,} (>= {t:.2f})"
                  for name, k, p, t in zip(class_names, self.kept, self.predicted, self.thresholds, strict=True)]
-        return (f"pseudo-labels kept per class: {', '.join(parts)}; {self.revoted:,} point(s) relabelled by their "
-                "wall plane's vote")
+        return "pseudo-labels kept per class: " + ", ".join(parts)
 
 
 def class_thresholds(confidence: np.ndarray, prediction: np.ndarray, *, classes: int, share: float,
@@ -106,12 +91,9 @@ def class_thresholds(confidence: np.ndarray, prediction: np.ndarray, *, classes:
 @torch.no_grad()
 def pseudo_label_tiles(
     teacher: nn.Module, tiles: TileSet, *, points: int, inputs: InputConfig, config: AdaptConfig, classes: int,
-    device: torch.device, batch_size: int, amp: str, seed: int, epoch: int, class_names: Sequence[str],
+    device: torch.device, batch_size: int, amp: str, seed: int, epoch: int,
 ) -> PseudoLabels:
-    """Label every kept point of ``tiles`` with ``teacher`` (in eval mode; see the module docs).
-    ``class_names``: the run's, in id order (``config.region_classes`` are among them:
-    ``TrainRunConfig`` checks it)."""
-    voting = [list(class_names).index(name) for name in config.region_classes]
+    """Label every kept point of ``tiles`` with ``teacher`` (in eval mode; see the module docs)."""
     teacher.eval()
     probability = np.zeros((len(tiles.label), classes), dtype=np.float32)
     queue: list[tuple[np.ndarray, np.ndarray]] = []  # (block input (N, D), point indices into tiles (M,))
@@ -146,62 +128,13 @@ def pseudo_label_tiles(
         run()
     prediction = probability.argmax(axis=1)
     confidence = probability.max(axis=1).astype(np.float64)
-    revoted = 0
-    if voting:
-        for index in range(len(tiles)):
-            lo, hi = int(tiles.offsets[index]), int(tiles.offsets[index + 1])
-            xyz, _, _ = tiles.tile_points(index)
-            voted = vote_in_planes(xyz, prediction[lo:hi], voting, config)
-            revoted += int((voted != prediction[lo:hi]).sum())
-            prediction[lo:hi] = voted
     thresholds = class_thresholds(confidence, prediction, classes=classes, share=config.pseudo_share,
                                   cap=config.max_threshold)
     keep = confidence >= thresholds[prediction]
     label = np.where(keep, prediction, IGNORE_LABEL).astype(np.uint8)
     return PseudoLabels(label=label, thresholds=thresholds,
                         predicted=np.bincount(prediction, minlength=classes).astype(np.int64),
-                        kept=np.bincount(prediction[keep], minlength=classes).astype(np.int64), revoted=revoted)
-
-
-def planar_regions(xyz: np.ndarray, *, radius_m: float, angle_deg: float, offset_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Region (N,) int64 of each point of ``xyz`` (N, 3) and its normal (N, 3): points joined
-    when they lie within ``radius_m`` of each other, their normals differ by at most
-    ``angle_deg`` and each lies within ``offset_m`` of the other's plane (the connected
-    components of that graph: a plane grown from point to point, bending by at most the angle
-    per step)."""
-    normals = estimate_normals(xyz, neighbours=min(REGION_NORMAL_NEIGHBOURS, len(xyz)))
-    pairs = cKDTree(xyz).query_pairs(radius_m, output_type="ndarray")
-    i, j = pairs[:, 0], pairs[:, 1]
-    step = xyz[j] - xyz[i]
-    joined = ((np.abs(np.einsum("ij,ij->i", normals[i], normals[j])) >= np.cos(np.radians(angle_deg)))
-              & (np.abs(np.einsum("ij,ij->i", step, normals[i])) <= offset_m)
-              & (np.abs(np.einsum("ij,ij->i", step, normals[j])) <= offset_m))
-    graph = coo_matrix((np.ones(int(joined.sum()), dtype=np.int8), (i[joined], j[joined])), shape=(len(xyz), len(xyz)))
-    return connected_components(graph, directed=False)[1].astype(np.int64), normals
-
-
-def vote_in_planes(xyz: np.ndarray, prediction: np.ndarray, voting: Sequence[int], config: AdaptConfig) -> np.ndarray:
-    """``prediction`` (N,) of one column's points ``xyz`` (N, 3) after its vertical planar
-    regions' votes: in each, the points predicted one of the ``voting`` class ids all take the
-    one most of them got (ties: the first in ``voting``), where they are at least
-    ``config.region_min_points``; every other point keeps its class."""
-    voted = prediction.copy()
-    if len(xyz) < 3:
-        return voted
-    region, normals = planar_regions(np.asarray(xyz, dtype=np.float64), radius_m=config.region_radius_m,
-                                     angle_deg=config.region_angle_deg, offset_m=config.region_offset_m)
-    order = np.argsort(region, kind="stable")
-    starts = np.flatnonzero(np.r_[True, region[order][1:] != region[order][:-1]])
-    candidates = np.asarray(voting)
-    for members in np.split(order, starts[1:]):
-        if len(members) < config.region_min_points or np.abs(normals[members, 2]).mean() >= VERTICAL_NORMAL_Z:
-            continue
-        members = members[np.isin(prediction[members], candidates)]
-        if len(members) < config.region_min_points:
-            continue
-        votes = np.array([(prediction[members] == c).sum() for c in candidates])
-        voted[members] = candidates[int(votes.argmax())]
-    return voted
+                        kept=np.bincount(prediction[keep], minlength=classes).astype(np.int64))
 
 
 def mixed_cells(cells: int, rng: np.random.Generator) -> np.ndarray:
@@ -308,4 +241,4 @@ def adaptation_config(checkpoint: Path, scans: Sequence[Path], *, synthetic: Seq
 
 
 __all__ = ["AdaptationSchedule", "AdaptedBlocks", "PseudoLabels", "adaptation_config", "class_thresholds",
-           "mixed_cells", "planar_regions", "pseudo_label_tiles", "vote_in_planes"]
+           "mixed_cells", "pseudo_label_tiles"]

@@ -721,7 +721,7 @@ def _train_epoch(run: _Run, epoch: int, on_step_end: Callable[[int, int], None] 
         pseudo = pseudo_label_tiles(run.ema.module, run.target_tiles, points=config.blocks.points, inputs=config.input,
                                     config=config.adapt, classes=classes, device=ctx.device,
                                     batch_size=config.eval.batch_size, amp=settings.amp, seed=settings.seed,
-                                    epoch=epoch, class_names=config.data.class_names)
+                                    epoch=epoch)
         run.adapted.set_pseudo_labels(pseudo)
         if ctx.is_main:
             run.emit(f"epoch {epoch + 1}: " + pseudo.describe(tuple(config.data.class_names)))

@@ -298,30 +298,12 @@ class AdaptConfig(Checked):
     a synthetic column's points and labels instead (column mixing, after DODA's cuboid mixing,
     Ding et al. 2022), the whole augmented as a synthetic block; ``mix_cells`` 1: the
     unlabelled column alone. Its loss counts ``weight`` times the synthetic blocks'.
-
-    Before the thresholds, each vertical planar region of a column votes between the
-    ``region_classes`` (the class of most of its points that the teacher gave one of them goes
-    to all of those): a wall's plane is grown from point to point (neighbours within
-    ``region_radius_m`` whose normals differ by at most ``region_angle_deg`` and that lie within
-    ``region_offset_m`` of each other's plane), and its points behind furniture, which the
-    teacher calls Others, take the class of the wall above them. Regions of fewer than
-    ``region_min_points`` of those points keep their labels; ``region_classes = []``: no vote.
     """
 
     pseudo_share: float = setting(0.5, within=Range(0.0, 1.0, low_open=True))
     max_threshold: float = setting(0.9, within=Range(0.0, 1.0))
     mix_cells: int = setting(2, within=Range(1, 8))
     weight: float = setting(1.0, within=Range(0.0, 10.0, low_open=True))
-    region_classes: tuple[str, ...] = ("Wall&Column", "Others")
-    region_radius_m: float = setting(0.2, within=Range(0.0, 10.0, low_open=True))
-    region_angle_deg: float = setting(15.0, within=Range(0.0, 90.0, low_open=True))
-    region_offset_m: float = setting(0.03, within=Range(0.0, 1.0, low_open=True))
-    region_min_points: int = setting(50, within=Range(1, 1 << 24))
-
-    def check(self) -> None:
-        if len(self.region_classes) == 1 or len(set(self.region_classes)) != len(self.region_classes):
-            raise ConfigError(f"region_classes names two or more different classes a wall's plane votes between, or "
-                              f"none (no vote), got {list(self.region_classes)}")
 
 
 @dataclass(frozen=True)
@@ -351,10 +333,6 @@ class TrainRunConfig(Checked):
 
     def check(self) -> None:
         self.eval.stride_for(self.blocks.size_m)  # a stride that does not divide the blocks fails now
-        unknown = [name for name in self.adapt.region_classes if name not in self.data.class_names]
-        if self.data.adapt and unknown:
-            raise ConfigError(f"[adapt] region_classes: {unknown[0]!r} is not one of the run's classes "
-                              f"({', '.join(self.data.class_names)}); name two of them, or [] for no vote")
 
 
 # The training sections of a run (and of an experiment's variants) and their settings classes.
