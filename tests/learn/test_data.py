@@ -82,6 +82,42 @@ def test_paths_that_are_no_scene_are_one_line_errors(tmp_path: Path) -> None:
             list_scenes([path])
 
 
+def test_a_georeferenced_scan_makes_the_tiles_of_the_same_scan_at_the_origin(
+    tmp_path: Path, room: Callable[..., PointCloud],
+) -> None:
+    """Real scans come in map coordinates (a UTM northing of 5,401 km is 2.7 million 2 m
+    columns): their tiles are those of the same points near the origin, moved."""
+    scene = room(8, size_m=(5.0, 3.0), points_per_m2=60)
+    shift = np.array([512_346.0, 5_401_234.0, 312.0])  # whole columns: the same grid cells
+    for folder, moved in (("local", scene.xyz), ("utm", scene.xyz + shift)):  # one name: one random subset
+        (tmp_path / folder).mkdir()
+        write_text_cloud(tmp_path / folder / "scan.txt", PointCloud(xyz=moved, label=scene.label))
+    blocks = BlockConfig(size_m=2.0, points=64, min_points=16, cache_points=300)
+
+    local, utm = (collect_scene_tiles(list_scenes([tmp_path / folder / "scan.txt"])[0], blocks=blocks,
+                                      class_names=DEFAULT_CLASS_NAMES, seed=3) for folder in ("local", "utm"))
+
+    assert len(utm) == len(local) > 1
+    np.testing.assert_array_equal(utm.offsets, local.offsets)
+    np.testing.assert_array_equal(utm.label, local.label)
+    np.testing.assert_allclose(utm.xyz, local.xyz, atol=2e-3)  # the text file's millimetres
+    np.testing.assert_allclose(utm.origin, local.origin + shift, atol=2e-3)
+    assert utm.xyz[:, :2].min() >= -1e-3 and utm.xyz[:, :2].max() <= 2.0 + 1e-3  # inside its own column
+
+
+def test_a_scene_wider_than_the_columns_can_number_is_refused(tmp_path: Path, room: Callable[..., PointCloud]) -> None:
+    scene = room(9, size_m=(4.0, 3.0), points_per_m2=40)
+    far = scene.xyz + [150_000.0, 0.0, 0.0]  # two rooms 150 km apart in one file: 600,000 columns of 0.25 m
+    write_text_cloud(tmp_path / "wide.txt", PointCloud(xyz=np.concatenate([scene.xyz, far]),
+                                                       label=np.concatenate([scene.label, scene.label])))
+    blocks = BlockConfig(size_m=0.25, points=64, min_points=16, cache_points=300)
+
+    with pytest.raises(LearnError, match=r"wide.txt: the scene spans 150 km, more than training columns of 0.25 m can "
+                                         r"number; cut it into buildings or sites"):
+        collect_scene_tiles(list_scenes([tmp_path / "wide.txt"])[0], blocks=blocks, class_names=DEFAULT_CLASS_NAMES,
+                            seed=3)
+
+
 def test_tiles_keep_a_random_subset_per_column_whatever_the_chunking(
     tmp_path: Path, room: Callable[..., PointCloud],
 ) -> None:
@@ -96,7 +132,8 @@ def test_tiles_keep_a_random_subset_per_column_whatever_the_chunking(
     np.testing.assert_array_equal(small.xyz, large.xyz)
     np.testing.assert_array_equal(small.offsets, large.offsets)
     ix, iy = locate_columns(scene.xyz[:, :2], size_m=2.0)
-    keys, counts = np.unique(encode_column_key(ix, iy), return_counts=True)
+    # column indices count from the scene's first column
+    keys, counts = np.unique(encode_column_key(ix - ix.min(), iy - iy.min()), return_counts=True)
     full = dict(zip(keys.tolist(), counts.tolist(), strict=True))
     for t in range(len(small)):
         kept = int(small.offsets[t + 1] - small.offsets[t])

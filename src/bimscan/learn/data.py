@@ -354,12 +354,25 @@ def collect_scene_tiles(
         return (replace(chunk, label=np.full(len(chunk), IGNORE_LABEL, dtype=np.uint8))
                 for chunk in iter_raw_chunks(source, chunk_points=chunk_points, labels=False))
 
+    lowest, highest = np.full(2, np.inf), np.full(2, -np.inf)
     for chunk in chunks():
         floors.add(chunk.xyz)
+        if len(chunk):
+            lowest = np.minimum(lowest, chunk.xyz[:, :2].min(axis=0))
+            highest = np.maximum(highest, chunk.xyz[:, :2].max(axis=0))
     floor_map = floors.build()
+    # column indices count from the scene's own first column, so that georeferenced scans (a UTM
+    # northing of 5,400 km is 1.8 million 3 m columns) stay inside the key's per-station and
+    # per-storey index ranges; the grid itself stays anchored at multiples of size_m
+    anchor = np.floor(lowest / blocks.size_m).astype(np.int64) if np.isfinite(lowest).all() else np.zeros(2, np.int64)
+    if np.isfinite(highest).all() and (np.floor(highest / blocks.size_m) - anchor).max() >= _STATION_SHIFT // 2:
+        span_km = float((highest - lowest).max()) / 1000.0
+        raise LearnError(f"{source.path}: the scene spans {span_km:,.0f} km, more than training columns of "
+                         f"{blocks.size_m:g} m can number; cut it into buildings or sites")
     for chunk in chunks():
         floor = floor_map.floor_under(chunk.xyz)
         ix, iy = locate_columns(chunk.xyz[:, :2], size_m=blocks.size_m)
+        ix, iy = ix - anchor[0], iy - anchor[1]
         iy = iy + storey_of(floor_map, floor) * _STOREY_SHIFT  # a column of a building is one block per storey
         if per_station and chunk.station is not None:
             if len(chunk.station) and int(chunk.station.max()) >= _MAX_STATIONS:
@@ -421,7 +434,7 @@ def collect_scene_tiles(
     kept_rgb = kept_label[:, 1:4] if colour else None
     kept_label = kept_label[:, 0] if colour else kept_label
     return _tiles_from_points(source, kept_key, kept_xyz, kept_label, height, counts, blocks=blocks,
-                              labelled=labelled, rgb=kept_rgb)
+                              labelled=labelled, rgb=kept_rgb, anchor=anchor)
 
 
 _STATION_SHIFT = 1 << 20  # per-station columns: column x index + station x this (|x index| < 2**19)
@@ -525,7 +538,11 @@ def _sort_by_column_and_key(key: np.ndarray, prio: np.ndarray) -> tuple[np.ndarr
 def _tiles_from_points(
     source: SceneSource, key: np.ndarray, xyz: np.ndarray, label: np.ndarray, height: np.ndarray,
     counts: dict[int, int], *, blocks: BlockConfig, labelled: bool = True, rgb: np.ndarray | None = None,
+    anchor: np.ndarray | None = None,
 ) -> TileSet:
+    """The tiles of a scene's kept points, sorted by column ``key`` (indices counted from the
+    scene's first column ``anchor`` (2,) int64: the grid index of its lowest x and y)."""
+    anchor = np.zeros(2, np.int64) if anchor is None else anchor
     starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]]) if len(key) else np.empty(0, np.int64)
     ends = np.r_[starts[1:], len(key)].astype(np.int64)
     parts_xyz, parts_label, parts_height, parts_rgb, offsets, origins, keys, totals = [], [], [], [], [0], [], [], []
@@ -535,7 +552,7 @@ def _tiles_from_points(
         if counts[column] < blocks.min_points or (labelled and not (labels != IGNORE_LABEL).any()):
             continue
         ix, iy = decode_column_key(np.array([column]))
-        ix, iy = _column_x(ix), _column_y(iy)
+        ix, iy = _column_x(ix) + anchor[0], _column_y(iy) + anchor[1]
         origin = np.array([ix[0] * blocks.size_m, iy[0] * blocks.size_m, float(xyz[start:end, 2].min())])
         parts_xyz.append((xyz[start:end] - origin).astype(np.float32))
         parts_label.append(labels)
@@ -577,8 +594,8 @@ def name_tile_cache(
     per_station: bool = False, labelled: bool = True, colour: bool = False,
 ) -> str:
     """File name of a scene's cached tiles: a digest of everything the tiles depend on."""
-    recipe = {  # version: what collecting does (8: a ceiling under a thin slab seen from above keeps its room's floor)
-        "version": 8, "scene": _fingerprint(source.path), "name": source.name, "kind": source.kind,
+    recipe = {  # version: what collecting does (9: column indices count from the scene's first column)
+        "version": 9, "scene": _fingerprint(source.path), "name": source.name, "kind": source.kind,
         "label_field": source.label_field, "mapping": None if source.mapping is None else asdict(source.mapping),
         "blocks": asdict(blocks), "class_names": list(class_names), "seed": seed, "grid_m": grid_m,
         "per_station": per_station, **({} if labelled else {"unlabelled": True}), **({"colour": True} if colour else {}),
