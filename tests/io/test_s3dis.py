@@ -86,7 +86,36 @@ def test_unknown_class_file_is_a_one_line_error(tmp_path: Path) -> None:
 
 def test_broken_point_line_names_the_file(tmp_path: Path) -> None:
     room = make_room(tmp_path / "office_1")
-    (room / "Annotations" / "wall_3.txt").write_text("1 2 3 4 5 6\n1 2 \x10 4 5 6\n")
+    (room / "Annotations" / "wall_3.txt").write_text("1 2 3 4 5 6\n1 2 \x10 4 5 6\n1 2\n")  # cut short
 
     with pytest.raises(InputFileError, match="wall_3.txt: unreadable point line"):
+        read_s3dis_room(room)
+
+
+def test_a_stray_byte_in_a_number_is_read_without_it_and_reported(tmp_path: Path) -> None:
+    """The release's own slip (Area_5/office_19, ceiling_1.txt: 103.0\\x100000): the line reads
+    as 103.000000, in its place, with a warning; a line the stray byte leaves short is skipped."""
+    room = make_room(tmp_path / "office_19")
+    ceiling = room / "Annotations" / "ceiling_1.txt"
+    clean = read_s3dis_room(room)
+    lines = ceiling.read_text().splitlines()
+    lines[2] = "103.0\x100000 " + " ".join(lines[2].split()[1:])
+    ceiling.write_text("\n".join([*lines, "1.0 2.0 \x10 4 5 6"]) + "\n")
+
+    with pytest.warns(UserWarning, match=r"ceiling_1.txt: 1 line\(s\) read without their stray bytes \(line 3: "
+                                         r"'103.0\\x100000 .*'\); 1 unreadable line\(s\) skipped \(line 6: "):
+        repaired = read_s3dis_room(room)
+
+    assert len(repaired) == len(clean)
+    changed = np.flatnonzero((repaired.xyz != clean.xyz).any(axis=1))
+    assert len(changed) == 1 and repaired.xyz[changed[0], 0] == 103.0  # in its place, the rest as it was
+    np.testing.assert_array_equal(np.delete(repaired.xyz, changed, axis=0), np.delete(clean.xyz, changed, axis=0))
+
+
+def test_a_file_of_many_stray_bytes_is_refused_as_damaged(tmp_path: Path) -> None:
+    room = make_room(tmp_path / "office_1")
+    (room / "Annotations" / "wall_3.txt").write_text("".join(f"1 2 3 4 5 {i}\x00\n" for i in range(20)))
+
+    with pytest.raises(InputFileError, match=r"wall_3.txt: 20 of 21 lines hold stray bytes \(line 1: "
+                                             r"'1 2 3 4 5 0\\x00'\); the file is damaged: download it again"):
         read_s3dis_room(room)

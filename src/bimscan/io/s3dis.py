@@ -12,12 +12,18 @@ Through :mod:`bimscan.io` a room is the cloud format ``s3dis`` (``read_cloud``,
 ``S3DIS_CLASSES``.
 
 A few releases of S3DIS hold files of class ``stairs``; following common practice (the
-PointNet preparation scripts), they are read as ``clutter``.
+PointNet preparation scripts), they are read as ``clutter``. Some release files hold a stray
+byte inside a number (Area_5/office_19's ``ceiling_1.txt``: ``103.0\x100000``, which the
+preparation scripts of PointNet++ and Pointcept fix by hand): such a line is read with the stray
+characters removed, a line that still does not read as the file's other lines is skipped, and
+both are reported (a warning naming the file, the count and the first line).
 """
 
 from __future__ import annotations
 
+import io
 import re
+import warnings
 from collections.abc import Iterator, Mapping
 from dataclasses import replace
 from pathlib import Path
@@ -101,10 +107,7 @@ def read_s3dis_room(path: str | Path, *, class_map: Mapping[str, int] | None = N
             label_id = table[name]
             if not 0 <= label_id <= 255:
                 raise InputFileError(f"class map sends {name!r} to {label_id}; label ids must be in 0..255")
-        try:
-            table_ = np.loadtxt(file, dtype=np.float64, ndmin=2)
-        except ValueError as exc:
-            raise InputFileError(f"{file}: unreadable point line ({exc}); fix or remove that line") from exc
+        table_ = _read_annotation(file)
         if table_.size and table_.shape[1] < 3:
             raise InputFileError(f"{file}: {table_.shape[1]} column(s) per line; an S3DIS annotation holds x y z r g b")
         table_ = table_.reshape(-1, max(table_.shape[1], 3)) if table_.size else np.zeros((0, 6))
@@ -121,6 +124,54 @@ def read_s3dis_room(path: str | Path, *, class_map: Mapping[str, int] | None = N
     if len(cloud) == 0:
         raise InputFileError(f"{path}: the room's annotation files hold no points; check the download")
     return cloud if labels else replace(cloud, label=None)
+
+
+_STRAY = re.compile(rb"[^0-9eE+.\-\s]")  # a byte no number or separator holds
+# a file with more damaged lines than this share (and more than 10) is not a slip in a release
+# but a broken file
+MAX_DAMAGED_SHARE = 0.001
+
+
+def _read_annotation(file: Path) -> np.ndarray:
+    """The (N, C) numbers of one annotation file. A line with stray bytes is read without them
+    when it then holds the numbers the file's other lines hold, else skipped; both are reported
+    (a warning). InputFileError when more than ``MAX_DAMAGED_SHARE`` of its lines (and more than
+    10) are damaged, or a line is unreadable without stray bytes (a truncated file)."""
+    try:
+        return np.loadtxt(file, dtype=np.float64, ndmin=2)
+    except ValueError:
+        pass  # repaired below, or refused with the reader's own words
+    lines = file.read_bytes().split(b"\n")
+    width = next((len(line.split()) for line in lines if line.strip() and _STRAY.search(line) is None), 0)
+    repaired: list[tuple[int, str]] = []
+    skipped: list[tuple[int, str]] = []
+    for index, line in enumerate(lines):
+        if _STRAY.search(line) is None:
+            continue
+        fields = [_STRAY.sub(b"", field) for field in line.split()]
+        try:
+            readable = len([float(field) for field in fields]) == width
+        except ValueError:
+            readable = False
+        (repaired if readable else skipped).append((index + 1, line.strip().decode("latin-1")))
+        lines[index] = b" ".join(fields) if readable else b""
+    damaged = repaired + skipped
+    if len(damaged) > max(10, MAX_DAMAGED_SHARE * len(lines)):
+        number, line = min(damaged)
+        raise InputFileError(f"{file}: {len(damaged):,} of {len(lines):,} lines hold stray bytes (line {number}: "
+                             f"{line!r}); the file is damaged: download it again")
+    try:
+        table = np.loadtxt(io.BytesIO(b"\n".join(lines)), dtype=np.float64, ndmin=2)
+    except ValueError as exc:
+        raise InputFileError(f"{file}: unreadable point line ({exc}); fix or remove that line") from exc
+    parts = []
+    if repaired:
+        parts.append(f"{len(repaired)} line(s) read without their stray bytes (line {repaired[0][0]}: "
+                     f"{repaired[0][1]!r})")
+    if skipped:
+        parts.append(f"{len(skipped)} unreadable line(s) skipped (line {skipped[0][0]}: {skipped[0][1]!r})")
+    warnings.warn(f"{file}: " + "; ".join(parts), stacklevel=3)
+    return table
 
 
 def iter_s3dis_chunks(
