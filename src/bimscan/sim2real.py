@@ -74,6 +74,10 @@ def run_experiment(experiment: Experiment, out_dir: str | Path, *,
 
     emit = log or (lambda text: print(text, file=sys.stderr, flush=True))
     out = Path(out_dir).resolve()
+    scored = _scored_scenes(experiment)
+    # every variant's models planned before any work: one that cannot run (too few scored rooms
+    # for its folds) stops the experiment now, not after the variants before it have trained
+    runs_of = {variant.name: _runs(experiment, variant, scored) for variant in experiment.variants}
     out.mkdir(parents=True, exist_ok=True)
     _check_holdout_unseen(experiment, out)
     _check_real_labelled(experiment)
@@ -81,12 +85,7 @@ def run_experiment(experiment: Experiment, out_dir: str | Path, *,
     _build_datasets(experiment, out, emit)
     holdout = _build_holdout(experiment, out, emit)
     _check_same_data(experiment, out)
-    scored = _scored_scenes(experiment)
-    runs_of: dict[str, list[Run]] = {}
-    results = []
-    for variant in experiment.variants:
-        runs_of[variant.name] = _runs(experiment, variant, scored)
-        results.append(_run_variant(experiment, variant, runs_of, out, holdout, emit))
+    results = [_run_variant(experiment, variant, runs_of, out, holdout, emit) for variant in experiment.variants]
     write_report(experiment, results, out)
     emit(f"report: {out / 'report.md'}")
     return results

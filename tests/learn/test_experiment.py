@@ -617,3 +617,16 @@ def test_bad_adapted_variants_are_one_line_errors(rooms_dir: Path, variant: str,
         load_experiment(rooms_dir / "exp.toml")
 
     assert "\n" not in str(caught.value)
+
+
+def test_an_inductive_variant_with_one_scored_room_is_refused_before_any_work(rooms_dir: Path) -> None:
+    """Its folds need two scored rooms: it is refused before the variants before it train (a
+    user's --real with one room found out after the synthetic-only model's training)."""
+    head = ROOMS_EXPERIMENT[:ROOMS_EXPERIMENT.index('[[variants]]\nname = "real-only"')]
+    (rooms_dir / "exp.toml").write_text(head + ADAPT_VARIANTS, encoding="utf-8")
+    out = rooms_dir / "out"
+
+    with pytest.raises(ConfigError, match=r"'adapt-inductive' adapt_to = \"others\" needs two scored scenes or more"):
+        run_experiment(load_experiment(rooms_dir / "exp.toml", real=[rooms_dir / "r1.txt"]), out, log=lambda t: None)
+
+    assert not out.exists()
