@@ -92,24 +92,28 @@ def test_broken_point_line_names_the_file(tmp_path: Path) -> None:
         read_s3dis_room(room)
 
 
-def test_a_stray_byte_in_a_number_is_read_without_it_and_reported(tmp_path: Path) -> None:
-    """The release's own slip (Area_5/office_19, ceiling_1.txt: 103.0\\x100000): the line reads
-    as 103.000000, in its place, with a warning; a line the stray byte leaves short is skipped."""
-    room = make_room(tmp_path / "office_19")
+def test_a_stray_byte_is_read_as_the_files_other_lines_read_and_reported(tmp_path: Path) -> None:
+    """The release's own slip (a NUL in a few Area_5 lines): inside a number it is dropped
+    (103.0\\x000000: 103.0), between two it separates them (3.1\\x00145); each line in its place,
+    with a warning; a line that reads neither way is skipped."""
+    room = make_room(tmp_path / "hallway_6")
     ceiling = room / "Annotations" / "ceiling_1.txt"
     clean = read_s3dis_room(room)
     lines = ceiling.read_text().splitlines()
-    lines[2] = "103.0\x100000 " + " ".join(lines[2].split()[1:])
-    ceiling.write_text("\n".join([*lines, "1.0 2.0 \x10 4 5 6"]) + "\n")
+    lines[2] = "103.0\x000000 " + " ".join(lines[2].split()[1:])
+    x, y, z, r, g, b = lines[3].split()
+    lines[3] = f"{x} {y} {z}\x00{r} {g} {b}"
+    ceiling.write_text("\n".join([*lines, "1.0 2.0 \x00 4 5"]) + "\n")
 
-    with pytest.warns(UserWarning, match=r"ceiling_1.txt: 1 line\(s\) read without their stray bytes \(line 3: "
-                                         r"'103.0\\x100000 .*'\); 1 unreadable line\(s\) skipped \(line 6: "):
+    with pytest.warns(UserWarning, match=r"ceiling_1.txt: 2 line\(s\) read without their stray bytes \(line 3: "
+                                         r"'103.0\\x000000 .*'\); 1 unreadable line\(s\) skipped \(line 6: "):
         repaired = read_s3dis_room(room)
 
     assert len(repaired) == len(clean)
     changed = np.flatnonzero((repaired.xyz != clean.xyz).any(axis=1))
     assert len(changed) == 1 and repaired.xyz[changed[0], 0] == 103.0  # in its place, the rest as it was
     np.testing.assert_array_equal(np.delete(repaired.xyz, changed, axis=0), np.delete(clean.xyz, changed, axis=0))
+    np.testing.assert_array_equal(repaired.rgb, clean.rgb)  # the separated line's colour too
 
 
 def test_a_file_of_many_stray_bytes_is_refused_as_damaged(tmp_path: Path) -> None:

@@ -12,11 +12,12 @@ Through :mod:`bimscan.io` a room is the cloud format ``s3dis`` (``read_cloud``,
 ``S3DIS_CLASSES``.
 
 A few releases of S3DIS hold files of class ``stairs``; following common practice (the
-PointNet preparation scripts), they are read as ``clutter``. Some release files hold a stray
-byte inside a number (Area_5/office_19's ``ceiling_1.txt``: ``103.0\x100000``, which the
-preparation scripts of PointNet++ and Pointcept fix by hand): such a line is read with the stray
-characters removed, a line that still does not read as the file's other lines is skipped, and
-both are reported (a warning naming the file, the count and the first line).
+PointNet preparation scripts), they are read as ``clutter``. The v1.2 release holds a stray
+byte (a NUL) in a few lines of Area_5 (PointNet's preparation script fixes Area_5/hallway_6 by
+hand): such a line is read without the byte inside a number (``103.0\x000000``: 103.0) or with
+it as a separator (``3.1\x00145``: 3.1 and 145), whichever gives the numbers the file's other
+lines hold; a line that neither reads is skipped; both are reported (a warning naming the file,
+the count and the first line).
 """
 
 from __future__ import annotations
@@ -133,9 +134,9 @@ MAX_DAMAGED_SHARE = 0.001
 
 
 def _read_annotation(file: Path) -> np.ndarray:
-    """The (N, C) numbers of one annotation file. A line with stray bytes is read without them
-    when it then holds the numbers the file's other lines hold, else skipped; both are reported
-    (a warning). InputFileError when more than ``MAX_DAMAGED_SHARE`` of its lines (and more than
+    """The (N, C) numbers of one annotation file. A line with stray bytes is read without them,
+    or with them as separators, when it then holds as many numbers as the file's other lines,
+    else skipped; both are reported (a warning). InputFileError when more than ``MAX_DAMAGED_SHARE`` of its lines (and more than
     10) are damaged, or a line is unreadable without stray bytes (a truncated file)."""
     try:
         return np.loadtxt(file, dtype=np.float64, ndmin=2)
@@ -148,13 +149,10 @@ def _read_annotation(file: Path) -> np.ndarray:
     for index, line in enumerate(lines):
         if _STRAY.search(line) is None:
             continue
-        fields = [_STRAY.sub(b"", field) for field in line.split()]
-        try:
-            readable = len([float(field) for field in fields]) == width
-        except ValueError:
-            readable = False
-        (repaired if readable else skipped).append((index + 1, line.strip().decode("latin-1")))
-        lines[index] = b" ".join(fields) if readable else b""
+        mended = next((fields for fields in (_STRAY.sub(b"", line).split(), _STRAY.sub(b" ", line).split())
+                       if _numbers(fields) == width), None)
+        (repaired if mended else skipped).append((index + 1, line.strip().decode("latin-1")))
+        lines[index] = b" ".join(mended) if mended else b""
     damaged = repaired + skipped
     if len(damaged) > max(10, MAX_DAMAGED_SHARE * len(lines)):
         number, line = min(damaged)
@@ -172,6 +170,14 @@ def _read_annotation(file: Path) -> np.ndarray:
         parts.append(f"{len(skipped)} unreadable line(s) skipped (line {skipped[0][0]}: {skipped[0][1]!r})")
     warnings.warn(f"{file}: " + "; ".join(parts), stacklevel=3)
     return table
+
+
+def _numbers(fields: list[bytes]) -> int:
+    """How many numbers ``fields`` are (-1: one of them is not a number)."""
+    try:
+        return len([float(field) for field in fields])
+    except ValueError:
+        return -1
 
 
 def iter_s3dis_chunks(
