@@ -136,8 +136,9 @@ MAX_DAMAGED_SHARE = 0.001
 def _read_annotation(file: Path) -> np.ndarray:
     """The (N, C) numbers of one annotation file. A line with stray bytes is read without them,
     or with them as separators, when it then holds as many numbers as the file's other lines,
-    else skipped; both are reported (a warning). InputFileError when more than ``MAX_DAMAGED_SHARE`` of its lines (and more than
-    10) are damaged, or a line is unreadable without stray bytes (a truncated file)."""
+    else skipped; both are reported (a warning). InputFileError when more than
+    ``MAX_DAMAGED_SHARE`` of its point lines (and more than 10) are damaged, or a line is
+    unreadable without stray bytes (a truncated file)."""
     try:
         return np.loadtxt(file, dtype=np.float64, ndmin=2)
     except ValueError:
@@ -154,9 +155,10 @@ def _read_annotation(file: Path) -> np.ndarray:
         (repaired if mended else skipped).append((index + 1, line.strip().decode("latin-1")))
         lines[index] = b" ".join(mended) if mended else b""
     damaged = repaired + skipped
-    if len(damaged) > max(10, MAX_DAMAGED_SHARE * len(lines)):
+    point_lines = sum(1 for line in lines if line.strip()) + len(skipped)  # (skipped lines are blank now)
+    if len(damaged) > max(10, MAX_DAMAGED_SHARE * point_lines):
         number, line = min(damaged)
-        raise InputFileError(f"{file}: {len(damaged):,} of {len(lines):,} lines hold stray bytes (line {number}: "
+        raise InputFileError(f"{file}: {len(damaged):,} of {point_lines:,} lines hold stray bytes (line {number}: "
                              f"{line!r}); the file is damaged: download it again")
     try:
         table = np.loadtxt(io.BytesIO(b"\n".join(lines)), dtype=np.float64, ndmin=2)

@@ -35,7 +35,7 @@ from bimscan.io.s3dis import S3DIS_CLASSES, list_s3dis_rooms
 from bimscan.learn.blocks import locate_columns, encode_column_key, pad_block, sample_block, decode_column_key
 from bimscan.learn.density import point_hash, voxel_hash
 from bimscan.learn.features import extra_features
-from bimscan.learn.floors import FloorMapBuilder, storey_of
+from bimscan.learn.floors import TILE_M, FloorMapBuilder, storey_of
 from bimscan.learn.train_config import DEFAULT_CLASS_NAMES, IGNORE_LABEL, AugmentConfig, BlockConfig, InputConfig
 from bimscan.learn.mapping import (
     LabelMapping, apply_label_table, build_label_table, load_s3dis_mapping,
@@ -354,21 +354,19 @@ def collect_scene_tiles(
         return (replace(chunk, label=np.full(len(chunk), IGNORE_LABEL, dtype=np.uint8))
                 for chunk in iter_raw_chunks(source, chunk_points=chunk_points, labels=False))
 
-    lowest, highest = np.full(2, np.inf), np.full(2, -np.inf)
     for chunk in chunks():
         floors.add(chunk.xyz)
-        if len(chunk):
-            lowest = np.minimum(lowest, chunk.xyz[:, :2].min(axis=0))
-            highest = np.maximum(highest, chunk.xyz[:, :2].max(axis=0))
     floor_map = floors.build()
-    # column indices count from the scene's own first column, so that georeferenced scans (a UTM
-    # northing of 5,400 km is 1.8 million 3 m columns) stay inside the key's per-station and
-    # per-storey index ranges; the grid itself stays anchored at multiples of size_m
-    anchor = np.floor(lowest / blocks.size_m).astype(np.int64) if np.isfinite(lowest).all() else np.zeros(2, np.int64)
-    if np.isfinite(highest).all() and (np.floor(highest / blocks.size_m) - anchor).max() >= _STATION_SHIFT // 2:
-        span_km = float((highest - lowest).max()) / 1000.0
-        raise LearnError(f"{source.path}: the scene spans {span_km:,.0f} km, more than training columns of "
-                         f"{blocks.size_m:g} m can number; cut it into buildings or sites")
+    # column indices count from the column of the floor map's origin (the scene's first points),
+    # so that georeferenced scans (a UTM northing of 5,400 km is 1.8 million 3 m columns) stay
+    # inside the key's per-station and per-storey index ranges; the grid itself stays anchored at
+    # multiples of size_m, so the tiles and their order are those of the same points at the origin
+    anchor = np.floor(floor_map.origin[:2] / blocks.size_m).astype(np.int64)
+    if len(floor_map.tiles):
+        span_m = float((floor_map.tiles.max(axis=0) - floor_map.tiles.min(axis=0) + 1).max() * TILE_M)
+        if span_m / blocks.size_m + 1 >= _STATION_SHIFT // 2:
+            raise LearnError(f"{source.path}: the scene spans {span_m / 1000:,.0f} km, more than training columns of "
+                             f"{blocks.size_m:g} m can number; cut it into buildings or sites")
     for chunk in chunks():
         floor = floor_map.floor_under(chunk.xyz)
         ix, iy = locate_columns(chunk.xyz[:, :2], size_m=blocks.size_m)
@@ -537,12 +535,11 @@ def _sort_by_column_and_key(key: np.ndarray, prio: np.ndarray) -> tuple[np.ndarr
 
 def _tiles_from_points(
     source: SceneSource, key: np.ndarray, xyz: np.ndarray, label: np.ndarray, height: np.ndarray,
-    counts: dict[int, int], *, blocks: BlockConfig, labelled: bool = True, rgb: np.ndarray | None = None,
-    anchor: np.ndarray | None = None,
+    counts: dict[int, int], *, blocks: BlockConfig, anchor: np.ndarray, labelled: bool = True,
+    rgb: np.ndarray | None = None,
 ) -> TileSet:
     """The tiles of a scene's kept points, sorted by column ``key`` (indices counted from the
-    scene's first column ``anchor`` (2,) int64: the grid index of its lowest x and y)."""
-    anchor = np.zeros(2, np.int64) if anchor is None else anchor
+    column ``anchor`` (2,) int64, see ``collect_scene_tiles``)."""
     starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]]) if len(key) else np.empty(0, np.int64)
     ends = np.r_[starts[1:], len(key)].astype(np.int64)
     parts_xyz, parts_label, parts_height, parts_rgb, offsets, origins, keys, totals = [], [], [], [], [0], [], [], []

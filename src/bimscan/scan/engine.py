@@ -16,7 +16,8 @@ An engine may also offer the fused scan path ``cast_and_finish(pattern, heading_
 faces, outputs) -> kept``: it generates the rays of a chunk of mirror lines, casts them and does
 the per-hit work of ``kernels.finish_hits`` itself (Warp: on the device, so hits never travel
 back unfinished), writing the same points in the same order. ``VirtualScanner`` uses it when
-present; the types it takes (``LineChunk``, ``HitSettings``, ``FaceTables``) are below.
+present; the types it takes are ``bimscan.scan.pattern``'s ``PulsePattern`` and ``LineChunk``
+(``PulsePattern.line_chunks``) and ``HitSettings`` and ``FaceTables`` below.
 """
 
 from __future__ import annotations
@@ -34,7 +35,6 @@ from typing import Protocol
 import numpy as np
 
 from bimscan.errors import ConfigError
-from bimscan.scan.pattern import LineChunk  # noqa: F401  (the engines' chunk type, re-exported)
 from bimscan.types import SceneMesh
 
 MISS = np.uint32(0xFFFFFFFF)

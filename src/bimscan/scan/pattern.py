@@ -20,6 +20,7 @@ import numpy as np
 
 from bimscan.scan.device import ScannerModel, ScanSettings
 
+
 @dataclass(frozen=True)
 class LineChunk:
     """The emitting pulses of mirror lines ``first_line .. first_line + L - 1`` (one scan chunk).
@@ -122,7 +123,7 @@ class PulsePattern:
                   pulse: np.ndarray) -> None:
         """Fill ``rays`` (n, 6) float32 and ``pulse`` (n,) int64 with the chunk's rays from ``origin``
         (float32, the engine's local frame), as the scanner casts them (``kernels.generate_rays``)."""
-        from bimscan.scan.kernels import generate_rays
+        from bimscan.scan.kernels import generate_rays  # here: Numba stays off the settings' import path
 
         generate_rays(lines.start, lines.stop, lines.offsets, lines.first_line, self.dphase, self.sweep_deg,
                       self.head_start_deg, self.head_deg_per_pulse, heading_deg, origin, rays, pulse)

@@ -32,9 +32,9 @@ import numpy as np
 import warp as wp
 
 from bimscan.errors import ConfigError
-from bimscan.scan.engine import MISS, FaceTables, HitSettings, LineChunk, mesh_centre
+from bimscan.scan.engine import MISS, FaceTables, HitSettings, mesh_centre
 from bimscan.scan.kernels import _QUANTILE_GRID, _QUANTILE_SMALL, _SUB, _SUB_BITS
-from bimscan.scan.pattern import PulsePattern
+from bimscan.scan.pattern import LineChunk, PulsePattern
 from bimscan.types import SceneMesh
 
 wp.config.log_level = wp.LOG_WARNING  # no banner and no "module loaded" lines: bimscan reports its own progress
