@@ -38,6 +38,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from bimscan.errors import LearnError
+from bimscan.files import remove_path
 from bimscan.processes import die_with_parent
 from bimscan.learn.checkpoint import (
     MODEL_KEYS, capture_rng_state, load_state, read_checkpoint, restore_rng_state, save_checkpoint,
@@ -563,6 +564,30 @@ def _train(
                        parameters=run.parameters)
 
 
+def _read_tiles(config: TrainRunConfig, val_sources: list[SceneSource], train_sources: list[SceneSource],
+                target_sources: list[SceneSource], *, cache_dir: Path, ctx: DistributedContext,
+                ) -> tuple[TileSet | None, TileSet, TileSet | None]:
+    """The validation, training and adaptation tiles of a run (LearnError where a set holds none)."""
+    # the validation scenes first: they are few, and unusable ones should stop the run early
+    val_tiles = _collect_tiles(val_sources, config=config, cache_dir=cache_dir, ctx=ctx) if val_sources else None
+    if val_tiles is not None and len(val_tiles) == 0:
+        raise LearnError(
+            f"[data] val: no column of its {len(val_sources)} scene(s) has ground truth and at least blocks.min_points "
+            f"({config.blocks.min_points}) points; give the val scenes labels ([data.val] label_field / mapping) or "
+            "leave val out"
+        )
+    train_tiles = _collect_tiles(train_sources, config=config, cache_dir=cache_dir, ctx=ctx,
+                                 columns=config.blocks.train_columns)
+    target_tiles = None
+    if target_sources:
+        target_tiles = _collect_tiles(target_sources, config=config, cache_dir=cache_dir, ctx=ctx,
+                                      columns=config.blocks.train_columns, labelled=False)
+        if len(target_tiles) == 0:
+            raise LearnError(f"[data] adapt: no column of its {len(target_sources)} scene(s) holds blocks.min_points "
+                             f"({config.blocks.min_points}) points; give scans of the building's rooms")
+    return val_tiles, train_tiles, target_tiles
+
+
 def _set_up(config: TrainRunConfig, *, ctx: DistributedContext, base_dir: Path, out_dir: Path | None, resume: bool,
             init: Path | None, emit: Callable[[str], None]) -> _Run:
     """Every input checked (before the output folder appears), the tiles read, the network, its
@@ -588,28 +613,17 @@ def _set_up(config: TrainRunConfig, *, ctx: DistributedContext, base_dir: Path, 
     if state is not None and init is not None:
         check_same_start(state.get("init"), init, last_path)
     parent = None if init is None or resume else read_start(init, config)
+    created = ctx.is_main and not out.exists()
     if ctx.is_main:
         out.mkdir(parents=True, exist_ok=True)
     classes = len(config.data.class_names)
-    cache_dir = out / "tile-cache"
-
-    # the validation scenes first: they are few, and unusable ones should stop the run early
-    val_tiles = _collect_tiles(val_sources, config=config, cache_dir=cache_dir, ctx=ctx) if val_sources else None
-    if val_tiles is not None and len(val_tiles) == 0:
-        raise LearnError(
-            f"[data] val: no column of its {len(val_sources)} scene(s) has ground truth and at least blocks.min_points "
-            f"({config.blocks.min_points}) points; give the val scenes labels ([data.val] label_field / mapping) or "
-            "leave val out"
-        )
-    train_tiles = _collect_tiles(train_sources, config=config, cache_dir=cache_dir, ctx=ctx,
-                                 columns=config.blocks.train_columns)
-    target_tiles = None
-    if target_sources:
-        target_tiles = _collect_tiles(target_sources, config=config, cache_dir=cache_dir, ctx=ctx,
-                                      columns=config.blocks.train_columns, labelled=False)
-        if len(target_tiles) == 0:
-            raise LearnError(f"[data] adapt: no column of its {len(target_sources)} scene(s) holds blocks.min_points "
-                             f"({config.blocks.min_points}) points; give scans of the building's rooms")
+    try:
+        val_tiles, train_tiles, target_tiles = _read_tiles(config, val_sources, train_sources, target_sources,
+                                                           cache_dir=out / "tile-cache", ctx=ctx)
+    except Exception:
+        if created:  # this run made OUT and it holds only tile caches: a bad input leaves nothing behind
+            remove_path(out)
+        raise
     train_set = TileDataset(train_tiles, points=config.blocks.points, seed=settings.seed, inputs=config.input,
                             augment=config.augment)
     val_set = None if val_tiles is None else TileDataset(
