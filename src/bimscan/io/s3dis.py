@@ -163,7 +163,8 @@ def _read_annotation(file: Path) -> np.ndarray:
     try:
         table = np.loadtxt(io.BytesIO(b"\n".join(lines)), dtype=np.float64, ndmin=2)
     except ValueError as exc:
-        raise InputFileError(f"{file}: unreadable point line ({exc}); fix or remove that line") from exc
+        reason = str(exc).split(";")[0].rstrip(".")  # NumPy's words, less its advice on its own API
+        raise InputFileError(f"{file}: unreadable point line ({reason}); fix or remove that line") from exc
     parts = []
     if repaired:
         parts.append(f"{len(repaired)} line(s) read without their stray bytes (line {repaired[0][0]}: "
