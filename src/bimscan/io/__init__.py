@@ -22,21 +22,61 @@ one OBJ per component, an index CSV, optionally a HELIOS++ scene) and ``read_obj
 
 from __future__ import annotations
 
+import os
 import shutil
 from collections.abc import Callable, Iterator
+from contextlib import closing
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from bimscan.errors import InputFileError, OutputError
+from bimscan.io._labelled import CopyCheck, LabelledCopier
+from bimscan.io._header import present_columns
 from bimscan.io._writer import CloudWriter, WrittenCloud, check_input_path, check_output_path
-from bimscan.io.e57 import check_e57_columns, count_e57_points, iter_e57_chunks, open_e57_writer, read_e57_header
-from bimscan.io.las import count_las_points, iter_las_chunks, open_las_writer, open_laz_writer, read_las_header
-from bimscan.io.npdir import count_npdir_points, iter_npdir_chunks, open_npdir_writer, read_npdir_header
+from bimscan.io.e57 import (
+    check_e57_columns,
+    check_e57_copy,
+    copy_e57_labelled,
+    count_e57_points,
+    e57_held,
+    iter_e57_chunks,
+    open_e57_writer,
+    read_e57_header,
+)
+from bimscan.io.las import (
+    check_las_copy,
+    copy_las_labelled,
+    count_las_points,
+    iter_las_chunks,
+    las_held,
+    open_las_writer,
+    open_laz_writer,
+    read_las_header,
+)
+from bimscan.io.npdir import (
+    check_npdir_copy,
+    copy_npdir_labelled,
+    count_npdir_points,
+    iter_npdir_chunks,
+    npdir_held,
+    open_npdir_writer,
+    read_npdir_header,
+)
 from bimscan.io.obj import ObjExport, export_obj, read_obj
-from bimscan.io.ply import count_ply_points, iter_ply_chunks, open_ply_writer, read_ply_header, sidecar_path
+from bimscan.io.ply import (
+    check_ply_copy,
+    copy_ply_labelled,
+    count_ply_points,
+    iter_ply_chunks,
+    open_ply_writer,
+    ply_held,
+    read_ply_header,
+    sidecar_path,
+)
 from bimscan.io.s3dis import count_s3dis_points, is_s3dis_room, iter_s3dis_chunks
-from bimscan.io.text import TEXT_SUFFIXES, count_text_points, iter_text_chunks
+from bimscan.io.text import TEXT_SUFFIXES, check_text_copy, copy_text_labelled, count_text_points, iter_text_chunks, text_held
 from bimscan.types import CloudHeader, PointCloud
 
 # One vocabulary of cloud formats, shared with the dataset layout (``bimscan.dataset.layout``):
@@ -88,6 +128,17 @@ POINT_COUNTERS: dict[str, Callable[[str | Path], int]] = {
     "text": count_text_points,
     "s3dis": count_s3dis_points,
 }
+# Labelled copies (``plan_labelled_copy``, ``write_labelled_copy``): per input format, the output
+# formats a copy keeps everything of the input in, and how (see ``bimscan.io._labelled``).
+_LAS_COPIER = LabelledCopier(targets=("las", "laz"), check=check_las_copy, copy=copy_las_labelled, held=las_held)
+LABELLED_COPIERS: dict[str, LabelledCopier] = {
+    "las": _LAS_COPIER,
+    "laz": _LAS_COPIER,
+    "ply": LabelledCopier(targets=("ply",), check=check_ply_copy, copy=copy_ply_labelled, held=ply_held),
+    "e57": LabelledCopier(targets=("e57",), check=check_e57_copy, copy=copy_e57_labelled, held=e57_held),
+    "npy": LabelledCopier(targets=("npy",), check=check_npdir_copy, copy=copy_npdir_labelled, held=npdir_held),
+    "text": LabelledCopier(targets=("text",), check=check_text_copy, copy=copy_text_labelled, held=text_held),
+}
 # Bytes a point of the paper's scanner takes on disk at most, per format (LAZ: a bound on what
 # scans compress to; colour, extra echoes and mobile columns add more), for the free-space check
 # before a long scan.
@@ -96,6 +147,8 @@ BYTES_PER_POINT: dict[str, int] = {"las": 36, "laz": 12, "ply": 41, "e57": 40, "
 # presets' scans at 10 deg/s to 4.4 (exp6) to 7.4 (exp1) bytes a point, sparser scans to about 9
 # (docs/guide/datasets.md); the other formats store a fixed record.
 LIKELY_BYTES_PER_POINT: dict[str, float] = BYTES_PER_POINT | {"laz": 6.0}
+# what an S3DIS room (read only, never copied) holds beyond its points' columns
+_S3DIS_HELD = ("its per-object annotation files (Annotations/)",)
 _WRITABLE = ", ".join(s for name in WRITABLE_FORMATS for s in CLOUD_FORMATS[name] if s) + \
     ", or a folder path without suffix (NumPy)"
 _READABLE = ", ".join(s for suffixes in CLOUD_FORMATS.values() for s in suffixes if s) + \
@@ -217,14 +270,132 @@ def count_points(path: str | Path) -> int:
     return POINT_COUNTERS[input_format(path)](path)
 
 
+@dataclass(frozen=True)
+class LabelledCopyPlan:
+    """How ``write_labelled_copy`` will write a cloud with new labels, checked before any work.
+
+    source_format / target_format: ``CLOUD_FORMATS`` names. copied: True when the input's own copier
+    writes it (``LABELLED_COPIERS``: everything kept but what ``check`` names), False when the
+    target format's writer does (the input's ``PointCloud`` columns; ``check.lost`` names the rest).
+    same_file: the output is the input (by any path spelling), replaced at the end.
+    """
+
+    source: Path
+    target: Path
+    source_format: str
+    target_format: str
+    copied: bool
+    check: CopyCheck
+    overwrite: bool
+    same_file: bool
+
+    def notices(self) -> tuple[str, ...]:
+        """One line per kind of thing the output does not keep as the input had it (none: all kept)."""
+        lines = []
+        if self.check.lost:
+            lines.append(f"{self.target} will not hold {'; '.join(self.check.lost)} of {self.source} "
+                         f"({self.target_format} has no place for {'it' if len(self.check.lost) == 1 else 'them'})")
+        if self.check.changed:
+            lines.append(f"{self.target}: {'; '.join(self.check.changed)}")
+        return tuple(lines)
+
+
+def labelled_output_format(path: str | Path) -> str | None:
+    """The format a labelled copy writes at ``path``: a ``WRITABLE_FORMATS`` name, or "text" (which
+    only a text input's copy writes), by suffix; None for an unknown suffix."""
+    name = output_format(path)
+    if name is None and Path(str(path)).suffix.lower() in TEXT_SUFFIXES:
+        return "text"
+    return name
+
+
+def plan_labelled_copy(
+    source: str | Path, target: str | Path, *, overwrite: bool = False, top_class: int = 0,
+) -> LabelledCopyPlan:
+    """Check, before any work, that ``source`` can be written to ``target`` with new class ids up
+    to ``top_class``, and say what the output will not keep.
+
+    An input whose format's copier (``LABELLED_COPIERS``) writes the target format is copied with
+    everything it holds (a LAS with its header, VLRs, EVLRs and point records; another tool's PLY
+    with every property and element; ...); any other pair goes through the target's writer, which
+    carries the ``PointCloud`` columns. Raises OutputError for what ``open_cloud_writer`` would
+    refuse, for a text output of a non-text input, and for an output that is the input itself (a
+    link or another spelling included) unless the copy keeps all of it, naming what would be lost.
+    """
+    source = check_input_path(source)
+    source_format = input_format(source)
+    target = Path(target)
+    target_format = labelled_output_format(target)
+    if target_format is None:
+        raise OutputError(f"{target}: unknown cloud format {target.suffix!r}; write {_WRITABLE}, or a text "
+                          "cloud's own suffix for a text input")
+    copier = LABELLED_COPIERS.get(source_format)
+    copied = copier is not None and target_format in copier.targets
+    if target_format == "text" and not copied:
+        raise OutputError(f"{target}: bimscan writes text clouds only as labelled copies of text clouds; write "
+                          f"{_WRITABLE}")
+    if copier is not None and copied:
+        check = copier.check(source, target_format, top_class)
+    else:  # through the target's writer: what the input holds beyond the columns stays behind
+        check = CopyCheck(lost=copier.held(source) if copier is not None else _S3DIS_HELD)
+    same = os.path.lexists(target) and _same_file(source, target)
+    if same and not (copied and check.keeps_everything):
+        what = "; ".join(check.lost + check.changed) or "its format"
+        raise OutputError(f"{target} is the input {source}: labelling it in place would {'lose' if check.lost else 'change'} "
+                          f"{what}; write the labelled cloud to another path")
+    if copied:
+        check_output_path(target, overwrite=overwrite, extra=(sidecar_path(target),) if target_format == "ply" else (),
+                          kind="npy" if target_format == "npy" else None)
+    else:
+        with closing(iter_cloud_chunks(source, chunk_points=1, labels=False)) as chunks:
+            first = next(chunks, None)  # the input's columns, from its first point
+        check_cloud_output(target, overwrite=overwrite, columns=() if first is None else present_columns(first))
+    return LabelledCopyPlan(source=source, target=target, source_format=source_format, target_format=target_format,
+                            copied=copied, check=check, overwrite=overwrite, same_file=same)
+
+
+def _same_file(first: Path, second: Path) -> bool:
+    try:
+        return os.path.samefile(first, second)
+    except OSError:
+        return False
+
+
+def write_labelled_copy(
+    plan: LabelledCopyPlan, labels: np.ndarray, *, header: CloudHeader, checksum: bool = True,
+) -> WrittenCloud:
+    """Write ``plan.source`` with ``labels`` (N,) uint8, one per point in the order
+    ``iter_cloud_chunks`` gives them, to ``plan.target`` (see ``plan_labelled_copy``), streamed
+    and staged under a temporary name renamed at the end, so an output that is the input is read
+    whole before it is replaced. ``header``: the label scheme and metadata stored with it where
+    the format has a place (LAS/LAZ EVLR, PLY sidecar, E57 extension, NumPy ``meta.json``; none in text).
+    """
+    if plan.copied:
+        copier = LABELLED_COPIERS[plan.source_format]
+        return copier.copy(plan.source, plan.target, labels, header=header, overwrite=plan.overwrite,
+                           checksum=checksum)
+    start = 0
+    with open_cloud_writer(plan.target, header=header, overwrite=plan.overwrite, checksum=checksum) as writer:
+        for chunk in iter_cloud_chunks(plan.source, labels=False):
+            label = np.asarray(labels[start:start + len(chunk)], dtype=np.uint8)
+            if len(label) != len(chunk):
+                raise ValueError(f"{plan.source}: {len(labels)} labels for more points; pass one label per point")
+            writer.write(replace(chunk, label=label))
+            start += len(chunk)
+    if start != len(labels):
+        raise ValueError(f"{plan.source}: {len(labels)} labels for {start} points; pass one label per point")
+    return writer.close()
+
+
 def read_cloud_header(path: str | Path) -> CloudHeader | None:
     """The ``CloudHeader`` bimscan stored with a cloud, or None for a foreign file (text and S3DIS: always)."""
     return HEADER_READERS[input_format(path)](Path(path))
 
 
 __all__ = [
-    "BYTES_PER_POINT", "CHUNK_READERS", "CLOUD_FORMATS", "HEADER_READERS", "LIKELY_BYTES_PER_POINT", "POINT_COUNTERS",
-    "WRITABLE_FORMATS", "WRITERS", "CloudWriter", "ObjExport", "WrittenCloud", "check_cloud_output", "check_free_space", "count_points",
-    "export_obj", "input_format", "iter_cloud_chunks", "open_cloud_writer", "output_format", "read_cloud",
-    "read_cloud_header", "read_obj",
+    "BYTES_PER_POINT", "CHUNK_READERS", "CLOUD_FORMATS", "HEADER_READERS", "LABELLED_COPIERS", "LIKELY_BYTES_PER_POINT",
+    "POINT_COUNTERS", "WRITABLE_FORMATS", "WRITERS", "CloudWriter", "CopyCheck", "LabelledCopier", "LabelledCopyPlan",
+    "ObjExport", "WrittenCloud", "check_cloud_output", "check_free_space", "count_points", "export_obj", "input_format",
+    "iter_cloud_chunks", "labelled_output_format", "open_cloud_writer", "output_format", "plan_labelled_copy",
+    "read_cloud", "read_cloud_header", "read_obj", "write_labelled_copy",
 ]

@@ -156,6 +156,115 @@ def commit_output(temp: Path, final: Path, *, overwrite: bool, kind: str | None 
     replace_path(temp, final, kind=kind)
 
 
+def commit_staged(
+    staged: list[tuple[Path, Path, str | None]], path: Path, *, n_points: int, overwrite: bool, checksum: bool,
+    clock: StageClock | None = None,
+) -> WrittenCloud:
+    """Move every staged (temporary, final, folder kind) output into place, in order, and say what
+    was written (``path``: the main output; with ``checksum`` the SHA-256 of every file, read
+    before the renames). The caller removes the temporaries when this raises."""
+    files: list[Path] = []
+    sha256: dict[str, str] = {}
+    n_bytes = 0
+    clock = clock or StageClock()
+    for temp, final, _ in staged:
+        members = sorted(p for p in temp.rglob("*") if p.is_file()) if temp.is_dir() else [temp]
+        for member in members:
+            name = (final / member.relative_to(temp)) if temp.is_dir() else final
+            files.append(name)
+            n_bytes += member.stat().st_size
+            if checksum:
+                with clock.step("checksum"):
+                    sha256[name.relative_to(path.parent).as_posix()] = file_sha256(member)
+    for temp, final, kind in staged:
+        commit_output(temp, final, overwrite=overwrite, kind=kind)
+    files.sort(key=lambda f: not (f == path or path in f.parents))  # main output first
+    return WrittenCloud(path=path, n_points=n_points, files=tuple(files), sha256=sha256, n_bytes=n_bytes)
+
+
+class StagedOutput:
+    """The temporary files of one output that is not written chunk by chunk through a
+    ``StreamingCloudWriter`` (a labelled copy of a cloud), moved into place together by
+    ``commit`` (see ``commit_staged``). Use it as a context manager: an exception inside removes
+    every temporary, and an OSError of writing becomes a one-line OutputError.
+
+    ``extra``: further outputs beside ``path`` (a PLY's sidecar); ``kind``: the
+    ``FOLDER_OUTPUTS`` kind of a folder output (checked as ``check_output_path`` does).
+    """
+
+    def __init__(self, path: Path, *, overwrite: bool, checksum: bool = True, extra: tuple[Path, ...] = (),
+                 kind: str | None = None) -> None:
+        self.path = Path(path)
+        self.overwrite = overwrite
+        self.checksum = checksum
+        self.clock = StageClock()
+        self._staged: list[tuple[Path, Path, str | None]] = []
+        self._handles: list[WatchedFile] = []
+        self._done = False
+        check_output_path(self.path, overwrite=overwrite, extra=extra, kind=kind)
+
+    def file(self, final: Path) -> Path:
+        """Stage ``final``: its (created, empty) temporary file, moved into place at commit."""
+        temp = temp_path(final)
+        os.close(os.open(temp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
+        self._staged.append((temp, final, None))
+        return temp
+
+    def folder(self, final: Path, *, kind: str) -> Path:
+        """Stage the folder ``final`` (of ``FOLDER_OUTPUTS[kind]``): its temporary folder."""
+        temp = temp_path(final)
+        temp.mkdir()
+        self._staged.append((temp, final, kind))
+        return temp
+
+    def open(self, path: Path) -> WatchedFile:
+        """``path`` (a staged file, or a file inside a staged folder) opened for binary writing."""
+        handle = WatchedFile(path.open("w+b"))
+        self._handles.append(handle)
+        return handle
+
+    def commit(self, *, n_points: int) -> WrittenCloud:
+        """Close the files and move every staged output into place."""
+        for handle in self._handles:
+            handle.close()
+        result = commit_staged(self._staged, self.path, n_points=n_points, overwrite=self.overwrite,
+                               checksum=self.checksum, clock=self.clock)
+        self._done = True
+        return result
+
+    def abort(self) -> None:
+        """Remove every temporary; a no-op after ``commit``."""
+        if self._done:
+            return
+        self._done = True
+        for handle in self._handles:
+            try:
+                handle.close()
+            except (OSError, ValueError):
+                pass  # the output is being discarded; a failing close changes nothing
+        for temp, _, _ in self._staged:
+            try:
+                remove_path(temp)
+            except OSError:
+                pass  # best effort: an undeletable temporary must not hide the original error
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        if exc_type is None:
+            return
+        self.abort()
+        # an OSError of the output's files (recorded by their handles, or a full disk) is the output's
+        cause = next((h.error for h in self._handles if h.error is not None), None)
+        if cause is None and isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            cause = exc
+        if cause is not None and not isinstance(exc, OutputError):
+            raise output_error(cause, self.path) from exc
+
+
 class StreamingCloudWriter:
     """Base of the format writers: staging, column checks, error handling, context manager.
 
@@ -268,30 +377,14 @@ class StreamingCloudWriter:
                 self._begin(self.columns)
             self._finish()
             self._release()
-            files: list[Path] = []
-            sha256: dict[str, str] = {}
-            n_bytes = 0
-            for temp, final, _ in self._staged:
-                members = sorted(p for p in temp.rglob("*") if p.is_file()) if temp.is_dir() else [temp]
-                for member in members:
-                    name = (final / member.relative_to(temp)) if temp.is_dir() else final
-                    files.append(name)
-                    n_bytes += member.stat().st_size
-                    if self.checksum:
-                        with self.clock.step("checksum"):
-                            sha256[name.relative_to(self.path.parent).as_posix()] = file_sha256(member)
-            for temp, final, kind in self._staged:
-                commit_output(temp, final, overwrite=self.overwrite, kind=kind)
+            self._result = commit_staged(self._staged, self.path, n_points=self.n_points, overwrite=self.overwrite,
+                                         checksum=self.checksum, clock=self.clock)
         except Exception as exc:
             error = self._failure(exc)
             if error is exc:
                 raise
             raise error from exc
         self._state = "closed"
-        files.sort(key=lambda f: not (f == self.path or self.path in f.parents))  # main output first
-        self._result = WrittenCloud(
-            path=self.path, n_points=self.n_points, files=tuple(files), sha256=sha256, n_bytes=n_bytes
-        )
         return self._result
 
     def abort(self) -> None:

@@ -71,7 +71,8 @@ import numpy as np
 from bimscan import __version__
 from bimscan.errors import ConfigError, InputFileError, OutputError
 from bimscan.io._header import as_labels, dump_json, header_from_document, header_to_document, parse_document
-from bimscan.io._writer import StreamingCloudWriter, check_input_path, source_date_epoch
+from bimscan.io._labelled import CopyCheck, check_label_count
+from bimscan.io._writer import StagedOutput, StreamingCloudWriter, WrittenCloud, check_input_path, source_date_epoch
 from bimscan.types import CloudHeader, PointCloud
 
 try:  # pye57's package __init__ also imports its high-level reader (and pyquaternion): skip it
@@ -900,8 +901,301 @@ def iter_e57_chunks(
         image.close()
 
 
+
+# -- labelled copies ------------------------------------------------------------------------------
+#
+# A labelled copy keeps an E57 file's whole tree as libE57Format reads it: every element of the
+# root (guid, coordinateMetadata, images2D with their blobs, other tools' extensions, ...), every
+# /data3D scan with its name, guid, pose, bounds, limits and sensor records, and every point
+# field of every record with its type, bounds and scale (integers and scaled integers copied as
+# raw integers, so nothing is re-quantised; points flagged invalid stay, labelled 255). The class
+# goes to ``bimscan:label`` (integer 0..255, replaced where the scan had one, else added as its
+# last field) and bimscan's header document to ``bimscan:cloudHeader``. The file is written anew,
+# so its bytes are libE57Format's layout of the same tree.
+
+_LEAF_DTYPES: dict[type, type] = {libe57.IntegerNode: np.longlong, libe57.ScaledIntegerNode: np.longlong,
+                                  libe57.FloatNode: np.float64}
+_CONTAINERS = (libe57.StructureNode, libe57.VectorNode)
+
+
+def _typed(node: Any) -> Any:
+    """``node`` (a generic Node of a tree, or one already typed) as its own node class."""
+    if not isinstance(node, libe57.Node):
+        return node
+    kind = node.type()
+    return {
+        libe57.E57_STRUCTURE: libe57.StructureNode, libe57.E57_VECTOR: libe57.VectorNode,
+        libe57.E57_COMPRESSED_VECTOR: libe57.CompressedVectorNode, libe57.E57_INTEGER: libe57.IntegerNode,
+        libe57.E57_SCALED_INTEGER: libe57.ScaledIntegerNode, libe57.E57_FLOAT: libe57.FloatNode,
+        libe57.E57_STRING: libe57.StringNode, libe57.E57_BLOB: libe57.BlobNode,
+    }[kind](node)
+
+
+def _children(node: Any) -> list[Any]:
+    return [_typed(node.get(i)) for i in range(node.childCount())]
+
+
+def _leaf(node: Any, image: Any) -> Any:
+    """A new, unattached copy in ``image`` of a value node (integer, scaled integer, float, string)."""
+    if isinstance(node, libe57.IntegerNode):
+        return libe57.IntegerNode(image, node.value(), node.minimum(), node.maximum())
+    if isinstance(node, libe57.ScaledIntegerNode):
+        return libe57.ScaledIntegerNode(image, node.rawValue(), node.minimum(), node.maximum(), node.scale(),
+                                        node.offset())
+    if isinstance(node, libe57.FloatNode):
+        return libe57.FloatNode(image, node.value(), node.precision(), node.minimum(), node.maximum())
+    return libe57.StringNode(image, node.value())
+
+
+def _detached(node: Any, image: Any) -> Any:
+    """A new, unattached copy in ``image`` of a tree without blobs or compressed vectors (a
+    prototype, a codecs vector)."""
+    if isinstance(node, libe57.StructureNode):
+        copy = libe57.StructureNode(image)
+        for child in _children(node):
+            copy.set(child.elementName(), _detached(child, image))
+        return copy
+    if isinstance(node, libe57.VectorNode):
+        copy = libe57.VectorNode(image, node.allowHeteroChildren())
+        for child in _children(node):
+            copy.append(_detached(child, image))
+        return copy
+    return _leaf(node, image)
+
+
+def _attach(parent: Any, name: str, node: Any) -> Any:
+    if isinstance(parent, libe57.VectorNode):
+        parent.append(node)
+    else:
+        parent.set(name, node)
+    return node
+
+
+def _copy_tree(source: Any, parent: Any, image: Any, points: Any) -> None:
+    """Copy the children of ``source`` (a structure or vector) under ``parent`` (attached, in
+    ``image``), in order (see ``_copy_single``)."""
+    for child in _children(source):
+        _copy_single(child, parent, image, points)
+
+
+def _prototype_leaves(prototype: Any, prefix: str = "") -> list[tuple[str, Any]]:
+    """(path name, node) of every value field of a prototype, nested structures included."""
+    leaves = []
+    for child in _children(prototype):
+        path = prefix + child.elementName()
+        if isinstance(child, _CONTAINERS):
+            leaves += _prototype_leaves(child, path + "/")
+        else:
+            leaves.append((path, child))
+    return leaves
+
+
+def _points_prototype(scan: Any) -> Any:
+    return libe57.StructureNode(libe57.CompressedVectorNode(scan.get("points")).prototype())
+
+
+def _text_fields(scans: list[Any]) -> list[str]:
+    return sorted({name for scan in scans for name, node in _prototype_leaves(_points_prototype(scan))
+                   if isinstance(node, libe57.StringNode)})
+
+
+def check_e57_copy(path: Path, target_format: str, top_class: int) -> CopyCheck:
+    """What a labelled copy of the E57 ``path`` cannot keep: point fields that hold text, which
+    libE57Format's buffers through pye57 do not carry."""
+    path = check_input_path(path)
+    image = _open(path)
+    try:
+        text = _text_fields(_scans(image))
+    except libe57.E57Exception as exc:
+        raise InputFileError(f"{path}: the E57 structure is damaged ({_reason(exc)}); check the file") from exc
+    finally:
+        image.close()
+    return CopyCheck(lost=tuple(f"point field {name!r} (text)" for name in text))
+
+
+def e57_held(path: Path) -> tuple[str, ...]:
+    """What the E57 ``path`` holds beyond a ``PointCloud``'s columns, in words: point fields the
+    reader does not take, the scans' poses and names, images, points flagged invalid (which the
+    reader drops), other elements of its root."""
+    path = check_input_path(path)
+    image = _open(path)
+    try:
+        scans = _scans(image)
+        document = _stored_document(image, path)
+        read = {"cartesianX", "cartesianY", "cartesianZ", "sphericalRange", "sphericalAzimuth", "sphericalElevation",
+                "cartesianInvalidState", "sphericalInvalidState", "intensity", "timeStamp", "returnIndex",
+                "returnCount", *COLOR_FIELDS, LABEL_FIELD, COMPONENT_FIELD}
+        if document is not None and "time" in document.get("columns", ()):
+            read |= {"rowIndex", "columnIndex"}  # bimscan's grid: recovered from the time when written again
+        fields = sorted({name for scan in scans for name, _ in _prototype_leaves(_points_prototype(scan))} - read)
+        held = []
+        if fields:
+            held.append(("point field " if len(fields) == 1 else "point fields ") + ", ".join(fields))
+        if document is None and scans:
+            held.append(f"the poses and names of its {len(scans)} scan{'s' if len(scans) != 1 else ''} (the points are "
+                        "carried in world coordinates)")
+        invalid = {"cartesianInvalidState", "sphericalInvalidState"}
+        if any(invalid & {name for name, _ in _prototype_leaves(_points_prototype(scan))} for scan in scans):
+            held.append("the points flagged invalid")
+        root = image.root()
+        if root.isDefined("images2D") and root["images2D"].childCount():
+            count = root["images2D"].childCount()
+            held.append(f"{count} image{'s' if count != 1 else ''} (images2D)")
+        standard = {"formatName", "guid", "versionMajor", "versionMinor", "e57LibraryVersion", "coordinateMetadata",
+                    "creationDateTime", "data3D", "images2D", HEADER_NODE}
+        other = [child.elementName() for child in _children(root) if child.elementName() not in standard]
+        coordinates = root["coordinateMetadata"].value() if root.isDefined("coordinateMetadata") else ""
+        if coordinates:
+            held.append("the coordinate reference system (coordinateMetadata)")
+        if other:
+            held.append("root elements " + ", ".join(other))
+        return tuple(held)
+    except libe57.E57Exception as exc:
+        raise InputFileError(f"{path}: the E57 structure is damaged ({_reason(exc)}); check the file") from exc
+    finally:
+        image.close()
+
+
+def copy_e57_labelled(
+    source: Path, target: Path, labels: np.ndarray, *, header: CloudHeader, overwrite: bool = False,
+    checksum: bool = True,
+) -> WrittenCloud:
+    """Copy the E57 ``source`` to ``target`` with ``labels`` (N,) uint8 in ``bimscan:label`` (see
+    the section comment; N counts the points the reader gives, the valid ones); registered as
+    ``LABELLED_COPIERS["e57"]``. ``header``: bimscan's document in ``bimscan:cloudHeader``."""
+    source = check_input_path(source)
+    image = _open(source)
+    try:
+        scans = _scans(image)
+        document_in = _stored_document(image, source)
+        plan = _plan(image, scans, document_in, None, source)
+        kept = {*plan.columns, "label"} | ({"component"} if document_in is not None
+                                           and "component" in document_in.get("columns", ()) else set())
+        columns = tuple(c for c in PointCloud.COLUMNS if c in kept)
+        with StagedOutput(target, overwrite=overwrite, checksum=checksum) as staged:
+            temp = staged.file(target)
+            copy = libe57.ImageFile(str(temp), "w")
+            try:
+                labelled = _copy_image(image, copy, labels, source, target)
+                check_label_count(labels, labelled, source)
+                document = header_to_document(header, columns=columns, n_points=labelled)
+                copy.root().set(HEADER_NODE, libe57.StringNode(copy, dump_json(document).decode("utf-8")))
+                copy.close()
+            except libe57.E57Exception as exc:
+                raise _write_error(exc, target) from exc
+            finally:
+                if copy.isOpen():
+                    copy.cancel()
+            return staged.commit(n_points=labelled)
+    finally:
+        image.close()
+
+
+def _copy_image(image: Any, copy: Any, labels: np.ndarray, source: Path, target: Path) -> int:
+    """Copy the tree of ``image`` into the new ``copy`` (bimscan's header document left out), the
+    labels into every scan's points; returns how many labels went to valid points."""
+    extensions = {image.extensionsPrefix(i): image.extensionsUri(i) for i in range(image.extensionsCount())}
+    if extensions.get(NAMESPACE_PREFIX, NAMESPACE_URI) != NAMESPACE_URI:
+        raise OutputError(f"{source}: its E57 prefix {NAMESPACE_PREFIX!r} names another namespace "
+                          f"({extensions[NAMESPACE_PREFIX]}); bimscan cannot add its label field to it")
+    extensions[NAMESPACE_PREFIX] = NAMESPACE_URI
+    for prefix, uri in extensions.items():
+        copy.extensionsAdd(prefix, uri)
+    labelled = 0
+
+    def points(vector: Any, parent: Any, name: str) -> None:
+        nonlocal labelled
+        scan = name == "points" and parent.pathName().startswith("/data3D/")
+        labelled += _copy_points(image, copy, vector, parent, name, labels[labelled:] if scan else None, source)
+
+    root = image.root()
+    for child in _children(root):
+        if child.elementName() == HEADER_NODE:
+            continue
+        _copy_single(child, copy.root(), copy, points)
+    return labelled
+
+
+def _copy_single(child: Any, parent: Any, image: Any, points: Any) -> None:
+    """Copy ``child`` under ``parent`` (attached, in ``image``): containers attached before their
+    children (blobs and compressed vectors are written in place), blobs streamed, compressed
+    vectors through ``points(vector, parent_copy, name)``."""
+    name = child.elementName()
+    if isinstance(child, libe57.StructureNode):
+        _copy_tree(child, _attach(parent, name, libe57.StructureNode(image)), image, points)
+    elif isinstance(child, libe57.VectorNode):
+        _copy_tree(child, _attach(parent, name, libe57.VectorNode(image, child.allowHeteroChildren())), image, points)
+    elif isinstance(child, libe57.BlobNode):
+        size = int(child.byteCount())
+        blob = _attach(parent, name, libe57.BlobNode(image, size))
+        buffer = np.zeros(max(1, min(size, 8 << 20)), dtype=np.uint8)
+        for start in range(0, size, len(buffer)):
+            count = min(len(buffer), size - start)
+            child.read(buffer, start, count)
+            blob.write(buffer, start, count)
+    elif isinstance(child, libe57.CompressedVectorNode):
+        points(child, parent, name)
+    else:
+        _attach(parent, name, _leaf(child, image))
+
+
+def _copy_points(image: Any, copy: Any, vector: Any, parent: Any, name: str, labels: np.ndarray | None,
+                 source: Path) -> int:
+    """Copy the compressed vector ``vector`` of ``image`` as ``name`` of ``parent`` in ``copy``,
+    every record as stored; with ``labels`` (a scan's points) the valid records get the next
+    labels in ``bimscan:label`` and the invalid ones 255. Returns the labels used."""
+    prototype = libe57.StructureNode(vector.prototype())
+    new_prototype = libe57.StructureNode(copy)
+    for child in _children(prototype):
+        field = child.elementName()
+        if field == LABEL_FIELD and labels is not None:
+            continue  # written anew below, last
+        if not isinstance(child, libe57.StringNode) and not (isinstance(child, _CONTAINERS) and any(
+                isinstance(node, libe57.StringNode) for _, node in _prototype_leaves(child))):
+            new_prototype.set(field, _detached(child, copy))
+    if labels is not None:
+        new_prototype.set(LABEL_FIELD, libe57.IntegerNode(copy, 0, 0, 255))
+    leaves = [(path, node) for path, node in _prototype_leaves(new_prototype) if path != LABEL_FIELD or labels is None]
+    target = libe57.CompressedVectorNode(copy, new_prototype, _detached(_typed(vector.codecs()), copy))
+    _attach(parent, name, target)
+    total = int(vector.childCount())
+    capacity = max(1, min(READ_BLOCK_POINTS, total))
+    buffers = {path: np.zeros(capacity, dtype=_LEAF_DTYPES[type(node)]) for path, node in leaves}
+    reading, writing = libe57.VectorSourceDestBuffer(), libe57.VectorSourceDestBuffer()
+    for path, buffer in buffers.items():  # integers as stored: scaled integers unscaled
+        reading.append(libe57.SourceDestBuffer(image, path, buffer, capacity, True, False))
+        writing.append(libe57.SourceDestBuffer(copy, path, buffer, capacity, True, False))
+    label = np.zeros(capacity, dtype=np.uint8)
+    if labels is not None:
+        writing.append(libe57.SourceDestBuffer(copy, LABEL_FIELD, label, capacity, True, False))
+    names = set(buffers)
+    invalid = "cartesianInvalidState" if {"cartesianX", "cartesianY", "cartesianZ"} <= names else "sphericalInvalidState"
+    reader, writer = vector.reader(reading), target.writer(writing)
+    used = 0
+    try:
+        while True:
+            try:
+                n = reader.read()
+            except libe57.E57Exception as exc:
+                raise InputFileError(f"{source}: the E57 point data is damaged ({_reason(exc)}); check the file") from exc
+            if n == 0:
+                break
+            if labels is not None:
+                valid = np.ones(n, dtype=bool) if invalid not in buffers else buffers[invalid][:n] == 0
+                count = int(valid.sum())
+                if used + count > len(labels):
+                    raise ValueError(f"{source}: more valid points than the {len(labels)} labels; pass one per point")
+                label[:n] = 255
+                label[:n][valid] = labels[used:used + count]
+                used += count
+            writer.write(n)
+    finally:
+        reader.close()
+        writer.close()
+    return used
+
 __all__ = [
-    "COMPONENT_FIELD", "E57CloudWriter", "E57Scan", "E57_BLOCK_POINTS", "HEADER_NODE", "LABEL_FIELD", "MOBILE_COLUMNS",
+    "COMPONENT_FIELD", "check_e57_copy", "copy_e57_labelled", "e57_held", "E57CloudWriter", "E57Scan", "E57_BLOCK_POINTS", "HEADER_NODE", "LABEL_FIELD", "MOBILE_COLUMNS",
     "NAMESPACE_PREFIX", "NAMESPACE_URI", "STATION_NODE", "check_e57_columns", "gps_seconds", "heading_quaternion", "iter_e57_chunks",
     "count_e57_points", "open_e57_writer", "quaternion_matrix", "read_e57_header", "read_e57_scans",
 ]

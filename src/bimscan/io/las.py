@@ -35,10 +35,12 @@ Layout of a bimscan LAS/LAZ file:
 from __future__ import annotations
 
 import datetime as dt
+import io
 import struct
 import unicodedata
 import uuid
 from collections.abc import Iterator
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -47,7 +49,7 @@ import numba as nb
 import numpy as np
 from laspy.errors import LaspyException
 from laspy.point.record import PackedPointRecord
-from laspy.vlrs.known import ClassificationLookupVlr
+from laspy.vlrs.known import ClassificationLookupVlr, LasZipVlr
 from laspy.vlrs.vlrlist import VLRList
 
 from bimscan import __version__
@@ -59,7 +61,16 @@ from bimscan.io._header import (
     header_to_document,
     parse_document,
 )
-from bimscan.io._writer import BLOCK_POINTS, StreamingCloudWriter, WatchedFile, check_input_path, source_date_epoch
+from bimscan.io._labelled import CopyCheck, check_label_count
+from bimscan.io._writer import (
+    BLOCK_POINTS,
+    StagedOutput,
+    StreamingCloudWriter,
+    WatchedFile,
+    WrittenCloud,
+    check_input_path,
+    source_date_epoch,
+)
 from bimscan.processes import signals_held
 from bimscan.types import CloudHeader, LabelScheme, PointCloud
 
@@ -300,9 +311,10 @@ def _open(path: Path) -> laspy.LasReader:
 
 
 def _stored_document(las_header: laspy.LasHeader, path: Path) -> dict[str, Any] | None:
-    for evlr in las_header.evlrs or ():
-        if evlr.user_id == BIMSCAN_USER_ID and evlr.record_id == BIMSCAN_RECORD_ID:
-            return parse_document(evlr.record_data_bytes(), where=str(path))
+    # an EVLR in bimscan's files; a VLR in labelled copies of LAS 1.0-1.3 files, which have no EVLRs
+    for record in [*(las_header.evlrs or ()), *las_header.vlrs]:
+        if record.user_id == BIMSCAN_USER_ID and record.record_id == BIMSCAN_RECORD_ID:
+            return parse_document(record.record_data_bytes(), where=str(path))
     return None
 
 
@@ -381,12 +393,11 @@ def count_las_points(path: str | Path) -> int:
     return count
 
 
-def _rgb8(raw: np.ndarray, *, ours: bool) -> np.ndarray:
-    """(N, 3) uint8 colour of LAS records: ours exactly (// 257); foreign 16-bit colour by its high
-    byte, and files that wrote 8-bit values into the 16-bit fields (none above 255) as they are."""
+def _rgb8(raw: np.ndarray) -> np.ndarray:
+    """(N, 3) uint8 colour of LAS records: 16-bit colour by its high byte, which gives bimscan's own
+    colour (x 257: (257 v) >> 8 = v) back exactly; files that wrote 8-bit values into the 16-bit
+    fields (none above 255) as they are."""
     rgb = np.stack([np.asarray(raw[name], dtype=np.uint16) for name in ("red", "green", "blue")], axis=1)
-    if ours:
-        return (rgb // RGB_SCALE).astype(np.uint8)
     return (rgb >> 8).astype(np.uint8) if len(rgb) and rgb.max() > 255 else rgb.astype(np.uint8)
 
 
@@ -443,7 +454,7 @@ def iter_las_chunks(
                 return_number=np.asarray(points.return_number, dtype=np.uint8) if "return_number" in columns else None,
                 number_of_returns=np.asarray(points.number_of_returns, dtype=np.uint8)
                 if "number_of_returns" in columns else None,
-                rgb=_rgb8(raw, ours=document is not None) if "rgb" in columns and "red" in names else None,
+                rgb=_rgb8(raw) if "rgb" in columns and "red" in names else None,
                 ring=np.asarray(raw["ring"], dtype=np.uint8) if "ring" in columns and "ring" in names else None,
                 channel=np.asarray(points.scanner_channel, dtype=np.uint8) if "channel" in columns else None,
                 sensor_xyz=np.column_stack([np.asarray(points[name], dtype=np.float64) for name in SENSOR_DIMENSIONS])
@@ -461,8 +472,415 @@ def iter_las_chunks(
             raise InputFileError(f"{path}: the point data is damaged ({exc}); check the file") from exc
 
 
+
+# -- labelled copies ------------------------------------------------------------------------------
+#
+# A labelled copy keeps a LAS/LAZ file as it was stored: the public header block byte for byte
+# (version, point format, scales, offsets, bounds, counts, GUID, system identifier, dates, bytes
+# other software added), every VLR and EVLR as stored (CRS as WKT or GeoTIFF keys, extra-bytes
+# descriptions, ...), the bytes between the VLRs and the points, and every point record with its
+# integer X/Y/Z, extra bytes and unregistered bytes. Only the class changes: the classification
+# bits of each record, the classification lookup VLR (the new class names) and bimscan's header
+# document (an EVLR; a VLR in LAS 1.0-1.3, which have no EVLRs), each replaced where it was or
+# added at the end. LAS <-> LAZ toggles the compression (lazrs; its LASzip VLR added or dropped).
+
+_VLR_HEADER = struct.Struct("<H16sHH32s")  # reserved, user id, record id, record length, description
+LOOKUP_ID = ("LASF_Spec", 0)  # the classification lookup
+EXTRA_BYTES_ID = ("LASF_Spec", 4)
+LASZIP_ID = ("laszip encoded", 22204)
+DOCUMENT_ID = (BIMSCAN_USER_ID, BIMSCAN_RECORD_ID)
+PROJECTION_USER_ID = "LASF_Projection"
+LEGACY_CLASS_MAX = 31  # point formats 0-5 keep the class in 5 bits
+# The LAS 1.4 point format with the fields of a legacy one and a whole byte of class (scan angles
+# in 0.006 deg steps instead of whole degrees).
+UPGRADED_FORMATS = {0: 6, 1: 6, 2: 7, 3: 7, 4: 9, 5: 10}
+SCAN_ANGLE_STEP_DEG = 0.006
+_HEADER_14 = 375  # bytes of the LAS 1.4 public header block
+_HEADER_13 = 235
+_LEGACY_HEADER = 227
+COPY_BLOCK_POINTS = BLOCK_POINTS  # records per step: bounds a copy's memory (a multiple of the LAZ chunk)
+_INTERNAL_WAVEFORM = 0b10  # global encoding bit 1: waveform data packets inside the file
+
+
+@dataclass(frozen=True)
+class LasRecord:
+    """A VLR or EVLR as stored: its ids and all its bytes (header and data)."""
+
+    user_id: str
+    record_id: int
+    raw: bytes
+    offset: int  # where it starts in its file
+
+
+@dataclass(frozen=True)
+class LasLayout:
+    """The parts of a LAS/LAZ file as stored, for copies that keep them byte for byte.
+
+    header: the public header block (``header_size`` bytes, with bytes other software appended);
+    vlr_tail: the bytes between the last VLR and the point data; point_format: the id without the
+    compression bits; evlr_start / waveform_start: 0 when the file has none.
+    """
+
+    header: bytes
+    version: tuple[int, int]
+    point_format: int
+    compressed: bool
+    record_length: int
+    point_count: int
+    offset_to_point_data: int
+    vlrs: tuple[LasRecord, ...]
+    vlr_tail: bytes
+    evlrs: tuple[LasRecord, ...]
+    evlr_start: int
+    waveform_start: int
+    global_encoding: int
+    scales: tuple[float, float, float]
+    file_size: int
+
+    @property
+    def points_end(self) -> int | None:
+        """Where the point records end (None for compressed points, whose size the header does not give)."""
+        return None if self.compressed else self.offset_to_point_data + self.point_count * self.record_length
+
+    @property
+    def base_size(self) -> int:
+        """Bytes of a record of the point format itself (the rest of ``record_length``: extra bytes)."""
+        return int(laspy.PointFormat(self.point_format).size)
+
+
+def _id_text(raw: bytes) -> str:
+    return raw.split(b"\0", 1)[0].decode("ascii", "replace")
+
+
+def read_las_layout(path: Path) -> LasLayout:
+    """The stored parts of a LAS/LAZ file (see ``LasLayout``); InputFileError when they do not add up."""
+    size = path.stat().st_size
+
+    def damaged(what: str) -> InputFileError:
+        return InputFileError(f"{path}: {what}; the file is damaged: export it again")
+
+    with path.open("rb") as handle:
+        head = handle.read(_HEADER_14)
+        if len(head) < _LEGACY_HEADER or head[:4] != b"LASF":
+            raise InputFileError(f"{path}: not a LAS/LAZ file (no LASF signature); check the file")
+        version = (head[24], head[25])
+        header_size, offset, n_vlrs = struct.unpack_from("<HII", head, 94)
+        point_format, record_length = struct.unpack_from("<BH", head, 104)
+        count = struct.unpack_from("<I", head, 107)[0]
+        scales = struct.unpack_from("<3d", head, 131)
+        waveform = evlr_start = n_evlrs = 0
+        if version[1] >= 3 and header_size >= _HEADER_13:
+            waveform = struct.unpack_from("<Q", head, 227)[0]
+        if version[1] >= 4 and header_size >= _HEADER_14:
+            evlr_start, n_evlrs, count = struct.unpack_from("<QIQ", head, 235)
+        if header_size < _LEGACY_HEADER or offset < header_size:
+            raise damaged(f"the LAS header gives a header size of {header_size} bytes and points at byte {offset}")
+        handle.seek(0)
+        header = handle.read(header_size)
+        vlrs = []
+        for _ in range(n_vlrs):
+            start = handle.tell()
+            raw = handle.read(_VLR_HEADER.size)
+            if len(raw) < _VLR_HEADER.size:
+                raise damaged(f"the file ends inside its VLR {len(vlrs) + 1} of {n_vlrs}")
+            _, user, record, length, _ = _VLR_HEADER.unpack(raw)
+            data = handle.read(length)
+            if len(data) < length or handle.tell() > offset:
+                raise damaged(f"VLR {len(vlrs) + 1} of {n_vlrs} runs past the start of the point data")
+            vlrs.append(LasRecord(_id_text(user), record, raw + data, start))
+        vlr_tail = handle.read(offset - handle.tell())
+        evlrs = []
+        if n_evlrs and evlr_start:
+            handle.seek(evlr_start)
+            for _ in range(n_evlrs):
+                start = handle.tell()
+                raw = handle.read(_EVLR_HEADER.size)
+                if len(raw) < _EVLR_HEADER.size:
+                    raise damaged(f"the file ends inside its EVLR {len(evlrs) + 1} of {n_evlrs}")
+                _, user, record, length, _ = _EVLR_HEADER.unpack(raw)
+                if start + _EVLR_HEADER.size + length > size:
+                    raise damaged(f"EVLR {len(evlrs) + 1} of {n_evlrs} runs past the end of the file")
+                data = handle.read(length)
+                evlrs.append(LasRecord(_id_text(user), record, raw + data, start))
+    return LasLayout(
+        header=header, version=version, point_format=point_format & 0x3F, compressed=bool(point_format & 0x80),
+        record_length=record_length, point_count=int(count), offset_to_point_data=offset, vlrs=tuple(vlrs),
+        vlr_tail=vlr_tail, evlrs=tuple(evlrs), evlr_start=int(evlr_start) if evlrs else 0, waveform_start=int(waveform),
+        global_encoding=struct.unpack_from("<H", head, 6)[0], scales=scales, file_size=size,
+    )
+
+
+def _record_bytes(record: laspy.VLR | Any, *, extended: bool) -> bytes:
+    buffer = io.BytesIO()
+    VLRList([record]).write_to(buffer, as_extended=extended)
+    return buffer.getvalue()
+
+
+def _upgrade(layout: LasLayout, top_class: int) -> int | None:
+    """The point format a copy must take to hold class ids up to ``top_class``, None to keep its own."""
+    return UPGRADED_FORMATS[layout.point_format] if layout.point_format in UPGRADED_FORMATS and \
+        top_class > LEGACY_CLASS_MAX else None
+
+
+def check_las_copy(path: Path, target_format: str, top_class: int) -> CopyCheck:
+    """What a labelled copy of the LAS/LAZ ``path`` into ``target_format`` ("las"/"laz") cannot keep."""
+    path = check_input_path(path)
+    with _open(path) as reader:
+        check_header(reader.header, path)
+    layout = read_las_layout(path)
+    lost: list[str] = []
+    changed: list[str] = []
+    if layout.compressed and layout.waveform_start and layout.global_encoding & _INTERNAL_WAVEFORM:
+        lost.append("the waveform data packets stored after its compressed points")
+    upgraded = _upgrade(layout, top_class)
+    if upgraded is not None:
+        version = ".".join(str(v) for v in layout.version)
+        changed.append(f"point format {layout.point_format} (LAS {version}) becomes {upgraded} (LAS 1.4), whose "
+                       f"classification holds the class ids up to {top_class} (format {layout.point_format}: 0-31); "
+                       "scan angles go from whole degrees to 0.006 deg steps")
+    return CopyCheck(lost=tuple(lost), changed=tuple(changed))
+
+
+def las_held(path: Path) -> tuple[str, ...]:
+    """What the LAS/LAZ ``path`` holds beyond a ``PointCloud``'s columns, in words: its CRS, other
+    VLRs and EVLRs, extra dimensions, and (in other tools' files) the LAS fields bimscan does not read."""
+    path = check_input_path(path)
+    with _open(path) as reader:
+        las_header = reader.header
+        document = _stored_document(las_header, path)
+        point_format = las_header.point_format
+    layout = read_las_layout(path)
+    held: list[str] = []
+    records = [*layout.vlrs, *layout.evlrs]
+    crs = [r for r in records if r.user_id == PROJECTION_USER_ID]
+    if crs:
+        kinds = sorted({"WKT" if r.record_id in (2111, 2112) else "GeoTIFF keys" for r in crs})
+        held.append(f"the CRS ({' and '.join(kinds)})")
+    ours = {LOOKUP_ID, EXTRA_BYTES_ID, LASZIP_ID, DOCUMENT_ID}
+    others = [f"{r.user_id}/{r.record_id}" for r in records
+              if r.user_id != PROJECTION_USER_ID and (r.user_id, r.record_id) not in ours]
+    if others:
+        held.append(f"{'VLR/EVLR' if len(others) == 1 else 'VLRs/EVLRs'} {', '.join(others)}")
+    carried = set() if document is None else set(document.get("columns", ()))
+    bimscan_dims = {"component": "component", "station": "station", "ring": "ring",
+                    **{name: "sensor_xyz" for name in SENSOR_DIMENSIONS}}
+    extra = [name for name in point_format.extra_dimension_names if bimscan_dims.get(name) not in carried]
+    if extra:
+        held.append("extra " + ("dimension " if len(extra) == 1 else "dimensions ") + ", ".join(repr(n) for n in extra))
+    if document is None:  # bimscan's own files leave these fields at zero, or carry them as columns
+        read = {"X", "Y", "Z", "intensity", "return_number", "number_of_returns", "classification", "gps_time",
+                "red", "green", "blue"}
+        standard = [n for n in point_format.standard_dimension_names if n not in read]
+        if standard:
+            held.append("the LAS fields " + ", ".join(standard))
+    return tuple(held)
+
+
+def _foreign_columns(point_format: laspy.PointFormat) -> tuple[str, ...]:
+    """The columns ``iter_las_chunks`` gives of another tool's file, in ``PointCloud.COLUMNS`` order."""
+    names = set(point_format.dimension_names)
+    present = {"xyz", "label", "intensity", "return_number", "number_of_returns"}
+    present |= ({"time"} if "gps_time" in names else set()) | ({"rgb"} if "red" in names else set())
+    return tuple(c for c in PointCloud.COLUMNS if c in present)
+
+
+def copy_las_labelled(
+    source: Path, target: Path, labels: np.ndarray, *, header: CloudHeader, overwrite: bool = False,
+    checksum: bool = True,
+) -> WrittenCloud:
+    """Copy the LAS/LAZ ``source`` to ``target`` (.las or .laz) with ``labels`` (N,) uint8 in
+    ``classification`` (see the section comment); registered as ``LABELLED_COPIERS["las"/"laz"]``.
+
+    ``header``: what the copy stores in bimscan's header document (its origin becomes the file's
+    offsets, which its coordinates are stored around). The class ids ``header.scheme`` holds decide
+    the point format: formats 0-5 hold 0-31 and become their LAS 1.4 equivalent (6, 7, 9, 10) for more.
+    """
+    source = check_input_path(source)
+    compress = target.suffix.lower() == ".laz"
+    with _open(source) as reader:
+        las_header = reader.header
+        check_header(las_header, source)
+        layout = read_las_layout(source)
+        check_label_count(labels, layout.point_count, source)
+        document_in = _stored_document(las_header, source)
+        top_class = max((c.id for c in header.scheme.classes), default=0)
+        upgraded = _upgrade(layout, top_class)
+        out_format = layout.point_format if upgraded is None else upgraded
+        version = layout.version if upgraded is None else (1, 4)
+        base_in = layout.base_size
+        base_out = int(laspy.PointFormat(out_format).size)
+        record_out = layout.record_length - base_in + base_out
+        if document_in is not None:
+            columns = tuple(c for c in PointCloud.COLUMNS if c in {*document_in["columns"], "label"})
+        else:
+            columns = _foreign_columns(las_header.point_format)
+        offsets = tuple(float(v) for v in las_header.offsets)
+        document = dump_json(header_to_document(replace(header, origin=offsets), columns=columns,  # type: ignore[arg-type]
+                                                n_points=layout.point_count))
+        document_record = laspy.VLR(BIMSCAN_USER_ID, BIMSCAN_RECORD_ID, "bimscan cloud header (JSON)", document)
+        in_vlr = version < (1, 4)
+        if in_vlr and len(document) > 0xFFFF:
+            raise OutputError(f"{target}: bimscan's header ({len(document):,} bytes) does not fit a LAS "
+                              f"{version[0]}.{version[1]} VLR (64 KiB); label a LAS 1.4 copy of the file")
+        # VLRs: the input's, with the lookup and bimscan's document replaced where they were
+        lookup = _record_bytes(_classification_lookup(header.scheme), extended=False)
+        vlrs: list[bytes] = []
+        placed = {LOOKUP_ID: False, DOCUMENT_ID: not in_vlr}
+        for record in layout.vlrs:
+            key = (record.user_id, record.record_id)
+            if key == LASZIP_ID:
+                continue  # the compression's own record: dropped, or written anew below
+            if key in placed:
+                if not placed[key]:
+                    vlrs.append(lookup if key == LOOKUP_ID else _record_bytes(document_record, extended=False))
+                    placed[key] = True
+                continue
+            vlrs.append(record.raw)
+        if not placed[LOOKUP_ID]:
+            vlrs.append(lookup)
+        if not placed[DOCUMENT_ID]:
+            vlrs.append(_record_bytes(document_record, extended=False))
+        laz_vlr = None
+        if compress:
+            import lazrs
+
+            laz_vlr = lazrs.LazVlr.new_for_compression(out_format, record_out - base_out)
+            vlrs.append(_record_bytes(LasZipVlr(laz_vlr.record_data()), extended=False))
+        head = bytearray(layout.header)
+        if upgraded is not None:
+            head = _header_14(layout)
+        vlr_bytes = b"".join(vlrs)
+        struct.pack_into("<HII", head, 94, len(head), len(head) + len(vlr_bytes) + len(layout.vlr_tail), len(vlrs))
+        struct.pack_into("<BH", head, 104, out_format | (0x80 if compress else 0), record_out)
+        by_return = np.zeros(16, dtype=np.int64)
+
+        with StagedOutput(target, overwrite=overwrite, checksum=checksum) as staged:
+            out = staged.open(staged.file(target))
+            out.write(bytes(head))
+            out.write(vlr_bytes)
+            out.write(layout.vlr_tail)
+            compressor = None
+            if laz_vlr is not None:
+                import lazrs
+
+                with signals_held():  # lazrs writes the chunk table's offset here
+                    compressor = lazrs.ParLasZipCompressor(out, laz_vlr)
+            done = 0
+            try:
+                for points in reader.chunk_iterator(COPY_BLOCK_POINTS):
+                    rows = np.array(points.array, copy=True).view(np.uint8).reshape(-1, layout.record_length)
+                    label = np.asarray(labels[done:done + len(rows)], dtype=np.uint8)
+                    if upgraded is not None:
+                        rows = _upgraded_rows(rows, layout, out_format, label, by_return)
+                    elif layout.point_format < 6:
+                        if len(label) and int(label.max()) > LEGACY_CLASS_MAX:
+                            raise ValueError(f"class id {int(label.max())} above the scheme's {top_class}")
+                        rows[:, 15] = (rows[:, 15] & 0b1110_0000) | label  # bits 5-7: synthetic, key point, withheld
+                    else:
+                        rows[:, 16] = label
+                    if compressor is not None:
+                        with signals_held(), staged.clock.step("compress"):
+                            compressor.compress_many(rows.reshape(-1))
+                    else:
+                        out.write(memoryview(rows).cast("B"))
+                    done += len(rows)
+                if compressor is not None:
+                    with signals_held():  # the last chunk and the chunk table
+                        compressor.done()
+            except (LaspyException, EOFError, RuntimeError) as exc:
+                if out.error is not None:
+                    raise
+                raise InputFileError(f"{source}: the point data is damaged ({exc}); check the file") from exc
+            if done != layout.point_count:
+                raise InputFileError(f"{source}: the LAS header says {layout.point_count:,} points, the file holds "
+                                     f"{done:,}; the file is damaged or cut short: copy or export it again")
+            _copy_tail(source, layout, out, head, version, document_record, upgraded is not None, by_return)
+            return staged.commit(n_points=layout.point_count)
+
+
+def _header_14(layout: LasLayout) -> bytearray:
+    """The public header block of a LAS 1.4 copy of an older file: its fields as they were, the
+    fields 1.3 and 1.4 add (counts 64-bit, legacy counts 0 as formats 6-10 ask), then the bytes
+    other software appended to the old block."""
+    old = layout.header
+    standard = _HEADER_13 if layout.version[1] == 3 else _LEGACY_HEADER if layout.version[1] < 4 else _HEADER_14
+    head = bytearray(old[:_LEGACY_HEADER])
+    head[25] = 4
+    waveform = struct.unpack_from("<Q", old, 227)[0] if standard >= _HEADER_13 else 0
+    head += struct.pack("<QQIQ15Q", waveform, 0, 0, layout.point_count, *([0] * 15))
+    struct.pack_into("<I5I", head, 107, 0, 0, 0, 0, 0, 0)
+    head += old[standard:]
+    return head
+
+
+def _upgraded_rows(rows: np.ndarray, layout: LasLayout, out_format: int, label: np.ndarray,
+                   by_return: np.ndarray) -> np.ndarray:
+    """Records (M, record length) uint8 of a legacy point format as records of ``out_format``:
+    every field by name, scan angle rank to 0.006 deg steps, the class a whole byte, extra bytes as
+    they were. Counts the points per return number into ``by_return`` (16,)."""
+    base_in = layout.base_size
+    old_format, new_format = laspy.PointFormat(layout.point_format), laspy.PointFormat(out_format)
+    old = PackedPointRecord(np.ascontiguousarray(rows[:, :base_in]).view(old_format.dtype()).reshape(-1), old_format)
+    new = PackedPointRecord.zeros(len(rows), new_format)
+    new.copy_fields_from(old)
+    new["scan_angle"] = np.rint(np.asarray(old["scan_angle_rank"], dtype=np.float64) / SCAN_ANGLE_STEP_DEG).astype(np.int16)
+    new["classification"] = label
+    by_return += np.bincount(np.asarray(new.return_number, dtype=np.int64), minlength=16)[:16]
+    out = np.empty((len(rows), int(new_format.size) + rows.shape[1] - base_in), dtype=np.uint8)
+    out[:, : new_format.size] = new.array.view(np.uint8).reshape(len(rows), -1)
+    out[:, new_format.size:] = rows[:, base_in:]
+    return out
+
+
+def _copy_tail(source: Path, layout: LasLayout, out: WatchedFile, head: bytearray, version: tuple[int, int],
+               document: laspy.VLR, upgraded: bool, by_return: np.ndarray) -> None:
+    """Write what follows the points (bytes other software stored there, such as waveform data, and
+    the EVLRs with bimscan's document replaced or added), then the finished header block."""
+    tail_start = out.tell()
+    end = layout.points_end
+    tail_end = (layout.evlr_start if layout.evlrs and layout.evlr_start >= (end or 0) else layout.file_size)
+    if end is not None and tail_end > end:
+        with source.open("rb") as handle:
+            handle.seek(end)
+            remaining = tail_end - end
+            while remaining:
+                block = handle.read(min(remaining, 8 << 20))
+                if not block:
+                    break
+                out.write(block)
+                remaining -= len(block)
+    moved: dict[int, int] = {}  # old offset of an EVLR -> new
+    if version >= (1, 4):
+        evlrs: list[tuple[int, bytes]] = []
+        placed = False
+        for record in layout.evlrs:
+            if (record.user_id, record.record_id) == DOCUMENT_ID:
+                if not placed:
+                    evlrs.append((-1, _record_bytes(document, extended=True)))
+                    placed = True
+                continue
+            evlrs.append((record.offset, record.raw))
+        if not placed:
+            evlrs.append((-1, _record_bytes(document, extended=True)))
+        first = out.tell()
+        for offset, raw in evlrs:
+            moved[offset] = out.tell()
+            out.write(raw)
+        struct.pack_into("<QI", head, 235, first, len(evlrs))
+        if upgraded:
+            struct.pack_into("<15Q", head, 255, *(int(v) for v in by_return[1:16]))
+    if version[1] >= 3 and layout.waveform_start:
+        waveform = layout.waveform_start
+        if waveform in moved:
+            waveform = moved[waveform]
+        elif end is not None and end <= waveform < tail_end:
+            waveform = tail_start + waveform - end
+        struct.pack_into("<Q", head, 227, waveform)
+    out.seek(0)
+    out.write(bytes(head))
+
 __all__ = [
-    "LAS_SCALE_M", "LAZ_CHUNK_POINTS", "LasCloudWriter", "check_header", "count_las_points", "iter_las_chunks",
+    "LAS_SCALE_M", "LasLayout", "check_las_copy", "copy_las_labelled", "las_held", "read_las_layout", "LAZ_CHUNK_POINTS", "LasCloudWriter", "check_header", "count_las_points", "iter_las_chunks",
     "lookup_name",
     "open_las_writer", "open_laz_writer", "read_las_header",
 ]

@@ -32,7 +32,10 @@ The folder is built under a temporary name and renamed into place at close.
 
 from __future__ import annotations
 
+import json
+import shutil
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -48,7 +51,8 @@ from bimscan.io._header import (
     header_to_document,
     parse_document,
 )
-from bimscan.io._writer import StreamingCloudWriter, WatchedFile, check_input_path
+from bimscan.io._labelled import CopyCheck, check_label_count
+from bimscan.io._writer import StagedOutput, StreamingCloudWriter, WatchedFile, WrittenCloud, check_input_path
 from bimscan.types import CloudHeader, PointCloud
 
 # column -> (file stem, dtype, row shape)
@@ -68,17 +72,25 @@ NPDIR_FILES: dict[str, tuple[str, str, tuple[int, ...]]] = {
 }
 META_NAME = "meta.json"
 ORIGIN_NAME = "origin.npy"
+BLOCK_ROWS = 1 << 22  # labels a copy converts at a time
 NPY_HEADER_BYTES = 128  # magic + version + length + dict padded; fits a 20-digit row count
 _NPY_MAGIC = b"\x93NUMPY\x01\x00"
 NPDIR_NAMES = frozenset({f"{stem}.npy" for stem, _, _ in NPDIR_FILES.values()} | {ORIGIN_NAME, META_NAME})
 
 
+COPIED_KEY = "copied_entries"  # meta.json of a labelled copy: the entries it copied from its input
+
+
 def foreign_npdir_entries(folder: Path) -> list[str] | None:
     """None unless ``folder`` is marked as a bimscan NumPy cloud (its ``meta.json`` is a cloud header
-    document); then the entries bimscan does not write in one (sub-folders as ``name/``)."""
-    if not json_marker(read_marker(folder / META_NAME), HEADER_KEY):
+    document); then the entries bimscan does not write in one (sub-folders as ``name/``): neither
+    its own files nor those a labelled copy wrote there (listed in ``meta.json``)."""
+    marker = read_marker(folder / META_NAME)
+    if not json_marker(marker, HEADER_KEY):
         return None
-    return [name for name in folder_entries(folder) if name not in NPDIR_NAMES]
+    copied = json.loads(marker or b"{}").get(COPIED_KEY, [])
+    written = NPDIR_NAMES | {str(name) for name in copied} if isinstance(copied, list) else NPDIR_NAMES
+    return [name for name in folder_entries(folder) if name not in written]
 
 
 FOLDER_OUTPUTS["npy"] = FolderOutput(what="a bimscan NumPy cloud", foreign=foreign_npdir_entries)
@@ -246,7 +258,97 @@ def iter_npdir_chunks(
         yield PointCloud(xyz=xyz, **columns)
 
 
+
+# -- labelled copies ------------------------------------------------------------------------------
+#
+# A labelled copy of a NumPy folder holds every entry of its input as it was (every array, any
+# other file, sub-folders, links as links), with ``segment.npy`` written anew (in the input's
+# dtype and shape when it had one that holds the class ids, else bimscan's int32) and bimscan's
+# ``meta.json`` (kept as it is when it is another tool's), which lists the entries it copied, so a
+# later run may replace the folder as bimscan's own.
+
+LABEL_STEM = NPDIR_FILES["label"][0]
+
+
+def _label_layout(folder: Path, top_class: int) -> tuple[str, tuple[int, ...]] | None:
+    """The (dtype, row shape) of the input's ``segment.npy`` when a copy can keep it (an integer or
+    float array of (N,) or (N, 1) that holds ``top_class``), None otherwise (bimscan's int32 (N,))."""
+    file = folder / f"{LABEL_STEM}.npy"
+    if not file.is_file():
+        return None
+    array = _load(file)
+    kind = array.dtype
+    if array.ndim not in (1, 2) or (array.ndim == 2 and array.shape[1] != 1) or kind.kind not in "iuf":
+        return None
+    if kind.kind in "iu" and np.iinfo(kind).max < top_class:
+        return None
+    return kind.str, tuple(array.shape[1:])
+
+
+def check_npdir_copy(path: Path, target_format: str, top_class: int) -> CopyCheck:
+    """What a labelled copy of the NumPy folder ``path`` does not keep as it was: a ``segment.npy``
+    whose dtype or shape cannot hold the class ids becomes bimscan's int32."""
+    folder = check_input_path(path)
+    file = folder / f"{LABEL_STEM}.npy"
+    if file.is_file() and _label_layout(folder, top_class) is None:
+        array = _load(file)
+        return CopyCheck(changed=(f"{file.name} ({array.dtype}, shape {array.shape}) becomes int32 (N,): it cannot "
+                                  f"hold the class ids up to {top_class}",))
+    return CopyCheck()
+
+
+def npdir_held(path: Path) -> tuple[str, ...]:
+    """The entries of the NumPy folder ``path`` the reader does not take, in words."""
+    folder = check_input_path(path)
+    read = {f"{stem}.npy" for stem, _, _ in NPDIR_FILES.values()} | {ORIGIN_NAME, META_NAME}
+    other = [name for name in folder_entries(folder) if name not in read]
+    if not other:
+        return ()
+    return (("entry " if len(other) == 1 else "entries ") + ", ".join(other),)
+
+
+def copy_npdir_labelled(
+    source: Path, target: Path, labels: np.ndarray, *, header: CloudHeader, overwrite: bool = False,
+    checksum: bool = True,
+) -> WrittenCloud:
+    """Copy the NumPy folder ``source`` to ``target`` with ``labels`` (N,) uint8 in ``segment.npy``
+    (see the section comment); registered as ``LABELLED_COPIERS["npy"]``."""
+    folder = check_input_path(source)
+    n_points = count_npdir_points(folder)
+    check_label_count(labels, n_points, folder)
+    top_class = max((c.id for c in header.scheme.classes), default=0)
+    layout = _label_layout(folder, top_class)
+    dtype, row_shape = layout if layout is not None else ("<i4", ())
+    meta = read_marker(folder / META_NAME)
+    ours = meta is None or json_marker(meta, HEADER_KEY)  # absent, or bimscan's: written anew
+    entries = [name for name in folder_entries(folder) if name != f"{LABEL_STEM}.npy"
+               and not (ours and name == META_NAME)]
+    with StagedOutput(target, overwrite=overwrite, checksum=checksum, kind="npy") as staged:
+        temp = staged.folder(target, kind="npy")
+        for name in entries:
+            entry = folder / name.rstrip("/")
+            if name.endswith("/"):
+                shutil.copytree(entry, temp / name.rstrip("/"), symlinks=True)
+            else:
+                shutil.copy2(entry, temp / name, follow_symlinks=False)
+        out = staged.open(temp / f"{LABEL_STEM}.npy")
+        out.write(npy_header(dtype, (n_points, *row_shape)))
+        for start in range(0, n_points, BLOCK_ROWS):
+            block = np.asarray(labels[start:start + BLOCK_ROWS]).astype(dtype)
+            out.write(memoryview(np.ascontiguousarray(block)).cast("B"))
+        if ours:
+            origin = np.zeros(3)
+            if (folder / ORIGIN_NAME).is_file():
+                origin = np.asarray(_load(folder / ORIGIN_NAME), dtype=np.float64)
+            columns = tuple(c for c in PointCloud.COLUMNS if c == "label" or c == "xyz"
+                            or (folder / f"{NPDIR_FILES[c][0]}.npy").is_file())
+            document = header_to_document(replace(header, origin=tuple(float(v) for v in origin)),  # type: ignore[arg-type]
+                                          columns=columns, n_points=n_points)
+            document[COPIED_KEY] = sorted(name for name in entries if name not in NPDIR_NAMES)
+            staged.open(temp / META_NAME).write(dump_json(document, indent=1))
+        return staged.commit(n_points=n_points)
+
 __all__ = [
-    "NPDIR_FILES", "NPDIR_NAMES", "NpdirCloudWriter", "count_npdir_points", "foreign_npdir_entries", "iter_npdir_chunks",
+    "NPDIR_FILES", "check_npdir_copy", "copy_npdir_labelled", "npdir_held", "NPDIR_NAMES", "NpdirCloudWriter", "count_npdir_points", "foreign_npdir_entries", "iter_npdir_chunks",
     "npy_header", "open_npdir_writer", "read_npdir_header",
 ]

@@ -23,9 +23,11 @@ from __future__ import annotations
 
 import itertools
 import json
+import re
+import shutil
 import warnings
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import BinaryIO
 
@@ -41,7 +43,8 @@ from bimscan.io._header import (
     header_to_document,
     parse_document,
 )
-from bimscan.io._writer import StreamingCloudWriter, WatchedFile, check_input_path
+from bimscan.io._labelled import LABEL_NAME, CopyCheck, check_label_count
+from bimscan.io._writer import StagedOutput, StreamingCloudWriter, WatchedFile, WrittenCloud, check_input_path
 from bimscan.types import CloudHeader, LabelClass, LabelScheme, PointCloud
 
 # column -> (property name, PLY type, NumPy dtype) for every property of that column
@@ -69,6 +72,7 @@ LABEL_CANDIDATES = ("label", "class", "classification", "scalar_classification",
 INTENSITY_CANDIDATES = ("intensity", "scalar_intensity")
 TIME_CANDIDATES = ("time", "gps_time", "gpstime", "scalar_gpstime", "scalar_gps_time", "scalar_time")
 _COUNT_WIDTH = 20  # digits reserved for the vertex count (uint64 fits)
+COPY_BLOCK_ROWS = 1 << 20  # vertices a labelled copy holds at a time
 
 
 def sidecar_path(path: Path) -> Path:
@@ -442,7 +446,236 @@ def iter_ply_chunks(
             remaining -= take
 
 
+
+# -- labelled copies ------------------------------------------------------------------------------
+#
+# A labelled copy keeps a PLY file as it was: its format (ascii or binary of either byte order),
+# every header line (comments, obj_info, every element and property in order), every element
+# (faces, edges, ... byte for byte) and every vertex property. The class goes to the property the
+# reader takes labels from (``label``, or another tool's ``scalar_Classification`` and the other
+# ``LABEL_CANDIDATES``), in its place and type, or to a ``label`` (uchar) property added after
+# the vertex's last one; bimscan's header document goes to the sidecar, and in bimscan's own
+# files the scheme and class comments are written anew.
+
+_SCHEME_COMMENTS = (b"comment scheme ", b"comment class ")
+
+
+def _integer_limit(dtype: str) -> int | None:
+    """The largest value a PLY property type holds (None: a float, which holds every class id)."""
+    kind = np.dtype(dtype)
+    return None if kind.kind == "f" else int(np.iinfo(kind).max)
+
+
+def _label_target(layout: PlyLayout, vertex: PlyElement) -> str | None:
+    """The vertex property the reader takes labels from, None when it has none."""
+    names = [n for n, _ in vertex.properties]
+    if any(c.startswith("bimscan cloud") for c in layout.comments):
+        return "label" if "label" in names else None
+    return _find(names, LABEL_CANDIDATES)
+
+
+def _vertex_element(path: Path) -> tuple[PlyLayout, PlyElement]:
+    where = str(path)
+    with path.open("rb") as handle:
+        layout = read_ply_layout(handle, where=where)
+    vertex = next((e for e in layout.elements if e.name == "vertex"), None)
+    if vertex is None:
+        raise InputFileError(f"{where}: PLY file has no vertex element; it holds no points")
+    if vertex.has_lists:
+        raise InputFileError(f"{where}: PLY vertex element has list properties; bimscan reads scalar vertex properties only")
+    before = layout.elements[: layout.elements.index(vertex)]
+    if layout.format != "ascii" and any(e.has_lists for e in before):
+        raise InputFileError(f"{where}: a binary PLY element with list properties precedes the vertices; not supported")
+    return layout, vertex
+
+
+def check_ply_copy(path: Path, target_format: str, top_class: int) -> CopyCheck:
+    """What a labelled copy of the PLY ``path`` cannot keep as it was: a label property whose
+    integer type cannot hold ``top_class`` becomes uchar."""
+    path = check_input_path(path)
+    layout, vertex = _vertex_element(path)
+    target = _label_target(layout, vertex)
+    if target is not None:
+        kind = dict(vertex.properties)[target]
+        limit = _integer_limit(kind)
+        if limit is not None and limit < top_class:
+            return CopyCheck(changed=(f"vertex property {target!r} becomes uchar: its type ({kind}) cannot hold "
+                                      f"class id {top_class}",))
+    return CopyCheck()
+
+
+def ply_held(path: Path) -> tuple[str, ...]:
+    """What the PLY ``path`` holds beyond a ``PointCloud``'s columns, in words: vertex properties
+    the reader does not take, other elements (faces, ...), another tool's header comments."""
+    path = check_input_path(path)
+    layout, vertex = _vertex_element(path)
+    sources = _column_sources(layout, vertex, None, str(path))
+    taken = {"x", "y", "z", *sources.values()}
+    if "rgb" in sources:
+        taken |= {n for n, _ in vertex.properties if n.lower() in ("red", "green", "blue")}
+    if "sensor_xyz" in sources:
+        taken |= {"sensor_x", "sensor_y", "sensor_z"}
+    held = []
+    other = [n for n, _ in vertex.properties if n not in taken]
+    if other:
+        held.append("vertex " + ("property " if len(other) == 1 else "properties ") + ", ".join(other))
+    elements = [f"{e.name} ({e.count:,})" for e in layout.elements if e.name != "vertex"]
+    if elements:
+        held.append(("element " if len(elements) == 1 else "elements ") + ", ".join(elements))
+    if not any(c.startswith("bimscan cloud") for c in layout.comments) and layout.comments:
+        held.append("its header comments")
+    return tuple(held)
+
+
+def copy_ply_labelled(
+    source: Path, target: Path, labels: np.ndarray, *, header: CloudHeader, overwrite: bool = False,
+    checksum: bool = True,
+) -> WrittenCloud:
+    """Copy the PLY ``source`` to ``target`` with ``labels`` (N,) uint8 (see the section comment);
+    registered as ``LABELLED_COPIERS["ply"]``. ``header``: bimscan's document in the sidecar."""
+    source = check_input_path(source)
+    where = str(source)
+    layout, vertex = _vertex_element(source)
+    check_label_count(labels, vertex.count, source)
+    ours = any(c.startswith("bimscan cloud") for c in layout.comments)
+    target_name = _label_target(layout, vertex)
+    top_class = max((c.id for c in header.scheme.classes), default=0)
+    types = dict(vertex.properties)
+    retype = target_name is not None and (_integer_limit(types[target_name]) or 255) < top_class
+    label_name = target_name or LABEL_NAME
+    with source.open("rb") as handle:
+        lines = []
+        while True:
+            line = handle.readline()
+            lines.append(line)
+            if line.split()[:1] == [b"end_header"] or not line:
+                break
+        out_lines = _copy_header_lines(lines, header, add=target_name is None, retype=target_name if retype else None,
+                                       ours=ours)
+        sources = _column_sources(layout, vertex, None, where)
+        columns = tuple(c for c in PointCloud.COLUMNS if c in {"xyz", "label", *sources})
+        origin = header.origin
+        if ours:
+            found = _scheme_from_comments(layout.comments)
+            origin = found[1] if found is not None else origin
+        document = header_to_document(replace(header, origin=origin), columns=columns, n_points=vertex.count)
+        with StagedOutput(target, overwrite=overwrite, checksum=checksum, extra=(sidecar_path(target),)) as staged:
+            sidecar = staged.open(staged.file(sidecar_path(target)))  # renamed first, as the writer does
+            sidecar.write(dump_json(document, indent=1))
+            out = staged.open(staged.file(target))
+            out.write(b"".join(out_lines))
+            before = layout.elements[: layout.elements.index(vertex)]
+            if layout.format == "ascii":
+                for element in before:
+                    for _ in range(element.count):
+                        out.write(handle.readline())
+                index = [n for n, _ in vertex.properties].index(target_name) if target_name is not None else None
+                _copy_ascii_vertices(handle, out, labels, vertex.count, index, where)
+            else:
+                skip = sum(e.count * np.dtype([(n, t) for n, t in e.properties]).itemsize for e in before)
+                _copy_bytes(handle, out, skip, where)
+                order = "<" if layout.format == "binary_little_endian" else ">"
+                dtype = np.dtype([(n, order + t) for n, t in vertex.properties])
+                _copy_binary_vertices(handle, out, labels, vertex.count, dtype, target_name, retype, where)
+            shutil.copyfileobj(handle, out, 8 << 20)  # the elements after the vertices, as they are
+            return staged.commit(n_points=vertex.count)
+
+
+def _copy_header_lines(lines: list[bytes], header: CloudHeader, *, add: bool, retype: str | None,
+                       ours: bool) -> list[bytes]:
+    """The header lines of a labelled copy: the input's, with a ``label`` property added to the
+    vertices (``add``), the label property ``retype`` made uchar, and in bimscan's own files
+    (``ours``) the scheme and class comments of ``header``'s scheme."""
+    out: list[bytes] = []
+    element = b""
+    ending = lines[0][len(lines[0].rstrip(b"\r\n")):] or b"\n"
+    scheme = header.scheme
+    comments = [f"comment scheme {json.dumps(scheme.name)} default {json.dumps(scheme.default_label)}",
+                *(f"comment class {c.id} {c.color} {json.dumps(c.name)}" for c in scheme.classes)]
+    comments_placed = False
+    for line in lines:
+        words = line.split()
+        key = words[0] if words else b""
+        if element == b"vertex" and add and key in (b"element", b"end_header"):
+            out.append(f"property uchar {LABEL_NAME}".encode("ascii") + ending)
+        if key == b"element" and len(words) >= 2:
+            element = words[1]
+        if ours and line.startswith(_SCHEME_COMMENTS):
+            if not comments_placed:
+                out += [c.encode("ascii", "backslashreplace") + ending for c in comments]
+                comments_placed = True
+            continue
+        if retype is not None and element == b"vertex" and key == b"property" and words[-1:] == [retype.encode()]:
+            line = f"property uchar {retype}".encode("ascii") + line[len(line.rstrip(b"\r\n")):]
+        out.append(line)
+    return out
+
+
+def _copy_bytes(handle: BinaryIO, out: BinaryIO, count: int, where: str) -> None:
+    while count:
+        block = handle.read(min(count, 8 << 20))
+        if not block:
+            raise InputFileError(f"{where}: the PLY body ends before its vertices; the file is truncated")
+        out.write(block)
+        count -= len(block)
+
+
+_TOKEN = re.compile(rb"\S+")
+
+
+def _copy_ascii_vertices(handle: BinaryIO, out: BinaryIO, labels: np.ndarray, count: int, index: int | None,
+                         where: str) -> None:
+    """Vertex lines with the label token ``index`` replaced (None: a label appended), the rest of
+    each line as it was."""
+    for start in range(0, count, COPY_BLOCK_ROWS):
+        block = np.asarray(labels[start:start + COPY_BLOCK_ROWS])
+        parts = []
+        for offset, value in enumerate(block.tolist()):
+            line = handle.readline()
+            if not line:
+                raise InputFileError(f"{where}: PLY body ends after {start + offset} of {count} vertices; the file is truncated")
+            body = line.rstrip(b"\r\n")
+            text = str(value).encode("ascii")
+            if index is None:
+                parts.append(body + b" " + text + line[len(body):])
+                continue
+            token = next((m for i, m in enumerate(_TOKEN.finditer(body)) if i == index), None)
+            if token is None:
+                raise InputFileError(f"{where}: ascii PLY vertex {start + offset} has fewer values than the header declares")
+            parts.append(body[: token.start()] + text + body[token.end():] + line[len(body):])
+        out.write(b"".join(parts))
+
+
+def _copy_binary_vertices(handle: BinaryIO, out: BinaryIO, labels: np.ndarray, count: int, dtype: np.dtype,
+                          name: str | None, retype: bool, where: str) -> None:
+    """Vertex records with the label property ``name`` set (None: a uchar label appended to each)."""
+    for start in range(0, count, COPY_BLOCK_ROWS):
+        take = min(COPY_BLOCK_ROWS, count - start)
+        data = bytearray(take * dtype.itemsize)
+        got = handle.readinto(data)
+        if got < len(data):
+            raise InputFileError(f"{where}: PLY body ends after {start + got // dtype.itemsize} of {count} vertices; "
+                                 "the file is truncated")
+        label = np.asarray(labels[start:start + take], dtype=np.uint8)
+        if name is None:
+            rows = np.empty((take, dtype.itemsize + 1), dtype=np.uint8)
+            rows[:, :-1] = np.frombuffer(data, dtype=np.uint8).reshape(take, dtype.itemsize)
+            rows[:, -1] = label
+            out.write(memoryview(rows).cast("B"))
+            continue
+        # a char label property made uchar (the only type too small for a class id 0..255): the same byte
+        records = np.frombuffer(data, dtype=_retyped(dtype, name) if retype else dtype)
+        records[name] = label
+        out.write(data)
+
+
+def _retyped(dtype: np.dtype, name: str) -> np.dtype:
+    """``dtype`` with the 1-byte field ``name`` read as uchar."""
+    return np.dtype({"names": list(dtype.names or ()),
+                     "formats": [np.dtype("u1") if n == name else dtype.fields[n][0] for n in dtype.names or ()],
+                     "offsets": [dtype.fields[n][1] for n in dtype.names or ()], "itemsize": dtype.itemsize})
+
 __all__ = [
-    "PLY_PROPERTIES", "PlyCloudWriter", "PlyLayout", "iter_ply_chunks", "open_ply_writer",
+    "PLY_PROPERTIES", "check_ply_copy", "copy_ply_labelled", "ply_held", "PlyCloudWriter", "PlyLayout", "iter_ply_chunks", "open_ply_writer",
     "read_ply_header", "read_ply_layout", "sidecar_path",
 ]

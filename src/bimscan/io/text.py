@@ -36,8 +36,9 @@ from typing import TextIO
 import numpy as np
 
 from bimscan.errors import InputFileError
-from bimscan.files import atomic_output
-from bimscan.io._writer import check_output_path
+from bimscan.files import atomic_output, check_input_file
+from bimscan.io._labelled import LABEL_NAME, CopyCheck, check_label_count
+from bimscan.io._writer import StagedOutput, WrittenCloud, check_output_path
 from bimscan.types import PointCloud
 
 TEXT_SUFFIXES = (".txt", ".xyz", ".pts", ".csv", ".asc")
@@ -61,6 +62,7 @@ class _Layout:
     columns: int
     data_start: int  # number of lines before the first data line
     rgb: tuple[int, int, int] | None = None
+    names: tuple[str, ...] = ()  # the header line's column names (lower case); () without one
 
 
 def _is_number(token: str) -> bool:
@@ -99,7 +101,8 @@ def _detect_layout(path: Path, handle: TextIO, *, label_field: str | None = None
             xyz = (names.index("x"), names.index("y"), names.index("z"))
             rgb = next((tuple(names.index(n) for n in trio) for trio in RGB_NAMES if all(n in names for n in trio)),
                        None)
-            return _Layout(delimiter, xyz, label if labels else None, len(names), consumed, rgb)  # type: ignore[arg-type]
+            return _Layout(delimiter, xyz, label if labels else None, len(names), consumed, rgb,  # type: ignore[arg-type]
+                           tuple(names))
         if label_field is not None:
             raise InputFileError(
                 f"{path}: no header line naming its columns, so label field {label_field!r} cannot apply; "
@@ -233,3 +236,119 @@ def write_text_cloud(path: str | Path, cloud: PointCloud, *, overwrite: bool = F
                 columns.append(cloud.label[start:start + step].astype(np.float64)[:, None])
             np.savetxt(out, np.hstack(columns), fmt=fmt)
     return path
+
+
+# -- labelled copies ------------------------------------------------------------------------------
+#
+# A labelled copy keeps a text cloud as it was, line for line: comment and blank lines, a header
+# line, a .pts count line, every column of every point line as it was written. The class goes to
+# the label column the reader finds (``LABEL_NAMES`` in a header line, the 4th of 4 or 7th of 7
+# columns without one), or to a column appended to every point line (named ``label`` in the
+# header line, if any). Leica .pts files without a header line read 4 and 7 columns as intensity:
+# a header line naming the columns is added before their first point line, so the labels read back.
+
+_TOKEN = re.compile(rb"[^,\s]+")
+PTS_NAMES = {3: "x y z", 4: "x y z intensity", 6: "x y z r g b", 7: "x y z intensity r g b"}
+COPY_BLOCK_LINES = 1 << 18  # point lines a labelled copy holds at a time
+
+
+def _copy_layout(path: Path) -> _Layout:
+    with path.open("r", encoding="utf-8", errors="strict") as handle:
+        try:
+            return _detect_layout(path, handle)
+        except UnicodeDecodeError as exc:
+            raise InputFileError(f"{path}: not a text file ({exc.reason}); pass 'x y z [label]' text") from exc
+
+
+def _adds_names(path: Path, layout: _Layout) -> bool:
+    """Whether a labelled copy adds a header line: a .pts file without one, which reads the
+    columns after x y z as intensity and colour, never as labels."""
+    return not layout.names and layout.label is None and path.suffix.lower() == ".pts"
+
+
+def check_text_copy(path: Path, target_format: str, top_class: int) -> CopyCheck:
+    """What a labelled copy of the text cloud ``path`` does not keep as it was: a header line added
+    to a .pts file that has none."""
+    layout = _copy_layout(check_input_file(path, what="a text cloud"))
+    if _adds_names(path, layout):
+        return CopyCheck(changed=(f"a header line '{PTS_NAMES[layout.columns]} label' is added before the first point "
+                                  "(a .pts file's columns after x y z are intensity and colour, never labels)",))
+    return CopyCheck()
+
+
+def text_held(path: Path) -> tuple[str, ...]:
+    """The columns of the text cloud ``path`` the reader does not take (x y z, colour, label), in words."""
+    layout = _copy_layout(check_input_file(path, what="a text cloud"))
+    taken = {*layout.xyz, *(layout.rgb or ()), *(() if layout.label is None else (layout.label,))}
+    other = [i for i in range(layout.columns) if i not in taken]
+    if not other:
+        return ()
+    named = layout.names or (tuple(PTS_NAMES[layout.columns].split()) if path.suffix.lower() == ".pts" else ())
+    names = [f"{i + 1} ({named[i]})" if named else f"{i + 1}" for i in other]
+    return (("column " if len(other) == 1 else "columns ") + ", ".join(names),)
+
+
+def copy_text_labelled(
+    source: Path, target: Path, labels: np.ndarray, *, header: object = None, overwrite: bool = False,
+    checksum: bool = True,
+) -> WrittenCloud:
+    """Copy the text cloud ``source`` to ``target`` with ``labels`` (N,) uint8 in its label column
+    (see the section comment); registered as ``LABELLED_COPIERS["text"]``. Plain text stores no
+    header: ``header`` (the class names) is not written."""
+    source = check_input_file(source, what="a text cloud")
+    layout = _copy_layout(source)
+    delimiter = b"," if layout.delimiter == "," else b" "
+    add_names = _adds_names(source, layout)
+    done = 0
+    with StagedOutput(target, overwrite=overwrite, checksum=checksum) as staged, source.open("rb") as handle:
+        out = staged.open(staged.file(target))
+        for number in range(layout.data_start):
+            line = handle.readline()
+            if layout.names and layout.label is None and number == layout.data_start - 1:
+                body = line.rstrip(b"\r\n")  # the header line: name the new column
+                line = body + delimiter + LABEL_NAME.encode("ascii") + line[len(body):]
+            out.write(line)
+        while True:
+            lines = list(itertools.islice(handle, COPY_BLOCK_LINES))
+            if not lines:
+                break
+            parts = []
+            for line in lines:
+                stripped = line.strip()
+                if not stripped or stripped.startswith(_COMMENT_BYTES):
+                    parts.append(line)
+                    continue
+                if done >= len(labels):
+                    raise ValueError(f"{source}: more point lines than the {len(labels)} labels; pass one label per point")
+                if add_names and done == 0:
+                    names = f"{PTS_NAMES[layout.columns]} {LABEL_NAME}".encode("ascii")
+                    parts.append(names + (b"\r\n" if line.endswith(b"\r\n") else b"\n"))
+                labelled = _labelled_line(line, int(labels[done]), layout.label, delimiter)
+                if labelled is None:
+                    raise InputFileError(f"{source}: point line {done + 1:,} {line.strip()[:80]!r} has fewer columns than "
+                                         "the first; fix or remove it")
+                parts.append(labelled)
+                done += 1
+            out.write(b"".join(parts))
+        check_label_count(labels, done, source)
+        return staged.commit(n_points=done)
+
+
+def _labelled_line(line: bytes, label: int, index: int | None, delimiter: bytes) -> bytes | None:
+    """A point line with its token ``index`` replaced by ``label`` (None: ``label`` appended after
+    its last value, before a trailing comment); everything else as it was. None when the line has
+    no token ``index``."""
+    body = line.rstrip(b"\r\n")
+    end = len(body)
+    for marker in _COMMENT_BYTES:  # an inline comment, which the reader drops
+        found = body.find(marker)
+        if found >= 0:
+            end = min(end, found)
+    text = str(label).encode("ascii")
+    if index is None:
+        values = body[:end].rstrip()
+        return values + delimiter + text + body[len(values):] + line[len(body):]
+    token = next((m for i, m in enumerate(_TOKEN.finditer(body, 0, end)) if i == index), None)
+    if token is None:
+        return None
+    return body[: token.start()] + text + body[token.end():] + line[len(body):]
