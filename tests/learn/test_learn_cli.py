@@ -211,8 +211,10 @@ def test_evaluate_with_a_missing_checkpoint_is_one_error_line(project: Path, cap
 def test_predict_checks_its_output_before_any_work(project: Path, capsys: pytest.CaptureFixture[str]) -> None:
     (project / "taken.laz").write_bytes(b"keep me")
 
-    for out, message in (("taken.laz", "already exists"), ("out.xyz", "unknown cloud format"),
-                         ("missing/out.laz", "does not exist")):
+    for out, message in (("taken.laz", "already exists"), ("out.dwg", "unknown cloud format"),
+                         ("out.xyz", "bimscan writes text clouds only as labelled copies of text clouds"),
+                         ("missing/out.laz", "does not exist"),
+                         ("site.las", "already exists; pass --overwrite")):  # IN itself
         # the checkpoint does not exist either: the output is checked first
         status = main(["predict", str(project / "nope.pt"), str(project / "site.las"), str(project / out)])
 

@@ -186,3 +186,138 @@ def test_a_foreign_las_without_return_numbers_is_predicted_to_e57(tmp_path: Path
     np.testing.assert_array_equal(e57.label, laz.label)
     np.testing.assert_allclose(e57.xyz, laz.xyz, atol=2e-4)
     assert set(np.unique(e57.return_number)) == {1} and set(np.unique(e57.number_of_returns)) == {1}
+
+
+# -- a user's scan kept whole (issue 50) ---------------------------------------------------------------
+
+WKT = ('PROJCS["ETRS89 / UTM zone 32N",GEOGCS["ETRS89",DATUM["ETRS89",SPHEROID["GRS 1980",6378137,298.257222101]],'
+       'PRIMEM["Greenwich",0],UNIT["degree",0.0174532925199433]],PROJECTION["Transverse_Mercator"],'
+       'PARAMETER["central_meridian",9],PARAMETER["scale_factor",0.9996],PARAMETER["false_easting",500000],'
+       'UNIT["metre",1],AUTHORITY["EPSG","25832"]]')
+
+
+@pytest.fixture
+def georeferenced(tmp_path: Path, room: Callable[..., PointCloud]) -> Path:
+    """The issue's scan: LAS 1.4 with a WKT CRS, a UTM offset, 10 micrometre steps, an extra
+    dimension and another tool's EVLR."""
+    from laspy.vlrs.known import WktCoordinateSystemVlr
+    from laspy.vlrs.vlrlist import VLRList
+
+    cloud = room(22, size_m=(4.0, 3.0), points_per_m2=30, origin=(512_003.0, 5_401_002.0))
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.offsets = np.array([512_000.0, 5_401_000.0, 300.0])
+    header.scales = np.array([1e-5, 1e-5, 1e-5])
+    header.add_extra_dim(laspy.ExtraBytesParams(name="deviation", type=np.float32, description="distance to model"))
+    header.vlrs.append(WktCoordinateSystemVlr(WKT))
+    header.global_encoding.wkt = True
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = cloud.xyz[:, 0], cloud.xyz[:, 1], cloud.xyz[:, 2] + 300.0
+    las.deviation = np.linspace(-0.01, 0.01, len(cloud)).astype(np.float32)
+    las.classification = np.full(len(cloud), 1, np.uint8)
+    las.evlrs = VLRList([laspy.VLR("Leica", 42, "registration report", b"RMS 1.2 mm " * 30)])
+    path = tmp_path / "g.las"
+    las.write(path)
+    return path
+
+
+def las_parts(path: Path) -> tuple[bytes, list[bytes], np.ndarray]:
+    """What a labelled copy must keep of a LAS: its header block without the fields a copy rewrites
+    (point data offset, VLR count, EVLR position and count), its VLRs and EVLRs but bimscan's own and
+    the class lookup, and its point records without the class byte."""
+    from bimscan.io.las import read_las_layout
+
+    layout = read_las_layout(path)
+    head = bytearray(layout.header)
+    for offset, size in ((96, 8), (235, 12)):
+        head[offset:offset + size] = b"\0" * size
+    records = [r.raw for r in (*layout.vlrs, *layout.evlrs) if (r.user_id, r.record_id) not in
+               {("LASF_Spec", 0), ("bimscan", 1)}]
+    las = laspy.read(path)
+    rows = np.asarray(las.points.array).view(np.uint8).reshape(len(las.points), -1).copy()
+    rows[:, 16] = 0
+    return bytes(head), records, rows
+
+
+def test_the_issues_georeferenced_scan_keeps_its_crs_steps_offset_extra_dimension_and_evlr(
+    tmp_path: Path, trained_run: Path, georeferenced: Path,
+) -> None:
+    checkpoint, once = trained_run / "run" / "last.pt", EvalConfig(max_passes=1)
+    original = las_parts(georeferenced)
+    lines: list[str] = []
+
+    result = predict_cloud(checkpoint, georeferenced, tmp_path / "labelled.las", device="cpu", evaluation=once,
+                           warn=lines.append)
+    # writing over the input, spelled another way: the same bytes, only the classes changed
+    (tmp_path / "sub").mkdir()
+    predict_cloud(checkpoint, georeferenced, tmp_path / "sub" / ".." / "g.las", device="cpu", evaluation=once,
+                  overwrite=True, warn=lines.append)
+
+    assert lines == []  # nothing to warn about: everything kept
+    for written in (tmp_path / "labelled.las", georeferenced):
+        head, records, rows = las_parts(written)
+        assert head == original[0] and records == original[1]  # CRS, extra-bytes VLR, the EVLR as they were
+        np.testing.assert_array_equal(rows, original[2])  # X/Y/Z integers, extra dimension: never re-quantised
+        np.testing.assert_array_equal(np.bincount(laspy.read(written).classification, minlength=5), result.class_counts)
+    assert (tmp_path / "labelled.las").read_bytes() == georeferenced.read_bytes()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["g.las", "labelled.las", "sub"]
+
+
+def test_writing_over_the_input_that_a_copy_would_change_is_refused_before_the_checkpoint_is_read(
+    tmp_path: Path, room: Callable[..., PointCloud],
+) -> None:
+    cloud = room(6, points_per_m2=10)
+    (tmp_path / "scan.pts").write_text(f"{len(cloud)}\n" + "".join(f"{x} {y} {z} 5\n" for x, y, z in cloud.xyz))
+    before = (tmp_path / "scan.pts").read_bytes()
+
+    with pytest.raises(OutputError, match=r"scan.pts is the input .*scan.pts: labelling it in place would change a "
+                                          r"header line 'x y z intensity label' is added"):
+        predict_cloud(tmp_path / "nope.pt", tmp_path / "scan.pts", tmp_path / "scan.pts", device="cpu", overwrite=True)
+
+    assert (tmp_path / "scan.pts").read_bytes() == before
+
+
+def test_another_tools_ply_and_text_keep_their_normals_scalar_fields_and_colour(
+    tmp_path: Path, trained_run: Path, room: Callable[..., PointCloud],
+) -> None:
+    cloud = room(7, size_m=(4.0, 3.0), points_per_m2=20)
+    n = len(cloud)
+    dtype = np.dtype([("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4"),
+                      ("red", "u1"), ("green", "u1"), ("blue", "u1"), ("scalar_Roughness", "<f4")])
+    vertices = np.zeros(n, dtype)
+    vertices["x"], vertices["y"], vertices["z"] = cloud.xyz.T
+    vertices["nz"] = 1.0
+    vertices["red"] = np.arange(n) % 256
+    vertices["scalar_Roughness"] = np.linspace(0.0, 1.0, n)
+    header = "".join(f"property {'double' if t == '<f8' else 'float' if t == '<f4' else 'uchar'} {name}\n"
+                     for name, (t, _) in ((k, (dtype[k].str, 0)) for k in dtype.names or ()))
+    (tmp_path / "cc.ply").write_bytes(f"ply\nformat binary_little_endian 1.0\ncomment CloudCompare\nelement vertex {n}\n"
+                                      f"{header}end_header\n".encode() + vertices.tobytes())
+    (tmp_path / "cc.txt").write_text("x y z nx ny nz roughness\n" + "".join(
+        f"{x:.4f} {y:.4f} {z:.4f} 0 0 1 {r:.3f}\n" for (x, y, z), r in zip(cloud.xyz, vertices["scalar_Roughness"])))
+    checkpoint, once = trained_run / "run" / "last.pt", EvalConfig(max_passes=1)
+
+    ply = predict_cloud(checkpoint, tmp_path / "cc.ply", tmp_path / "out.ply", device="cpu", evaluation=once)
+    text = predict_cloud(checkpoint, tmp_path / "cc.txt", tmp_path / "out.txt", device="cpu", evaluation=once)
+
+    body = (tmp_path / "out.ply").read_bytes().partition(b"end_header\n")[2]
+    written = np.frombuffer(body, dtype=dtype.descr + [("label", "u1")])
+    for name in dtype.names or ():
+        np.testing.assert_array_equal(written[name], vertices[name])
+    np.testing.assert_array_equal(np.bincount(written["label"], minlength=5), ply.class_counts)
+    lines = (tmp_path / "out.txt").read_text().splitlines()
+    assert lines[0] == "x y z nx ny nz roughness label"
+    assert [line.rsplit(" ", 1)[0] for line in lines[1:]] == (tmp_path / "cc.txt").read_text().splitlines()[1:]
+    np.testing.assert_array_equal(np.bincount(read_cloud(tmp_path / "out.txt").label, minlength=5), text.class_counts)
+
+
+def test_another_format_warns_in_one_line_naming_what_it_cannot_hold(
+    tmp_path: Path, trained_run: Path, georeferenced: Path,
+) -> None:
+    lines: list[str] = []
+
+    predict_cloud(trained_run / "run" / "last.pt", georeferenced, tmp_path / "out.ply", device="cpu",
+                  evaluation=EvalConfig(max_passes=1), warn=lines.append)
+
+    (line,) = lines
+    assert line.startswith(f"{tmp_path / 'out.ply'} will not hold the CRS (WKT)") and "Leica/42" in line
+    assert "\n" not in line

@@ -130,22 +130,28 @@ def evaluate(
 @click.argument("out_path", metavar="OUT", type=click.Path(path_type=Path))
 @click.option("--overwrite", is_flag=True,
               help="Replace OUT if bimscan wrote it (a cloud file in OUT's format or a bimscan NumPy folder); anything "
-                   "else there is refused, never removed.")
+                   "else there is refused, never removed. OUT may be IN itself when the labelled copy keeps all of "
+                   "it (same format); it is replaced at the end.")
 @inference_options
 def predict(
     checkpoint: Path, in_path: Path, out_path: Path, overwrite: bool, device: str, stride_m: float | None,
     votes: int | None, label_neighbours: int | None, batch_size: int | None, max_passes: int | None,
     weights: str | None, seed: int | None,
 ) -> None:
-    """Label every point of the scan IN with CHECKPOINT and write OUT (.laz/.las/.ply or a folder).
+    """Label every point of the scan IN with CHECKPOINT and write OUT (.laz/.las/.ply/.e57 or a folder;
+    a text cloud's own suffix for a text IN).
 
-    The class goes to `classification` (LAS/LAZ) or `label` (PLY/NumPy), replacing whatever
-    labels IN had (they are not read); other columns are kept.
+    OUT in IN's format (LAS and LAZ alike) is a copy of IN with only the class changed: everything
+    else IN holds is kept (a LAS's scales, offsets, CRS, VLRs, extra dimensions and point records;
+    every property and element of a PLY; every column of a text cloud; every array of a NumPy
+    folder; an E57's scans and point fields). The class goes to `classification` (LAS/LAZ),
+    `bimscan:label` (E57), the label property or column IN has, else a new `label` (PLY, text),
+    or `segment.npy` (NumPy), replacing whatever labels IN had (they are not read). In another
+    format OUT keeps what that format holds, and a warning names what it does not.
     """
-    from bimscan.io import check_cloud_output
-    from bimscan.learn.predict import predict_cloud
+    from bimscan.learn.predict import check_prediction_output, predict_cloud
 
-    check_cloud_output(out_path, overwrite=overwrite)  # before the checkpoint is read
+    check_prediction_output(in_path, out_path, overwrite=overwrite)  # before the checkpoint is read
     evaluation = evaluation_settings(checkpoint, stride_m=stride_m, votes=votes, label_neighbours=label_neighbours,
                                      batch_size=batch_size, max_passes=max_passes, weights=weights, seed=seed)
     result = predict_cloud(

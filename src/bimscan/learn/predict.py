@@ -1,25 +1,31 @@
 """Label every point of a scan with a trained network and write it as a cloud (class in
 ``classification`` for LAS/LAZ), streamed: labels go to a disk-backed array while blocks are
-voted on, then the input is streamed again into :func:`bimscan.io.open_cloud_writer`."""
+voted on, then the input is copied with them (:func:`bimscan.io.write_labelled_copy`: in its own
+format with everything it holds, else through the target format's writer)."""
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from contextlib import closing
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bimscan.errors import LearnError
 from bimscan.files import work_folder
 from bimscan.learn.checkpoint import load_trained_model
-from bimscan.learn.data import CHUNK_POINTS, SceneSource, iter_raw_chunks, list_scenes
-from bimscan.learn.infer import label_scene, replace_labels
+from bimscan.learn.data import CHUNK_POINTS, SceneSource, list_scenes
+from bimscan.learn.infer import label_scene
 from bimscan.learn.model import pick_device
 from bimscan.learn.train_config import EvalConfig
 from bimscan.semantics import DEFAULT_SCHEME, load_scheme
 from bimscan.types import CloudHeader, LabelClass, LabelScheme
+
+if TYPE_CHECKING:
+    from bimscan.io import LabelledCopyPlan
 
 # Tableau 10 (the palette of the built-in spc5 scheme) for classes the default scheme does not
 # name; the default scheme's classes keep its colours, as in bimscan's synthetic clouds
@@ -56,35 +62,52 @@ def build_prediction_scheme(class_names: tuple[str, ...], stored: LabelScheme | 
     return LabelScheme(name="pct-prediction", classes=classes, rules=(), default_label=class_names[-1])
 
 
+def check_prediction_output(
+    in_path: str | Path, out_path: str | Path, *, overwrite: bool = False, top_class: int = 0,
+) -> LabelledCopyPlan:
+    """How ``predict_cloud`` will write ``out_path`` from the scan ``in_path`` (one cloud, a dataset
+    unit's folder included), checked before any work: see ``bimscan.io.plan_labelled_copy``
+    (``top_class``: the highest class id the labels take)."""
+    from bimscan.io import plan_labelled_copy
+
+    sources = list_scenes([in_path])
+    if len(sources) != 1:
+        raise LearnError(f"{in_path}: holds {len(sources)} scenes; predict one cloud at a time")
+    return plan_labelled_copy(sources[0].path, out_path, overwrite=overwrite, top_class=top_class)
+
+
 def predict_cloud(
     checkpoint: str | Path, in_path: str | Path, out_path: str | Path, *, device: str = "auto",
     evaluation: EvalConfig | None = None, overwrite: bool = False, chunk_points: int = CHUNK_POINTS, warn: Callable[[str], None] | None = None,
 ) -> PredictionResult:
     """Label every point of ``in_path`` and write ``out_path`` (format by suffix, see bimscan.io).
 
-    The input's other columns (intensity, time, station, component) are kept; its own labels
-    (if any: they are neither read for use nor checked) are replaced. ``out_path`` is checked
-    before any work, against the input's columns too (E57 cannot hold a mobile scan's); nothing is
-    left at it when anything fails. The work files go to a hidden folder beside ``out_path``
+    The output is a labelled copy of the input (``bimscan.io.write_labelled_copy``): in the
+    input's own format (LAS <-> LAZ included) it keeps everything the input holds (a LAS's header,
+    scales, offsets, CRS and other VLRs/EVLRs, extra dimensions and point records; a PLY's every
+    property and element; every column of a text cloud; every array of a NumPy folder; an E57's
+    scans, poses and point fields) with only the class changed; in another format it keeps the
+    columns that format's writer holds, and ``warn`` receives one line naming what it does not.
+    The input's own labels are replaced (they are neither read for use nor checked).
+
+    ``out_path`` is checked before any work (the input's columns too: E57 cannot hold a mobile
+    scan's); an output that is the input itself is refused unless the copy keeps all of it, and
+    is then replaced only at the end, once written whole. Nothing is left at it when anything
+    fails. The work files go to a hidden folder beside ``out_path``
     (``bimscan.files.work_folder``), removed at the end, or by the next run when this one is killed.
     """
-    from bimscan.io import check_cloud_output, open_cloud_writer, read_cloud_header
-    from bimscan.io._header import present_columns
+    from bimscan.io import read_cloud_header, write_labelled_copy
 
     out_path = Path(out_path)
-    check_cloud_output(out_path, overwrite=overwrite)
-    sources = list_scenes([in_path])
-    if len(sources) != 1:
-        raise LearnError(f"{in_path}: holds {len(sources)} scenes; predict one cloud at a time")
-    source: SceneSource = sources[0]
-    with closing(iter_raw_chunks(source, chunk_points=1, labels=False)) as chunks:
-        first = next(chunks, None)  # the input's columns, from its first point
-    if first is not None:  # (an input without points is refused when it is read)
-        check_cloud_output(out_path, overwrite=overwrite, columns=present_columns(first))
+    check_prediction_output(in_path, out_path, overwrite=overwrite)  # before the checkpoint is read
+    source: SceneSource = list_scenes([in_path])[0]
     torch_device = pick_device(device)
     trained = load_trained_model(checkpoint, device=torch_device, weights=None if evaluation is None else evaluation.weights)
     evaluation = (evaluation or trained.config.eval).with_seed(trained.config.train.seed)
     evaluation.stride_for(trained.config.blocks.size_m)  # a stride that does not divide the blocks: one line now
+    plan = check_prediction_output(in_path, out_path, overwrite=overwrite, top_class=len(trained.class_names) - 1)
+    for line in plan.notices():
+        (warn or _warn)(line)
     with work_folder(out_path) as folder:
         index_file, label_file = folder / "index.i8", folder / "label.u1"
         with index_file.open("wb") as index_out, label_file.open("wb") as label_out:
@@ -100,10 +123,13 @@ def predict_cloud(
                 inputs=trained.config.input, warn=warn,
             )
         labels = np.memmap(folder / "labels.u1", dtype=np.uint8, mode="w+", shape=(result.points,))
+        counts = np.zeros(len(trained.class_names), dtype=np.int64)
         for offset in range(0, result.points, chunk_points):
             count = min(chunk_points, result.points - offset)
             index = np.fromfile(index_file, dtype=np.int64, count=count, offset=offset * 8)
             labels[index] = np.fromfile(label_file, dtype=np.uint8, count=count, offset=offset)
+        for offset in range(0, result.points, chunk_points):
+            counts += np.bincount(labels[offset:offset + chunk_points], minlength=len(counts))[: len(counts)]
         stored = read_cloud_header(source.path)
         centre = np.round((result.lower + result.upper) / 2.0)
         header = CloudHeader(
@@ -121,17 +147,13 @@ def predict_cloud(
                 **({} if stored is None else {"source_metadata": dict(stored.metadata)}),
             },
         )
-        counts = np.zeros(len(trained.class_names), dtype=np.int64)
-        start = 0
-        with open_cloud_writer(out_path, header=header, overwrite=overwrite) as writer:
-            for chunk in iter_raw_chunks(source, chunk_points=chunk_points, labels=False):
-                label = np.asarray(labels[start:start + len(chunk)])
-                counts += np.bincount(label, minlength=len(counts))[: len(counts)]
-                writer.write(replace_labels(chunk, label))
-                start += len(chunk)
+        write_labelled_copy(plan, labels, header=header)
         del labels  # release the memory map before the folder goes
     return PredictionResult(
         path=out_path, points=result.points, class_counts=counts, class_names=trained.class_names,
         nearest_filled=result.nearest_filled, seconds=result.seconds, network_points=result.network_points,
     )
 
+
+def _warn(line: str) -> None:
+    warnings.warn(line, stacklevel=3)
