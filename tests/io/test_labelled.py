@@ -313,15 +313,70 @@ def test_writing_over_the_input_is_refused_before_any_work_when_the_copy_would_c
     assert (tmp_path / "old.las").read_bytes() == before
 
 
-def test_another_format_warns_in_one_line_naming_what_it_cannot_hold(tmp_path: Path) -> None:
+def test_another_format_carries_every_field_it_can_hold_and_names_the_rest_in_one_line(tmp_path: Path) -> None:
     source = site_las(tmp_path / "site.las")
+    labels = (np.arange(400) % 5).astype(np.uint8)
+    header = CloudHeader(scheme=scheme_of(5), origin=UTM_OFFSET)
 
-    plan = plan_labelled_copy(source, tmp_path / "out.e57", top_class=4)
+    to_ply = plan_labelled_copy(source, tmp_path / "out.ply", top_class=4)
+    to_npy = plan_labelled_copy(source, tmp_path / "out", top_class=4)
+    to_e57 = plan_labelled_copy(source, tmp_path / "out.e57", top_class=4)
+    for plan in (to_ply, to_npy):
+        write_labelled_copy(plan, labels, header=header)
 
-    assert not plan.copied
+    (ply_line,) = to_ply.notices()
+    assert ply_line == (f"{tmp_path / 'out.ply'} will not hold what PLY has no place for: the CRS (WKT); VLR/EVLR "
+                        f"RIEGL/1 of {source}")
+    (e57_line,) = to_e57.notices()  # E57 has no field for another format's: named, with the rest
+    assert e57_line.startswith(f"{tmp_path / 'out.e57'} will not hold what E57 has no place for: fields 'synthetic', ")
+    assert "'reflectance'" in e57_line
+    assert "the CRS (WKT)" in e57_line and "\n" not in e57_line
+    original = laspy.read(source)
+    body = (tmp_path / "out.ply").read_bytes().partition(b"end_header\n")[2]
+    head = (tmp_path / "out.ply").read_bytes().partition(b"end_header\n")[0].decode().splitlines()
+    assert head[-4:] == ["property uchar user_data", "property short scan_angle", "property ushort point_source_id",
+                         "property float reflectance"]
+    names = [line.split()[-1] for line in head if line.startswith("property")]
+    kinds = {"double": "<f8", "uchar": "u1", "ushort": "<u2", "short": "<i2", "float": "<f4"}
+    rows = np.frombuffer(body, dtype=[(n, kinds[line.split()[1]]) for n, line in
+                                      zip(names, [l for l in head if l.startswith("property")], strict=True)])
+    for name in ("reflectance", "point_source_id", "scan_angle", "user_data", "synthetic"):
+        np.testing.assert_array_equal(rows[name], np.asarray(original[name]), err_msg=name)
+        np.testing.assert_array_equal(np.load(tmp_path / "out" / f"{name}.npy"), np.asarray(original[name]))
+    np.testing.assert_array_equal(rows["label"], labels)
+    assert (tmp_path / "out" / "reflectance.npy").is_file()
+    copy(source, tmp_path / "out", labels, overwrite=True)  # the folder with the fields stays bimscan's to replace
+
+
+def test_another_tools_ply_normals_and_scalar_fields_become_extra_dimensions_of_a_laz(tmp_path: Path) -> None:
+    vertices = foreign_ply(tmp_path / "scan.ply", fmt="ascii")
+    labels = (np.arange(30) % 5).astype(np.uint8)
+
+    plan = plan_labelled_copy(tmp_path / "scan.ply", tmp_path / "out.laz", top_class=4)
+    write_labelled_copy(plan, labels, header=CloudHeader(scheme=scheme_of(5)))
+
+    assert [f.name for f in plan.fields] == ["nx", "ny", "nz", "scalar_Deviation"]
+    assert plan.notices() == (f"{tmp_path / 'out.laz'} will not hold what LAZ has no place for: element face (2); "
+                              f"its header comments of {tmp_path / 'scan.ply'}",)
+    las = laspy.read(tmp_path / "out.laz")
+    for name in ("nx", "ny", "nz", "scalar_Deviation"):
+        np.testing.assert_array_equal(np.asarray(las[name]), vertices[name])
+    np.testing.assert_array_equal(las.classification, labels)
+
+
+def test_an_e57s_scan_grid_and_extension_fields_go_to_another_format_with_its_valid_points(tmp_path: Path) -> None:
+    foreign_e57(tmp_path / "site.e57")
+    cloud = read_cloud(tmp_path / "site.e57")
+
+    plan = plan_labelled_copy(tmp_path / "site.e57", tmp_path / "out", top_class=4)
+    write_labelled_copy(plan, np.zeros(len(cloud), np.uint8), header=CloudHeader(scheme=scheme_of(5), origin=UTM_OFFSET))
+
+    valid = np.concatenate([e57_points(tmp_path / "site.e57", i)["cartesianInvalidState"] == 0 for i in range(2)])
+    rows = np.concatenate([e57_points(tmp_path / "site.e57", i)["rowIndex"] for i in range(2)])
+    np.testing.assert_array_equal(np.load(tmp_path / "out" / "rowIndex.npy"), rows[valid])
+    assert [f.name for f in plan.fields] == ["rowIndex"]
     (line,) = plan.notices()
-    assert "\n" not in line and line.startswith(f"{tmp_path / 'out.e57'} will not hold the CRS (WKT)")
-    assert "VLR/EVLR RIEGL/1" in line and "'reflectance'" in line
+    assert "field 'nor:normalX' (not a plain file name)" in line and "1 image (images2D)" in line
 
 
 def test_a_text_output_is_written_only_from_a_text_input(tmp_path: Path) -> None:

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.errors import InputFileError, OutputError
-from bimscan.io._labelled import CopyCheck, LabelledCopier
+from bimscan.io._labelled import CopyCheck, ExtraField, LabelledCopier
 from bimscan.io._header import present_columns
 from bimscan.io._writer import CloudWriter, WrittenCloud, check_input_path, check_output_path
 from bimscan.io.e57 import (
@@ -40,8 +40,11 @@ from bimscan.io.e57 import (
     check_e57_copy,
     copy_e57_labelled,
     count_e57_points,
+    e57_carriable,
+    e57_fields,
     e57_held,
     iter_e57_chunks,
+    iter_e57_fields,
     open_e57_writer,
     read_e57_header,
 )
@@ -50,6 +53,9 @@ from bimscan.io.las import (
     copy_las_labelled,
     count_las_points,
     iter_las_chunks,
+    iter_las_fields,
+    las_carriable,
+    las_fields,
     las_held,
     open_las_writer,
     open_laz_writer,
@@ -60,6 +66,9 @@ from bimscan.io.npdir import (
     copy_npdir_labelled,
     count_npdir_points,
     iter_npdir_chunks,
+    iter_npdir_fields,
+    npdir_carriable,
+    npdir_fields,
     npdir_held,
     open_npdir_writer,
     read_npdir_header,
@@ -70,13 +79,25 @@ from bimscan.io.ply import (
     copy_ply_labelled,
     count_ply_points,
     iter_ply_chunks,
+    iter_ply_fields,
     open_ply_writer,
+    ply_carriable,
+    ply_fields,
     ply_held,
     read_ply_header,
     sidecar_path,
 )
 from bimscan.io.s3dis import count_s3dis_points, is_s3dis_room, iter_s3dis_chunks
-from bimscan.io.text import TEXT_SUFFIXES, check_text_copy, copy_text_labelled, count_text_points, iter_text_chunks, text_held
+from bimscan.io.text import (
+    TEXT_SUFFIXES,
+    check_text_copy,
+    copy_text_labelled,
+    count_text_points,
+    iter_text_chunks,
+    iter_text_fields,
+    text_fields,
+    text_held,
+)
 from bimscan.types import CloudHeader, PointCloud
 
 # One vocabulary of cloud formats, shared with the dataset layout (``bimscan.dataset.layout``):
@@ -130,14 +151,28 @@ POINT_COUNTERS: dict[str, Callable[[str | Path], int]] = {
 }
 # Labelled copies (``plan_labelled_copy``, ``write_labelled_copy``): per input format, the output
 # formats a copy keeps everything of the input in, and how (see ``bimscan.io._labelled``).
-_LAS_COPIER = LabelledCopier(targets=("las", "laz"), check=check_las_copy, copy=copy_las_labelled, held=las_held)
+_LAS_COPIER = LabelledCopier(targets=("las", "laz"), check=check_las_copy, copy=copy_las_labelled, held=las_held,
+                             fields=las_fields, iter_fields=iter_las_fields)
 LABELLED_COPIERS: dict[str, LabelledCopier] = {
     "las": _LAS_COPIER,
     "laz": _LAS_COPIER,
-    "ply": LabelledCopier(targets=("ply",), check=check_ply_copy, copy=copy_ply_labelled, held=ply_held),
-    "e57": LabelledCopier(targets=("e57",), check=check_e57_copy, copy=copy_e57_labelled, held=e57_held),
-    "npy": LabelledCopier(targets=("npy",), check=check_npdir_copy, copy=copy_npdir_labelled, held=npdir_held),
-    "text": LabelledCopier(targets=("text",), check=check_text_copy, copy=copy_text_labelled, held=text_held),
+    "ply": LabelledCopier(targets=("ply",), check=check_ply_copy, copy=copy_ply_labelled, held=ply_held,
+                          fields=ply_fields, iter_fields=iter_ply_fields),
+    "e57": LabelledCopier(targets=("e57",), check=check_e57_copy, copy=copy_e57_labelled, held=e57_held,
+                          fields=e57_fields, iter_fields=iter_e57_fields),
+    "npy": LabelledCopier(targets=("npy",), check=check_npdir_copy, copy=copy_npdir_labelled, held=npdir_held,
+                          fields=npdir_fields, iter_fields=iter_npdir_fields),
+    "text": LabelledCopier(targets=("text",), check=check_text_copy, copy=copy_text_labelled, held=text_held,
+                           fields=text_fields, iter_fields=iter_text_fields),
+}
+# Which of another format's per-point fields (``ExtraField``) each writer stores beside the columns,
+# and why not the others: (carried, the others in words).
+FIELD_CARRIERS: dict[str, Callable[[tuple[ExtraField, ...]], tuple[tuple[ExtraField, ...], tuple[str, ...]]]] = {
+    "las": las_carriable,
+    "laz": las_carriable,
+    "ply": ply_carriable,
+    "e57": e57_carriable,
+    "npy": npdir_carriable,
 }
 # Bytes a point of the paper's scanner takes on disk at most, per format (LAZ: a bound on what
 # scans compress to; colour, extra echoes and mobile columns add more), for the free-space check
@@ -147,6 +182,9 @@ BYTES_PER_POINT: dict[str, int] = {"las": 36, "laz": 12, "ply": 41, "e57": 40, "
 # presets' scans at 10 deg/s to 4.4 (exp6) to 7.4 (exp1) bytes a point, sparser scans to about 9
 # (docs/guide/datasets.md); the other formats store a fixed record.
 LIKELY_BYTES_PER_POINT: dict[str, float] = BYTES_PER_POINT | {"laz": 6.0}
+# A format's name in messages.
+FORMAT_NAMES = {"las": "LAS", "laz": "LAZ", "ply": "PLY", "e57": "E57", "npy": "a NumPy folder", "text": "a text cloud",
+                "s3dis": "an S3DIS room"}
 # what an S3DIS room (read only, never copied) holds beyond its points' columns
 _S3DIS_HELD = ("its per-object annotation files (Annotations/)",)
 _WRITABLE = ", ".join(s for name in WRITABLE_FORMATS for s in CLOUD_FORMATS[name] if s) + \
@@ -189,15 +227,19 @@ def _writer_key(path: str | Path) -> str:
 
 
 def open_cloud_writer(
-    path: str | Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True
+    path: str | Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True,
+    fields: tuple[ExtraField, ...] = (),
 ) -> CloudWriter:
     """A streamed writer for ``path``, its format chosen by suffix (see ``WRITERS``).
 
     Raises OutputError for an unknown suffix, a missing parent folder, or an existing output
     (file, folder, or PLY sidecar) without ``overwrite``. ``checksum`` makes ``close()`` report
     the SHA-256 of every file written (one extra read of the output, from the page cache).
+    ``fields``: per-point fields of another format stored beside the columns (those the format's
+    ``FIELD_CARRIERS`` entry carries), their values given with every chunk.
     """
-    return WRITERS[_writer_key(path)](Path(path), header=header, overwrite=overwrite, checksum=checksum)
+    return WRITERS[_writer_key(path)](Path(path), header=header, overwrite=overwrite, checksum=checksum,
+                                      fields=tuple(fields))
 
 
 def check_cloud_output(path: str | Path, *, overwrite: bool = False, columns: tuple[str, ...] = ()) -> None:
@@ -276,8 +318,9 @@ class LabelledCopyPlan:
 
     source_format / target_format: ``CLOUD_FORMATS`` names. copied: True when the input's own copier
     writes it (``LABELLED_COPIERS``: everything kept but what ``check`` names), False when the
-    target format's writer does (the input's ``PointCloud`` columns; ``check.lost`` names the rest).
-    same_file: the output is the input (by any path spelling), replaced at the end.
+    target format's writer does (the input's ``PointCloud`` columns and ``fields``, its per-point
+    fields that format carries; ``check.lost`` names the rest). same_file: the output is the
+    input (by any path spelling), replaced at the end.
     """
 
     source: Path
@@ -288,13 +331,14 @@ class LabelledCopyPlan:
     check: CopyCheck
     overwrite: bool
     same_file: bool
+    fields: tuple[ExtraField, ...] = ()
 
     def notices(self) -> tuple[str, ...]:
         """One line per kind of thing the output does not keep as the input had it (none: all kept)."""
         lines = []
         if self.check.lost:
-            lines.append(f"{self.target} will not hold {'; '.join(self.check.lost)} of {self.source} "
-                         f"({self.target_format} has no place for {'it' if len(self.check.lost) == 1 else 'them'})")
+            lines.append(f"{self.target} will not hold what {FORMAT_NAMES[self.target_format]} has no place for: "
+                         f"{'; '.join(self.check.lost)} of {self.source}")
         if self.check.changed:
             lines.append(f"{self.target}: {'; '.join(self.check.changed)}")
         return tuple(lines)
@@ -334,10 +378,15 @@ def plan_labelled_copy(
     if target_format == "text" and not copied:
         raise OutputError(f"{target}: bimscan writes text clouds only as labelled copies of text clouds; write "
                           f"{_WRITABLE}")
+    fields: tuple[ExtraField, ...] = ()
     if copier is not None and copied:
         check = copier.check(source, target_format, top_class)
-    else:  # through the target's writer: what the input holds beyond the columns stays behind
-        check = CopyCheck(lost=copier.held(source) if copier is not None else _S3DIS_HELD)
+    elif copier is not None:  # through the target's writer: the columns, and the fields it carries
+        fields, refused = FIELD_CARRIERS[target_format](copier.fields(source))
+        lost = (("field " if len(refused) == 1 else "fields ") + ", ".join(refused),) if refused else ()
+        check = CopyCheck(lost=lost + copier.held(source))
+    else:
+        check = CopyCheck(lost=_S3DIS_HELD)
     same = os.path.lexists(target) and _same_file(source, target)
     if same and not (copied and check.keeps_everything):
         what = "; ".join(check.lost + check.changed) or "its format"
@@ -351,7 +400,7 @@ def plan_labelled_copy(
             first = next(chunks, None)  # the input's columns, from its first point
         check_cloud_output(target, overwrite=overwrite, columns=() if first is None else present_columns(first))
     return LabelledCopyPlan(source=source, target=target, source_format=source_format, target_format=target_format,
-                            copied=copied, check=check, overwrite=overwrite, same_file=same)
+                            copied=copied, check=check, overwrite=overwrite, same_file=same, fields=fields)
 
 
 def _same_file(first: Path, second: Path) -> bool:
@@ -375,16 +424,41 @@ def write_labelled_copy(
         return copier.copy(plan.source, plan.target, labels, header=header, overwrite=plan.overwrite,
                            checksum=checksum)
     start = 0
-    with open_cloud_writer(plan.target, header=header, overwrite=plan.overwrite, checksum=checksum) as writer:
+    values = None
+    if plan.fields:
+        values = _Rows(LABELLED_COPIERS[plan.source_format].iter_fields(plan.source, plan.fields))
+    with open_cloud_writer(plan.target, header=header, overwrite=plan.overwrite, checksum=checksum,
+                           fields=plan.fields) as writer:
         for chunk in iter_cloud_chunks(plan.source, labels=False):
             label = np.asarray(labels[start:start + len(chunk)], dtype=np.uint8)
             if len(label) != len(chunk):
                 raise ValueError(f"{plan.source}: {len(labels)} labels for more points; pass one label per point")
-            writer.write(replace(chunk, label=label))
+            writer.write(replace(chunk, label=label), None if values is None else values.take(len(chunk)))
             start += len(chunk)
     if start != len(labels):
         raise ValueError(f"{plan.source}: {len(labels)} labels for {start} points; pass one label per point")
     return writer.close()
+
+
+class _Rows:
+    """Blocks of records from an iterator, handed out ``take(n)`` rows at a time (the fields of
+    an input come in blocks of their own size; the writer takes them chunk by chunk of points)."""
+
+    def __init__(self, blocks: Iterator[np.ndarray]) -> None:
+        self._blocks = blocks
+        self._held: list[np.ndarray] = []
+        self._count = 0
+
+    def take(self, n: int) -> np.ndarray:
+        while self._count < n:
+            block = next(self._blocks, None)
+            if block is None:
+                raise ValueError(f"the input's fields end {n - self._count} points before its points")
+            self._held.append(block)
+            self._count += len(block)
+        joined = self._held[0] if len(self._held) == 1 else np.concatenate(self._held)
+        self._held, self._count = [joined[n:]], len(joined) - n
+        return joined[:n]
 
 
 def read_cloud_header(path: str | Path) -> CloudHeader | None:
@@ -393,8 +467,9 @@ def read_cloud_header(path: str | Path) -> CloudHeader | None:
 
 
 __all__ = [
-    "BYTES_PER_POINT", "CHUNK_READERS", "CLOUD_FORMATS", "HEADER_READERS", "LABELLED_COPIERS", "LIKELY_BYTES_PER_POINT",
-    "POINT_COUNTERS", "WRITABLE_FORMATS", "WRITERS", "CloudWriter", "CopyCheck", "LabelledCopier", "LabelledCopyPlan",
+    "BYTES_PER_POINT", "CHUNK_READERS", "CLOUD_FORMATS", "FIELD_CARRIERS", "HEADER_READERS", "LABELLED_COPIERS",
+    "LIKELY_BYTES_PER_POINT", "POINT_COUNTERS", "WRITABLE_FORMATS", "WRITERS", "CloudWriter", "CopyCheck", "ExtraField",
+    "LabelledCopier", "LabelledCopyPlan",
     "ObjExport", "WrittenCloud", "check_cloud_output", "check_free_space", "count_points", "export_obj", "input_format",
     "iter_cloud_chunks", "labelled_output_format", "open_cloud_writer", "output_format", "plan_labelled_copy",
     "read_cloud", "read_cloud_header", "read_obj", "write_labelled_copy",

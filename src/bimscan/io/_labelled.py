@@ -9,13 +9,15 @@ temporary name like every writer.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from bimscan.io._writer import WrittenCloud
+if TYPE_CHECKING:
+    from bimscan.io._writer import WrittenCloud
 
 LABEL_NAME = "label"  # the label field a copy adds where its input has none (PLY property, text column)
 
@@ -40,8 +42,25 @@ class CopyCheck:
         return CopyCheck(lost=self.lost + other.lost, changed=self.changed + other.changed)
 
 
+@dataclass(frozen=True)
+class ExtraField:
+    """A per-point field of a cloud beyond ``PointCloud``'s columns (a LAS extra dimension, a PLY
+    property such as ``nx``, a text column, a NumPy array), which a writer of another format can
+    carry beside the columns. name: as the input names it; dtype: NumPy dtype of its values
+    (little-endian); description: a line for formats that keep one (LAS extra bytes)."""
+
+    name: str
+    dtype: str
+    description: str = ""
+
+
+def field_values_dtype(fields: tuple[ExtraField, ...]) -> np.dtype:
+    """The structured dtype of a block of ``fields`` values (one record per point)."""
+    return np.dtype([(f.name, f.dtype) for f in fields])
+
+
 # copy(source, target, labels, *, header, overwrite, checksum) -> WrittenCloud
-CopyFunction = Callable[..., WrittenCloud]
+CopyFunction = Callable[..., "WrittenCloud"]
 
 
 @dataclass(frozen=True)
@@ -52,14 +71,18 @@ class LabelledCopier:
     keeps everything ``check`` does not name. check(source, target format, highest class id):
     what the copy cannot keep. copy(source, target, labels, *, header, overwrite, checksum): the
     copy, ``labels`` (N,) uint8 in the order the format's chunk reader gives the points.
-    held(source): what the file holds beyond the columns of a ``PointCloud``, in words, which a
-    copy into another format (through its writer) does not carry.
+    held(source): what the file holds beyond the columns of a ``PointCloud`` and its ``fields``,
+    in words (a CRS, other elements, ...), which a copy into another format does not carry.
+    fields(source): its per-point fields beyond the columns; iter_fields(source, fields): their
+    values, blocks of records (``field_values_dtype``) in the order the chunk reader gives the points.
     """
 
     targets: tuple[str, ...]
     check: Callable[[Path, str, int], CopyCheck]
     copy: CopyFunction
     held: Callable[[Path], tuple[str, ...]]
+    fields: Callable[[Path], tuple[ExtraField, ...]]
+    iter_fields: Callable[[Path, tuple[ExtraField, ...]], Iterator[np.ndarray]]
 
 
 def check_label_count(labels: np.ndarray, n_points: int, where: Path) -> None:
@@ -68,4 +91,4 @@ def check_label_count(labels: np.ndarray, n_points: int, where: Path) -> None:
         raise ValueError(f"{where}: {len(labels)} labels for {n_points} points; pass one label per point")
 
 
-__all__ = ["LABEL_NAME", "CopyCheck", "LabelledCopier", "check_label_count"]
+__all__ = ["LABEL_NAME", "CopyCheck", "ExtraField", "LabelledCopier", "check_label_count", "field_values_dtype"]

@@ -24,9 +24,12 @@ from pathlib import Path
 from types import TracebackType
 from typing import BinaryIO, Protocol, Self
 
+import numpy as np
+
 from bimscan.errors import OutputError
 from bimscan.files import check_input_file, check_replaceable, file_sha256, remove_path, replace_path, temp_path
 from bimscan.io._header import dump_json, header_to_document, present_columns
+from bimscan.io._labelled import ExtraField
 from bimscan.progress import StageClock
 from bimscan.types import CloudHeader, PointCloud
 
@@ -53,7 +56,7 @@ class WrittenCloud:
 class CloudWriter(Protocol):
     """A streamed cloud writer; use it as a context manager (an exception inside aborts)."""
 
-    def write(self, chunk: PointCloud) -> None: ...
+    def write(self, chunk: PointCloud, values: np.ndarray | None = None) -> None: ...
     def close(self) -> WrittenCloud: ...
     def abort(self) -> None: ...
     def __enter__(self) -> Self: ...
@@ -277,9 +280,11 @@ class StreamingCloudWriter:
 
     FOLDER_KIND: str | None = None
 
-    def __init__(self, path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True) -> None:
+    def __init__(self, path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True,
+                 fields: tuple[ExtraField, ...] = ()) -> None:
         self.path = Path(path)
         self.header = header
+        self.fields = tuple(fields)  # per-point fields beyond the columns, given with every chunk (see write)
         self.overwrite = overwrite
         self.checksum = checksum
         self.columns: tuple[str, ...] | None = None
@@ -329,7 +334,8 @@ class StreamingCloudWriter:
     def _begin(self, columns: tuple[str, ...]) -> None:
         raise NotImplementedError
 
-    def _append(self, chunk: PointCloud) -> None:
+    def _append(self, chunk: PointCloud, values: np.ndarray | None) -> None:
+        """Encode ``chunk`` (and ``values`` of ``self.fields``, None without fields)."""
         raise NotImplementedError
 
     def _finish(self) -> None:
@@ -341,8 +347,9 @@ class StreamingCloudWriter:
             handle.close()
 
     # -- public API ----------------------------------------------------------------------------
-    def write(self, chunk: PointCloud) -> None:
-        """Append a chunk; every chunk must carry the same columns as the first."""
+    def write(self, chunk: PointCloud, values: np.ndarray | None = None) -> None:
+        """Append a chunk; every chunk must carry the same columns as the first. ``values``: the
+        chunk's records of ``self.fields`` (``field_values_dtype``), required when it has fields."""
         if self._state != "open":
             raise OutputError(f"the writer of {self.path} is already {self._state}; open a new writer")
         columns = present_columns(chunk)
@@ -355,9 +362,15 @@ class StreamingCloudWriter:
                     f"a chunk for {self.path} carries columns {', '.join(columns)} but earlier chunks "
                     f"carried {', '.join(self.columns)}; pass the same columns in every chunk"
                 )
+            if bool(self.fields) != (values is not None) or (values is not None and len(values) != len(chunk)):
+                raise ValueError(f"{self.path}: a chunk of {len(chunk)} points needs {len(chunk)} records of the "
+                                 f"writer's {len(self.fields)} extra fields, got "
+                                 f"{'none' if values is None else len(values)}")
             for start in range(0, len(chunk), BLOCK_POINTS):
                 stop = min(start + BLOCK_POINTS, len(chunk))
-                self._append(chunk if (start, stop) == (0, len(chunk)) else chunk.take(slice(start, stop)))
+                whole = (start, stop) == (0, len(chunk))
+                self._append(chunk if whole else chunk.take(slice(start, stop)),
+                             None if values is None else values[start:stop])
                 self.n_points += stop - start
         except Exception as exc:
             error = self._failure(exc)

@@ -71,7 +71,7 @@ import numpy as np
 from bimscan import __version__
 from bimscan.errors import ConfigError, InputFileError, OutputError
 from bimscan.io._header import as_labels, dump_json, header_from_document, header_to_document, parse_document
-from bimscan.io._labelled import CopyCheck, check_label_count
+from bimscan.io._labelled import CopyCheck, ExtraField, check_label_count, field_values_dtype
 from bimscan.io._writer import StagedOutput, StreamingCloudWriter, WrittenCloud, check_input_path, source_date_epoch
 from bimscan.types import CloudHeader, PointCloud
 
@@ -260,7 +260,10 @@ class _OpenScan:
 class E57CloudWriter(StreamingCloudWriter):
     """Streams ``PointCloud`` chunks into an E57 file, one ``/data3D`` entry per station."""
 
-    def __init__(self, path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True) -> None:
+    def __init__(self, path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True,
+                 fields: tuple[ExtraField, ...] = ()) -> None:
+        if fields:
+            raise ValueError(f"{path}: the E57 writer stores no extra fields (see e57_carriable)")
         super().__init__(path, header=header, overwrite=overwrite, checksum=checksum)
         self._image: Any = None
         self._fields: tuple[str, ...] = ()
@@ -454,7 +457,7 @@ class E57CloudWriter(StreamingCloudWriter):
         self._fill = 0
 
     # -- points ---------------------------------------------------------------------------------
-    def _append(self, chunk: PointCloud) -> None:
+    def _append(self, chunk: PointCloud, values: np.ndarray | None) -> None:
         try:
             if chunk.station is None:
                 if self._scan is None:
@@ -595,9 +598,16 @@ class E57CloudWriter(StreamingCloudWriter):
         super()._release()
 
 
-def open_e57_writer(path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True) -> E57CloudWriter:
-    """An E57 writer (registered as ``WRITERS["e57"]``)."""
-    return E57CloudWriter(path, header=header, overwrite=overwrite, checksum=checksum)
+def open_e57_writer(path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True,
+                    fields: tuple[ExtraField, ...] = ()) -> E57CloudWriter:
+    """An E57 writer (registered as ``WRITERS["e57"]``); it takes no extra ``fields``."""
+    return E57CloudWriter(path, header=header, overwrite=overwrite, checksum=checksum, fields=fields)
+
+
+def e57_carriable(fields: tuple[ExtraField, ...]) -> tuple[tuple[ExtraField, ...], tuple[str, ...]]:
+    """The E57 writer carries no other format's fields (an E57 field outside the standard needs a
+    namespace of its own): all of ``fields``, in words."""
+    return (), tuple(repr(field.name) for field in fields)
 
 
 # -- reading ----------------------------------------------------------------------------------------
@@ -1013,24 +1023,105 @@ def check_e57_copy(path: Path, target_format: str, top_class: int) -> CopyCheck:
     return CopyCheck(lost=tuple(f"point field {name!r} (text)" for name in text))
 
 
+_READ_FIELDS = frozenset({"cartesianX", "cartesianY", "cartesianZ", "sphericalRange", "sphericalAzimuth",
+                          "sphericalElevation", "cartesianInvalidState", "sphericalInvalidState", "intensity",
+                          "timeStamp", "returnIndex", "returnCount", *COLOR_FIELDS, LABEL_FIELD, COMPONENT_FIELD})
+_INTEGER_TYPES = ("i1", "u1", "i2", "u2", "i4", "u4", "i8")
+
+
+def _field_kind(node: Any) -> str | None:
+    """The NumPy dtype a point field's values are carried in, None for text."""
+    if isinstance(node, libe57.IntegerNode):
+        low, high = node.minimum(), node.maximum()
+        return next((f"<{t}" if t[1] != "1" else t for t in _INTEGER_TYPES
+                     if np.iinfo(t).min <= low and high <= np.iinfo(t).max), "<i8")
+    if isinstance(node, libe57.ScaledIntegerNode):
+        return "<f8"
+    if isinstance(node, libe57.FloatNode):
+        return "<f4" if node.precision() == libe57.E57_SINGLE else "<f8"
+    return None
+
+
+def _e57_fields(scans: list[Any]) -> tuple[list[ExtraField], list[str]]:
+    """The point fields beyond what the reader takes that every scan has in one type (as fields),
+    and the others (in some scans only, or text), by name."""
+    kinds: dict[str, set[str | None]] = {}
+    for scan in scans:
+        for name, node in _prototype_leaves(_points_prototype(scan)):
+            if name not in _READ_FIELDS:
+                kinds.setdefault(name, set()).add(_field_kind(node))
+    fields, other = [], []
+    for name in sorted(kinds):
+        present = sum(name in {n for n, _ in _prototype_leaves(_points_prototype(scan))} for scan in scans)
+        (kind,) = kinds[name] if len(kinds[name]) == 1 else (None,)
+        if kind is None or present < len(scans):
+            other.append(name)
+        else:
+            fields.append(ExtraField(name, kind))
+    return fields, other
+
+
+def e57_fields(path: Path) -> tuple[ExtraField, ...]:
+    """The point fields of the E57 ``path`` the reader does not take (the scan grid, other tools'
+    extensions, ...) that every scan has, for copies into other formats."""
+    path = check_input_path(path)
+    image = _open(path)
+    try:
+        return tuple(_e57_fields(_scans(image))[0])
+    except libe57.E57Exception as exc:
+        raise InputFileError(f"{path}: the E57 structure is damaged ({_reason(exc)}); check the file") from exc
+    finally:
+        image.close()
+
+
+def iter_e57_fields(path: Path, fields: tuple[ExtraField, ...]) -> Iterator[np.ndarray]:
+    """The values of ``fields`` of every valid point (the points the reader gives, in its order),
+    blocks of ``field_values_dtype`` records; scaled integers as their scaled values."""
+    path = check_input_path(path)
+    image = _open(path)
+    try:
+        for scan in _scans(image):
+            vector = libe57.CompressedVectorNode(scan.get("points"))
+            names = {name for name, _ in _prototype_leaves(_points_prototype(scan))}
+            invalid = "cartesianInvalidState" if {"cartesianX", "cartesianY", "cartesianZ"} <= names \
+                else "sphericalInvalidState"
+            capacity = max(1, min(READ_BLOCK_POINTS, int(vector.childCount())))
+            buffers = {f.name: np.zeros(capacity, np.float64 if f.dtype[-2] == "f" else np.longlong) for f in fields}
+            if invalid in names:
+                buffers[invalid] = np.zeros(capacity, np.longlong)
+            native = libe57.VectorSourceDestBuffer()
+            for name, buffer in buffers.items():
+                native.append(libe57.SourceDestBuffer(image, name, buffer, capacity, True, True))
+            reader = vector.reader(native)
+            try:
+                while n := reader.read():
+                    keep = np.arange(n) if invalid not in buffers else np.flatnonzero(buffers[invalid][:n] == 0)
+                    values = np.empty(len(keep), dtype=field_values_dtype(fields))
+                    for field in fields:
+                        values[field.name] = buffers[field.name][keep]
+                    yield values
+            finally:
+                reader.close()
+    except libe57.E57Exception as exc:
+        raise InputFileError(f"{path}: the E57 point data is damaged ({_reason(exc)}); check the file") from exc
+    finally:
+        image.close()
+
+
 def e57_held(path: Path) -> tuple[str, ...]:
-    """What the E57 ``path`` holds beyond a ``PointCloud``'s columns, in words: point fields the
-    reader does not take, the scans' poses and names, images, points flagged invalid (which the
-    reader drops), other elements of its root."""
+    """What the E57 ``path`` holds beyond a ``PointCloud``'s columns and its ``e57_fields``, in
+    words: other point fields, the scans' poses and names, images, points flagged invalid (which
+    the reader drops), its coordinate system and other elements of its root."""
     path = check_input_path(path)
     image = _open(path)
     try:
         scans = _scans(image)
         document = _stored_document(image, path)
-        read = {"cartesianX", "cartesianY", "cartesianZ", "sphericalRange", "sphericalAzimuth", "sphericalElevation",
-                "cartesianInvalidState", "sphericalInvalidState", "intensity", "timeStamp", "returnIndex",
-                "returnCount", *COLOR_FIELDS, LABEL_FIELD, COMPONENT_FIELD}
-        if document is not None and "time" in document.get("columns", ()):
-            read |= {"rowIndex", "columnIndex"}  # bimscan's grid: recovered from the time when written again
-        fields = sorted({name for scan in scans for name, _ in _prototype_leaves(_points_prototype(scan))} - read)
         held = []
-        if fields:
-            held.append(("point field " if len(fields) == 1 else "point fields ") + ", ".join(fields))
+        other = _e57_fields(scans)[1]
+        if other:
+            held.append(("point field " if len(other) == 1 else "point fields ") + ", ".join(other)
+                        + " (text, or not in every scan)")
         if document is None and scans:
             held.append(f"the poses and names of its {len(scans)} scan{'s' if len(scans) != 1 else ''} (the points are "
                         "carried in world coordinates)")
@@ -1041,14 +1132,13 @@ def e57_held(path: Path) -> tuple[str, ...]:
         if root.isDefined("images2D") and root["images2D"].childCount():
             count = root["images2D"].childCount()
             held.append(f"{count} image{'s' if count != 1 else ''} (images2D)")
+        if root.isDefined("coordinateMetadata") and root["coordinateMetadata"].value():
+            held.append("the coordinate reference system (coordinateMetadata)")
         standard = {"formatName", "guid", "versionMajor", "versionMinor", "e57LibraryVersion", "coordinateMetadata",
                     "creationDateTime", "data3D", "images2D", HEADER_NODE}
-        other = [child.elementName() for child in _children(root) if child.elementName() not in standard]
-        coordinates = root["coordinateMetadata"].value() if root.isDefined("coordinateMetadata") else ""
-        if coordinates:
-            held.append("the coordinate reference system (coordinateMetadata)")
-        if other:
-            held.append("root elements " + ", ".join(other))
+        elements = [child.elementName() for child in _children(root) if child.elementName() not in standard]
+        if elements:
+            held.append("root elements " + ", ".join(elements))
         return tuple(held)
     except libe57.E57Exception as exc:
         raise InputFileError(f"{path}: the E57 structure is damaged ({_reason(exc)}); check the file") from exc
@@ -1195,7 +1285,8 @@ def _copy_points(image: Any, copy: Any, vector: Any, parent: Any, name: str, lab
     return used
 
 __all__ = [
-    "COMPONENT_FIELD", "check_e57_copy", "copy_e57_labelled", "e57_held", "E57CloudWriter", "E57Scan", "E57_BLOCK_POINTS", "HEADER_NODE", "LABEL_FIELD", "MOBILE_COLUMNS",
+    "COMPONENT_FIELD", "check_e57_copy", "copy_e57_labelled", "e57_carriable", "e57_fields", "e57_held",
+    "iter_e57_fields", "E57CloudWriter", "E57Scan", "E57_BLOCK_POINTS", "HEADER_NODE", "LABEL_FIELD", "MOBILE_COLUMNS",
     "NAMESPACE_PREFIX", "NAMESPACE_URI", "STATION_NODE", "check_e57_columns", "gps_seconds", "heading_quaternion", "iter_e57_chunks",
     "count_e57_points", "open_e57_writer", "quaternion_matrix", "read_e57_header", "read_e57_scans",
 ]

@@ -61,7 +61,7 @@ from bimscan.io._header import (
     header_to_document,
     parse_document,
 )
-from bimscan.io._labelled import CopyCheck, check_label_count
+from bimscan.io._labelled import CopyCheck, ExtraField, check_label_count, field_values_dtype
 from bimscan.io._writer import (
     BLOCK_POINTS,
     StagedOutput,
@@ -113,7 +113,7 @@ def _classification_lookup(scheme: LabelScheme) -> ClassificationLookupVlr:
 SENSOR_DIMENSIONS = ("sensor_x", "sensor_y", "sensor_z")  # a mobile scan's beam origins, 0.1 mm steps
 
 
-def _las_header(header: CloudHeader, columns: tuple[str, ...]) -> laspy.LasHeader:
+def _las_header(header: CloudHeader, columns: tuple[str, ...], fields: tuple[ExtraField, ...] = ()) -> laspy.LasHeader:
     las_header = laspy.LasHeader(version="1.4", point_format=7 if "rgb" in columns else 6)
     extra = []
     if "component" in columns:
@@ -127,6 +127,9 @@ def _las_header(header: CloudHeader, columns: tuple[str, ...]) -> laspy.LasHeade
             extra.append(laspy.ExtraBytesParams(name=name, type=np.int32, description=f"beam origin {'xyz'[axis]}",
                                                 scales=np.array([LAS_SCALE_M]),
                                                 offsets=np.array([header.origin[axis]], dtype=np.float64)))
+    for field in fields:  # another format's per-point fields, after bimscan's own
+        extra.append(laspy.ExtraBytesParams(name=field.name, type=np.dtype(field.dtype),
+                                            description=field.description.encode("ascii", "replace")[:31].decode()))
     if extra:
         las_header.add_extra_dims(extra)
     las_header.offsets = np.asarray(header.origin, dtype=np.float64)
@@ -167,9 +170,10 @@ class LasCloudWriter(StreamingCloudWriter):
     """Streams ``PointCloud`` chunks into a LAS 1.4 (``compress=False``) or LAZ file."""
 
     def __init__(
-        self, path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True, compress: bool
+        self, path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True, compress: bool,
+        fields: tuple[ExtraField, ...] = (),
     ) -> None:
-        super().__init__(path, header=header, overwrite=overwrite, checksum=checksum)
+        super().__init__(path, header=header, overwrite=overwrite, checksum=checksum, fields=fields)
         self.compress = compress
         self._file: WatchedFile | None = None
         self._writer: laspy.LasWriter | None = None
@@ -182,7 +186,7 @@ class LasCloudWriter(StreamingCloudWriter):
         self._by_return = np.zeros(16, dtype=np.int64)  # points per return number, for the LAS header
 
     def _begin(self, columns: tuple[str, ...]) -> None:
-        las_header = _las_header(self.header, columns)
+        las_header = _las_header(self.header, columns, self.fields)
         self._file = self._open_file(self.path)
         backend = LAZ_BACKENDS if self.compress else None
         self._writer = laspy.LasWriter(
@@ -192,8 +196,11 @@ class LasCloudWriter(StreamingCloudWriter):
         self._block = np.zeros(BLOCK_POINTS, dtype=self._point_format.dtype())
         # zeros, touched only where rows are encoded (a small unit never faults most of its pages in)
 
-    def _encode(self, chunk: PointCloud, out: np.ndarray) -> None:
-        """Quantise and pack ``chunk`` into ``out`` (rows of the point record block)."""
+    def _encode(self, chunk: PointCloud, out: np.ndarray, values: np.ndarray | None = None) -> None:
+        """Quantise and pack ``chunk`` (and ``values`` of the extra fields) into ``out`` (rows of the
+        point record block)."""
+        for field in self.fields:
+            out[field.name] = values[field.name]  # type: ignore[index]
         origin = self.header.origin
         if len(chunk):
             xyz = np.ascontiguousarray(chunk.xyz, dtype=np.float64)
@@ -239,14 +246,15 @@ class LasCloudWriter(StreamingCloudWriter):
                 np.divide(steps, LAS_SCALE_M, out=steps)
                 out[name] = np.rint(steps)
 
-    def _append(self, chunk: PointCloud) -> None:
+    def _append(self, chunk: PointCloud, values: np.ndarray | None) -> None:
         assert self._block is not None
         start = 0
         while start < len(chunk):
             take = min(len(chunk) - start, BLOCK_POINTS - self._fill)
             part = chunk if take == len(chunk) else chunk.take(slice(start, start + take))
             with self.clock.step("encode"):
-                self._encode(part, self._block[self._fill : self._fill + take])
+                self._encode(part, self._block[self._fill : self._fill + take],
+                             None if values is None else values[start:start + take])
             self._fill += take
             start += take
             if self._fill == BLOCK_POINTS:
@@ -291,14 +299,39 @@ class LasCloudWriter(StreamingCloudWriter):
         super()._release()
 
 
-def open_las_writer(path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True) -> LasCloudWriter:
-    """An uncompressed LAS 1.4 writer (registered as ``WRITERS["las"]``)."""
-    return LasCloudWriter(path, header=header, overwrite=overwrite, checksum=checksum, compress=False)
+def open_las_writer(path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True,
+                    fields: tuple[ExtraField, ...] = ()) -> LasCloudWriter:
+    """An uncompressed LAS 1.4 writer (registered as ``WRITERS["las"]``); ``fields``: extra dimensions."""
+    return LasCloudWriter(path, header=header, overwrite=overwrite, checksum=checksum, compress=False, fields=fields)
 
 
-def open_laz_writer(path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True) -> LasCloudWriter:
-    """A LAZ writer (registered as ``WRITERS["laz"]``)."""
-    return LasCloudWriter(path, header=header, overwrite=overwrite, checksum=checksum, compress=True)
+def open_laz_writer(path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True,
+                    fields: tuple[ExtraField, ...] = ()) -> LasCloudWriter:
+    """A LAZ writer (registered as ``WRITERS["laz"]``); ``fields``: extra dimensions."""
+    return LasCloudWriter(path, header=header, overwrite=overwrite, checksum=checksum, compress=True, fields=fields)
+
+
+_EXTRA_BYTES_TYPES = frozenset({"u1", "i1", "u2", "i2", "u4", "i4", "u8", "i8", "f4", "f8"})
+
+
+def las_carriable(fields: tuple[ExtraField, ...]) -> tuple[tuple[ExtraField, ...], tuple[str, ...]]:
+    """The ``fields`` a LAS/LAZ writer stores as extra dimensions, and the others in words: names
+    the format or bimscan already uses, names longer than 32 ASCII bytes, non-numeric values."""
+    taken = {n.lower() for n in laspy.PointFormat(7).dimension_names} | {
+        "component", "station", "ring", *SENSOR_DIMENSIONS}
+    carried, lost = [], []
+    for field in fields:
+        kind = np.dtype(field.dtype)
+        if field.name.lower() in taken:
+            lost.append(f"{field.name!r} (a name LAS or bimscan uses)")
+        elif not field.name.isascii() or len(field.name) > 32:
+            lost.append(f"{field.name!r} (LAS names extra dimensions in at most 32 ASCII bytes)")
+        elif kind.str.lstrip("<>|=") not in _EXTRA_BYTES_TYPES:
+            lost.append(f"{field.name!r} ({kind})")
+        else:
+            carried.append(field)
+            taken.add(field.name.lower())
+    return tuple(carried), tuple(lost)
 
 
 # -- reading ------------------------------------------------------------------------------------
@@ -641,14 +674,71 @@ def check_las_copy(path: Path, target_format: str, top_class: int) -> CopyCheck:
     return CopyCheck(lost=tuple(lost), changed=tuple(changed))
 
 
-def las_held(path: Path) -> tuple[str, ...]:
-    """What the LAS/LAZ ``path`` holds beyond a ``PointCloud``'s columns, in words: its CRS, other
-    VLRs and EVLRs, extra dimensions, and (in other tools' files) the LAS fields bimscan does not read."""
-    path = check_input_path(path)
+_BIMSCAN_DIMENSIONS = {"component": "component", "station": "station", "ring": "ring",
+                       **{name: "sensor_xyz" for name in SENSOR_DIMENSIONS}}  # extra dimension -> its column
+_READ_DIMENSIONS = frozenset({"X", "Y", "Z", "intensity", "return_number", "number_of_returns", "classification",
+                              "gps_time", "red", "green", "blue"})  # what the reader takes of another tool's file
+
+
+def _las_field_sources(path: Path) -> list[tuple[ExtraField, str, int | None]]:
+    """(field, dimension, element of an array dimension or None) for every per-point field of the
+    LAS/LAZ ``path`` the reader does not take: extra dimensions (scaled ones as their scaled
+    float64 values), and in other tools' files the LAS fields bimscan does not read (user data,
+    scan angle, point source id, the flag bits, ...); bimscan's own files leave those at zero or
+    carry them as columns."""
     with _open(path) as reader:
         las_header = reader.header
         document = _stored_document(las_header, path)
-        point_format = las_header.point_format
+    point_format = las_header.point_format
+    carried = set() if document is None else set(document.get("columns", ()))
+    sample = laspy.ScaleAwarePointRecord.zeros(1, header=las_header)
+    sources: list[tuple[ExtraField, str, int | None]] = []
+    if document is None:
+        for name in point_format.standard_dimension_names:
+            if name not in _READ_DIMENSIONS:
+                sources.append((ExtraField(name, np.asarray(sample[name]).dtype.str), name, None))
+    for dimension in point_format.extra_dimensions:
+        name = dimension.name
+        if name == "ExtraBytes" or _BIMSCAN_DIMENSIONS.get(name) in carried:
+            continue  # unregistered bytes (no type to give them) or one of bimscan's columns
+        kind = np.asarray(sample[name]).dtype.str
+        if dimension.num_elements == 1:
+            sources.append((ExtraField(name, kind, dimension.description), name, None))
+        else:
+            sources += [(ExtraField(f"{name}_{i}", kind, dimension.description), name, i)
+                        for i in range(dimension.num_elements)]
+    return sources
+
+
+def las_fields(path: Path) -> tuple[ExtraField, ...]:
+    """The per-point fields of the LAS/LAZ ``path`` beyond a ``PointCloud``'s columns (see
+    ``_las_field_sources``)."""
+    return tuple(field for field, _, _ in _las_field_sources(check_input_path(path)))
+
+
+def iter_las_fields(path: Path, fields: tuple[ExtraField, ...]) -> Iterator[np.ndarray]:
+    """The values of ``fields`` (of ``las_fields``) of every point, blocks of ``field_values_dtype`` records."""
+    path = check_input_path(path)
+    where = {field.name: (dimension, element) for field, dimension, element in _las_field_sources(path)}
+    with _open(path) as reader:
+        try:
+            for points in reader.chunk_iterator(COPY_BLOCK_POINTS):
+                values = np.empty(len(points), dtype=field_values_dtype(fields))
+                for field in fields:
+                    dimension, element = where[field.name]
+                    data = np.asarray(points[dimension])
+                    values[field.name] = data if element is None else data[:, element]
+                yield values
+        except (LaspyException, EOFError, ValueError, RuntimeError) as exc:
+            raise InputFileError(f"{path}: the point data is damaged ({exc}); check the file") from exc
+
+
+def las_held(path: Path) -> tuple[str, ...]:
+    """What the LAS/LAZ ``path`` holds beyond a ``PointCloud``'s columns and its ``las_fields``,
+    in words: its CRS, other VLRs and EVLRs, unregistered extra bytes."""
+    path = check_input_path(path)
+    with _open(path) as reader:
+        point_format = reader.header.point_format
     layout = read_las_layout(path)
     held: list[str] = []
     records = [*layout.vlrs, *layout.evlrs]
@@ -661,18 +751,8 @@ def las_held(path: Path) -> tuple[str, ...]:
               if r.user_id != PROJECTION_USER_ID and (r.user_id, r.record_id) not in ours]
     if others:
         held.append(f"{'VLR/EVLR' if len(others) == 1 else 'VLRs/EVLRs'} {', '.join(others)}")
-    carried = set() if document is None else set(document.get("columns", ()))
-    bimscan_dims = {"component": "component", "station": "station", "ring": "ring",
-                    **{name: "sensor_xyz" for name in SENSOR_DIMENSIONS}}
-    extra = [name for name in point_format.extra_dimension_names if bimscan_dims.get(name) not in carried]
-    if extra:
-        held.append("extra " + ("dimension " if len(extra) == 1 else "dimensions ") + ", ".join(repr(n) for n in extra))
-    if document is None:  # bimscan's own files leave these fields at zero, or carry them as columns
-        read = {"X", "Y", "Z", "intensity", "return_number", "number_of_returns", "classification", "gps_time",
-                "red", "green", "blue"}
-        standard = [n for n in point_format.standard_dimension_names if n not in read]
-        if standard:
-            held.append("the LAS fields " + ", ".join(standard))
+    if "ExtraBytes" in point_format.extra_dimension_names:
+        held.append("extra bytes no VLR describes")
     return tuple(held)
 
 
@@ -880,7 +960,8 @@ def _copy_tail(source: Path, layout: LasLayout, out: WatchedFile, head: bytearra
     out.write(bytes(head))
 
 __all__ = [
-    "LAS_SCALE_M", "LasLayout", "check_las_copy", "copy_las_labelled", "las_held", "read_las_layout", "LAZ_CHUNK_POINTS", "LasCloudWriter", "check_header", "count_las_points", "iter_las_chunks",
+    "LAS_SCALE_M", "LasLayout", "check_las_copy", "copy_las_labelled", "iter_las_fields", "las_carriable", "las_fields",
+    "las_held", "read_las_layout", "LAZ_CHUNK_POINTS", "LasCloudWriter", "check_header", "count_las_points", "iter_las_chunks",
     "lookup_name",
     "open_las_writer", "open_laz_writer", "read_las_header",
 ]

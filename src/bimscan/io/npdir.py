@@ -33,6 +33,7 @@ The folder is built under a temporary name and renamed into place at close.
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from collections.abc import Iterator
 from dataclasses import replace
@@ -51,7 +52,7 @@ from bimscan.io._header import (
     header_to_document,
     parse_document,
 )
-from bimscan.io._labelled import CopyCheck, check_label_count
+from bimscan.io._labelled import CopyCheck, ExtraField, check_label_count, field_values_dtype
 from bimscan.io._writer import StagedOutput, StreamingCloudWriter, WatchedFile, WrittenCloud, check_input_path
 from bimscan.types import CloudHeader, PointCloud
 
@@ -111,9 +112,11 @@ class NpdirCloudWriter(StreamingCloudWriter):
 
     FOLDER_KIND = "npy"
 
-    def __init__(self, path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True) -> None:
-        super().__init__(path, header=header, overwrite=overwrite, checksum=checksum)
+    def __init__(self, path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True,
+                 fields: tuple[ExtraField, ...] = ()) -> None:
+        super().__init__(path, header=header, overwrite=overwrite, checksum=checksum, fields=fields)
         self._files: dict[str, WatchedFile] = {}
+        self._field_files: dict[str, WatchedFile] = {}
         self._origin = np.asarray(header.origin, dtype=np.float64)
 
     def _begin(self, columns: tuple[str, ...]) -> None:
@@ -123,8 +126,14 @@ class NpdirCloudWriter(StreamingCloudWriter):
             handle = self._watch(self._folder / f"{stem}.npy")
             handle.write(npy_header(dtype, (0, *row_shape)))
             self._files[column] = handle
+        for field in self.fields:  # another format's per-point fields: one array each, named as they were
+            handle = self._watch(self._folder / f"{field.name}.npy")
+            handle.write(npy_header(np.dtype(field.dtype).str, (0,)))
+            self._field_files[field.name] = handle
 
-    def _append(self, chunk: PointCloud) -> None:
+    def _append(self, chunk: PointCloud, values: np.ndarray | None) -> None:
+        for name, handle in self._field_files.items():
+            handle.write(memoryview(np.ascontiguousarray(values[name])).cast("B"))  # type: ignore[index]
         for column, handle in self._files.items():
             _, dtype, _ = NPDIR_FILES[column]
             if column == "xyz":  # float32 around the origin, without a float64 temporary
@@ -140,18 +149,45 @@ class NpdirCloudWriter(StreamingCloudWriter):
             _, dtype, row_shape = NPDIR_FILES[column]
             handle.seek(0)
             handle.write(npy_header(dtype, (self.n_points, *row_shape)))
+        for field in self.fields:
+            handle = self._field_files[field.name]
+            handle.seek(0)
+            handle.write(npy_header(np.dtype(field.dtype).str, (self.n_points,)))
         np.save(self._watch(self._folder / ORIGIN_NAME), self._origin)
         document = header_to_document(self.header, columns=self.columns, n_points=self.n_points)
+        if self.fields:
+            document[COPIED_KEY] = sorted(f"{field.name}.npy" for field in self.fields)
         self._watch(self._folder / META_NAME).write(dump_json(document, indent=1))
 
     def _release(self) -> None:
         self._files = {}
+        self._field_files = {}
         super()._release()
 
 
-def open_npdir_writer(path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True) -> NpdirCloudWriter:
-    """A NumPy folder writer (registered as ``WRITERS["npy"]``)."""
-    return NpdirCloudWriter(path, header=header, overwrite=overwrite, checksum=checksum)
+def open_npdir_writer(path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True,
+                      fields: tuple[ExtraField, ...] = ()) -> NpdirCloudWriter:
+    """A NumPy folder writer (registered as ``WRITERS["npy"]``); ``fields``: one ``<name>.npy`` each."""
+    return NpdirCloudWriter(path, header=header, overwrite=overwrite, checksum=checksum, fields=fields)
+
+
+_FILE_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*")
+
+
+def npdir_carriable(fields: tuple[ExtraField, ...]) -> tuple[tuple[ExtraField, ...], tuple[str, ...]]:
+    """The ``fields`` a NumPy folder writer stores as ``<name>.npy``, and the others in words:
+    names of bimscan's own files, names that are no plain file name."""
+    taken = {name.lower() for name in NPDIR_NAMES}
+    carried, lost = [], []
+    for field in fields:
+        if f"{field.name}.npy".lower() in taken:
+            lost.append(f"{field.name!r} (a name bimscan's NumPy folder uses)")
+        elif not _FILE_NAME.fullmatch(field.name):
+            lost.append(f"{field.name!r} (not a plain file name)")
+        else:
+            carried.append(field)
+            taken.add(f"{field.name}.npy".lower())
+    return tuple(carried), tuple(lost)
 
 
 # -- reading ------------------------------------------------------------------------------------
@@ -297,11 +333,55 @@ def check_npdir_copy(path: Path, target_format: str, top_class: int) -> CopyChec
     return CopyCheck()
 
 
-def npdir_held(path: Path) -> tuple[str, ...]:
-    """The entries of the NumPy folder ``path`` the reader does not take, in words."""
+_READ_NAMES = frozenset({f"{stem}.npy" for stem, _, _ in NPDIR_FILES.values()} | {ORIGIN_NAME, META_NAME})
+
+
+def _field_arrays(folder: Path) -> tuple[list[tuple[ExtraField, str, int | None]], list[str]]:
+    """(field, file name, column or None) of every array of ``folder`` the reader does not take that
+    holds one number (N,) or a row (N, k) per point (a column ``<stem>_<i>`` each), and the names
+    of its other entries (files, folders, arrays of other shapes)."""
+    rows = count_npdir_points(folder)
+    fields: list[tuple[ExtraField, str, int | None]] = []
+    other: list[str] = []
+    for name in folder_entries(folder):
+        if name in _READ_NAMES:
+            continue
+        array = _load(folder / name) if name.endswith(".npy") and (folder / name).is_file() else None
+        if array is None or array.dtype.kind not in "biuf" or array.ndim not in (1, 2) or array.shape[0] != rows:
+            other.append(name)
+            continue
+        stem, kind = name[: -len(".npy")], array.dtype.newbyteorder("<").str
+        if array.ndim == 1:
+            fields.append((ExtraField(stem, kind), name, None))
+        else:
+            fields += [(ExtraField(f"{stem}_{i}", kind), name, i) for i in range(array.shape[1])]
+    return fields, other
+
+
+def npdir_fields(path: Path) -> tuple[ExtraField, ...]:
+    """The per-point arrays of the NumPy folder ``path`` the reader does not take (see ``_field_arrays``)."""
+    return tuple(field for field, _, _ in _field_arrays(check_input_path(path))[0])
+
+
+def iter_npdir_fields(path: Path, fields: tuple[ExtraField, ...]) -> Iterator[np.ndarray]:
+    """The values of ``fields`` (of ``npdir_fields``) of every point, blocks of records."""
     folder = check_input_path(path)
-    read = {f"{stem}.npy" for stem, _, _ in NPDIR_FILES.values()} | {ORIGIN_NAME, META_NAME}
-    other = [name for name in folder_entries(folder) if name not in read]
+    sources = {field.name: (name, column) for field, name, column in _field_arrays(folder)[0]}
+    arrays = {name: _load(folder / name) for name, _ in sources.values()}
+    rows = count_npdir_points(folder)
+    for start in range(0, max(rows, 1), BLOCK_ROWS):
+        stop = min(start + BLOCK_ROWS, rows)
+        values = np.empty(stop - start, dtype=field_values_dtype(fields))
+        for field in fields:
+            name, column = sources[field.name]
+            block = arrays[name][start:stop]
+            values[field.name] = block if column is None else block[:, column]
+        yield values
+
+
+def npdir_held(path: Path) -> tuple[str, ...]:
+    """The entries of the NumPy folder ``path`` that are neither read nor ``npdir_fields``, in words."""
+    other = _field_arrays(check_input_path(path))[1]
     if not other:
         return ()
     return (("entry " if len(other) == 1 else "entries ") + ", ".join(other),)
@@ -349,6 +429,7 @@ def copy_npdir_labelled(
         return staged.commit(n_points=n_points)
 
 __all__ = [
-    "NPDIR_FILES", "check_npdir_copy", "copy_npdir_labelled", "npdir_held", "NPDIR_NAMES", "NpdirCloudWriter", "count_npdir_points", "foreign_npdir_entries", "iter_npdir_chunks",
+    "NPDIR_FILES", "check_npdir_copy", "copy_npdir_labelled", "iter_npdir_fields", "npdir_carriable", "npdir_fields",
+    "npdir_held", "NPDIR_NAMES", "NpdirCloudWriter", "count_npdir_points", "foreign_npdir_entries", "iter_npdir_chunks",
     "npy_header", "open_npdir_writer", "read_npdir_header",
 ]

@@ -43,7 +43,7 @@ from bimscan.io._header import (
     header_to_document,
     parse_document,
 )
-from bimscan.io._labelled import LABEL_NAME, CopyCheck, check_label_count
+from bimscan.io._labelled import LABEL_NAME, CopyCheck, ExtraField, check_label_count, field_values_dtype
 from bimscan.io._writer import StagedOutput, StreamingCloudWriter, WatchedFile, WrittenCloud, check_input_path
 from bimscan.types import CloudHeader, LabelClass, LabelScheme, PointCloud
 
@@ -80,7 +80,8 @@ def sidecar_path(path: Path) -> Path:
     return path.with_name(path.name + ".json")
 
 
-def _header_text(header: CloudHeader, columns: tuple[str, ...], n_points: int) -> bytes:
+def _header_text(header: CloudHeader, columns: tuple[str, ...], n_points: int,
+                 fields: tuple[ExtraField, ...] = ()) -> bytes:
     scheme = header.scheme
     before = [
         "ply",
@@ -94,6 +95,7 @@ def _header_text(header: CloudHeader, columns: tuple[str, ...], n_points: int) -
     ]
     after = [f"element vertex {n_points}"]
     after += [f"property {kind} {name}" for column in columns for name, kind, _ in PLY_PROPERTIES[column]]
+    after += [f"property {PLY_TYPE_NAMES[np.dtype(f.dtype).str.lstrip('<>|=')]} {f.name}" for f in fields]
     after.append("end_header")
     padding = "comment" + " " * (1 + _COUNT_WIDTH - len(str(n_points)))
     text = "\n".join([*before, padding, *after]) + "\n"
@@ -103,8 +105,9 @@ def _header_text(header: CloudHeader, columns: tuple[str, ...], n_points: int) -
 class PlyCloudWriter(StreamingCloudWriter):
     """Streams ``PointCloud`` chunks into a binary little-endian PLY file plus its JSON sidecar."""
 
-    def __init__(self, path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True) -> None:
-        super().__init__(path, header=header, overwrite=overwrite, checksum=checksum)
+    def __init__(self, path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True,
+                 fields: tuple[ExtraField, ...] = ()) -> None:
+        super().__init__(path, header=header, overwrite=overwrite, checksum=checksum, fields=fields)
         self._file: WatchedFile | None = None
         self._sidecar: WatchedFile | None = None
 
@@ -115,17 +118,20 @@ class PlyCloudWriter(StreamingCloudWriter):
         # The sidecar is staged first, so it is renamed into place before the PLY itself.
         self._sidecar = self._open_file(sidecar_path(self.path))
         self._file = self._open_file(self.path)
-        self._dtype = np.dtype([(name, dtype) for c in columns for name, _, dtype in PLY_PROPERTIES[c]])
+        self._dtype = np.dtype([(name, dtype) for c in columns for name, _, dtype in PLY_PROPERTIES[c]]
+                               + [(f.name, np.dtype(f.dtype).newbyteorder("<")) for f in self.fields])
         self._header_size = len(self._header(0))
         self._file.write(self._header(0))
 
     def _header(self, n_points: int) -> bytes:
         assert self.columns is not None
-        return _header_text(self.header, self.columns, n_points)
+        return _header_text(self.header, self.columns, n_points, self.fields)
 
-    def _append(self, chunk: PointCloud) -> None:
+    def _append(self, chunk: PointCloud, values: np.ndarray | None) -> None:
         assert self._file is not None
         rows = np.empty(len(chunk), dtype=self._dtype)
+        for field in self.fields:
+            rows[field.name] = values[field.name]  # type: ignore[index]
         rows["x"], rows["y"], rows["z"] = chunk.xyz[:, 0], chunk.xyz[:, 1], chunk.xyz[:, 2]
         for column in self.columns or ():
             if column in ("rgb", "sensor_xyz"):
@@ -151,9 +157,34 @@ class PlyCloudWriter(StreamingCloudWriter):
         super()._release()
 
 
-def open_ply_writer(path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True) -> PlyCloudWriter:
-    """A PLY writer (registered as ``WRITERS["ply"]``)."""
-    return PlyCloudWriter(path, header=header, overwrite=overwrite, checksum=checksum)
+def open_ply_writer(path: Path, *, header: CloudHeader, overwrite: bool = False, checksum: bool = True,
+                    fields: tuple[ExtraField, ...] = ()) -> PlyCloudWriter:
+    """A PLY writer (registered as ``WRITERS["ply"]``); ``fields``: further vertex properties."""
+    return PlyCloudWriter(path, header=header, overwrite=overwrite, checksum=checksum, fields=fields)
+
+
+# NumPy dtype -> PLY type name (PLY has no 64-bit integers)
+PLY_TYPE_NAMES = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort", "i4": "int", "u4": "uint",
+                  "f4": "float", "f8": "double"}
+
+
+def ply_carriable(fields: tuple[ExtraField, ...]) -> tuple[tuple[ExtraField, ...], tuple[str, ...]]:
+    """The ``fields`` a PLY writer stores as vertex properties, and the others in words: names
+    bimscan's properties use, names with spaces, 64-bit integers (PLY has none)."""
+    taken = {name.lower() for properties in PLY_PROPERTIES.values() for name, _, _ in properties}
+    carried, lost = [], []
+    for field in fields:
+        kind = np.dtype(field.dtype).str.lstrip("<>|=")
+        if field.name.lower() in taken:
+            lost.append(f"{field.name!r} (a name bimscan's PLY uses)")
+        elif not field.name.isascii() or not field.name.isprintable() or " " in field.name:
+            lost.append(f"{field.name!r} (PLY names properties in ASCII without spaces)")
+        elif kind not in PLY_TYPE_NAMES:
+            lost.append(f"{field.name!r} ({np.dtype(field.dtype)}: PLY has no such type)")
+        else:
+            carried.append(field)
+            taken.add(field.name.lower())
+    return tuple(carried), tuple(lost)
 
 
 # -- reading ------------------------------------------------------------------------------------
@@ -370,29 +401,11 @@ def iter_ply_chunks(
     if chunk_points < 1:
         raise ValueError(f"chunk_points must be positive, got {chunk_points}")
     with path.open("rb") as handle:
-        layout = read_ply_layout(handle, where=where)
-        vertex = next((e for e in layout.elements if e.name == "vertex"), None)
-        if vertex is None:
-            raise InputFileError(f"{where}: PLY file has no vertex element; it holds no points")
-        if vertex.has_lists:
-            raise InputFileError(f"{where}: PLY vertex element has list properties; bimscan reads scalar vertex properties only")
+        layout, vertex = _open_vertices(handle, where)
         names = [n for n, _ in vertex.properties]
-        if not {"x", "y", "z"} <= set(names):
-            raise InputFileError(f"{where}: PLY vertices lack x, y or z (they have {', '.join(names)})")
         sources = _column_sources(layout, vertex, label_field, where)
         if not labels:
             sources.pop("label", None)
-        order = "<" if layout.format == "binary_little_endian" else ">"
-        dtype = np.dtype([(n, order + t) for n, t in vertex.properties])
-        before = layout.elements[: layout.elements.index(vertex)]
-        if layout.format == "ascii":
-            for element in before:
-                for _ in range(element.count):
-                    handle.readline()
-        else:
-            if any(e.has_lists for e in before):
-                raise InputFileError(f"{where}: a binary PLY element with list properties precedes the vertices; not supported")
-            handle.seek(sum(e.count * np.dtype([(n, t) for n, t in e.properties]).itemsize for e in before), 1)
 
         def to_cloud(rows: np.ndarray) -> PointCloud:
             xyz = np.empty((len(rows), 3), dtype=np.float64)
@@ -418,33 +431,68 @@ def iter_ply_chunks(
                     columns[column] = values.astype(np.float64)
             return PointCloud(xyz=xyz, **columns)
 
-        remaining = vertex.count
-        if remaining == 0:
-            yield to_cloud(np.zeros(0, dtype=dtype))
-        while remaining > 0:
-            take = min(chunk_points, remaining)
-            if layout.format == "ascii":
-                lines = [line.decode("ascii", "replace") for line in itertools.islice(handle, take)]
-                if len(lines) < take:
-                    raise InputFileError(f"{where}: PLY body ends after {vertex.count - remaining + len(lines)} of {vertex.count} vertices; the file is truncated")
-                try:
-                    table = np.loadtxt(lines, dtype=np.float64, ndmin=2)
-                except ValueError as exc:
-                    raise InputFileError(f"{where}: unreadable ascii PLY vertex line ({exc}); check the file") from exc
-                if table.shape[1] != len(names):
-                    raise InputFileError(f"{where}: ascii PLY vertex lines have {table.shape[1]} values, the header declares {len(names)}")
-                rows = np.empty(take, dtype=[(n, "f8") for n in names])
-                for index, name in enumerate(names):
-                    rows[name] = table[:, index]
-            else:
-                data = handle.read(take * dtype.itemsize)
-                if len(data) < take * dtype.itemsize:
-                    got = vertex.count - remaining + len(data) // dtype.itemsize
-                    raise InputFileError(f"{where}: PLY body ends after {got} of {vertex.count} vertices; the file is truncated")
-                rows = np.frombuffer(data, dtype=dtype)
+        for rows in _vertex_rows(handle, layout, vertex, where, chunk_points):
             yield to_cloud(rows)
-            remaining -= take
 
+
+def _open_vertices(handle: BinaryIO, where: str) -> tuple[PlyLayout, PlyElement]:
+    """Parse the header of the PLY open in ``handle`` and move past the elements before the
+    vertices; InputFileError for vertices bimscan cannot read."""
+    layout = read_ply_layout(handle, where=where)
+    vertex = next((e for e in layout.elements if e.name == "vertex"), None)
+    if vertex is None:
+        raise InputFileError(f"{where}: PLY file has no vertex element; it holds no points")
+    if vertex.has_lists:
+        raise InputFileError(f"{where}: PLY vertex element has list properties; bimscan reads scalar vertex properties only")
+    names = [n for n, _ in vertex.properties]
+    if not {"x", "y", "z"} <= set(names):
+        raise InputFileError(f"{where}: PLY vertices lack x, y or z (they have {', '.join(names)})")
+    before = layout.elements[: layout.elements.index(vertex)]
+    if layout.format == "ascii":
+        for element in before:
+            for _ in range(element.count):
+                handle.readline()
+    else:
+        if any(e.has_lists for e in before):
+            raise InputFileError(f"{where}: a binary PLY element with list properties precedes the vertices; not supported")
+        handle.seek(sum(e.count * np.dtype([(n, t) for n, t in e.properties]).itemsize for e in before), 1)
+    return layout, vertex
+
+
+def _vertex_rows(handle: BinaryIO, layout: PlyLayout, vertex: PlyElement, where: str,
+                 chunk_points: int) -> Iterator[np.ndarray]:
+    """The vertex records from where ``_open_vertices`` left ``handle``, ``chunk_points`` at a time
+    (binary: in the file's types and byte order; ascii: every property as float64); one empty
+    block for a file without vertices."""
+    names = [n for n, _ in vertex.properties]
+    order = "<" if layout.format == "binary_little_endian" else ">"
+    dtype = np.dtype([(n, order + t) for n, t in vertex.properties])
+    remaining = vertex.count
+    if remaining == 0:
+        yield np.zeros(0, dtype=dtype)
+    while remaining > 0:
+        take = min(chunk_points, remaining)
+        if layout.format == "ascii":
+            lines = [line.decode("ascii", "replace") for line in itertools.islice(handle, take)]
+            if len(lines) < take:
+                raise InputFileError(f"{where}: PLY body ends after {vertex.count - remaining + len(lines)} of {vertex.count} vertices; the file is truncated")
+            try:
+                table = np.loadtxt(lines, dtype=np.float64, ndmin=2)
+            except ValueError as exc:
+                raise InputFileError(f"{where}: unreadable ascii PLY vertex line ({exc}); check the file") from exc
+            if table.shape[1] != len(names):
+                raise InputFileError(f"{where}: ascii PLY vertex lines have {table.shape[1]} values, the header declares {len(names)}")
+            rows = np.empty(take, dtype=[(n, "f8") for n in names])
+            for index, name in enumerate(names):
+                rows[name] = table[:, index]
+        else:
+            data = handle.read(take * dtype.itemsize)
+            if len(data) < take * dtype.itemsize:
+                got = vertex.count - remaining + len(data) // dtype.itemsize
+                raise InputFileError(f"{where}: PLY body ends after {got} of {vertex.count} vertices; the file is truncated")
+            rows = np.frombuffer(data, dtype=dtype)
+        yield rows
+        remaining -= take
 
 
 # -- labelled copies ------------------------------------------------------------------------------
@@ -504,21 +552,46 @@ def check_ply_copy(path: Path, target_format: str, top_class: int) -> CopyCheck:
     return CopyCheck()
 
 
-def ply_held(path: Path) -> tuple[str, ...]:
-    """What the PLY ``path`` holds beyond a ``PointCloud``'s columns, in words: vertex properties
-    the reader does not take, other elements (faces, ...), another tool's header comments."""
-    path = check_input_path(path)
-    layout, vertex = _vertex_element(path)
-    sources = _column_sources(layout, vertex, None, str(path))
+def _taken_properties(layout: PlyLayout, vertex: PlyElement, where: str) -> set[str]:
+    """The vertex properties the reader turns into ``PointCloud`` columns."""
+    with warnings.catch_warnings():  # the reader itself says why it skips a property
+        warnings.simplefilter("ignore")
+        sources = _column_sources(layout, vertex, None, where)
     taken = {"x", "y", "z", *sources.values()}
     if "rgb" in sources:
         taken |= {n for n, _ in vertex.properties if n.lower() in ("red", "green", "blue")}
     if "sensor_xyz" in sources:
         taken |= {"sensor_x", "sensor_y", "sensor_z"}
+    return taken
+
+
+def ply_fields(path: Path) -> tuple[ExtraField, ...]:
+    """The vertex properties of the PLY ``path`` the reader does not take (normals, scalar fields, ...)."""
+    path = check_input_path(path)
+    layout, vertex = _vertex_element(path)
+    taken = _taken_properties(layout, vertex, str(path))
+    return tuple(ExtraField(name, np.dtype(kind).newbyteorder("<").str) for name, kind in vertex.properties
+                 if name not in taken)
+
+
+def iter_ply_fields(path: Path, fields: tuple[ExtraField, ...]) -> Iterator[np.ndarray]:
+    """The values of ``fields`` (vertex properties) of every vertex, blocks of ``field_values_dtype`` records."""
+    path = check_input_path(path)
+    with path.open("rb") as handle:
+        layout, vertex = _open_vertices(handle, str(path))
+        for rows in _vertex_rows(handle, layout, vertex, str(path), COPY_BLOCK_ROWS):
+            values = np.empty(len(rows), dtype=field_values_dtype(fields))
+            for field in fields:
+                values[field.name] = rows[field.name]
+            yield values
+
+
+def ply_held(path: Path) -> tuple[str, ...]:
+    """What the PLY ``path`` holds beyond a ``PointCloud``'s columns and its ``ply_fields``, in
+    words: other elements (faces, ...), another tool's header comments."""
+    path = check_input_path(path)
+    layout, vertex = _vertex_element(path)
     held = []
-    other = [n for n, _ in vertex.properties if n not in taken]
-    if other:
-        held.append("vertex " + ("property " if len(other) == 1 else "properties ") + ", ".join(other))
     elements = [f"{e.name} ({e.count:,})" for e in layout.elements if e.name != "vertex"]
     if elements:
         held.append(("element " if len(elements) == 1 else "elements ") + ", ".join(elements))
@@ -552,7 +625,9 @@ def copy_ply_labelled(
                 break
         out_lines = _copy_header_lines(lines, header, add=target_name is None, retype=target_name if retype else None,
                                        ours=ours)
-        sources = _column_sources(layout, vertex, None, where)
+        with warnings.catch_warnings():  # the reader itself says why it skips a property
+            warnings.simplefilter("ignore")
+            sources = _column_sources(layout, vertex, None, where)
         columns = tuple(c for c in PointCloud.COLUMNS if c in {"xyz", "label", *sources})
         origin = header.origin
         if ours:
@@ -676,6 +751,6 @@ def _retyped(dtype: np.dtype, name: str) -> np.dtype:
                      "offsets": [dtype.fields[n][1] for n in dtype.names or ()], "itemsize": dtype.itemsize})
 
 __all__ = [
-    "PLY_PROPERTIES", "check_ply_copy", "copy_ply_labelled", "ply_held", "PlyCloudWriter", "PlyLayout", "iter_ply_chunks", "open_ply_writer",
+    "PLY_PROPERTIES", "check_ply_copy", "copy_ply_labelled", "iter_ply_fields", "ply_carriable", "ply_fields", "ply_held", "PlyCloudWriter", "PlyLayout", "iter_ply_chunks", "open_ply_writer",
     "read_ply_header", "read_ply_layout", "sidecar_path",
 ]

@@ -37,7 +37,7 @@ import numpy as np
 
 from bimscan.errors import InputFileError
 from bimscan.files import atomic_output, check_input_file
-from bimscan.io._labelled import LABEL_NAME, CopyCheck, check_label_count
+from bimscan.io._labelled import LABEL_NAME, CopyCheck, ExtraField, check_label_count, field_values_dtype
 from bimscan.io._writer import StagedOutput, WrittenCloud, check_output_path
 from bimscan.types import PointCloud
 
@@ -62,7 +62,7 @@ class _Layout:
     columns: int
     data_start: int  # number of lines before the first data line
     rgb: tuple[int, int, int] | None = None
-    names: tuple[str, ...] = ()  # the header line's column names (lower case); () without one
+    names: tuple[str, ...] = ()  # the header line's column names as written; () without one
 
 
 def _is_number(token: str) -> bool:
@@ -102,7 +102,7 @@ def _detect_layout(path: Path, handle: TextIO, *, label_field: str | None = None
             rgb = next((tuple(names.index(n) for n in trio) for trio in RGB_NAMES if all(n in names for n in trio)),
                        None)
             return _Layout(delimiter, xyz, label if labels else None, len(names), consumed, rgb,  # type: ignore[arg-type]
-                           tuple(names))
+                           tuple(tokens))
         if label_field is not None:
             raise InputFileError(
                 f"{path}: no header line naming its columns, so label field {label_field!r} cannot apply; "
@@ -121,24 +121,9 @@ def _detect_layout(path: Path, handle: TextIO, *, label_field: str | None = None
 
 
 def _parse_lines(path: Path, lines: list[str], layout: _Layout, first_line: int) -> PointCloud:
-    try:
-        table = np.loadtxt(
-            lines, dtype=np.float64, delimiter=layout.delimiter, comments=_COMMENT, ndmin=2,
-        )
-    except ValueError as exc:
-        # numpy counts rows from 0 within this chunk; report the line in the file
-        row = re.search(r"row (\d+)", str(exc))
-        where = first_line + (int(row.group(1)) if row else 0)
-        raise InputFileError(
-            f"{path}: unreadable point line near line {where} ({str(exc).rstrip('.')}); fix or remove it"
-        ) from exc
+    table = _parse_table(path, lines, layout, first_line)
     if table.shape[0] == 0:
         return PointCloud(xyz=np.empty((0, 3)), label=None if layout.label is None else np.empty(0, np.uint8))
-    if table.shape[1] != layout.columns:
-        raise InputFileError(
-            f"{path}: lines from {first_line} have {table.shape[1]} columns, the first data line had "
-            f"{layout.columns}; every line needs the same columns"
-        )
     xyz = np.ascontiguousarray(table[:, list(layout.xyz)])
     label = None
     if layout.label is not None:
@@ -155,6 +140,27 @@ def _parse_lines(path: Path, lines: list[str], layout: _Layout, first_line: int)
     if layout.rgb is not None:
         rgb = np.ascontiguousarray(np.clip(np.rint(np.nan_to_num(table[:, list(layout.rgb)])), 0, 255).astype(np.uint8))
     return PointCloud(xyz=xyz, label=label, rgb=rgb)
+
+
+def _parse_table(path: Path, lines: list[str], layout: _Layout, first_line: int) -> np.ndarray:
+    """The point lines ``lines`` (from line ``first_line``) as an (M, columns) float64 table."""
+    try:
+        table = np.loadtxt(
+            lines, dtype=np.float64, delimiter=layout.delimiter, comments=_COMMENT, ndmin=2,
+        )
+    except ValueError as exc:
+        # numpy counts rows from 0 within this chunk; report the line in the file
+        row = re.search(r"row (\d+)", str(exc))
+        where = first_line + (int(row.group(1)) if row else 0)
+        raise InputFileError(
+            f"{path}: unreadable point line near line {where} ({str(exc).rstrip('.')}); fix or remove it"
+        ) from exc
+    if table.shape[0] and table.shape[1] != layout.columns:
+        raise InputFileError(
+            f"{path}: lines from {first_line} have {table.shape[1]} columns, the first data line had "
+            f"{layout.columns}; every line needs the same columns"
+        )
+    return table
 
 
 def iter_text_chunks(
@@ -276,16 +282,49 @@ def check_text_copy(path: Path, target_format: str, top_class: int) -> CopyCheck
     return CopyCheck()
 
 
-def text_held(path: Path) -> tuple[str, ...]:
-    """The columns of the text cloud ``path`` the reader does not take (x y z, colour, label), in words."""
-    layout = _copy_layout(check_input_file(path, what="a text cloud"))
+def _field_columns(path: Path, layout: _Layout) -> list[tuple[ExtraField, int]]:
+    """(field, column index) of every column the reader does not take (x y z, colour, label), named
+    as the header line names it, else as a .pts file's columns are (intensity), else column_<n>."""
     taken = {*layout.xyz, *(layout.rgb or ()), *(() if layout.label is None else (layout.label,))}
-    other = [i for i in range(layout.columns) if i not in taken]
-    if not other:
-        return ()
     named = layout.names or (tuple(PTS_NAMES[layout.columns].split()) if path.suffix.lower() == ".pts" else ())
-    names = [f"{i + 1} ({named[i]})" if named else f"{i + 1}" for i in other]
-    return (("column " if len(other) == 1 else "columns ") + ", ".join(names),)
+    fields, used = [], set()
+    for index in range(layout.columns):
+        if index in taken:
+            continue
+        name = named[index] if named else f"column_{index + 1}"
+        while name.lower() in used:  # two columns of one name: the later one numbered
+            name = f"{name}_{index + 1}"
+        used.add(name.lower())
+        fields.append((ExtraField(name, "<f8"), index))
+    return fields
+
+
+def text_fields(path: Path) -> tuple[ExtraField, ...]:
+    """The columns of the text cloud ``path`` the reader does not take, as float64 fields."""
+    path = check_input_file(path, what="a text cloud")
+    return tuple(field for field, _ in _field_columns(path, _copy_layout(path)))
+
+
+def iter_text_fields(path: Path, fields: tuple[ExtraField, ...]) -> Iterator[np.ndarray]:
+    """The values of ``fields`` (of ``text_fields``) of every point line, blocks of records."""
+    path = check_input_file(path, what="a text cloud")
+    layout = _copy_layout(path)
+    columns = {field.name: index for field, index in _field_columns(path, layout)}
+    with path.open("r", encoding="utf-8") as handle:
+        lines_iter = itertools.islice(handle, layout.data_start, None)
+        line_number = layout.data_start + 1
+        while lines := list(itertools.islice(lines_iter, COPY_BLOCK_LINES)):
+            table = _parse_table(path, lines, layout, line_number)
+            line_number += len(lines)
+            values = np.empty(len(table), dtype=field_values_dtype(fields))
+            for field in fields:
+                values[field.name] = table[:, columns[field.name]] if len(table) else []
+            yield values
+
+
+def text_held(path: Path) -> tuple[str, ...]:
+    """A text cloud holds nothing beyond its columns (the ``text_fields`` and the ones read)."""
+    return ()
 
 
 def copy_text_labelled(
