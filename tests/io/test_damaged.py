@@ -1,5 +1,6 @@
 """Damaged clouds are refused in one line: degenerate LAS scales, disagreeing point counts,
-non-finite coordinates; FIFOs and link loops are named for what they are (issue 13)."""
+non-finite coordinates; FIFOs and link loops are named for what they are (issue 13); labelled copies of
+damaged clouds likewise, leaving nothing at the output (issue 50)."""
 
 from __future__ import annotations
 
@@ -92,3 +93,42 @@ def test_a_fifo_and_a_link_loop_are_named_not_read(tmp_path):
     loop.symlink_to(loop)
     with pytest.raises(InputFileError, match="symbolic link loop"):
         read_cloud(loop)
+
+
+# -- labelled copies of damaged clouds (issue 50): one line, nothing left at the output -------------
+
+def _labelled_copy(source: Path, target: Path, n: int) -> None:
+    from bimscan.io import plan_labelled_copy, write_labelled_copy
+    from bimscan.semantics import DEFAULT_SCHEME, load_scheme
+    from bimscan.types import CloudHeader
+
+    plan = plan_labelled_copy(source, target)
+    write_labelled_copy(plan, np.zeros(n, np.uint8), header=CloudHeader(scheme=load_scheme(DEFAULT_SCHEME)))
+
+
+def test_a_las_cut_short_is_refused_by_its_labelled_copy(las_file, tmp_path):
+    cut = tmp_path / "cut.las"
+    cut.write_bytes(las_file.read_bytes()[:-200])
+
+    with pytest.raises(InputFileError, match="cut.las: the LAS header says 500 points, the file holds 493"):
+        _labelled_copy(cut, tmp_path / "out.las", 500)
+    assert not any(p.name.startswith((".out", "out")) for p in tmp_path.iterdir())
+
+
+def test_a_ply_cut_short_is_refused_by_its_labelled_copy(tmp_path):
+    vertices = np.zeros(10, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("nx", "<f4")])
+    (tmp_path / "cut.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 10\nproperty float x\n"
+                                       b"property float y\nproperty float z\nproperty float nx\nend_header\n"
+                                       + vertices.tobytes()[:-20])
+
+    with pytest.raises(InputFileError, match="cut.ply: PLY body ends after 8 of 10 vertices; the file is truncated"):
+        _labelled_copy(tmp_path / "cut.ply", tmp_path / "out.ply", 10)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.ply"]
+
+
+def test_a_text_line_short_of_columns_is_refused_by_its_labelled_copy(tmp_path):
+    (tmp_path / "ragged.txt").write_text("x y z label\n1 2 3 0\n4 5 6\n")
+
+    with pytest.raises(InputFileError, match=r"ragged.txt: point line 2 '4 5 6' has fewer columns than the first"):
+        _labelled_copy(tmp_path / "ragged.txt", tmp_path / "out.txt", 2)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ragged.txt"]

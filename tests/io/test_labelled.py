@@ -712,3 +712,19 @@ def test_a_damaged_input_is_refused_in_one_line_and_leaves_nothing(tmp_path: Pat
     with pytest.raises(InputFileError, match="site.las"):
         plan_labelled_copy(source, tmp_path / "out.las")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["site.las"]
+
+
+def test_the_same_input_and_labels_give_the_same_bytes_in_every_format(tmp_path: Path) -> None:
+    sources = [site_las(tmp_path / "site.laz", compress=True), tmp_path / "scan.ply", tmp_path / "site.e57",
+               tmp_path / "scan.txt"]
+    foreign_ply(sources[1], fmt="binary_big_endian")
+    foreign_e57(sources[2])
+    sources[3].write_text(TEXT_CASES["named.txt"][0])
+    for source in sources:
+        labels = (np.arange(len(read_cloud(source))) % 5).astype(np.uint8)
+        targets = [tmp_path / f"{name}{source.suffix}" for name in ("a", "b")]
+
+        for target in targets:
+            copy(source, target, labels)
+
+        assert targets[0].read_bytes() == targets[1].read_bytes(), source.name

@@ -8,7 +8,9 @@ clouds (``text``, :mod:`bimscan.io.text`) and S3DIS rooms (``s3dis``, :mod:`bims
 writer takes ``PointCloud`` chunks as they come, keeps its memory bounded whatever the point
 count, writes under a temporary name renamed at close, stores the ``CloudHeader`` (label scheme,
 component table, stations, metadata) with the points, and gives the same bytes for the same
-points however they were chunked. Meshes: ``export_obj`` (OBJ with one group per component,
+points however they were chunked. Labelled copies (``plan_labelled_copy``, ``write_labelled_copy``)
+write a user's cloud again with new classes, keeping everything else it holds (``LABELLED_COPIERS``,
+one copier per input format; another format through its writer, with the fields it can hold). Meshes: ``export_obj`` (OBJ with one group per component,
 one OBJ per component, an index CSV, optionally a HELIOS++ scene) and ``read_obj``.
 
 ::

@@ -364,7 +364,8 @@ def copy_text_labelled(
                     parts.append(names + (b"\r\n" if line.endswith(b"\r\n") else b"\n"))
                 labelled = _labelled_line(line, int(labels[done]), layout.label, delimiter)
                 if labelled is None:
-                    raise InputFileError(f"{source}: point line {done + 1:,} {line.strip()[:80]!r} has fewer columns than "
+                    shown = line.strip()[:80].decode("utf-8", "replace")
+                    raise InputFileError(f"{source}: point line {done + 1:,} {shown!r} has fewer columns than "
                                          "the first; fix or remove it")
                 parts.append(labelled)
                 done += 1
