@@ -9,6 +9,8 @@ from pathlib import Path
 import laspy
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from bimscan.errors import InputFileError, OutputError
 from bimscan.io import read_cloud, read_cloud_header
@@ -16,6 +18,8 @@ from bimscan.io.text import write_text_cloud
 from bimscan.learn.predict import predict_cloud
 from bimscan.learn.train_config import EvalConfig
 from bimscan.types import PointCloud
+
+from .conftest import make_room
 
 
 @pytest.fixture
@@ -322,3 +326,71 @@ def test_another_format_warns_in_one_line_naming_what_it_cannot_hold(
     assert line == (f"{tmp_path / 'out.ply'} will not hold what PLY has no place for: the CRS (WKT); VLR/EVLR "
                     f"Leica/42 of {georeferenced}")
     assert b"property float deviation\n" in (tmp_path / "out.ply").read_bytes()  # the extra dimension goes along
+
+
+@st.composite
+def georeferenced_las(draw: st.DrawFn) -> dict:
+    version, point_format = draw(st.sampled_from([("1.2", 1), ("1.2", 3), ("1.3", 0), ("1.4", 2), ("1.4", 6),
+                                                   ("1.4", 7), ("1.4", 8)]))
+    users = st.text(alphabet="ABCDEFGHIJKLMNOPQRSTUVWXYZ_", min_size=1, max_size=15)
+    return {
+        "version": version, "point_format": point_format,
+        "scale": draw(st.sampled_from([1e-5, 2.5e-5, 1e-4, 5e-4, 1e-3])),
+        "shift": draw(st.lists(st.floats(-500.0, 500.0, allow_nan=False), min_size=3, max_size=3)),
+        "vlrs": draw(st.lists(st.tuples(users, st.integers(0, 65535), st.binary(max_size=80)), max_size=2)),
+        "evlrs": draw(st.lists(st.tuples(users, st.integers(0, 65535), st.binary(max_size=200)), max_size=2))
+        if version == "1.4" else [],
+        "extra": draw(st.lists(st.sampled_from(["u1", "i2", "u4", "i8", "f4", "f8"]), max_size=2)),
+        "compress": draw(st.booleans()), "target": draw(st.sampled_from([".las", ".laz"])),
+    }
+
+
+@pytest.mark.slow
+@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(spec=georeferenced_las())
+def test_predict_keeps_random_header_scales_offsets_vlrs_and_extra_dimensions(trained_run: Path, spec: dict) -> None:
+    import tempfile
+
+    from bimscan.io.las import read_las_layout
+
+    cloud = make_room(9, size_m=(3.0, 2.0), points_per_m2=15, origin=(512_000.0, 5_401_000.0))
+    rng = np.random.default_rng(len(cloud))
+    header = laspy.LasHeader(point_format=spec["point_format"], version=spec["version"])
+    header.scales = np.full(3, spec["scale"])
+    header.offsets = np.floor(cloud.xyz.min(axis=0)) + np.array(spec["shift"])
+    for i, kind in enumerate(spec["extra"]):
+        header.add_extra_dim(laspy.ExtraBytesParams(name=f"extra_{i}", type=np.dtype(kind)))
+    for user, record, data in spec["vlrs"]:
+        header.vlrs.append(laspy.VLR(f"u{user}", record, "a record", data))
+    las = laspy.LasData(header, points=laspy.ScaleAwarePointRecord.zeros(len(cloud), header=header))
+    records = np.asarray(las.points.array).view(np.uint8)
+    records[:] = rng.integers(0, 256, records.shape)  # every field random ...
+    las.x, las.y, las.z = cloud.xyz[:, 0], cloud.xyz[:, 1], cloud.xyz[:, 2]  # ... but the coordinates: a room
+    if spec["evlrs"]:
+        from laspy.vlrs.vlrlist import VLRList
+
+        las.evlrs = VLRList([laspy.VLR(f"u{u}", r, "an EVLR", d) for u, r, d in spec["evlrs"]])
+    with tempfile.TemporaryDirectory() as folder:
+        source = Path(folder) / ("in.laz" if spec["compress"] else "in.las")
+        las.write(source, do_compress=spec["compress"])
+        target = Path(folder) / f"out{spec['target']}"
+
+        result = predict_cloud(trained_run / "run" / "last.pt", source, target, device="cpu",
+                               evaluation=EvalConfig(max_passes=1))
+
+        before, after = laspy.read(source), laspy.read(target)
+        assert after.header.point_format.id == spec["point_format"] and after.header.version == before.header.version
+        assert list(after.header.scales) == list(before.header.scales)
+        assert list(after.header.offsets) == list(before.header.offsets)
+        anew = {("LASF_Spec", 0), ("laszip encoded", 22204), ("bimscan", 1)}
+        kept = [[r.raw for r in (*layout.vlrs, *layout.evlrs) if (r.user_id, r.record_id) not in anew]
+                for layout in (read_las_layout(source), read_las_layout(target))]
+        assert kept[0] == kept[1]
+        class_byte = 16 if spec["point_format"] >= 6 else 15
+        rows = [np.asarray(x.points.array).view(np.uint8).reshape(len(cloud), -1).copy() for x in (before, after)]
+        if class_byte == 15:  # legacy formats: the class is bits 0-4, the flags bits 5-7 stay
+            np.testing.assert_array_equal(rows[1][:, 15] >> 5, rows[0][:, 15] >> 5)
+        for row in rows:
+            row[:, class_byte] = 0
+        np.testing.assert_array_equal(rows[1], rows[0])
+        np.testing.assert_array_equal(np.bincount(after.classification, minlength=5), result.class_counts)
