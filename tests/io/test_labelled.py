@@ -307,8 +307,8 @@ def test_writing_over_the_input_is_refused_before_any_work_when_the_copy_would_c
     laspy.LasData(header).write(tmp_path / "old.las")
     before = (tmp_path / "old.las").read_bytes()
 
-    with pytest.raises(OutputError, match=r"old.las is the input .*old.las: labelling it in place would change point "
-                                          r"format 1 \(LAS 1.2\) becomes 6 \(LAS 1.4\)"):
+    with pytest.raises(OutputError, match=r"old.las is the input .*old.las and its labelled copy would not keep all "
+                                          r"of it \(point format 1 \(LAS 1.2\) becomes 6 \(LAS 1.4\)"):
         plan_labelled_copy(tmp_path / "old.las", tmp_path / "old.las", overwrite=True, top_class=40)
     assert (tmp_path / "old.las").read_bytes() == before
 
@@ -544,7 +544,8 @@ def test_a_text_cloud_keeps_every_line_and_column_and_gets_its_label_column(tmp_
 def test_a_pts_file_cannot_be_labelled_in_place_as_it_gains_a_header_line(tmp_path: Path) -> None:
     (tmp_path / "scan.pts").write_text(TEXT_CASES["scan.pts"][0])
 
-    with pytest.raises(OutputError, match="labelling it in place would change a header line 'x y z intensity r g b label'"):
+    with pytest.raises(OutputError, match="its labelled copy would not keep all of it \\(a header line 'x y z "
+                                          "intensity r g b label' is added"):
         plan_labelled_copy(tmp_path / "scan.pts", tmp_path / "scan.pts", overwrite=True)
 
 

@@ -273,8 +273,8 @@ def test_writing_over_the_input_that_a_copy_would_change_is_refused_before_the_c
     (tmp_path / "scan.pts").write_text(f"{len(cloud)}\n" + "".join(f"{x} {y} {z} 5\n" for x, y, z in cloud.xyz))
     before = (tmp_path / "scan.pts").read_bytes()
 
-    with pytest.raises(OutputError, match=r"scan.pts is the input .*scan.pts: labelling it in place would change a "
-                                          r"header line 'x y z intensity label' is added"):
+    with pytest.raises(OutputError, match=r"scan.pts is the input .*scan.pts and its labelled copy would not keep all "
+                                          r"of it \(a header line 'x y z intensity label' is added"):
         predict_cloud(tmp_path / "nope.pt", tmp_path / "scan.pts", tmp_path / "scan.pts", device="cpu", overwrite=True)
 
     assert (tmp_path / "scan.pts").read_bytes() == before

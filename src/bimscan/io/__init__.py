@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.errors import InputFileError, OutputError
-from bimscan.io._labelled import CopyCheck, ExtraField, LabelledCopier
+from bimscan.io._labelled import CopyCheck, ExtraField, LabelledCopier, field_values_dtype
 from bimscan.io._header import present_columns
 from bimscan.io._writer import CloudWriter, WrittenCloud, check_input_path, check_output_path
 from bimscan.io.e57 import (
@@ -391,9 +391,9 @@ def plan_labelled_copy(
         check = CopyCheck(lost=_S3DIS_HELD)
     same = os.path.lexists(target) and _same_file(source, target)
     if same and not (copied and check.keeps_everything):
-        what = "; ".join(check.lost + check.changed) or "its format"
-        raise OutputError(f"{target} is the input {source}: labelling it in place would {'lose' if check.lost else 'change'} "
-                          f"{what}; write the labelled cloud to another path")
+        what = "; ".join([*(f"lost: {item}" for item in check.lost), *check.changed])
+        raise OutputError(f"{target} is the input {source} and its labelled copy would not keep all of it ({what}); "
+                          "write the labelled cloud to another path")
     if copied:
         check_output_path(target, overwrite=overwrite, extra=(sidecar_path(target),) if target_format == "ply" else (),
                           kind="npy" if target_format == "npy" else None)
@@ -428,7 +428,8 @@ def write_labelled_copy(
     start = 0
     values = None
     if plan.fields:
-        values = _Rows(LABELLED_COPIERS[plan.source_format].iter_fields(plan.source, plan.fields))
+        values = _Rows(LABELLED_COPIERS[plan.source_format].iter_fields(plan.source, plan.fields),
+                       field_values_dtype(plan.fields))
     with open_cloud_writer(plan.target, header=header, overwrite=plan.overwrite, checksum=checksum,
                            fields=plan.fields) as writer:
         for chunk in iter_cloud_chunks(plan.source, labels=False):
@@ -446,9 +447,9 @@ class _Rows:
     """Blocks of records from an iterator, handed out ``take(n)`` rows at a time (the fields of
     an input come in blocks of their own size; the writer takes them chunk by chunk of points)."""
 
-    def __init__(self, blocks: Iterator[np.ndarray]) -> None:
+    def __init__(self, blocks: Iterator[np.ndarray], dtype: np.dtype) -> None:
         self._blocks = blocks
-        self._held: list[np.ndarray] = []
+        self._held: list[np.ndarray] = [np.empty(0, dtype=dtype)]
         self._count = 0
 
     def take(self, n: int) -> np.ndarray:
