@@ -1076,8 +1076,11 @@ def e57_fields(path: Path) -> tuple[ExtraField, ...]:
 
 def iter_e57_fields(path: Path, fields: tuple[ExtraField, ...]) -> Iterator[np.ndarray]:
     """The values of ``fields`` of every valid point (the points the reader gives, in its order),
-    blocks of ``field_values_dtype`` records; scaled integers as their scaled values."""
+    blocks of ``field_values_dtype`` records; scaled integers as their scaled values. Nothing
+    without ``fields``."""
     path = check_input_path(path)
+    if not fields:
+        return
     image = _open(path)
     try:
         for scan in _scans(image):
