@@ -778,3 +778,23 @@ def test_every_copier_and_every_writer_give_the_labels_back(
     fields = LABELLED_COPIERS[source_format].fields(source)
     rows = sum(len(block) for block in LABELLED_COPIERS[source_format].iter_fields(source, fields))
     assert rows == (len(before) if fields else rows)
+
+
+def test_bytes_other_software_adds_to_the_header_and_after_the_vlrs_and_geotiff_keys_are_kept(tmp_path: Path) -> None:
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.offsets, header.scales = np.array(UTM_OFFSET), np.array([0.001] * 3)
+    keys = struct.pack("<8H", 1, 1, 0, 1, 3072, 0, 1, 25832)  # one GeoTIFF key: ProjectedCSTypeGeoKey = EPSG 25832
+    header.vlrs.extend([laspy.VLR("LASF_Projection", 34735, "GeoTIFF GeoKeyDirectoryTag", keys),
+                        laspy.VLR("LASF_Projection", 34737, "GeoTIFF GeoAsciiParamsTag", b"ETRS89 / UTM zone 32N|\0")])
+    header.extra_header_bytes = b"TerraScan header extension"
+    header.extra_vlr_bytes = b"\xde\xad\xbe\xef" * 8
+    las = laspy.LasData(header)
+    las.X, las.Y, las.Z = np.arange(30), np.arange(30), np.arange(30)
+    las.write(tmp_path / "tscan.las")
+
+    target = copy(tmp_path / "tscan.las", tmp_path / "out.laz", np.full(30, 2, np.uint8))
+
+    before, after = read_las_layout(tmp_path / "tscan.las"), read_las_layout(target)
+    assert after.header.endswith(b"TerraScan header extension") and after.vlr_tail == before.vlr_tail
+    assert kept_records(target) == kept_records(tmp_path / "tscan.las")  # the GeoTIFF keys and their ASCII params
+    assert header_without_patched_fields(after.header) == header_without_patched_fields(before.header)
