@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable
-from contextlib import closing
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -87,7 +86,8 @@ def predict_cloud(
     scales, offsets, CRS and other VLRs/EVLRs, extra dimensions and point records; a PLY's every
     property and element; every column of a text cloud; every array of a NumPy folder; an E57's
     scans, poses and point fields) with only the class changed; in another format it keeps the
-    columns that format's writer holds, and ``warn`` receives one line naming what it does not.
+    columns and every per-point field that format holds (extra dimensions, normals, scalar
+    fields, ...), and ``warn`` receives one line naming what it does not (a CRS in a PLY, ...).
     The input's own labels are replaced (they are neither read for use nor checked).
 
     ``out_path`` is checked before any work (the input's columns too: E57 cannot hold a mobile
