@@ -322,11 +322,11 @@ def test_a_full_disk_fails_the_unit_with_a_clear_reason_and_leaves_no_partial_un
     original = npdir.NpdirCloudWriter._append
     calls = {"n": 0}
 
-    def full_disk(self, chunk):  # the third chunk written hits a full disk
+    def full_disk(self, chunk, values):  # the third chunk written hits a full disk
         calls["n"] += 1
         if calls["n"] == 3:
             raise OSError(errno.ENOSPC, "No space left on device", str(self.path))
-        return original(self, chunk)
+        return original(self, chunk, values)
 
     monkeypatch.setattr(npdir.NpdirCloudWriter, "_append", full_disk)
     spec = _small_spec(tmp_path)
