@@ -70,3 +70,17 @@ def test_impossible_site_flags_are_one_line_errors_and_write_nothing(box_room_if
     assert error.startswith("error: ") and message in error
     assert all(w.startswith("warning: ") for w in warnings)  # the preset's device warnings
     assert not out.exists() and not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("command, flags, message", [
+    ("scan", ["--stage-exclude", "IfcDoors"], "stage exclude: unknown IFC class 'IfcDoors'"),
+    ("plan", ["--stage-include", "IfcWall,IfcFoo"], "stage include: unknown IFC class 'IfcFoo'"),
+    ("export-obj", ["--stage-exclude", "IfcWindows"], "did you mean 'IfcWindow'?"),
+])
+def test_a_misspelt_stage_class_is_refused_naming_the_nearest_before_the_model_is_read(command, flags, message,
+                                                                                      tmp_path, capsys):
+    # the model does not exist: the flags are refused before any work, reading the model included
+    assert main([command, str(tmp_path / "missing.ifc"), str(tmp_path / "out"), *flags]) == 1
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and message in err[0]
+    assert not list(tmp_path.iterdir())

@@ -128,6 +128,10 @@ def test_a_scheme_with_a_misspelt_ifc_class_is_refused_before_any_work(spec_fold
     (lambda t: t.replace("range_sigma_m = 0.002", "range_sigma_m = -2"), ScannerSettingsError, "range_sigma_m"),
     (lambda t: t.replace('name = "two"', 'name = "two"\nstrict = true'), ScannerSettingsError, "outside the device's limits"),
     (lambda t: t.split("[[configs]]")[0], ConfigError, "no configurations"),
+    (lambda t: t.replace('preset = "exp2"', 'preset = "exp2"\nstage = { name = "enclosed", exclude = ["IfcDoors"] }'),
+     ConfigError, "unknown IFC class 'IfcDoors' (no IfcProduct class of IFC2X3, IFC4 or IFC4X3); did you mean 'IfcDoor'?"),
+    (lambda t: t.replace('name = "two"', 'name = "two"\nstage = { name = "structure", include = ["IfcWall", "IfcFoo"] }'),
+     ConfigError, "unknown IFC class 'IfcFoo'"),
 ])
 def test_a_bad_spec_raises_one_clear_error_naming_the_file(spec_folder: Path, edit, error: type, message: str) -> None:
     path = _write(spec_folder, edit(GOOD))

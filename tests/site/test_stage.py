@@ -141,11 +141,33 @@ def test_a_stage_where_nothing_stands_is_refused(office_scene):
     ({"walls_missing_fraction": 1.5}, r"^stage walls_missing_fraction must be a number in \[0, 1\], got 1.5$"),
     ({"props_fraction": float("nan")}, r"^stage props_fraction must be a number in \[0, 1\], got nan$"),
     ({"at": "next week"}, "YYYY-MM-DD"),
-    ({"include": ("Wall",)}, "not an IFC class"),
+    ({"include": (3,)}, "not an IFC class"),
 ])
 def test_impossible_stage_settings_are_refused(stage, message):
     with pytest.raises(ConfigError, match=message):
         StageSettings(**stage)
+
+
+@pytest.mark.parametrize("stage, message", [
+    # a typo matched nothing and changed nothing: the doors stayed closed (issue 50)
+    ({"exclude": ("IfcDoors",)}, "stage exclude: unknown IFC class 'IfcDoors' (no IfcProduct class of IFC2X3, IFC4 "
+                                 "or IFC4X3); did you mean 'IfcDoor'?"),
+    ({"include": ("IfcWall", "IfcFoo")}, "stage include: unknown IFC class 'IfcFoo'"),
+    ({"include": ("Wall",)}, "did you mean 'IfcWall'?"),
+    ({"exclude": ("IfcPropertySet",)}, "'IfcPropertySet' is an IFC class but no product (IfcProduct)"),
+    ({"exclude": ("Qwxyzzy",)}, "give classes of elements such as 'IfcWall'"),
+])
+def test_unknown_ifc_classes_in_a_stage_are_refused_naming_the_nearest(stage, message):
+    with pytest.raises(ConfigError) as caught:
+        StageSettings(**stage)
+    assert message in str(caught.value) and "\n" not in str(caught.value)
+
+
+def test_stage_classes_are_taken_in_any_case_and_kept_in_the_schemas_spelling():
+    stage = StageSettings(include=("ifcwall", "IFCSLAB"), exclude=("ifcdoor", "IfcBuiltElement"))
+    assert stage.include == ("IfcWall", "IfcSlab") and stage.exclude == ("IfcDoor", "IfcBuiltElement")
+    with pytest.raises(ConfigError, match="does nothing at stage"):  # a covering left out in lower case is seen
+        StageSettings(exclude=("ifccovering",), ceilings_open_fraction=0.5)
 
 
 @pytest.mark.parametrize("angle", [0.0, 0.5])

@@ -46,7 +46,8 @@ class StageSettings(Checked):
 
     name: ``structure`` (slabs, walls, columns, beams, stairs), ``enclosed`` (+ windows, doors,
     curtain walls, railings), ``finished`` (everything). include: IFC classes built (replaces the
-    stage's list when given); exclude: IFC classes taken out. walls_missing_fraction: walls not
+    stage's list when given); exclude: IFC classes taken out (both: ``IfcProduct`` classes of IFC2X3,
+    IFC4 or IFC4X3, any case, kept in the schemas' spelling; an unknown name is refused). walls_missing_fraction: walls not
     yet built (each wall by its GlobalId and the seed, so a larger fraction removes a superset).
     ceilings_open_fraction: bays of the ceilings (between grid lines) without panels.
     props_fraction: rooms whose slab is propped (steel props on a grid under the soffit).
@@ -65,17 +66,14 @@ class StageSettings(Checked):
     def __post_init__(self) -> None:
         if self.at is not None:  # a date in any form it is read in becomes its ISO text (or is refused)
             object.__setattr__(self, "at", iso_date(self.at))
+        for what in ("include", "exclude"):  # class names in the schemas' spelling (or refused)
+            object.__setattr__(self, what, ifc_product_classes(getattr(self, what), what=f"stage {what}"))
         super().__post_init__()
 
     def refusal(self, problem: str) -> ConfigError:
         return ConfigError(f"stage {problem}")
 
     def check(self) -> None:
-        for what in ("include", "exclude"):
-            for name in getattr(self, what):
-                if not isinstance(name, str) or not name.startswith("Ifc"):
-                    raise ConfigError(f"stage {what} entry {name!r} is not an IFC class name; "
-                                      "give names like 'IfcWall'")
         if self.ceilings_open_fraction > 0 and not self._builds("IfcCovering"):
             raise ConfigError(f"ceilings_open_fraction = {self.ceilings_open_fraction:g} does nothing at stage "
                               f"{self.name!r}: no ceiling is built yet; leave it out or use stage 'finished'")
@@ -168,6 +166,31 @@ def iso_date(value: Any) -> str:
         return datetime.date.fromisoformat(text).isoformat()
     except ValueError as exc:
         raise ConfigError(f"at = {value!r} is not a date; give one as YYYY-MM-DD (e.g. 2024-03-10)") from exc
+
+
+def ifc_product_classes(names: Any, *, what: str) -> tuple[str, ...]:
+    """``names`` (IFC class names, any case) in the schemas' spelling; ConfigError, naming the nearest
+    class, for a name that is no ``IfcProduct`` class of IFC2X3, IFC4 or IFC4X3 (a typo such as
+    ``IfcDoors`` would otherwise match nothing and change nothing). ``what`` names the list."""
+    if not isinstance(names, list | tuple) or not names:
+        return names
+    from bimscan.ifc.schema import known_classes, nearest_product_class, product_classes
+
+    spelt = []
+    for name in names:
+        if not isinstance(name, str):
+            raise ConfigError(f"{what} entry {name!r} is not an IFC class name; give names like 'IfcWall'")
+        product = product_classes().get(name.lower())
+        if product is None:
+            if name.lower() in {k.lower() for k in known_classes()}:
+                raise ConfigError(f"{what}: {name!r} is an IFC class but no product (IfcProduct): nothing of it "
+                                  "stands in a scene; give classes of elements such as 'IfcWall'")
+            nearest = nearest_product_class(name)
+            advice = f"did you mean {nearest!r}?" if nearest else "give classes of elements such as 'IfcWall'"
+            raise ConfigError(f"{what}: unknown IFC class {name!r} (no IfcProduct class of IFC2X3, IFC4 or "
+                              f"IFC4X3); {advice}")
+        spelt.append(product)
+    return tuple(spelt)
 
 
 def site_settings(site: SiteModel, seed: int) -> dict[str, Any]:
