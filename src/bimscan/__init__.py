@@ -8,11 +8,25 @@ The pipeline, stage by stage (one subpackage each): ``ifc`` (parse) -> ``semanti
 
 from __future__ import annotations
 
-from importlib.metadata import PackageNotFoundError, version
+import functools
 
-try:
-    __version__ = version("bimscan")
-except PackageNotFoundError:  # running from a source tree without installation
-    __version__ = "0.0.0+source"
+
+@functools.cache
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("bimscan")
+    except PackageNotFoundError:  # running from a source tree without installation
+        return "0.0.0+source"
+
+
+def __getattr__(name: str) -> str:
+    # ``__version__`` is looked up when first asked for: importlib.metadata takes a tenth of a second,
+    # and the command line's start-up, before its signal handlers are in place, stays that much shorter
+    if name == "__version__":
+        return _version()
+    raise AttributeError(f"module 'bimscan' has no attribute {name!r}")
+
 
 __all__ = ["__version__"]

@@ -37,7 +37,7 @@ def test_info_errors_are_one_line_without_traceback(tmp_path, capsys):
 
 
 def test_every_command_has_help(capsys):
-    from bimscan.cli.main import cli
+    from bimscan.cli.commands import cli
 
     for name in cli.commands:
         assert main([name, "--help"]) == 0

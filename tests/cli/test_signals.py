@@ -1,5 +1,6 @@
-"""Stopping a command: SIGTERM like Ctrl-C (clean-up, one line, exit 143), Ctrl-C while libraries
-load or while lazrs compresses a mobile scan, library warnings as one line each (issues 13, 41)."""
+"""Stopping a command: SIGTERM like Ctrl-C (clean-up, one line, exit 143), Ctrl-C while the command
+line or libraries load or while lazrs compresses a mobile scan, library warnings as one line each
+(issues 13, 41, 50)."""
 
 from __future__ import annotations
 
@@ -93,6 +94,47 @@ def test_ctrl_c_while_open3d_loads_is_one_line(box_room_ifc, tmp_path):
     assert not list(tmp_path.iterdir())
 
 
+# The console script's own code (``from bimscan.cli.main import main; sys.exit(main())``), with the
+# signal sent by this process to itself the moment ``STOP_AT`` starts to load: as a Ctrl-C that lands
+# there, at a point the test chooses rather than after a sleep that a busy machine stretches.
+SIGNAL_ON_IMPORT = """
+import os, sys
+
+class SignalOnImport:
+    def find_spec(self, name, path=None, target=None):
+        if name == os.environ["STOP_AT"]:
+            sys.meta_path.remove(self)
+            os.kill(os.getpid(), int(os.environ["STOP_WITH"]))
+        return None
+
+sys.meta_path.insert(0, SignalOnImport())
+from bimscan.cli.main import main
+sys.exit(main())
+"""
+
+
+@pytest.mark.parametrize("command, number, module", [
+    # while the commands load (NumPy, SciPy, Numba: a second or more on a busy machine), before main() ran:
+    # a traceback (train, plan) or a silent exit (predict, scan), issue 50
+    (["train", "run.toml"], signal.SIGINT, "bimscan.cli.dataset_commands"),
+    (["plan", "model.ifc", "plan"], signal.SIGTERM, "bimscan.cli.dataset_commands"),
+    (["predict", "model.pt", "cloud.laz", "out.laz"], signal.SIGTERM, "scipy"),
+    (["scan", "model.ifc", "out.laz"], signal.SIGINT, "numba"),
+    (["train", "run.toml"], signal.SIGTERM, "torch"),  # inside the command, as it loads its libraries
+])
+def test_a_stop_while_a_command_starts_is_one_line_and_the_signal_s_status(command, number, module, tmp_path):
+    process = subprocess.run([sys.executable, "-c", SIGNAL_ON_IMPORT, *command], cwd=tmp_path, capture_output=True,
+                             text=True, timeout=120, env={**os.environ, "BIMSCAN_PROGRESS": "0", "STOP_AT": module,
+                                                          "STOP_WITH": str(int(number))})
+    what, status = ("terminated", 143) if number == signal.SIGTERM else ("interrupted", 130)
+    assert process.returncode == status, process.stderr
+    line = process.stderr.splitlines()[-1] if process.stderr else ""
+    assert line.startswith(f"error: {what}; ") and "Traceback" not in process.stderr
+    if module != "torch":  # stopped before the command began: it left nothing, whatever it would keep later
+        assert process.stderr.splitlines() == [f"error: {what}; no partial output was left behind"]
+    assert not list(tmp_path.iterdir())
+
+
 def test_library_warnings_and_log_records_print_as_warning_lines(monkeypatch, capsys):
     def noisy_load(*args, **kwargs):
         warnings.warn("a library\nwarning", UserWarning, stacklevel=1)
@@ -109,11 +151,11 @@ def test_library_warnings_and_log_records_print_as_warning_lines(monkeypatch, ca
 @pytest.mark.parametrize("command, promise", [("build", "run the same command to resume"),
                                               ("train", "add --resume"), ("predict", "no partial output")])
 def test_a_stopped_command_says_what_it_keeps_as_that_command_does(command, promise, monkeypatch, capsys):
-    import bimscan.cli.main as cli_main
+    import bimscan.cli.commands as cli_commands
 
     def stop(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(cli_main.cli, "invoke", stop)
+    monkeypatch.setattr(cli_commands.cli, "invoke", stop)
     assert main([command, "x"]) == 130
     assert promise in capsys.readouterr().err.splitlines()[-1]

@@ -1,13 +1,18 @@
 """Entry point of the ``bimscan`` console script.
 
-Commands live in one module per area (``cli/ifc_commands.py``, ...) and are registered here.
-User errors (``BimscanError``) become one line on stderr and a non-zero exit, never a traceback.
-Heavy libraries (Open3D, torch, Ray) are imported inside commands so ``--help`` stays fast.
+Commands live in one module per area (``cli/ifc_commands.py``, ...), registered in the command
+group (``cli/commands.py``). User errors (``BimscanError``) become one line on stderr and a
+non-zero exit, never a traceback. Heavy libraries (Open3D, torch, Ray) are imported inside
+commands so ``--help`` stays fast.
 
 Signals: SIGINT (Ctrl-C) and SIGTERM stop a command the same way, by an exception raised in the
 main thread, so every ``finally`` runs (temporary outputs are removed) before the one line
-``error: interrupted`` (exit 130) or ``error: terminated`` (exit 143). A Ctrl-C that lands while a
-library is being imported (Open3D turns it into an ImportError) gives the same one line, and so
+``error: interrupted`` (exit 130) or ``error: terminated`` (exit 143). This module imports the
+standard library only (and ``bimscan.processes``), so the handlers are in place a few hundredths of
+a second after the interpreter starts: the
+command group, whose options load NumPy, SciPy and Numba (a second or more on a busy machine),
+is imported by ``main`` after them, and a stop there ends the same way. A Ctrl-C that lands while
+a library is being imported (Open3D turns it into an ImportError) gives the same one line, and so
 does an error that a library made of the signal. Handlers are held while lazrs runs
 (``bimscan.processes.signals_held``), whose callbacks would swallow the exception. Python
 warnings and log records of the libraries print as ``warning: ...`` lines; the resource tracker,
@@ -17,50 +22,31 @@ which removes a killed command's semaphores, does so without its raw warning
 
 from __future__ import annotations
 
-import errno
-import logging
 import signal
 import sys
 import threading
 import time
 import warnings
 from types import FrameType
+from typing import TYPE_CHECKING
 
-import click
-
-from bimscan import __version__
-from bimscan.errors import BimscanError
 from bimscan.processes import quiet_resource_tracker
 
-
-@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
-@click.version_option(__version__, prog_name="bimscan")
-def cli() -> None:
-    """Labelled synthetic terrestrial laser scans from BIM (IFC) models.
-
-    IFC -> components -> semantic classes -> virtual TLS -> labelled clouds -> datasets ->
-    statistics -> segmentation baseline.
-    """
+if TYPE_CHECKING:
+    import logging
 
 
-def _register() -> None:
-    from bimscan.cli import (
-        dataset_commands, generate_commands, ifc_commands, learn_commands, plan_commands, scan_commands,
-    )
-
-    for module in (ifc_commands, generate_commands, scan_commands, plan_commands, dataset_commands, learn_commands):
-        for command in module.COMMANDS:
-            cli.add_command(command)
-
-
-_register()
+def _echo(line: str) -> None:
+    """One line on stderr, whatever it holds (file names that are not valid UTF-8 reach Python as
+    surrogate escapes, which a terminal cannot print)."""
+    if sys.stderr is not None:  # (None: a process started without one)
+        sys.stderr.write(line.encode("utf-8", "backslashreplace").decode("utf-8") + "\n")
+        sys.stderr.flush()
 
 
 def _error(message: str) -> None:
-    """Print ``error: <message>`` on stderr as one line, whatever the message holds (file names that
-    are not valid UTF-8 reach Python as surrogate escapes, which a terminal cannot print)."""
-    line = " ".join(message.split()).encode("utf-8", "backslashreplace").decode("utf-8")
-    click.echo(f"error: {line}", err=True)
+    """Print ``error: <message>`` on stderr as one line."""
+    _echo(f"error: {' '.join(message.split())}")
 
 
 class Terminated(KeyboardInterrupt):
@@ -86,14 +72,18 @@ def _on_signal(number: int, frame: FrameType | None) -> None:
 def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
                   file: object = None, line: str | None = None) -> None:
     del category, filename, lineno, file, line
-    click.echo(f"warning: {' '.join(str(message).split())}", err=True)
+    _echo(f"warning: {' '.join(str(message).split())}")
 
 
-class _WarningLines(logging.Handler):
-    """Library log records (laspy, Ray, ...) as ``warning: ...`` lines."""
+def _warning_lines() -> logging.Handler:
+    """A log handler that prints library log records (laspy, Ray, ...) as ``warning: ...`` lines."""
+    import logging  # (a few hundredths of a second: after the signal handlers are in place)
 
-    def emit(self, record: logging.LogRecord) -> None:
-        click.echo(f"warning: {' '.join(record.getMessage().split())}", err=True)
+    class WarningLines(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            _echo(f"warning: {' '.join(record.getMessage().split())}")
+
+    return WarningLines(logging.WARNING)
 
 
 # What a stopped command leaves, by command: those that keep finished work and resume from it,
@@ -109,7 +99,7 @@ def _stopped(command: str | None = None) -> int:
     what = "terminated" if _STOPPING["signal"] == signal.SIGTERM else "interrupted"
     then = (f"finished work is kept, {RESUMES[command]}" if command in RESUMES
             else "no partial output was left behind")
-    click.echo(f"error: {what}; {then}", err=True)
+    _echo(f"error: {what}; {then}")
     return 128 + signal.SIGTERM if _STOPPING["signal"] == signal.SIGTERM else 130
 
 
@@ -122,8 +112,10 @@ def main(argv: list[str] | None = None) -> int:
         previous = {number: signal.getsignal(number) for number in (signal.SIGINT, signal.SIGTERM)}
         for number in previous:
             signal.signal(number, _on_signal)
+    import logging
+
     root = logging.getLogger()
-    lines = _WarningLines(logging.WARNING) if not root.handlers else None  # keep a caller's own logging set-up
+    lines = _warning_lines() if not root.handlers else None  # keep a caller's own logging set-up
     if lines is not None:
         root.addHandler(lines)
     try:
@@ -139,6 +131,20 @@ def main(argv: list[str] | None = None) -> int:
 
 def _run(argv: list[str] | None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
+    try:  # the commands and the libraries their options need: a stop while they load stopped nothing yet
+        from bimscan.cli.commands import cli
+    except Exception:
+        if _STOPPING["signal"]:  # a library that turned the signal into its own error
+            return _stopped()
+        raise
+    except KeyboardInterrupt:
+        return _stopped()
+    import errno
+
+    import click
+
+    from bimscan.errors import BimscanError
+
     command = next((a for a in args if not a.startswith("-")), None)  # the subcommand (the group takes no values)
     try:
         # click's own main() would print a blank line on Ctrl-C: the context is made and invoked here.

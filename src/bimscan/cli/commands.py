@@ -1,0 +1,28 @@
+"""The ``bimscan`` command group: every command, registered from one module per area
+(``cli/ifc_commands.py``, ...). Importing it loads NumPy, SciPy and Numba (the settings the
+commands' options declare), a second or more on a busy machine: the entry point
+(``bimscan.cli.main``) imports it after its signal handlers are in place."""
+
+from __future__ import annotations
+
+import click
+
+from bimscan import __version__
+from bimscan.cli import (
+    dataset_commands, generate_commands, ifc_commands, learn_commands, plan_commands, scan_commands,
+)
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.version_option(__version__, prog_name="bimscan")
+def cli() -> None:
+    """Labelled synthetic terrestrial laser scans from BIM (IFC) models.
+
+    IFC -> components -> semantic classes -> virtual TLS -> labelled clouds -> datasets ->
+    statistics -> segmentation baseline.
+    """
+
+
+for _module in (ifc_commands, generate_commands, scan_commands, plan_commands, dataset_commands, learn_commands):
+    for _command in _module.COMMANDS:
+        cli.add_command(_command)
