@@ -203,6 +203,26 @@ def test_render_and_figure_refuse_bad_input_with_one_line(tmp_path: Path, capsys
     assert not list(tmp_path.glob("*.png")) and not list(tmp_path.glob(".*"))
 
 
+@pytest.mark.parametrize("name", ["empty.laz", "empty.ply", "empty"])
+def test_render_says_an_empty_cloud_is_empty_and_draws_nothing(name: str, tmp_path: Path,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    # it drew a blank picture (--color height) or said the cloud had no label column (issue 50)
+    cloud = _write(PointCloud(xyz=np.zeros((0, 3)), label=np.zeros(0, np.uint8)), tmp_path / name)
+    for color in ("label", "height"):
+        assert main(["render", str(cloud), str(tmp_path / "x.png"), "--color", color]) == 1
+        assert capsys.readouterr().err.splitlines() == [
+            f"error: {cloud}: the cloud is empty (0 points); there is nothing to draw, pass a cloud with points"]
+    assert not list(tmp_path.glob("*.png")) and not list(tmp_path.glob(".*.png*"))
+
+
+def test_the_figure_says_an_empty_scan_is_empty(tmp_path: Path, box_room_ifc: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    cloud = _write(PointCloud(xyz=np.zeros((0, 3)), label=np.zeros(0, np.uint8)), tmp_path / "empty.laz")
+    assert main(["figure", str(box_room_ifc), str(cloud), str(tmp_path / "f.png")]) == 1
+    assert "the cloud is empty (0 points)" in capsys.readouterr().err
+    assert not list(tmp_path.glob("*.png"))
+
+
 def test_shading_leaves_the_callers_light_vector_alone():
     import numpy as np
 

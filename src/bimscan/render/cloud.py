@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bimscan.errors import ConfigError
+from bimscan.errors import ConfigError, InputFileError
 from bimscan.process.subsample import UniformSampler
 from bimscan.render.compose import UNKNOWN_RGB, Panel, check_png_output, class_color_table, compose_png
 from bimscan.render.raster import new_canvas, splat_points
@@ -52,7 +52,8 @@ class RenderResult:
 
 def sample_cloud(path: str | Path, *, max_points: int = DEFAULT_MAX_POINTS, seed: int = 0,
                  chunk_points: int = 2_000_000) -> CloudSample:
-    """Stream ``path`` and keep a uniform sample of at most ``max_points`` points (same seed, same sample)."""
+    """Stream ``path`` and keep a uniform sample of at most ``max_points`` points (same seed, same sample).
+    InputFileError for a cloud without points: there is nothing to draw."""
     from bimscan.io import iter_cloud_chunks, read_cloud_header
 
     header = read_cloud_header(path)
@@ -62,6 +63,9 @@ def sample_cloud(path: str | Path, *, max_points: int = DEFAULT_MAX_POINTS, seed
                                intensity=chunk.intensity, return_number=chunk.return_number,
                                number_of_returns=chunk.number_of_returns,
                                rgb=chunk.rgb))  # time is not drawn: do not keep it
+    if sampler.seen == 0:  # (a picture of nothing, or a complaint about its columns, would hide why)
+        raise InputFileError(f"{path}: the cloud is empty (0 points); there is nothing to draw, pass a cloud with "
+                             "points")
     return CloudSample(cloud=sampler.result(), total=sampler.seen, header=header)
 
 
