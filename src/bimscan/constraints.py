@@ -203,17 +203,28 @@ def check_settings(settings: Any) -> None:
         if among is not None and not _is_among(value, among):
             raise refuse(f"{item.name} takes {', '.join(map(repr, among))}{note}, got {value!r}")
         within, each = item.metadata.get("within"), item.metadata.get("each")
-        integer = _is_integer(hint)
-        if within is not None and (isinstance(value, bool) or not within.admits(value)):
-            kind_words = "an integer" if integer else "a number"
-            allowed = (f"{kind_words} {within.describe(integer=integer)}" if within.bounded
-                       else f"a finite {kind_words.split()[-1]}")
-            raise refuse(f"{item.name} must be {allowed}{note}, got {_show(value)}")
+        if within is not None:
+            problem = range_problem(item.name, value, within, integer=_is_integer(hint), hint=item.metadata.get("hint"))
+            if problem is not None:
+                raise refuse(problem)
         if each is not None:
             for number in _numbers(value):
                 if isinstance(number, bool) or not isinstance(number, int | float) or not each.admits(number):
                     allowed = f"numbers {each.describe(integer=False)}" if each.bounded else "finite numbers"
                     raise refuse(f"{item.name} takes {allowed}{note}, got {_show(number)} in {list(value)}")
+
+
+def range_problem(name: str, value: Any, within: Range, *, integer: bool = False, hint: str | None = None) -> str | None:
+    """What is wrong with ``value`` for the number ``name`` declared ``within`` (None: nothing), in the
+    words construction uses (``voxel_size_m must be a number > 0 (metres), got 0``): for a number
+    that a class outside the settings tables takes, checked against the same declared range."""
+    if not isinstance(value, bool) and isinstance(value, int | float) and within.admits(value):
+        return None
+    kind_words = "an integer" if integer else "a number"
+    allowed = (f"{kind_words} {within.describe(integer=integer)}" if within.bounded
+               else f"a finite {kind_words.split()[-1]}")
+    note = f" ({hint})" if hint else ""
+    return f"{name} must be {allowed}{note}, got {_show(value)}"
 
 
 def _is_among(value: Any, registry: Collection[Any]) -> bool:
@@ -249,4 +260,5 @@ class Checked:
         return ConfigError(problem)
 
 
-__all__ = ["Checked", "Effect", "Range", "check_settings", "choices_of", "default_of", "effect_of", "setting"]
+__all__ = ["Checked", "Effect", "Range", "check_settings", "choices_of", "default_of", "effect_of", "range_problem",
+           "setting"]

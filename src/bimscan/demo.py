@@ -38,16 +38,23 @@ generate = { seed = 2, storeys = 1 }
 
 """
 DEFAULT_HEAD_DEG_PER_S = 60.0
+PRESETS_SCANNED = ("exp1", "exp2", "exp3", "exp4", "exp5", "exp6")
 RENDER_CONFIG = "exp3"  # the configuration pictured for each scene
 
 
 def demo_spec(*, head_deg_per_s: float = DEFAULT_HEAD_DEG_PER_S) -> str:
-    """The demo's dataset spec (TOML text) at a head speed in deg/s (faster: fewer points)."""
+    """The demo's dataset spec (TOML text) at a head speed in deg/s (faster: fewer points).
+    ScannerSettingsError for a head speed no preset can take (``ScanSettings`` refuses it, as
+    ``bimscan scan`` and ``bimscan build`` do)."""
+    from bimscan.scan.device import PRESETS, with_overrides
+
+    for preset in PRESETS_SCANNED:
+        with_overrides(PRESETS[preset], head_deg_per_s=head_deg_per_s)
     ratio = 10.0 / head_deg_per_s  # the presets turn at 10 deg/s
     share = f"1/{1 / ratio:g}" if ratio < 1 else f"{ratio:g} times"
     head = repr(float(head_deg_per_s))
     configs = "\n".join(f'[[configs]]\nname = "{p}"\npreset = "{p}"\nhead_deg_per_s = {head}\n'
-                         for p in ("exp1", "exp2", "exp3", "exp4", "exp5", "exp6"))
+                         for p in PRESETS_SCANNED)
     return _TEMPLATE.replace("{head}", head).replace("{ratio}", share) + configs
 
 
@@ -88,6 +95,7 @@ def run_demo(out_dir: str | Path, *, workers: int | None = None, executor: str =
     from bimscan.stats.report import write_stats
 
     out = Path(out_dir)
+    demo_spec(head_deg_per_s=head_deg_per_s)  # an impossible head speed is refused before anything is made
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

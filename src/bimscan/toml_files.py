@@ -70,15 +70,17 @@ def _coerce(value: Any, hint: Any, *, where: str) -> Any:
         options = typing.get_args(hint)
         if value is None and type(None) in options:
             return None
-        errors = []
+        errors: list[ConfigError] = []
         for option in options:
             if option is type(None):
                 continue
             try:
                 return _coerce(value, option, where=where)
             except ConfigError as exc:
-                errors.append(str(exc))
-        raise ConfigError(errors[0] if errors else f"{where}: invalid value {value!r}")
+                errors.append(exc)
+        if errors:
+            raise errors[0]  # of its own kind (impossible scan settings stay a ScannerSettingsError)
+        raise ConfigError(f"{where}: invalid value {value!r}")
     if origin is tuple:
         args = typing.get_args(hint)
         if not isinstance(value, list | tuple):

@@ -71,7 +71,7 @@ def test_a_station_file_drives_the_survey(box_room_ifc, tmp_path):
 @pytest.mark.parametrize("args, message", [
     (["--preset", "exp9"], "neither a file nor a known preset"),
     (["--strict"], "outside the device's limits"),
-    (["--head-speed", "0"], "head_deg_per_s = 0 is impossible"),
+    (["--head-speed", "0"], "head_deg_per_s must be a number in (0, 3600] (degrees per second), got 0"),
     (["--range-sigma", "-1"], "range_sigma_m must be a number in [0, 1], got -1"),
     (["--scanner", "nope"], "neither a file nor a known scanner"),
 ])
@@ -81,6 +81,34 @@ def test_bad_settings_fail_with_one_line_and_no_output(box_room_ifc, tmp_path, c
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("error: ") and message in err[-1]
     assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+HEAD_SPEED_SPEC = """\
+[[scenes]]
+name = "room"
+generate = { seed = 1, storeys = 1 }
+[[configs]]
+name = "fast"
+preset = "exp1"
+head_deg_per_s = SPEED
+"""
+
+
+@pytest.mark.parametrize("speed", ["0", "-3", "5000", "nan"])
+def test_a_head_speed_is_refused_alike_by_scan_plan_export_demo_and_build(speed, tmp_path, capsys):
+    # it was checked in three places: ranged for demo only (5000 deg/s scanned, planned and built), with
+    # three messages (click's range for demo, 'is impossible' for scan, the spec's own)
+    (tmp_path / "spec.toml").write_text(HEAD_SPEED_SPEC.replace("SPEED", speed))
+    model, out = tmp_path / "missing.ifc", tmp_path / "out"
+    runs = [["scan", str(model), str(tmp_path / "x.laz")], ["plan", str(model), str(out)],
+            ["export-obj", str(model), str(out), "--helios"], ["demo", str(out)]]
+    expected = f"head_deg_per_s must be a number in (0, 3600] (degrees per second), got {float(speed):g}"
+    for args in runs:
+        assert main([*args, "--head-speed", speed]) == 1, args
+        assert capsys.readouterr().err.splitlines() == [f"error: {expected}"], args
+    assert main(["build", str(tmp_path / "spec.toml"), str(out)]) == 1
+    assert capsys.readouterr().err.splitlines()[-1].endswith(f"[[configs]] 'fast': {expected}")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["spec.toml"]  # refused before anything was made
 
 
 def test_a_station_inside_a_wall_fails_clearly(box_room_ifc, tmp_path, capsys):

@@ -113,9 +113,15 @@ def test_a_scheme_with_a_misspelt_ifc_class_is_refused_before_any_work(spec_fold
     (lambda t: t.replace('stations = "stations.csv"', 'station = "auto"'), ConfigError, "unknown key(s) 'station'"),
     (lambda t: t.replace("models/room.ifc", "models/missing.ifc"), InputFileError, "IFC file 'models/missing.ifc' not found"),
     (lambda t: t.replace('"exp2"', '"exp9"'), ConfigError, "preset 'exp9' is neither a file nor a known preset"),
-    (lambda t: t.replace("head_deg_per_s = 20", "head_deg_per_s = -1"), ScannerSettingsError, "head_deg_per_s = -1"),
+    (lambda t: t.replace("head_deg_per_s = 20", "head_deg_per_s = -1"), ScannerSettingsError,
+     "[[configs]] #2 key 'settings': head_deg_per_s must be a number in (0, 3600] (degrees per second), got -1"),
+    (lambda t: t.replace('preset = "exp2"', 'preset = "exp2"\nhead_deg_per_s = 0.0'), ScannerSettingsError,
+     "[[configs]] 'paper-exp2': head_deg_per_s must be a number in (0, 3600] (degrees per second), got 0"),
     (lambda t: t.replace('"laz", "ply"', '"laz", "pcd"'), ConfigError, "unknown output format 'pcd'"),
-    (lambda t: t.replace("0.02", "-0.5"), ConfigError, "voxel_size_m = -0.5 is impossible"),
+    (lambda t: t.replace("0.02", "-0.5"), ConfigError,
+     "voxel_size_m must be a number > 0 (metres, a voxel's edge; leave it out for no subsampling), got -0.5"),
+    (lambda t: t.replace("0.02", "0.0"), ConfigError, "voxel_size_m must be a number > 0"),
+    (lambda t: t.replace("0.02", "nan"), ConfigError, "voxel_size_m must be a number > 0"),
     (lambda t: t.replace('name = "mine"', 'name = "paper-exp2"'), ConfigError, "'paper-exp2' used more than once"),
     (lambda t: t.replace('name = "room"', 'name = "my__room"'), ConfigError, "is not usable as a folder name"),
     (lambda t: t.replace('ifc = "models/room.ifc"', 'ifc = "models/room.ifc"\ngenerate = { seed = 1 }'), ConfigError,
@@ -177,6 +183,20 @@ def test_the_shipped_example_specs_load(tmp_path: Path) -> None:
         pytest.skip("the SPC-scale example uses the shared sample models, absent here")
     spec = load_spec(spc)
     assert len(spec.scenes) == 22 and len(spec.unit_ids()) == 132
+
+
+def test_the_spec_in_the_datasets_guide_loads_as_shown(tmp_path: Path, box_room_ifc: Path) -> None:
+    # it showed voxel_size_m = 0.0, which the spec refuses (issue 50): every key and value there must load
+    import re
+
+    guide = (Path(__file__).parents[2] / "docs" / "guide" / "datasets.md").read_text(encoding="utf-8")
+    blocks = re.findall(r"```toml\n(.*?)```", guide, flags=re.S)
+    assert blocks, "the guide shows a spec"
+    (tmp_path / "models").mkdir()
+    (tmp_path / "models" / "duplex.ifc").write_bytes(box_room_ifc.read_bytes())
+    for block in blocks:
+        spec = load_spec(_write(tmp_path, block))
+        assert spec.voxel_size_m is None or spec.voxel_size_m > 0
 
 
 def test_a_spec_takes_what_it_does_not_set_from_its_base_with_the_base_s_paths(spec_folder: Path) -> None:

@@ -150,7 +150,7 @@ def test_a_larger_pulse_budget_admits_a_slow_head():
 
 @pytest.mark.parametrize("keys, message", [
     ({"scan_freq_min_hz": 200.0}, "scan_freq_min_hz <= scan_freq_max_hz"),
-    ({"head_deg_per_s_max": -60.0}, r"head_deg_per_s_max must be a number in \(0, 100000\], got -60"),
+    ({"head_deg_per_s_max": -60.0}, r"head_deg_per_s_max must be a number in \(0, 3600\], got -60"),
     ({"pulse_freqs_hz": [100000, -5]}, r"pulse_freqs_hz takes numbers in \(0, 1e\+08\], got -5"),
     ({"tripod_height_m": -1.5}, r"tripod_height_m must be a number in \[0, 100\], got -1.5"),
 ])

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import re
+from dataclasses import replace
+
 import pytest
 
 from bimscan.errors import ConfigError, ScannerSettingsError
@@ -41,22 +44,36 @@ def test_settings_within_the_device_give_no_warning():
     assert check_settings(ScanSettings(pulse_freq_hz=300000, scan_freq_hz=120, head_deg_per_s=60), VZ400, strict=True) == []
 
 
-@pytest.mark.parametrize("changes, parameter", [
-    ({"pulse_freq_hz": 0}, "pulse_freq_hz"),
-    ({"pulse_freq_hz": -5}, "pulse_freq_hz"),
-    ({"scan_freq_hz": 0}, "scan_freq_hz"),
-    ({"head_deg_per_s": 0}, "head_deg_per_s"),
-    ({"head_deg_per_s": float("nan")}, "head_deg_per_s"),
-    ({"elevation_min_deg": 10, "elevation_max_deg": 10}, "elevation window"),
-    ({"elevation_min_deg": -130}, "elevation window"),
-    ({"head_start_deg": 90, "head_stop_deg": 45}, "head_start_deg"),
-    ({"scan_freq_hz": 90000}, "pulses per line"),
+@pytest.mark.parametrize("changes, message", [
+    ({"pulse_freq_hz": 0}, "pulse_freq_hz must be a number in (0, 1e+08] (pulses per second), got 0"),
+    ({"pulse_freq_hz": -5}, "pulse_freq_hz must be a number in (0, 1e+08] (pulses per second), got -5"),
+    ({"scan_freq_hz": 0}, "scan_freq_hz must be a number in (0, 100000] (mirror lines per second), got 0"),
+    ({"head_deg_per_s": 0}, "head_deg_per_s must be a number in (0, 3600] (degrees per second), got 0"),
+    ({"head_deg_per_s": float("nan")}, "head_deg_per_s must be a number in (0, 3600] (degrees per second), got nan"),
+    ({"head_deg_per_s": 1e9}, "head_deg_per_s must be a number in (0, 3600] (degrees per second), got 1e+09"),
+    ({"elevation_min_deg": 10, "elevation_max_deg": 10}, "elevation window [10, 10) is empty; allowed: "),
+    ({"elevation_min_deg": -130}, "elevation_min_deg must be a number in [-90, 90], got -130"),
+    ({"head_start_deg": 90, "head_stop_deg": 45}, "head_start_deg = 90 and head_stop_deg = 45 are impossible; allowed"),
 ])
-def test_nonsense_settings_name_the_parameter_and_the_allowed_range(changes, parameter):
+def test_nonsense_settings_are_refused_on_construction_naming_the_parameter_and_the_allowed_range(changes, message):
     base = dict(pulse_freq_hz=100000, scan_freq_hz=100, head_deg_per_s=30)
-    with pytest.raises(ScannerSettingsError, match=parameter) as info:
-        check_settings(ScanSettings(**(base | changes)), VZ400)
-    assert "allowed" in str(info.value)
+    with pytest.raises(ScannerSettingsError) as info:
+        ScanSettings(**(base | changes))
+    assert str(info.value) == message or str(info.value).startswith(message)
+
+
+NARROW = replace(VZ400, mirror_sweep_deg=90.0, elevation_min_deg=-40.0, elevation_max_deg=40.0)
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"scan_freq_hz": 90000}, "pulses per line; allowed"),
+    ({"elevation_min_deg": -50}, "elevation window [-50, 40) is impossible; allowed: a non-empty window inside the "
+                                 "mirror sweep [-45, 45]"),
+])
+def test_settings_impossible_with_the_scanner_name_the_parameter_and_the_allowed_range(changes, message):
+    base = dict(pulse_freq_hz=100000, scan_freq_hz=100, head_deg_per_s=30)
+    with pytest.raises(ScannerSettingsError, match=re.escape(message)):
+        check_settings(ScanSettings(**(base | changes)), NARROW)
 
 
 def test_angular_resolutions_convert_as_helios_does():

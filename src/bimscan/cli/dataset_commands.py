@@ -187,8 +187,7 @@ def figure(model: Path, cloud: Path, out: Path, real: Path | None, scheme: str |
 @click.argument("out_dir", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--workers", type=click.IntRange(min=1), default=None, help="Units built at once (default: one per core).")
 @click.option("--executor", type=click.Choice(USER_EXECUTORS), default="local", show_default=True)
-@click.option("--head-speed", "head_deg_per_s", type=click.FloatRange(min=0.0, max=3600.0, min_open=True),
-              default=DEFAULT_HEAD_DEG_PER_S, show_default=True,
+@click.option("--head-speed", "head_deg_per_s", type=float, default=DEFAULT_HEAD_DEG_PER_S, show_default=True,
               help="Head rotation in deg/s for every configuration (the presets turn at 10; faster: fewer points).")
 def demo(out_dir: Path, workers: int | None, executor: str, head_deg_per_s: float) -> None:
     """The whole pipeline on generated buildings: dataset, statistics, pictures, in OUT_DIR.

@@ -7,7 +7,7 @@ A spec is one TOML file (paths inside it are relative to the file)::
     scheme = "spc5"               # built-in label scheme or a scheme TOML file
     scanner = "riegl_vz400"       # built-in scanner or a scanner TOML file
     formats = ["laz", "npy"]      # one or several of las, laz, ply, e57, npy per unit
-    voxel_size_m = 0.02           # optional: voxel subsampling of every unit
+    voxel_size_m = 0.02           # optional: voxel subsampling of every unit (an edge > 0 in metres)
     engine = "open3d"             # ray engine: open3d, embreex, warp or auto (warp on a CUDA GPU)
     strict = false                # settings outside the device's limits are errors
     max_station_pulses = 500000000  # refuse settings that would fire more per station (tripod)
@@ -90,6 +90,7 @@ from bimscan.errors import BimscanError, ConfigError, InputFileError
 from bimscan.ifc.generate.styles import DEFAULT_STYLE
 from bimscan.ifc.load import check_ifc_file
 from bimscan.ifc.units import LENGTH_UNITS
+from bimscan.process.subsample import VOXEL_SIZE_HINT, VOXEL_SIZE_M
 from bimscan.scan.device import DEFAULT_SCANNER, ScanSettings
 from bimscan.scan.engine import DEFAULT_ENGINE
 from bimscan.scan.noise import NoiseModel
@@ -151,15 +152,18 @@ class ConfigSpec:
 
 
 @dataclass(frozen=True)
-class DatasetSpec:
-    """A validated dataset specification (see the module docs); paths are absolute."""
+class DatasetSpec(Checked):
+    """A validated dataset specification (see the module docs); paths are absolute. Its own numbers
+    are checked on construction; what the configurations resolve to (``ScanRecipe``: the seed,
+    the scan settings, the budgets) is checked where they are declared, by ``check_spec``."""
 
     name: str = "dataset"
     seed: int = 0
     scheme: str = "spc5"
     scanner: str = DEFAULT_SCANNER
     formats: tuple[str, ...] = ("laz",)
-    voxel_size_m: float | None = None
+    voxel_size_m: float | None = setting(None, within=VOXEL_SIZE_M,
+                                         hint=f"{VOXEL_SIZE_HINT}; leave it out for no subsampling")
     engine: str = DEFAULT_ENGINE
     strict: bool = False
     max_station_pulses: int = DEFAULT_MAX_STATION_PULSES  # the tripod configurations' budget per station
@@ -172,6 +176,15 @@ class DatasetSpec:
     stages: tuple[StageSettings, ...] = ()  # a sweep: every configuration once per stage
     scenes: tuple[SceneSpec, ...] = ()
     configs: tuple[ConfigSpec, ...] = ()
+
+    def check(self) -> None:
+        if not self.formats:
+            raise ConfigError(f"'formats' is empty; give one or more of {', '.join(FORMAT_FILES)}")
+        for fmt in self.formats:
+            if fmt not in FORMAT_FILES:
+                raise ConfigError(f"unknown output format {fmt!r}; use one or more of {', '.join(FORMAT_FILES)}")
+        if len(set(self.formats)) != len(self.formats):
+            raise ConfigError(f"'formats' lists a format twice ({list(self.formats)}); list each once")
 
     def unit_ids(self) -> list[str]:
         """Every unit id, scene by scene, configurations in spec order."""
@@ -378,16 +391,6 @@ def check_spec(spec: DatasetSpec, *, where: str) -> None:
         if duplicates:
             raise ConfigError(f"{where}: {kind} name(s) {', '.join(map(repr, duplicates))} used more than once; "
                               "give every one a unique name")
-    if not spec.formats:
-        raise ConfigError(f"{where}: 'formats' is empty; give one or more of {', '.join(FORMAT_FILES)}")
-    for fmt in spec.formats:
-        if fmt not in FORMAT_FILES:
-            raise ConfigError(f"{where}: unknown output format {fmt!r}; use one or more of {', '.join(FORMAT_FILES)}")
-    if len(set(spec.formats)) != len(spec.formats):
-        raise ConfigError(f"{where}: 'formats' lists a format twice ({list(spec.formats)}); list each once")
-    if spec.voxel_size_m is not None and not spec.voxel_size_m > 0:
-        raise ConfigError(f"{where}: voxel_size_m = {spec.voxel_size_m} is impossible; give an edge > 0 in metres "
-                          "or leave it out for no subsampling")
     try:
         resolve_scheme(spec)
     except BimscanError as exc:

@@ -12,13 +12,14 @@ length (the ``k`` smallest of one seeded random key per point), in O(k) memory.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
+from bimscan.constraints import Range, range_problem
 from bimscan.errors import ConfigError
 from bimscan.types import PointCloud
 
+VOXEL_SIZE_M = Range(0.0, None, low_open=True)  # what a voxel's edge can be (a dataset spec's voxel_size_m too)
+VOXEL_SIZE_HINT = "metres, a voxel's edge"
 _BITS = 21  # bits per axis in a voxel key: 2,097,152 voxels along each axis
 _SPAN = 1 << _BITS
 
@@ -65,9 +66,9 @@ class VoxelSubsampler:
     """
 
     def __init__(self, voxel_size_m: float, *, origin: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
-        if isinstance(voxel_size_m, bool) or not isinstance(voxel_size_m, int | float) or not (
-                math.isfinite(voxel_size_m) and voxel_size_m > 0):
-            raise ConfigError(f"voxel_size_m = {voxel_size_m!r} is impossible; give a voxel edge > 0 in metres")
+        problem = range_problem("voxel_size_m", voxel_size_m, VOXEL_SIZE_M, hint=VOXEL_SIZE_HINT)
+        if problem is not None:
+            raise ConfigError(problem)
         self.voxel_size_m = float(voxel_size_m)
         self.origin = np.asarray(origin, dtype=np.float64)
         self._seen = _SortedKeySet()

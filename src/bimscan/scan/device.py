@@ -21,6 +21,15 @@ from bimscan.constraints import Checked, Range, setting
 from bimscan.scan.noise import MAX_ANGLE_SIGMA_DEG, MAX_RANGE_SIGMA_M
 
 
+# What a number of a device or of a station's settings can be at all (beyond: nonsense, refused);
+# a device's own limits (its pulse rates, line rates, head speed) only warn (``check_settings``).
+PULSE_RATE_HZ = Range(0.0, 1e8, low_open=True)
+LINE_RATE_HZ = Range(0.0, 1e5, low_open=True)
+MAX_HEAD_DEG_PER_S = 3600.0  # ten turns a second: no tripod head turns faster
+HEAD_SPEED_DEG_PER_S = Range(0.0, MAX_HEAD_DEG_PER_S, low_open=True)
+ELEVATION_DEG = Range(-90.0, 90.0)
+
+
 @dataclass(frozen=True)
 class ScannerModel(Checked):
     """A rotating-mirror terrestrial laser scanner.
@@ -43,22 +52,22 @@ class ScannerModel(Checked):
     range_accuracy_m: float = setting(0.005, within=Range(0.0, MAX_RANGE_SIGMA_M))
     angle_accuracy_deg: float = setting(0.03, within=Range(0.0, MAX_ANGLE_SIGMA_DEG))
     beam_divergence_rad: float = setting(0.0003, within=Range(0.0, 0.1))
-    pulse_freqs_hz: tuple[float, ...] = setting((), each=Range(0.0, 1e8, low_open=True))
+    pulse_freqs_hz: tuple[float, ...] = setting((), each=PULSE_RATE_HZ)
     min_range_m: float = setting(1.5, within=Range(0.0, 1e5))
     max_range_m: float = setting(600.0, within=Range(0.0, 1e5, low_open=True))
     mirror_sweep_deg: float = setting(240.0, within=Range(0.0, 360.0, low_open=True))
     elevation_min_deg: float = setting(-40.0, within=Range(-180.0, 180.0))
     elevation_max_deg: float = setting(60.0, within=Range(-180.0, 180.0))
-    scan_freq_min_hz: float = setting(3.0, within=Range(0.0, 1e5, low_open=True))
-    scan_freq_max_hz: float = setting(120.0, within=Range(0.0, 1e5, low_open=True))
-    head_deg_per_s_max: float = setting(60.0, within=Range(0.0, 1e5, low_open=True))
+    scan_freq_min_hz: float = setting(3.0, within=LINE_RATE_HZ)
+    scan_freq_max_hz: float = setting(120.0, within=LINE_RATE_HZ)
+    head_deg_per_s_max: float = setting(60.0, within=HEAD_SPEED_DEG_PER_S)
     tripod_height_m: float = setting(1.5, within=Range(0.0, 100.0))
     beam_origin_height_m: float = setting(0.2, within=Range(0.0, 10.0))
     wavelength_nm: float = setting(1550.0, within=Range(0.0, 1e5, low_open=True))
     pulse_length_ns: float = setting(5.0, within=Range(0.0, 1e6, low_open=True))
     reach_reflectance: tuple[float, ...] = setting((0.9, 0.2), each=Range(0.0, 1.0, low_open=True))
     reach_range_m: tuple[float, ...] = setting((600.0, 280.0), each=Range(0.0, 1e5, low_open=True))
-    reach_pulse_freq_hz: float = setting(100000.0, within=Range(0.0, 1e8, low_open=True))
+    reach_pulse_freq_hz: float = setting(100000.0, within=PULSE_RATE_HZ)
 
     def check(self) -> None:
         if not self.reach_reflectance or len(self.reach_reflectance) != len(self.reach_range_m):
@@ -102,20 +111,35 @@ SENSOR_DEVICE_FIELDS = ("wavelength_nm", "pulse_length_ns", "reach_reflectance",
 
 
 @dataclass(frozen=True)
-class ScanSettings:
+class ScanSettings(Checked):
     """What one station does: pulse rate, line rate, head rotation, elevation window.
 
     ``elevation_min_deg``/``elevation_max_deg`` default to the scanner's window. ``head_start_deg``
-    and ``head_stop_deg`` bound the head rotation (a full 360 degree station by default).
+    and ``head_stop_deg`` bound the head rotation (a full 360 degree station by default). Each
+    number is checked on construction, wherever it comes from (a preset, a settings file or table,
+    ``--head-speed``, ``bimscan demo``); what depends on the scanner (the window inside its mirror
+    sweep, at least one pulse per line, its limits) is ``check_settings``'.
     """
 
-    pulse_freq_hz: float
-    scan_freq_hz: float
-    head_deg_per_s: float
-    head_start_deg: float = 0.0
-    head_stop_deg: float = 360.0
-    elevation_min_deg: float | None = None
-    elevation_max_deg: float | None = None
+    pulse_freq_hz: float = setting(within=PULSE_RATE_HZ, hint="pulses per second")
+    scan_freq_hz: float = setting(within=LINE_RATE_HZ, hint="mirror lines per second")
+    head_deg_per_s: float = setting(within=HEAD_SPEED_DEG_PER_S, hint="degrees per second")
+    head_start_deg: float = setting(0.0, within=Range())
+    head_stop_deg: float = setting(360.0, within=Range())
+    elevation_min_deg: float | None = setting(None, within=ELEVATION_DEG)
+    elevation_max_deg: float | None = setting(None, within=ELEVATION_DEG)
+
+    def check(self) -> None:
+        if not 0 < self.head_stop_deg - self.head_start_deg <= 360:
+            raise self.refusal(f"head_start_deg = {self.head_start_deg:g} and head_stop_deg = {self.head_stop_deg:g} "
+                               "are impossible; allowed: head_start_deg < head_stop_deg <= head_start_deg + 360")
+        low, high = self.elevation_min_deg, self.elevation_max_deg
+        if low is not None and high is not None and not low < high:
+            raise self.refusal(f"elevation window [{low:g}, {high:g}) is empty; allowed: elevation_min_deg < "
+                               "elevation_max_deg")
+
+    def refusal(self, problem: str) -> ScannerSettingsError:
+        return ScannerSettingsError(problem)
 
     @staticmethod
     def from_resolution(*, pulse_freq_hz: float, vertical_resolution_deg: float,
@@ -125,10 +149,10 @@ class ScanSettings:
         line rate = pulse rate * vertical resolution / mirror sweep;
         head speed = horizontal resolution * line rate.
         """
-        if pulse_freq_hz <= 0 or vertical_resolution_deg <= 0 or horizontal_resolution_deg <= 0:
+        if not (vertical_resolution_deg > 0 and horizontal_resolution_deg > 0):  # (the rates: the settings' own)
             raise ScannerSettingsError(
-                "pulse_freq_hz, vertical_resolution_deg and horizontal_resolution_deg must be > 0, got "
-                f"{pulse_freq_hz}, {vertical_resolution_deg}, {horizontal_resolution_deg}")
+                "vertical_resolution_deg and horizontal_resolution_deg must be > 0, got "
+                f"{vertical_resolution_deg}, {horizontal_resolution_deg}")
         scan_freq = pulse_freq_hz * vertical_resolution_deg / scanner.mirror_sweep_deg
         return ScanSettings(pulse_freq_hz=pulse_freq_hz, scan_freq_hz=scan_freq,
                             head_deg_per_s=horizontal_resolution_deg * scan_freq)
@@ -217,21 +241,10 @@ def load_settings(preset: str | Path) -> ScanSettings:
 def check_settings(settings: ScanSettings, scanner: ScannerModel, *, strict: bool = False) -> list[str]:
     """Validate settings against physics and the device.
 
-    Raises ScannerSettingsError for impossible values (naming the parameter and its allowed
-    range). Returns warnings for values outside the device's limits; under ``strict`` those
-    raise instead.
+    Raises ScannerSettingsError for values impossible with this scanner (naming the parameter and
+    its allowed range; each number alone was checked when ``settings`` was made). Returns warnings
+    for values outside the device's limits; under ``strict`` those raise instead.
     """
-    def bad(name: str, value: float, allowed: str) -> ScannerSettingsError:
-        return ScannerSettingsError(f"{name} = {value:g} is impossible; allowed: {allowed}")
-
-    for name in ("pulse_freq_hz", "scan_freq_hz", "head_deg_per_s"):
-        value = getattr(settings, name)
-        if not math.isfinite(value) or value <= 0:
-            raise bad(name, value, "a number > 0")
-    if not 0 < settings.head_stop_deg - settings.head_start_deg <= 360:
-        raise ScannerSettingsError(
-            f"head_start_deg = {settings.head_start_deg:g} and head_stop_deg = {settings.head_stop_deg:g} are impossible; "
-            "allowed: head_start_deg < head_stop_deg <= head_start_deg + 360")
     low, high = settings.window(scanner)
     half = scanner.mirror_sweep_deg / 2
     if not max(-half, -90.0) <= low < high <= min(half, 90.0):

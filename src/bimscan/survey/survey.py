@@ -20,6 +20,7 @@ from typing import Any
 
 from bimscan import __version__
 from bimscan.errors import StationError, number
+from bimscan.scan.device import MAX_HEAD_DEG_PER_S
 from bimscan.scan.pattern import PulsePattern
 from bimscan.scan.probe import Prober
 from bimscan.survey.recipe import AUTO_STATIONS, ScanRecipe
@@ -217,9 +218,11 @@ def probe_points_per_pulse(scene: BimScene, recipe: ScanRecipe, stations: tuple[
     low, high = settings.window(recipe.scanner)
     line_pulses = settings.pulse_freq_hz / settings.scan_freq_hz * (high - low) / recipe.scanner.mirror_sweep_deg
     n_lines = settings.scan_freq_hz * settings.duration_s()
+    # (the head turns at most as fast as any head can: past that, more lines than ``lines``)
+    head_deg_per_s = min(settings.head_deg_per_s * max(1.0, n_lines / lines), MAX_HEAD_DEG_PER_S)
     thinned = dataclasses.replace(settings,
                                   pulse_freq_hz=settings.pulse_freq_hz * min(1.0, pulses_per_line / line_pulses),
-                                  head_deg_per_s=settings.head_deg_per_s * max(1.0, n_lines / lines))
+                                  head_deg_per_s=head_deg_per_s)
     survey = prepare_survey(scene, recipe.with_fields(settings=thinned, strict=False, mobile=None), stations=stations)
     points = 0
     for chunk in run_survey(survey, reuse_buffers=True):
