@@ -3,6 +3,10 @@
 ``load_toml`` reads a file with clear errors; ``build_dataclass`` turns a mapping into a frozen
 dataclass, checking keys and simple types (``int``, ``float``, ``str``, ``bool``, ``X | None``,
 ``tuple[X, ...]``, nested dataclasses). Units live in field names (``pulse_freq_hz``).
+
+Devices and settings shipped with bimscan are TOML files too (``read_package_tables``), each kind
+in one registry (a plain dict: ``SCANNERS``, ``LIDARS``, ``PLATFORMS``, ``PRESETS``); wherever a
+user names one, a file of the same keys does as well, and ``load_named`` reads either.
 """
 
 from __future__ import annotations
@@ -12,7 +16,8 @@ import datetime
 import tomllib
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Callable, Iterable, Mapping
+from importlib import resources
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -32,6 +37,34 @@ def load_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"{path}: not valid TOML ({exc}); fix the syntax") from exc
     except UnicodeDecodeError as exc:
         raise ConfigError(f"{path}: not a UTF-8 text file; pass a TOML file") from exc
+
+
+def read_package_tables(package: str, name: str) -> dict[str, dict[str, Any]]:
+    """The TOML shipped in ``package`` as tables by name: each file of the folder ``name`` (name: the
+    file's stem), or, when ``name`` is a ``.toml`` file, each top-level table of it."""
+    where = resources.files(package) / name
+    if name.endswith(".toml"):
+        return dict(tomllib.loads(where.read_text("utf-8")))
+    return {p.name.removesuffix(".toml"): tomllib.loads(p.read_text("utf-8"))
+            for p in sorted(where.iterdir(), key=lambda p: p.name) if p.name.endswith(".toml")}
+
+
+def load_named(source: str | Path, registry: Mapping[str, T], *, kind: str,
+               read: Callable[[dict[str, Any], Path], T], names: Iterable[str] | None = None,
+               file: str | None = None) -> T:
+    """A built-in entry of ``registry`` by its name, or what ``read`` makes of the TOML file ``source``
+    (its table and its path): the one way a scanner, a lidar, a platform or a preset is given by
+    "a name or a file". ConfigError when ``source`` is neither, listing the built-in ``names``
+    (default: the registry's). ``kind`` names what is sought (``"scanner"``), ``file`` the file to
+    pass instead (default: a ``kind`` TOML file)."""
+    if isinstance(source, str) and source in registry:
+        return registry[source]
+    path = Path(source)
+    if not path.is_file():
+        listed = ", ".join(registry if names is None else names)
+        raise ConfigError(f"{kind} {str(source)!r} is neither a file nor a known {kind} ({listed}); pass "
+                          f"{file or f'a {kind} TOML file'}")
+    return read(load_toml(path), path)
 
 
 def build_dataclass(cls: type[T], data: Mapping[str, Any], *, where: str) -> T:

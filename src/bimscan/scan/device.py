@@ -1,8 +1,9 @@
 """Scanner models (device definitions as data) and scan settings (what one station does).
 
-``SCANNERS`` maps a name to a ``ScannerModel`` read from the TOML files in ``scan/scanners``;
-users pass their own file with ``load_scanner(path)``. ``PRESETS`` are the paper's six
-configurations (``presets.toml``). ``check_settings`` separates nonsense (an error naming the
+``SCANNER_TABLES`` holds the TOML files of ``scan/scanners``, read once: the rotating-mirror TLS
+among them are ``SCANNERS`` (a name -> ``ScannerModel``), those of ``kind = "multibeam"`` the
+multi-beam lidars of ``bimscan.scan.multibeam.LIDARS``. Users pass their own file with
+``load_scanner(path)``. ``PRESETS`` are the paper's six configurations (``presets.toml``). ``check_settings`` separates nonsense (an error naming the
 parameter and its allowed range) from settings outside the device's limits (a warning, or an
 error under ``strict``).
 """
@@ -10,12 +11,11 @@ error under ``strict``).
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, replace
-from importlib import resources
 from pathlib import Path
+from typing import Any
 
-from bimscan.toml_files import build_dataclass, load_toml
+from bimscan.toml_files import build_dataclass, load_named, read_package_tables
 from bimscan.errors import ConfigError, ScannerSettingsError
 from bimscan.constraints import Checked, Range, setting
 from bimscan.scan.noise import MAX_ANGLE_SIGMA_DEG, MAX_RANGE_SIGMA_M
@@ -181,19 +181,11 @@ class ScanSettings(Checked):
         return self.pulse_freq_hz * self.duration_s() * (high - low) / scanner.mirror_sweep_deg
 
 
-def _scanner_files() -> dict[str, str]:
-    """The rotating-mirror TLS files of ``scan/scanners`` (multi-beam lidars are ``scan.multibeam``'s)."""
-    folder = resources.files("bimscan.scan") / "scanners"
-    texts = {p.name.removesuffix(".toml"): p.read_text("utf-8") for p in folder.iterdir() if p.name.endswith(".toml")}
-    return {name: text for name, text in texts.items() if tomllib.loads(text).get("kind") != "multibeam"}
-
-
-def _parse_scanner(data: dict, where: str) -> ScannerModel:
-    return build_dataclass(ScannerModel, data, where=where)
-
-
+MULTIBEAM_KIND = "multibeam"  # the ``kind`` of a scanner file that describes a multi-beam lidar
+SCANNER_TABLES: dict[str, dict[str, Any]] = read_package_tables("bimscan.scan", "scanners")
 SCANNERS: dict[str, ScannerModel] = {
-    name: _parse_scanner(tomllib.loads(text), f"built-in scanner {name}") for name, text in sorted(_scanner_files().items())
+    name: build_dataclass(ScannerModel, table, where=f"built-in scanner {name}")
+    for name, table in SCANNER_TABLES.items() if table.get("kind") != MULTIBEAM_KIND
 }
 
 DEFAULT_SCANNER = "riegl_vz400"
@@ -204,38 +196,30 @@ def load_scanner(source: str | Path | None = None) -> ScannerModel:
     """A scanner by registry name, or from a TOML file (same keys as scanners/riegl_vz400.toml)."""
     if source is None:
         return SCANNERS[DEFAULT_SCANNER]
-    if isinstance(source, str) and source in SCANNERS:
-        return SCANNERS[source]
-    from bimscan.scan.multibeam import LIDARS
-
-    if isinstance(source, str) and source in LIDARS:
+    if isinstance(source, str) and source not in SCANNERS and SCANNER_TABLES.get(source, {}).get("kind") == MULTIBEAM_KIND:
         raise ConfigError(f"scanner {source!r} is a multi-beam lidar for mobile scanning; use it with --platform "
                           "handheld or backpack, or pick a TLS scanner for the tripod: " + ", ".join(SCANNERS))
-    path = Path(source)
-    if not path.is_file():
-        raise ConfigError(f"scanner {str(source)!r} is neither a file nor a known scanner ({', '.join(SCANNERS)}); "
-                          "pass a scanner TOML file")
-    table = load_toml(path)
-    if table.get("kind") == "multibeam":
+    return load_named(source, SCANNERS, kind="scanner", read=_read_scanner_file)
+
+
+def _read_scanner_file(table: dict[str, Any], path: Path) -> ScannerModel:
+    if table.get("kind") == MULTIBEAM_KIND:
         raise ConfigError(f"{path}: a multi-beam lidar for mobile scanning; use it with --platform handheld or "
                           "backpack, or pass a TLS scanner file for the tripod")
-    return _parse_scanner(table, str(path))
+    return build_dataclass(ScannerModel, table, where=str(path))
 
 
 PRESETS: dict[str, ScanSettings] = {
     name: build_dataclass(ScanSettings, table, where=f"presets.toml [{name}]")
-    for name, table in tomllib.loads((resources.files("bimscan.scan") / "presets.toml").read_text("utf-8")).items()
+    for name, table in read_package_tables("bimscan.scan", "presets.toml").items()
 }
 
 
 def load_settings(preset: str | Path) -> ScanSettings:
     """Settings by preset name (exp1..exp6) or from a TOML file with the ScanSettings keys."""
-    if isinstance(preset, str) and preset in PRESETS:
-        return PRESETS[preset]
-    path = Path(preset)
-    if not path.is_file():
-        raise ConfigError(f"preset {str(preset)!r} is neither a file nor a known preset ({', '.join(PRESETS)})")
-    return build_dataclass(ScanSettings, load_toml(path), where=str(path))
+    return load_named(preset, PRESETS, kind="preset", file="a settings TOML file (pulse_freq_hz, scan_freq_hz, "
+                                                           "head_deg_per_s)",
+                      read=lambda table, path: build_dataclass(ScanSettings, table, where=str(path)))
 
 
 def check_settings(settings: ScanSettings, scanner: ScannerModel, *, strict: bool = False) -> list[str]:

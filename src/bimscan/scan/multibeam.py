@@ -12,8 +12,9 @@ above the sensor, from its +x axis). Per-point time and beam are therefore exact
 ``T`` seconds fires ``N * floor(T / cycle)`` pulses whatever the rotation rate: a faster head
 spreads the same pulses over more turns.
 
-``LIDARS`` maps a name to a ``MultiBeamScanner`` read from the TOML files in ``scan/scanners``
-whose ``kind`` is ``"multibeam"`` (the rotating-mirror TLS files are ``bimscan.scan.device``'s).
+``LIDARS`` maps a name to a ``MultiBeamScanner`` made of the TOML files in ``scan/scanners``
+whose ``kind`` is ``"multibeam"`` (``bimscan.scan.device.SCANNER_TABLES``, which reads the folder;
+the rotating-mirror TLS files are ``bimscan.scan.device.SCANNERS``).
 The kernels turn a chunk of pulses into world rays along a trajectory (``moving_rays``) and the
 engine's hits into labelled points with each pulse's beam origin (``finish_moving_hits``); both
 are Numba-parallel over fixed blocks, so outputs do not depend on thread counts or chunking.
@@ -22,11 +23,9 @@ are Numba-parallel over fixed blocks, so outputs do not depend on thread counts 
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass
-from importlib import resources
-from typing import Literal
 from pathlib import Path
+from typing import Any, Literal
 
 import numba as nb
 import numpy as np
@@ -35,9 +34,8 @@ from bimscan.constraints import Checked, Range, setting
 from bimscan.errors import ConfigError, ScannerSettingsError
 from bimscan.scan.kernels import _BLOCK, _FAST, _keep, hit_point
 from bimscan.scan.noise import MAX_ANGLE_SIGMA_DEG, MAX_RANGE_SIGMA_M
-from bimscan.toml_files import build_dataclass, load_toml
-
-MULTIBEAM_KIND = "multibeam"
+from bimscan.scan.device import MULTIBEAM_KIND, SCANNER_TABLES
+from bimscan.toml_files import build_dataclass, load_named
 
 
 @dataclass(frozen=True)
@@ -115,28 +113,19 @@ class MultiBeamScanner(Checked):
         return [line]
 
 
-def _lidar_files() -> dict[str, dict]:
-    folder = resources.files("bimscan.scan") / "scanners"
-    tables = {p.name.removesuffix(".toml"): tomllib.loads(p.read_text("utf-8")) for p in folder.iterdir()
-              if p.name.endswith(".toml")}
-    return {name: table for name, table in tables.items() if table.get("kind") == MULTIBEAM_KIND}
-
-
 LIDARS: dict[str, MultiBeamScanner] = {
     name: build_dataclass(MultiBeamScanner, table, where=f"built-in scanner {name}")
-    for name, table in sorted(_lidar_files().items())
+    for name, table in SCANNER_TABLES.items() if table.get("kind") == MULTIBEAM_KIND
 }
 
 
 def load_lidar(source: str | Path) -> MultiBeamScanner:
     """A multi-beam lidar by registry name or from a TOML file (the keys of scanners/velodyne_vlp16.toml)."""
-    if isinstance(source, str) and source in LIDARS:
-        return LIDARS[source]
-    path = Path(source)
-    if not path.is_file():
-        raise ConfigError(f"scanner {str(source)!r} is neither a file nor a known multi-beam scanner "
-                          f"({', '.join(LIDARS)}); pass a scanner TOML file with kind = \"multibeam\"")
-    table = load_toml(path)
+    return load_named(source, LIDARS, kind="multi-beam scanner", read=_read_lidar_file,
+                      file='a scanner TOML file with kind = "multibeam"')
+
+
+def _read_lidar_file(table: dict[str, Any], path: Path) -> MultiBeamScanner:
     if table.get("kind") != MULTIBEAM_KIND:
         raise ConfigError(f"{path}: a mobile platform needs a multi-beam scanner (kind = \"multibeam\"); this file "
                           "describes a rotating-mirror TLS: use it with --platform tripod")

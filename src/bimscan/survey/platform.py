@@ -15,17 +15,16 @@ about z; a motor-driven head turns the mount about the platform's z at ``head_ro
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from bimscan.constraints import Checked, Range, setting
 from bimscan.errors import ConfigError
 from bimscan.scan.virtual_scanner import MAX_MOUNTS
-from bimscan.toml_files import build_dataclass, load_toml
+from bimscan.toml_files import build_dataclass, load_named, read_package_tables
 
 TRIPOD = "tripod"
 
@@ -84,27 +83,19 @@ class Platform(Checked):
             raise self.refusal(f"give 1..{MAX_MOUNTS} mounts, got {len(self.mounts)}")
 
 
-def _platform_tables() -> dict[str, dict]:
-    text = (resources.files("bimscan.survey") / "platforms.toml").read_text("utf-8")
-    return tomllib.loads(text)
-
-
 PLATFORMS: dict[str, Platform] = {
     name: build_dataclass(Platform, {"name": name, **table}, where=f"platforms.toml [{name}]")
-    for name, table in _platform_tables().items()
+    for name, table in read_package_tables("bimscan.survey", "platforms.toml").items()
 }
 PLATFORM_NAMES = (TRIPOD, *PLATFORMS)
 
 
 def load_platform(source: str | Path) -> Platform:
     """A mobile platform by name (``PLATFORMS``) or from a TOML file of one platform's keys."""
-    if isinstance(source, str) and source in PLATFORMS:
-        return PLATFORMS[source]
-    path = Path(source)
-    if not path.is_file():
-        raise ConfigError(f"platform {str(source)!r} is neither a file nor a known platform "
-                          f"({', '.join(PLATFORM_NAMES)}); pass a platform TOML file")
-    table = load_toml(path)
+    return load_named(source, PLATFORMS, kind="platform", names=PLATFORM_NAMES, read=_read_platform_file)
+
+
+def _read_platform_file(table: dict[str, Any], path: Path) -> Platform:
     if not table.get("mounts"):  # no lidar placed: a platform file must say where its lidars sit
         raise ConfigError(f"{path}: the platform has no [[mounts]]; add one [[mounts]] table per lidar (height_m, "
                           "forward_m, lateral_m, tilt_deg, yaw_deg, head_rotation_hz), as in "
