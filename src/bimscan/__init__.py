@@ -1,9 +1,20 @@
-"""bimscan: labelled synthetic terrestrial laser scans from BIM (IFC) models.
+"""bimscan: labelled synthetic laser scans from BIM (IFC) models, tripod and mobile, at dataset scale.
 
-The pipeline, stage by stage (one subpackage each): ``ifc`` (parse) -> ``semantics`` (labels)
--> ``scan`` (virtual scanner, ray engine, noise) -> ``survey`` (stations, multi-station runs)
--> ``process`` (filters, checks) -> ``io`` (LAS/LAZ, PLY, NumPy, OBJ, HELIOS++) -> ``dataset``
--> ``stats`` -> ``learn``; ``cli`` and ``pipeline`` compose them.
+An IFC model becomes labelled point clouds as a surveyor would scan the building: tripod stations
+of a virtual terrestrial laser scanner (TLS) or a handheld or backpack scanner walked through it
+(multi-beam lidars, SLAM-like drift), on the site as it stands (construction stage, clutter).
+bimscan plans the survey (the fewest stations that cover the chosen elements at the asked
+density), builds whole datasets of scenes x configurations, validates them, and trains a
+segmentation network on them that it scores on real scans and adapts to a user's own unlabelled
+scans.
+
+The pipeline, stage by stage (one subpackage each): ``ifc`` (parse; generated buildings) ->
+``semantics`` (labels) -> ``site`` (the site as scanned) -> ``scan`` (scanner and lidar models,
+sensor effects, ray engines) -> ``survey`` (stations, walks, multi-station and mobile runs; its
+``planning``: survey planning) -> ``process`` (filters, checks, subsampling) -> ``io`` (LAS/LAZ,
+E57, PLY, NumPy, OBJ, HELIOS++) -> ``dataset`` (local or on a Ray cluster) -> ``stats`` and
+``render`` -> ``learn`` (training, evaluation, prediction, adaptation); ``cli``, ``pipeline`` and
+``sim2real`` compose them.
 """
 
 from __future__ import annotations

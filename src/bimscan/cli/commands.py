@@ -16,10 +16,16 @@ from bimscan.cli import (
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(__version__, prog_name="bimscan")
 def cli() -> None:
-    """Labelled synthetic terrestrial laser scans from BIM (IFC) models.
+    """Labelled synthetic laser scans from BIM (IFC) models: tripod (TLS) and mobile (handheld,
+    backpack), on the site as it stands, at dataset scale.
 
-    IFC -> components -> semantic classes -> virtual TLS -> labelled clouds -> datasets ->
-    statistics -> segmentation baseline.
+    \b
+    IFC -> labelled components -> site as scanned -> planned survey (tripod stations or a walk)
+        -> virtual scanner -> labelled clouds -> datasets (local or on Ray) -> statistics
+        -> segmentation: train, evaluate on real scans, adapt to your own, predict.
+
+    Start with `bimscan demo OUT` (the whole pipeline on two generated buildings, in minutes);
+    `bimscan COMMAND --help` says what each command takes.
     """
 
 
