@@ -8,7 +8,7 @@ from __future__ import annotations
 import os
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
@@ -52,10 +52,12 @@ def step_line(text: str, *, enabled: bool = True) -> Iterator[None]:
 
 class StageClock:
     """Seconds spent per named step, summed over every time the step ran: a profile of a long job
-    that costs two clock reads per step (``timings.json`` of a dataset unit, the benchmarks)."""
+    that costs two clock reads per step (``timings.json`` of a dataset unit, the benchmarks).
+    ``clock``: seconds from any fixed start (``time.perf_counter``; a test gives its own)."""
 
-    def __init__(self) -> None:
+    def __init__(self, clock: Callable[[], float] = time.perf_counter) -> None:
         self.seconds: dict[str, float] = {}
+        self.clock = clock
 
     def add(self, step: str, seconds: float) -> None:
         self.seconds[step] = self.seconds.get(step, 0.0) + seconds
@@ -63,21 +65,21 @@ class StageClock:
     @contextmanager
     def step(self, name: str) -> Iterator[None]:
         """Time the block as step ``name`` (also when it raises)."""
-        start = time.perf_counter()
+        start = self.clock()
         try:
             yield
         finally:
-            self.add(name, time.perf_counter() - start)
+            self.add(name, self.clock() - start)
 
     def timed(self, name: str, items: Iterator[Any]) -> Iterator[Any]:
         """``items`` with the time spent producing each item added to step ``name`` (not the time
         the consumer spends between items)."""
         while True:
-            start = time.perf_counter()
+            start = self.clock()
             try:
                 item = next(items)
             except StopIteration:
-                self.add(name, time.perf_counter() - start)
+                self.add(name, self.clock() - start)
                 return
-            self.add(name, time.perf_counter() - start)
+            self.add(name, self.clock() - start)
             yield item
