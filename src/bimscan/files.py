@@ -10,11 +10,19 @@ format its suffix names (``FILE_SIGNATURES``), or a folder of a kind bimscan wri
 (``FOLDER_OUTPUTS``: a NumPy cloud, a data unit, ...), recognised by its marker and holding
 nothing else. A user's folder, a symbolic link or another format's file is refused in one line,
 whatever the options: bimscan never removes what it did not write.
+
+A folder bimscan writes several outputs into (a dataset, a training run, an evaluation, the
+statistics, an experiment: an *output folder*) is one it made or an empty one
+(``prepare_output_folder``); its record ``.bimscan.json`` lists what bimscan wrote there, and
+inside it only those are replaced (``check_replaceable`` reads the record of the folder a path is
+in, and ``replace_path`` adds the names it moves in). A user's file beside them is never touched;
+one at a name bimscan is about to write is refused before any work (``check_output_folder``).
 """
 
 from __future__ import annotations
 
 import errno
+import fcntl
 import hashlib
 import json
 import os
@@ -22,7 +30,7 @@ import re
 import secrets
 import shutil
 import stat
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -276,6 +284,9 @@ def json_marker(data: bytes | None, key: str, value: object = None) -> bool:
     return isinstance(document, dict) and key in document and (value is None or document[key] == value)
 
 
+_REPLACE_ADVICE = "bimscan replaces only what it wrote: choose another output or remove it yourself"
+
+
 def _file_problem(path: Path) -> str | None:
     """Why the regular file at ``path`` is not an output bimscan may replace, or None."""
     found = file_signatures(path)
@@ -300,6 +311,10 @@ def replace_problem(path: str | Path, *, kind: str | None = None) -> str | None:
     path = Path(path)
     if not os.path.lexists(path):
         return None
+    listed = read_output_record(path.parent)
+    if listed is not None and path.name != OUTPUT_RECORD and not {path.name, path.name + "/"} & listed:
+        return (f"was not written by bimscan: {path.parent} is a folder bimscan made, and its record "
+                f"{OUTPUT_RECORD} does not list {path.name}")
     if path.is_symlink():
         try:
             target = os.readlink(path)
@@ -334,11 +349,11 @@ def replace_problem(path: str | Path, *, kind: str | None = None) -> str | None:
 
 def check_replaceable(path: str | Path, *, kind: str | None = None) -> None:
     """Raise OutputError unless bimscan may replace what is at ``path`` (see ``replace_problem``):
-    the one rule every output that replaces another goes through."""
+    the one rule every output that replaces another goes through (and so every output folder,
+    ``check_output_folder``)."""
     problem = replace_problem(path, kind=kind)
     if problem is not None:
-        raise OutputError(f"{path} {problem}; bimscan replaces only what it wrote: choose another output or "
-                          "remove it yourself")
+        raise OutputError(f"{path} {problem}; {_REPLACE_ADVICE}")
 
 
 def replace_path(staged: Path, final: Path, *, kind: str | None = None) -> None:
@@ -350,6 +365,7 @@ def replace_path(staged: Path, final: Path, *, kind: str | None = None) -> None:
     """
     if os.path.lexists(final):
         check_replaceable(final, kind=kind)
+    record_output(final, folder=staged.is_dir())
     if kind is not None and final.is_dir():
         trash = temp_path(final)
         os.replace(final, trash)
@@ -357,6 +373,169 @@ def replace_path(staged: Path, final: Path, *, kind: str | None = None) -> None:
         remove_path(trash)
     else:
         os.replace(staged, final)
+
+
+def remove_output(path: str | Path) -> bool:
+    """Remove the output bimscan wrote at ``path`` (a stale sidecar, say); OutputError when what
+    is there is not bimscan's (``check_replaceable``). Returns whether something was removed."""
+    path = Path(path)
+    if not os.path.lexists(path):
+        return False
+    check_replaceable(path)
+    remove_path(path)
+    return True
+
+
+# -- folders bimscan writes into ---------------------------------------------------------------
+
+# An output folder's record: the names bimscan wrote in it, sub-folders as "name/" (hidden, so that
+# it stays out of the way of what the user looks for in the folder).
+OUTPUT_RECORD = ".bimscan.json"
+OUTPUT_RECORD_FORMAT = "bimscan-output-folder"
+OUTPUT_RECORD_VERSION = 1
+_RECORD_LIMIT = 1 << 20
+
+
+def read_output_record(folder: str | Path) -> frozenset[str] | None:
+    """The names (sub-folders as ``name/``) the record of ``folder`` lists as bimscan's; None when
+    ``folder`` has no record (not a folder bimscan made, or one an earlier version made)."""
+    data = read_marker(Path(folder) / OUTPUT_RECORD, limit=_RECORD_LIMIT)
+    if not json_marker(data, "format", OUTPUT_RECORD_FORMAT):
+        return None
+    names = json.loads(data or b"{}").get("files")
+    if not isinstance(names, list) or not all(isinstance(name, str) for name in names):
+        return None
+    return frozenset(names)
+
+
+def _write_record(folder: Path, names: Iterable[str]) -> None:
+    document = {"format": OUTPUT_RECORD_FORMAT, "version": OUTPUT_RECORD_VERSION, "files": sorted(set(names))}
+    temp = temp_path(folder / OUTPUT_RECORD)
+    try:
+        temp.write_bytes(dump_json(document))
+        os.replace(temp, folder / OUTPUT_RECORD)  # the record itself is never a user's: see read_output_record
+    finally:
+        remove_path(temp)
+
+
+@contextmanager
+def _folder_lock(folder: Path) -> Iterator[None]:
+    """Hold an exclusive lock on ``folder`` while its record is read and rewritten, so that two
+    writers in one folder do not drop each other's names (best effort: where the file system
+    cannot lock a folder, a lost name only makes a later run refuse that file, never replace it)."""
+    try:
+        handle = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError:
+        yield
+        return
+    try:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX)
+        except OSError:
+            pass
+        yield
+    finally:
+        os.close(handle)
+
+
+def record_output(path: str | Path, *, folder: bool = False) -> None:
+    """Add ``path`` (a ``folder`` or a file) to the record of the output folder it is in, if it is
+    in one; nothing otherwise. Called before the output appears, so the record never misses it."""
+    path = Path(path)
+    name = path.name + ("/" if folder else "")
+    if path.name == OUTPUT_RECORD:
+        return
+    listed = read_output_record(path.parent)
+    if listed is None or name in listed:
+        return
+    with _folder_lock(path.parent):
+        listed = read_output_record(path.parent)
+        if listed is not None and name not in listed:
+            _write_record(path.parent, listed | {name})
+
+
+def _output_folder_problem(folder: Path, names: Iterable[str], made_by: Callable[[Path], bool] | None) -> str | None:
+    """The one-line message (naming the path at fault) when bimscan may not write ``names`` into
+    ``folder``; None when it may."""
+    if not os.path.lexists(folder):
+        return None
+    kind = path_kind(folder)  # a link to a folder is written through
+    if kind != "a folder":
+        return f"{folder} is {kind or 'a file'}, not a folder; {_REPLACE_ADVICE}"
+    try:
+        entries = folder_entries(folder)
+    except OSError as exc:
+        return f"{folder} is a folder that cannot be read ({exc.strerror or exc}); check its permissions"
+    listed = read_output_record(folder)
+    if listed is None:
+        if not entries:
+            return None
+        if made_by is None or not made_by(folder) or os.path.lexists(folder / OUTPUT_RECORD):  # not our record
+            return (f"{folder} is a folder bimscan did not make (it holds {_shown(entries)}); bimscan writes only into "
+                    "a new or empty folder, or one it made: choose another")
+        listed = frozenset(name for name in names if os.path.lexists(folder / name.rstrip("/")))  # an earlier version's
+    for name in names:
+        path = folder / name.rstrip("/")
+        if not os.path.lexists(path):
+            continue
+        if name not in listed:
+            return (f"{path} was not written by bimscan (the record {OUTPUT_RECORD} of the folder does not list it) "
+                    "and bimscan writes that name there; move it away or choose another folder")
+        if name.endswith("/"):
+            if path.is_symlink() or not path.is_dir():
+                return f"{path} is {path_kind(path) or 'a file'}, not the folder bimscan made there; {_REPLACE_ADVICE}"
+        elif (problem := replace_problem(path)) is not None:
+            return f"{path} {problem}; {_REPLACE_ADVICE}"
+    return None
+
+
+def check_output_folder(folder: str | Path, *, names: Iterable[str] = (),
+                        made_by: Callable[[Path], bool] | None = None) -> None:
+    """Raise OutputError, naming the folder or file at fault, unless bimscan may write ``names``
+    (sub-folders as ``name/``) into ``folder``: it is missing, empty, or a folder bimscan made (its
+    record; or, for one an earlier version made, ``made_by(folder)``: its marker, e.g. a dataset's
+    manifest), and each name is missing there or one bimscan wrote. Checks only: call it before
+    slow work, ``prepare_output_folder`` when about to write."""
+    problem = _output_folder_problem(Path(folder), list(names), made_by)
+    if problem is not None:
+        raise OutputError(problem)
+
+
+def prepare_output_folder(folder: str | Path, *, names: Iterable[str] = (),
+                          made_by: Callable[[Path], bool] | None = None) -> Path:
+    """``folder`` checked (``check_output_folder``), made when missing (with its parents), and
+    given its record when it has none (an empty folder: nothing listed; an earlier version's:
+    those of ``names`` it holds). A folder made inside another output folder is added to that
+    one's record. Returns the folder."""
+    folder = Path(folder)
+    names = list(names)
+    check_output_folder(folder, names=names, made_by=made_by)
+    if not os.path.lexists(folder):
+        record_output(folder, folder=True)
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise OutputError(f"cannot create the folder {folder} ({exc.strerror or exc}); check the path") from exc
+    if read_output_record(folder) is None:
+        with _folder_lock(folder):
+            if read_output_record(folder) is None:
+                _write_record(folder, (name for name in names if os.path.lexists(folder / name.rstrip("/"))))
+    return folder
+
+
+def claim_output(folder: str | Path, name: str) -> Path:
+    """``folder / name`` recorded as bimscan's in the record of ``folder`` (a prepared output
+    folder), for outputs that are not moved in by ``replace_path``: a sub-folder (``name/``, made
+    here when missing) or a file opened in place (a lock). OutputError when something bimscan did
+    not write is there."""
+    folder = Path(folder)
+    path = folder / name.rstrip("/")
+    if os.path.lexists(path):
+        check_output_folder(folder, names=[name])
+    record_output(path, folder=name.endswith("/"))
+    if name.endswith("/"):
+        path.mkdir(exist_ok=True)
+    return path
 
 
 @contextmanager
