@@ -102,13 +102,27 @@ def test_an_existing_folder_bimscan_did_not_write_is_never_replaced(box_room_ifc
     mine.mkdir()
     (mine / "notes.txt").write_text("keep me")
     assert main(["plan", str(box_room_ifc), str(mine), *PLAN, "--overwrite"]) == 1
-    assert "not a plan folder" in capsys.readouterr().err
+    assert "is a folder that is not a bimscan plan folder (it holds notes.txt)" in capsys.readouterr().err
     assert (mine / "notes.txt").read_text() == "keep me"
     plan = tmp_path / "plan"
     assert main(["plan", str(box_room_ifc), str(plan), *PLAN]) == 0
     assert main(["plan", str(box_room_ifc), str(plan), *PLAN]) == 1  # exists: --overwrite needed
     assert main(["plan", str(box_room_ifc), str(plan), *PLAN, "--classes", "Slab", "--overwrite"]) == 0
     assert {r["class"] for r in rows(plan / "coverage.csv")} == {"Slab"}
+
+
+def test_overwriting_a_plan_keeps_a_picture_the_user_put_beside_it(box_room_ifc, tmp_path, capsys):
+    plan = tmp_path / "plan"
+    assert main(["plan", str(box_room_ifc), str(plan), *PLAN]) == 0
+    signed = plan / "plan_signed_by_client.png"  # named like the plan's pictures, but the plan.json lists its own
+    signed.write_bytes(b"\x89PNG\r\n\x1a\n signed by the client")
+    before = {p.name: p.read_bytes() for p in plan.iterdir()}
+    capsys.readouterr()
+    assert main(["plan", str(box_room_ifc), str(plan), *PLAN, "--overwrite"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "plan_signed_by_client.png, which bimscan did not write" in err
+    assert {p.name: p.read_bytes() for p in plan.iterdir()} == before
+    assert not list(tmp_path.glob(".*tmp*"))
 
 
 def test_a_config_file_sets_the_planner_and_the_flags_override_it(box_room_ifc, tmp_path, capsys):

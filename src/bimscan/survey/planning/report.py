@@ -11,7 +11,9 @@
 
 The folder is written under a temporary name and renamed when complete. An existing OUT is
 replaced only with ``overwrite`` and only when it is a plan folder (it holds ``plan.json`` written
-by ``bimscan plan`` and nothing but plan files): bimscan never removes what it did not write.
+by ``bimscan plan`` and nothing but the files that plan wrote: its fixed files and the pictures its
+``plan.json`` lists), as ``bimscan.files.check_replaceable`` decides for every output: bimscan
+never removes what it did not write (a ``plan_signed_by_client.png`` put beside a plan included).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import csv
 import io
 import json
 import math
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -27,7 +30,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from bimscan.errors import OutputError
-from bimscan.files import FOLDER_OUTPUTS, FolderOutput, dump_json, folder_entries, remove_path, replace_path, temp_path
+from bimscan.files import (
+    FOLDER_OUTPUTS, FolderOutput, check_replaceable, dump_json, folder_entries, read_marker, remove_path, replace_path,
+    temp_path,
+)
 from bimscan.survey.planning.plan import PlanEvaluation, SurveyPlan
 from bimscan.survey.stations import format_stations
 
@@ -44,45 +50,34 @@ COVERAGE_COLUMNS = ("global_id", "ifc_class", "class", "storey", "name", "area_m
 SCAN_COLUMNS = ("scan_covered_fraction", "scan_median_density_pts_m2", "scan_status")
 
 
-def _is_plan_file(name: str) -> bool:
-    return name in (STATIONS_FILE, COVERAGE_FILE, REGISTRATION_FILE, SUMMARY_FILE) or (
-        name.startswith("plan_") and name.endswith(".png"))
-
-
 def foreign_plan_entries(folder: Path) -> list[str] | None:
-    """The entries of ``folder`` a plan did not write, or None when it is no plan folder (its
-    ``plan.json`` is missing or not a plan's): ``FOLDER_OUTPUTS["plan"]``."""
+    """The entries of ``folder`` a plan did not write (its fixed files and the pictures its
+    ``plan.json`` lists are its own), or None when it is no plan folder (its ``plan.json`` is
+    missing or not a plan's): ``FOLDER_OUTPUTS["plan"]``."""
     try:
-        kind = json.loads((folder / SUMMARY_FILE).read_text("utf-8")).get("kind")
-    except (OSError, ValueError, AttributeError):
+        summary = json.loads(read_marker(folder / SUMMARY_FILE) or b"")
+    except (ValueError, UnicodeDecodeError):
         return None
-    if kind != PLAN_KIND:
+    if not isinstance(summary, dict) or summary.get("kind") != PLAN_KIND:
         return None
-    return sorted(name for name in folder_entries(folder) if not _is_plan_file(name))
+    pictures = summary.get("pictures")
+    if not isinstance(pictures, list) or not all(isinstance(name, str) for name in pictures):
+        return None
+    own = {STATIONS_FILE, COVERAGE_FILE, REGISTRATION_FILE, SUMMARY_FILE, *pictures}
+    return [name for name in folder_entries(folder) if name not in own]
 
 
 FOLDER_OUTPUTS["plan"] = FolderOutput(what="a bimscan plan folder", foreign=foreign_plan_entries)
 
 
 def check_plan_output(out: Path, *, overwrite: bool) -> None:
-    """Raise OutputError now (before any slow work) when the plan folder cannot be written."""
+    """Raise OutputError now (before any slow work) when the plan folder cannot be written: an
+    existing OUT is replaced only with ``overwrite`` and only when ``check_replaceable`` allows it."""
     if not out.parent.is_dir():
         raise OutputError(f"output folder {out.parent} does not exist; create it first or choose another OUT")
-    if not (out.exists() or out.is_symlink()):
-        return
-    if not overwrite:
+    if os.path.lexists(out) and not overwrite:
         raise OutputError(f"{out} already exists; pass --overwrite to replace a plan folder, or choose another OUT")
-    if not out.is_dir() or out.is_symlink():
-        raise OutputError(f"{out} exists and is not a plan folder; choose another OUT (bimscan replaces only a "
-                          "folder it wrote)")
-    names = [p.name for p in out.iterdir()]
-    try:
-        kind = json.loads((out / SUMMARY_FILE).read_text("utf-8")).get("kind")
-    except (OSError, ValueError, AttributeError):
-        kind = None
-    if kind != PLAN_KIND or not all(_is_plan_file(n) for n in names):
-        raise OutputError(f"{out} exists and is not a plan folder bimscan wrote (it holds other files); "
-                          "choose another OUT")
+    check_replaceable(out, kind="plan")
 
 
 def _number(value: float, digits: int = 4) -> str:
