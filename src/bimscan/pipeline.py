@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from bimscan.errors import ConfigError, InputFileError, OutputError, StationError
+from bimscan.files import remove_output
 from bimscan.process.checks import check_semantics, filter_invalid
 from bimscan.process.summary import CloudSummary
 from bimscan.progress import StageClock, progress_bar, step_line
@@ -269,6 +270,7 @@ def scan_model(model: str | Path, out: str | Path, recipe: ScanRecipe, *,
     from bimscan.io import check_cloud_output, check_free_space
 
     check_cloud_output(out, overwrite=overwrite)
+    check_walk_sidecar(out, overwrite=overwrite)  # a tripod scan, too, must not leave an earlier scan's walk beside it
     if recipe.mobile is not None:
         check_mobile_output(out, overwrite=overwrite)
         if recipe.mobile.trajectory_from != AUTO_TRAJECTORY:  # a bad file or budget fails now, before the parse
@@ -292,6 +294,8 @@ def scan_model(model: str | Path, out: str | Path, recipe: ScanRecipe, *,
     result = scan_survey(survey, out, overwrite=overwrite, progress=progress)
     if survey.trajectory is not None:
         write_trajectory(trajectory_path(result.path), survey.trajectory)
+    else:  # the walk of the mobile scan this one replaced is not this cloud's (render would draw it over it)
+        remove_output(trajectory_path(result.path))
     dressing = chosen.timings.total_s
     steps = {"load": loaded - start, "dressing": dressing, "stations": prepared - loaded - dressing,
              "scan and write": result.seconds}
@@ -302,16 +306,24 @@ def check_mobile_output(out: str | Path, *, overwrite: bool) -> None:
     """Raise before any work when a mobile scan cannot be written to ``out``: E57 stores one pose per
     scan (a mobile scan's per-point beam origins and rings would be lost), and the trajectory
     beside the cloud must not replace a file unless asked, nor ever anything bimscan did not write."""
-    from bimscan.files import check_replaceable
     from bimscan.io import check_cloud_output
     from bimscan.io.e57 import MOBILE_COLUMNS
 
     check_cloud_output(out, overwrite=overwrite, columns=tuple(MOBILE_COLUMNS))
+    check_walk_sidecar(out, overwrite=overwrite)
+
+
+def check_walk_sidecar(out: str | Path, *, overwrite: bool) -> None:
+    """Raise before any work when ``OUT.trajectory.csv`` is there and may not go: a mobile scan
+    replaces it with its walk, a tripod scan removes it (it is the walk of an earlier scan at OUT),
+    so it must be asked for (``overwrite``) and be bimscan's (``check_replaceable``)."""
+    from bimscan.files import check_replaceable
+
     beside = trajectory_path(out)
     if os.path.lexists(beside):
         if not overwrite:
-            raise OutputError(f"{beside} exists (the trajectory of a mobile scan goes there); pass --overwrite or "
-                              "choose another OUT")
+            raise OutputError(f"{beside} exists (the trajectory of a mobile scan at {out}); pass --overwrite to "
+                              "replace that scan and its walk, or choose another OUT")
         check_replaceable(beside)
 
 

@@ -206,6 +206,33 @@ def test_a_mobile_scan_refuses_a_folder_where_its_trajectory_goes(box_room_ifc, 
     assert (beside / "mine.txt").read_text() == "x" and sorted(p.name for p in tmp_path.iterdir()) == [beside.name]
 
 
+def test_a_tripod_scan_over_a_handheld_one_leaves_no_stale_trajectory(box_room_ifc, tmp_path, capsys):
+    """render draws OUT.trajectory.csv over OUT: after a tripod scan replaces a handheld one there,
+    the handheld walk must be gone with the cloud it belonged to (and only a walk bimscan wrote)."""
+    walk = tmp_path / "walk.csv"
+    walk.write_text("t,x,y,z,roll,pitch,yaw,pass\n0,2,2,1.5,0,0,0,0\n0.3,2.5,2,1.5,0,0,0,0\n")
+    out, beside = tmp_path / "scan.laz", tmp_path / "scan.laz.trajectory.csv"
+    assert main(["scan", str(box_room_ifc), str(out), "--platform", "handheld", "--trajectory", str(walk)]) == 0
+    assert beside.is_file()
+    assert main(["scan", str(box_room_ifc), str(out), *FAST, "--overwrite"]) == 0
+    assert out.is_file() and not beside.exists()
+    assert len(read_cloud_header(out).stations) == 1  # the tripod's cloud, with no walk beside it
+    capsys.readouterr()
+
+    # the cloud gone, its walk left: a new scan there is refused before any work, unless asked
+    out.unlink()
+    beside.write_text("t,x,y,z,roll,pitch,yaw,pass\n0,2,2,1.5,0,0,0,0\n")
+    assert main(["scan", str(box_room_ifc), str(out), *FAST]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{beside} exists (the trajectory of a mobile scan at {out}); pass --overwrite" in err[0]
+    assert not out.exists()
+    # a user's file of that name is never removed, even when asked
+    beside.write_text("time;x;y;z\n0;1;2;3\n")
+    assert main(["scan", str(box_room_ifc), str(out), *FAST, "--overwrite"]) == 1
+    assert "not in the format of a .trajectory.csv file" in capsys.readouterr().err
+    assert beside.read_text() == "time;x;y;z\n0;1;2;3\n" and not out.exists()
+
+
 @pytest.mark.parametrize("args, message", [
     (["--seed", str(2**70)], "seed must be an integer in 0..18446744073709551615, got 1.18e+21"),
     (["--threads", "-1"], "threads must be an integer >= 0 (0: all cores), got -1"),

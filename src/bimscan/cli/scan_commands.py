@@ -103,8 +103,9 @@ if TYPE_CHECKING:
                    f"the lidars' pulse rates; checked before the model is read when the trajectory is a file). "
                    f"Default: {DEFAULT_MAX_WALK_PULSES:,}. Refused on the tripod.")
 @click.option("--overwrite", is_flag=True,
-              help="Replace OUT (and a mobile scan's OUT.trajectory.csv) if bimscan wrote it: a cloud file in OUT's "
-                   "format or a bimscan NumPy folder. Anything else there is refused, never removed.")
+              help="Replace OUT (and a mobile scan's OUT.trajectory.csv, which a tripod scan removes) if bimscan "
+                   "wrote it: a cloud file in OUT's format or a bimscan NumPy folder. Anything else there is refused, "
+                   "never removed.")
 @site_options
 def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, no_noise: bool,
          range_sigma_m: float | None, angle_sigma_deg: float | None, registration_sigma_m: float,
