@@ -30,11 +30,14 @@ from bimscan.dataset.estimate import (
     with_unknown_as_mean,
 )
 from bimscan.dataset.executors import TaskFunction, make_executor
-from bimscan.dataset.layout import DatasetFolder, Manifest, ManifestEntry, write_json
-from bimscan.dataset.plan import SceneJob, UnitJob, generate_scenes, plan_build
+from bimscan.dataset.layout import (
+    LOCK_NAME, SCENES_DIR, UNITS_DIR, DatasetFolder, Manifest, ManifestEntry, write_json,
+)
+from bimscan.dataset.plan import SceneJob, UnitJob, check_unit_folders, generate_scenes, plan_build
 from bimscan.dataset.spec import DatasetSpec
 from bimscan.dataset.tasks import SceneOutcome, UnitOutcome, run_scene_job, run_unit_job, task_error
-from bimscan.errors import DatasetError, OutputError
+from bimscan.errors import DatasetError
+from bimscan.files import claim_output
 from bimscan.progress import progress_bar
 from bimscan.survey.survey import station_pulses
 
@@ -94,22 +97,23 @@ def build_dataset(spec: DatasetSpec, out_dir: str | Path, *, workers: int | None
     "serial" (the calling process). chunk_pulses: pulses per scan chunk (memory; never the output).
     log: receives the size estimate line once the scenes are planned.
     Returns the report; failed units are in it, not raised.
-    Raises DatasetError when another build holds ``out_dir``, OutputError when it cannot be created
-    or when the units to build would not fit its free space (the scenes' work is kept: stations).
+    Raises DatasetError when another build holds ``out_dir``, OutputError when it cannot be created,
+    when it is a folder bimscan did not make or holds a user's file at a name the build writes
+    (``DatasetFolder.prepare``), when a unit would replace a folder bimscan did not write (both
+    before any work), or when the units to build would not fit its free space (the scenes' work is
+    kept: stations).
     """
     start = time.perf_counter()
     folder = DatasetFolder(Path(out_dir).resolve())
     workers = workers if workers is not None else default_workers()
     if workers < 1:
         raise DatasetError(f"--workers {workers} is impossible; give 1 or more")
-    try:
-        folder.root.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"cannot create the dataset folder {folder.root} ({exc.strerror}); check the path") from exc
+    folder.prepare()  # a user's folder, or a user's manifest.json in it, is refused here
     with _build_lock(folder.root):
+        check_unit_folders(spec, folder)  # before any scene is generated or scanned
         folder.remove_leftovers()
-        folder.units_dir.mkdir(exist_ok=True)
-        folder.scenes_dir.mkdir(exist_ok=True)
+        claim_output(folder.root, f"{UNITS_DIR}/")
+        claim_output(folder.root, f"{SCENES_DIR}/")
         write_json(folder.info_path, {"format": "bimscan-dataset-info", "version": 1, "name": spec.name,
                                       "software": f"bimscan {__version__}", "spec": dataclasses.asdict(spec)})
         scenes = generate_scenes(spec, folder)
@@ -137,7 +141,7 @@ def build_dataset(spec: DatasetSpec, out_dir: str | Path, *, workers: int | None
 @contextmanager
 def _build_lock(out: Path) -> Iterator[None]:
     """Hold an exclusive lock on ``out/.lock`` (released by the kernel even on kill -9)."""
-    handle = (out / ".lock").open("a")
+    handle = claim_output(out, LOCK_NAME).open("a")
     try:
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)

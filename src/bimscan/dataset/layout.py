@@ -16,6 +16,13 @@ dicts of their own. Layout of a built dataset (``OUT_DIR``)::
         cloud.laz | cloud.las | cloud.ply (+ .ply.json) | cloud/ (NumPy folder)
         unit.json                   reproducible metadata (``UnitRecord``)
         timings.json                how long it took (kept apart: it differs from run to run)
+    .bimscan.json                   what bimscan wrote in the folder (``bimscan.files`` output folders)
+    .lock                           held by the build running in the folder
+
+The dataset folder is an output folder (``bimscan.files.prepare_output_folder``): a build writes
+into a new or empty folder or one bimscan made (a folder with a bimscan ``manifest.json`` made
+before folders had records counts too), replaces there only what its record lists, and leaves
+anything else in it alone; a user's ``manifest.json`` is refused before any work.
 
 JSON files are canonical (sorted keys, fixed indentation) and written atomically, so equal
 content gives equal bytes and a reader never sees half a file. A unit folder is staged under a
@@ -44,9 +51,11 @@ from bimscan.files import (
     FOLDER_OUTPUTS,
     FolderOutput,
     atomic_output,
+    check_replaceable,
     dump_json,
     file_sha256,
     json_marker,
+    prepare_output_folder,
     read_marker,
     remove_dead_temps,
     temp_path,
@@ -62,6 +71,7 @@ SCENES_DIR = "scenes"
 UNIT_NAME = "unit.json"
 TIMINGS_NAME = "timings.json"
 TRAJECTORY_NAME = "trajectory.csv"  # a mobile unit's walk (survey.trajectory)
+LOCK_NAME = ".lock"
 MANIFEST_FORMAT = "bimscan-dataset"
 MANIFEST_VERSION = 1
 UNIT_FORMAT = "bimscan-unit"
@@ -100,6 +110,16 @@ def foreign_unit_entries(folder: Path) -> list[str] | None:
 
 
 FOLDER_OUTPUTS["unit"] = FolderOutput(what="a bimscan data unit", foreign=foreign_unit_entries)
+
+
+# What a build writes at the top of a dataset folder (``bimscan.files.prepare_output_folder`` names).
+DATASET_OUTPUTS = (MANIFEST_NAME, DATASET_NAME, LOCK_NAME, f"{UNITS_DIR}/", f"{SCENES_DIR}/")
+
+
+def is_earlier_dataset(folder: Path) -> bool:
+    """Whether ``folder`` is a dataset folder made before output folders had records: its
+    ``manifest.json`` is a bimscan dataset manifest."""
+    return json_marker(read_marker(folder / MANIFEST_NAME), "format", MANIFEST_FORMAT)
 
 
 def unit_id(scene: str, config: str) -> str:
@@ -323,6 +343,18 @@ class DatasetFolder:
 
     def is_dataset(self) -> bool:
         return self.manifest_path.is_file()
+
+    def prepare(self) -> None:
+        """Check the folder can take a build, before any work, and make it (``DATASET_OUTPUTS``):
+        OutputError for a user's folder or a user's file at one of the build's names."""
+        prepare_output_folder(self.root, names=DATASET_OUTPUTS, made_by=is_earlier_dataset)
+
+    def check_unit_folder(self, unit: str) -> None:
+        """OutputError when something a build may not replace is where ``unit`` goes: a file, a
+        link, a folder that is not a bimscan data unit, or a unit with files added to it."""
+        path = self.unit_dir(unit)
+        if os.path.lexists(path):
+            check_replaceable(path, kind="unit")
 
     def read_manifest(self) -> Manifest:
         """The manifest, checked for its format and shape.

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,7 +30,7 @@ from bimscan.dataset.layout import (
 from bimscan.dataset.spec import DatasetSpec, SceneSpec, resolve_scheme
 from bimscan.errors import BimscanError
 from bimscan.ifc.generate.styles import GENERATOR_VERSION
-from bimscan.files import dump_json, file_sha256
+from bimscan.files import FOLDER_OUTPUTS, dump_json, file_sha256
 from bimscan.survey.mobile import AUTO_TRAJECTORY
 from bimscan.survey.recipe import AUTO_STATIONS, ScanRecipe
 
@@ -178,6 +179,18 @@ def stations_key(scene: Mapping[str, Any], recipe: ScanRecipe) -> str:
     return fingerprint(key)
 
 
+def check_unit_folders(spec: DatasetSpec, folder: DatasetFolder) -> None:
+    """OutputError before any work when a unit of ``spec`` would go where a build may never write:
+    a file, a link or a folder that is not a bimscan data unit (a unit with files added by hand is
+    refused by ``plan_build`` if it is to be rebuilt; kept as it is, it is fine)."""
+    for scene in spec.scenes:
+        for config in spec.configs:
+            path = folder.unit_dir(unit_id(scene.name, config.name))
+            if os.path.lexists(path) and (path.is_symlink() or not path.is_dir()
+                                          or FOLDER_OUTPUTS["unit"].foreign(path) is None):
+                folder.check_unit_folder(unit_id(scene.name, config.name))
+
+
 def plan_build(spec: DatasetSpec, folder: DatasetFolder, scenes: SceneFiles, *,
                chunk_pulses: int | None = None) -> BuildPlan:
     """Manifest rows for every unit (finished ones verified) and jobs for the rest.
@@ -209,7 +222,9 @@ def plan_build(spec: DatasetSpec, folder: DatasetFolder, scenes: SceneFiles, *,
                 entries.append(ManifestEntry(id=uid, scene=scene.name, config=config.name, status="done",
                                              points=record.points, files=folder.unit_files(uid, record.files)))
                 continue
-            # stale or damaged: rebuilt; the old folder is swapped out only once the new one is complete
+            # stale or damaged: rebuilt; the old folder is swapped out only once the new one is complete, and
+            # only when it holds nothing bimscan did not write: found now, before anything is scanned
+            folder.check_unit_folder(uid)
             entries.append(ManifestEntry(id=uid, scene=scene.name, config=config.name, status="pending"))
             tag = site_tag(recipe)
             unit_jobs[uid] = UnitJob(unit=uid, scene=scene.name, config=config.name, ifc=str(scene_files[scene.name]),
