@@ -227,8 +227,8 @@ def test_a_validation_set_without_labels_is_refused_before_training(
 def test_a_run_refused_while_reading_its_scenes_leaves_no_folder_behind(
     tmp_path: Path, room_files: dict[str, list[str]], tiny_config: Callable[..., Path], room: Callable[..., PointCloud],
 ) -> None:
-    """The run folder (and its tile cache) goes with a bad input when this run made it; a folder
-    that was there before keeps all it held."""
+    """The run folder (and its tile cache) goes with a bad input when this run made it; an empty
+    folder that was there before stays."""
     write_text_cloud(tmp_path / "bare.xyz", PointCloud(xyz=room(60, points_per_m2=40).xyz))
     config = tiny_config(tmp_path, train=room_files["train"], val=["bare.xyz"], out_dir="fresh")
 
@@ -236,11 +236,10 @@ def test_a_run_refused_while_reading_its_scenes_leaves_no_folder_behind(
         _run(config)
     assert not (tmp_path / "fresh").exists()
 
-    (tmp_path / "mine").mkdir()
-    (tmp_path / "mine" / "notes.txt").write_text("kept")
+    (tmp_path / "empty").mkdir()
     with pytest.raises(LearnError, match=r"\[data\] val: no column"):
-        _run(tiny_config(tmp_path, train=room_files["train"], val=["bare.xyz"], out_dir="mine"))
-    assert (tmp_path / "mine" / "notes.txt").read_text() == "kept"
+        _run(tiny_config(tmp_path, train=room_files["train"], val=["bare.xyz"], out_dir="empty"))
+    assert (tmp_path / "empty").is_dir() and not (tmp_path / "empty" / "last.pt").exists()
 
 
 def test_the_logged_learning_rate_is_the_last_one_each_epoch_applied(trained_run: Path) -> None:

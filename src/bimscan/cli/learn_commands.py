@@ -60,7 +60,8 @@ def evaluation_settings(checkpoint: Path, **given: object):  # -> EvalConfig
 @click.argument("config", type=click.Path(path_type=Path, dir_okay=False))
 @click.option("--resume", is_flag=True, help="Continue the run in the output folder from its last checkpoint.")
 @click.option("--out", "out_dir", type=click.Path(path_type=Path, file_okay=False), default=None,
-              help="Output folder (default: [train] out_dir of the config, relative to the config file).")
+              help="Output folder (default: [train] out_dir of the config, relative to the config file): new, "
+                   "empty, or one bimscan made; files of yours in it are left alone.")
 @click.option("--init", "init", type=click.Path(path_type=Path, dir_okay=False), default=None,
               help="Start from this checkpoint's weights (fine-tuning: same network and classes); its own "
                    "schedule is the config's [train] (epochs, max_lr, freeze).")
@@ -86,7 +87,8 @@ def train(config: Path, resume: bool, out_dir: Path | None, init: Path | None) -
 @click.argument("checkpoint", type=click.Path(path_type=Path, dir_okay=False))
 @click.argument("scenes", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(path_type=Path, file_okay=False), default=None,
-              help="Folder for evaluation.md/.csv/.json and confusion.csv/.png.")
+              help="Folder for evaluation.md/.csv/.json and confusion.csv/.png: new, empty, or one bimscan made "
+                   "(a training run's); files of yours in it are left alone.")
 @click.option("--label-field", default=None,
               help="Field holding the ground truth: LAS/PLY dimension, NumPy folder file, text header column "
                    "(default: classification/label; S3DIS rooms: their annotation names).")
@@ -107,9 +109,11 @@ def evaluate(
     and the pooled confusion matrix as confusion.csv/.png, and for bimscan clouds elements.csv:
     where each IFC class's points went.
     """
-    from bimscan.learn.evaluate import evaluate_checkpoint, format_markdown, write_evaluation
+    from bimscan.learn.evaluate import check_evaluation_output, evaluate_checkpoint, format_markdown, write_evaluation
     from bimscan.learn.mapping import load_label_mapping
 
+    if out_dir is not None:
+        check_evaluation_output(out_dir)  # before the checkpoint and scenes are read
     label_mapping = None if mapping is None else load_label_mapping(mapping)
     evaluation = evaluation_settings(checkpoint, stride_m=stride_m, votes=votes, label_neighbours=label_neighbours,
                                      batch_size=batch_size, max_passes=max_passes, weights=weights, seed=seed)

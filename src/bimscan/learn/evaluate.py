@@ -30,7 +30,9 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.errors import LearnError
-from bimscan.files import dump_json, write_atomic
+from bimscan.files import (
+    check_output_folder, dump_json, json_marker, prepare_output_folder, read_marker, write_atomic,
+)
 from bimscan.learn.checkpoint import load_trained_model
 from bimscan.io.s3dis import S3DIS_CLASSES
 from bimscan.learn.data import build_scene_label_table, list_scenes, stored_header
@@ -367,12 +369,29 @@ class EvaluationFiles:
         return tuple(p for p in files if p is not None)
 
 
+EVALUATION_FILES = ("evaluation.md", "evaluation.csv", "evaluation.json", "confusion.csv", "confusion.png",
+                    "elements.csv")
+
+
+def is_earlier_evaluation(folder: Path) -> bool:
+    """Whether ``folder`` holds an evaluation written before output folders had records."""
+    return json_marker(read_marker(folder / "evaluation.json"), "all points")
+
+
+def check_evaluation_output(out_dir: Path) -> None:
+    """OutputError, before any scene is read, when ``write_evaluation`` may not write into
+    ``out_dir`` (``bimscan.files.check_output_folder``): a user's folder, or a user's file at one
+    of its names (a ``metrics.csv`` beside them is left alone)."""
+    check_output_folder(out_dir, names=EVALUATION_FILES, made_by=is_earlier_evaluation)
+
+
 def write_evaluation(results: Sequence[SceneEvaluation], out_dir: Path, class_names: Sequence[str], *,
                      title: str = "") -> EvaluationFiles:
     """Write ``evaluation.md``, ``evaluation.csv``, ``evaluation.json``, ``confusion.csv`` and
     ``confusion.png`` (titled ``title``, default "Confusion, all points") into ``out_dir``
-    (created if missing), and ``elements.csv`` when a scene is a bimscan cloud."""
-    out_dir.mkdir(parents=True, exist_ok=True)
+    (created if missing; an output folder, see ``check_evaluation_output``), and ``elements.csv``
+    when a scene is a bimscan cloud."""
+    prepare_output_folder(out_dir, names=EVALUATION_FILES, made_by=is_earlier_evaluation)
     elements = pool_elements(results)
     files = EvaluationFiles(out_dir / "evaluation.md", out_dir / "evaluation.csv", out_dir / "evaluation.json",
                             out_dir / "confusion.csv", out_dir / "confusion.png",

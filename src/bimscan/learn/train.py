@@ -38,7 +38,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from bimscan.errors import LearnError
-from bimscan.files import remove_path
+from bimscan.files import check_output_folder, claim_output, prepare_output_folder, remove_path
 from bimscan.processes import die_with_parent
 from bimscan.learn.checkpoint import (
     MODEL_KEYS, capture_rng_state, load_state, read_checkpoint, restore_rng_state, save_checkpoint,
@@ -588,6 +588,16 @@ def _read_tiles(config: TrainRunConfig, val_sources: list[SceneSource], train_so
     return val_tiles, train_tiles, target_tiles
 
 
+# What a run writes into its folder (``bimscan.files`` output folder names).
+RUN_OUTPUTS = ("last.pt", "best.pt", "metrics.csv", "curves.png", "tile-cache/")
+
+
+def is_earlier_run(folder: Path) -> bool:
+    """Whether ``folder`` is a run folder made before output folders had records: it holds last.pt
+    (read, and so checked to be a bimscan checkpoint, by ``--resume`` before anything is written)."""
+    return (folder / "last.pt").is_file()
+
+
 def _set_up(config: TrainRunConfig, *, ctx: DistributedContext, base_dir: Path, out_dir: Path | None, resume: bool,
             init: Path | None, emit: Callable[[str], None]) -> _Run:
     """Every input checked (before the output folder appears), the tiles read, the network, its
@@ -609,13 +619,18 @@ def _set_up(config: TrainRunConfig, *, ctx: DistributedContext, base_dir: Path, 
     if target_sources and init is None and not resume:
         raise LearnError("[data] adapt: adapting to unlabelled scans starts from a trained model (their pseudo-labels "
                          "are its predictions); pass --init CHECKPOINT, or train on labelled data first")
+    if ctx.is_main:  # a user's folder, or a user's metrics.csv in it, is refused before any work
+        check_output_folder(out, names=RUN_OUTPUTS, made_by=is_earlier_run)
     state = read_checkpoint(last_path, require=RESUME_KEYS) if resume else None
     if state is not None and init is not None:
         check_same_start(state.get("init"), init, last_path)
     parent = None if init is None or resume else read_start(init, config)
     created = ctx.is_main and not out.exists()
     if ctx.is_main:
-        out.mkdir(parents=True, exist_ok=True)
+        prepare_output_folder(out, names=RUN_OUTPUTS, made_by=is_earlier_run)
+        claim_output(out, "tile-cache/")
+    if ctx.world > 1:
+        dist.barrier()  # the folder and its record are made before any process writes its tile cache there
     classes = len(config.data.class_names)
     try:
         val_tiles, train_tiles, target_tiles = _read_tiles(config, val_sources, train_sources, target_sources,
