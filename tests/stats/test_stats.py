@@ -75,8 +75,10 @@ def test_statistics_equal_the_hand_computed_values(dataset: Path) -> None:
 def test_stats_writes_tables_plots_and_a_report_that_states_stability_in_numbers(dataset: Path, tmp_path: Path) -> None:
     result = write_stats(dataset, tmp_path / "stats")
     names = sorted(p.name for p in (tmp_path / "stats").iterdir())
-    assert names == sorted(["units.csv", "configs.csv", "scenes.csv", "stats.json", "points.png", "extents.png",
-                            "classes.png", "report.md"])
+    written = sorted(["units.csv", "configs.csv", "scenes.csv", "stats.json", "points.png", "extents.png", "classes.png",
+                      "report.md"])
+    assert names == [".bimscan.json", *written]  # its record lists what bimscan wrote there
+    assert json.loads((tmp_path / "stats" / ".bimscan.json").read_text())["files"] == written
     for plot in ("points.png", "extents.png", "classes.png"):
         data = (tmp_path / "stats" / plot).read_bytes()
         assert data.startswith(b"\x89PNG\r\n\x1a\n") and len(data) > 10_000
@@ -99,6 +101,29 @@ def test_statistics_are_written_again_to_the_same_bytes(dataset: Path, tmp_path:
     write_stats(dataset, tmp_path / "two")
     for path in (tmp_path / "one").iterdir():
         assert path.read_bytes() == (tmp_path / "two" / path.name).read_bytes(), path.name
+
+
+def test_statistics_into_a_users_folder_are_refused_before_the_units_are_read_and_keep_it(
+        dataset: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from bimscan.errors import OutputError
+
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "report.md").write_text("# my report")
+    monkeypatch.setattr("bimscan.stats.report.collect_units", lambda *a, **k: pytest.fail("units read"))
+    with pytest.raises(OutputError, match=r"mine is a folder bimscan did not make \(it holds report.md\)"):
+        write_stats(dataset, mine)
+    assert [p.name for p in mine.iterdir()] == ["report.md"] and (mine / "report.md").read_text() == "# my report"
+
+
+def test_statistics_written_before_folders_had_records_are_written_again_beside_the_users_notes(
+        dataset: Path, tmp_path: Path) -> None:
+    write_stats(dataset, tmp_path / "stats")
+    (tmp_path / "stats" / ".bimscan.json").unlink()  # as an earlier version left it
+    (tmp_path / "stats" / "notes.md").write_text("mine")
+    write_stats(dataset, tmp_path / "stats")
+    assert (tmp_path / "stats" / "notes.md").read_text() == "mine"
+    assert "notes.md" not in json.loads((tmp_path / "stats" / ".bimscan.json").read_text())["files"]
 
 
 def test_stats_can_recount_units_by_streaming_their_clouds(tmp_path: Path) -> None:

@@ -64,7 +64,7 @@ def _report_build(report: BuildReport) -> None:
               help="Address of a running Ray cluster (with --executor ray; OUT_DIR must be on storage all nodes see). "
                    "Default: a local Ray instance.")
 def build(spec: Path, out_dir: Path, workers: int | None, executor: str, ray_address: str | None) -> None:
-    """Build the dataset described by SPEC (a TOML file) into OUT_DIR.
+    """Build the dataset described by SPEC (a TOML file) into OUT_DIR (new, empty, or one bimscan made).
 
     One data unit per (scene, configuration): units/<scene>__<config>/ with the cloud file(s),
     unit.json and timings.json; manifest.json lists every unit and its status. Everything in
@@ -89,7 +89,8 @@ def build(spec: Path, out_dir: Path, workers: int | None, executor: str, ray_add
 @click.command("stats")
 @click.argument("dataset_dir", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Folder for the tables, plots and report (default: DATASET_DIR/stats).")
+              help="Folder for the tables, plots and report (default: DATASET_DIR/stats): new, empty, or one "
+                   "bimscan made.")
 @click.option("--from-clouds", is_flag=True,
               help="Recount every unit by streaming its cloud file instead of reading the counts in unit.json.")
 @click.option("--verify", is_flag=True,

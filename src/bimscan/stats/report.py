@@ -9,6 +9,9 @@ Files written to the output folder (each atomically):
 - ``points.png``, ``extents.png``, ``classes.png``: Figs. 4, 5 and 6;
 - ``report.md``: the plots and tables, and whether extents and class shares stay stable
   across configurations, in numbers.
+
+The folder is an output folder (``bimscan.files.prepare_output_folder``): a new or empty one, or
+one bimscan made; a user's file at one of these names is refused before the units are read.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ import io
 from dataclasses import dataclass
 from pathlib import Path
 
-from bimscan.files import dump_json, write_atomic
+from bimscan.files import check_output_folder, dump_json, json_marker, prepare_output_folder, read_marker, write_atomic
 from bimscan.stats.collect import collect_units
 from bimscan.stats.plots import plot_classes, plot_extents, plot_points
 from bimscan.stats.summary import AXES, DatasetStats, summarize_dataset
@@ -26,6 +29,15 @@ from bimscan.stats.summary import AXES, DatasetStats, summarize_dataset
 # What the report calls stable (the paper's Figs. 5 and 6 claim "highly consistent").
 STABLE_EXTENT_SPREAD = 0.05  # 5 % of the extent
 STABLE_CLASS_SPREAD_PP = 5.0  # 5 percentage points
+
+
+STATS_FILES = ("units.csv", "configs.csv", "scenes.csv", "stats.json", "points.png", "extents.png", "classes.png",
+               "report.md")
+
+
+def is_earlier_stats(folder: Path) -> bool:
+    """Whether ``folder`` holds statistics written before output folders had records (its stats.json)."""
+    return json_marker(read_marker(folder / "stats.json"), "configs")
 
 
 @dataclass(frozen=True)
@@ -156,18 +168,16 @@ def write_stats(dataset_dir: str | Path, out_dir: str | Path | None = None, *, f
     ``verify``: check every finished unit's files against the checksums in its unit.json first
     (a DatasetError names the first damaged unit).
     """
-    from bimscan.errors import DatasetError, OutputError
+    from bimscan.errors import DatasetError
 
     dataset = Path(dataset_dir)
+    out = Path(out_dir) if out_dir is not None else dataset / "stats"
+    check_output_folder(out, names=STATS_FILES, made_by=is_earlier_stats)  # before the units are read
     collected = collect_units(dataset, from_clouds=from_clouds, verify=verify)
     if not collected.units:
         raise DatasetError(f"{dataset}: no finished unit to summarise; run 'bimscan build' first")
     stats = summarize_dataset(collected)
-    out = Path(out_dir) if out_dir is not None else dataset / "stats"
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"cannot create the statistics folder {out} ({exc.strerror}); choose another --out") from exc
+    prepare_output_folder(out, names=STATS_FILES, made_by=is_earlier_stats)
     outputs = {
         "units.csv": _csv(units_table(stats)),
         "configs.csv": _csv(configs_table(stats)),
