@@ -6,6 +6,10 @@ configurations, at a head speed of 60 deg/s (the VZ-400's fastest, six times the
 configurations stay the paper's). ``run_demo`` writes this spec beside the dataset, builds it,
 and makes the statistics (Figs. 4-6) and pictures (Fig. 3); running it again resumes where it
 stopped.
+
+OUT_DIR is an output folder (``bimscan.files.prepare_output_folder``): a new or empty one, or one
+bimscan made; a user's file at a name the demo writes there is refused before any work, and
+anything else in it is left alone.
 """
 
 from __future__ import annotations
@@ -37,9 +41,24 @@ name = "office-1f"
 generate = { seed = 2, storeys = 1 }
 
 """
+_TEMPLATE_START = _TEMPLATE.split("\n", 1)[0].encode("utf-8")  # how a demo's dataset.toml starts
 DEFAULT_HEAD_DEG_PER_S = 60.0
 PRESETS_SCANNED = ("exp1", "exp2", "exp3", "exp4", "exp5", "exp6")
 RENDER_CONFIG = "exp3"  # the configuration pictured for each scene
+# What the demo writes into OUT_DIR (``bimscan.files`` output folder names).
+DEMO_OUTPUTS = ("dataset.toml", "dataset/", "stats/", "pictures/")
+
+
+def is_earlier_demo(folder: Path) -> bool:
+    """Whether ``folder`` holds a demo run before output folders had records (its dataset.toml)."""
+    from bimscan.files import file_head
+
+    return file_head(folder / "dataset.toml", len(_TEMPLATE_START)) == _TEMPLATE_START
+
+
+def is_earlier_demo_pictures(folder: Path) -> bool:
+    """Whether ``folder`` is the pictures folder of such a demo."""
+    return is_earlier_demo(folder.parent)
 
 
 def demo_spec(*, head_deg_per_s: float = DEFAULT_HEAD_DEG_PER_S) -> str:
@@ -56,6 +75,14 @@ def demo_spec(*, head_deg_per_s: float = DEFAULT_HEAD_DEG_PER_S) -> str:
     configs = "\n".join(f'[[configs]]\nname = "{p}"\npreset = "{p}"\nhead_deg_per_s = {head}\n'
                          for p in PRESETS_SCANNED)
     return _TEMPLATE.replace("{head}", head).replace("{ratio}", share) + configs
+
+
+def picture_names() -> list[str]:
+    """The pictures the demo draws into OUT_DIR/pictures: per scene its cloud and its model beside it."""
+    import tomllib
+
+    scenes = [scene["name"] for scene in tomllib.loads(demo_spec())["scenes"]]
+    return [name for scene in scenes for name in (f"{scene}_{RENDER_CONFIG}.png", f"{scene}_model_and_scan.png")]
 
 
 def write_demo_spec(path: Path, *, head_deg_per_s: float = DEFAULT_HEAD_DEG_PER_S) -> Path:
@@ -88,18 +115,17 @@ def run_demo(out_dir: str | Path, *, workers: int | None = None, executor: str =
     from bimscan.dataset.build import build_dataset
     from bimscan.dataset.layout import DatasetFolder, unit_id
     from bimscan.dataset.spec import device_warnings, load_spec
-    from bimscan.errors import OutputError
+    from bimscan.files import check_output_folder, prepare_output_folder
     from bimscan.pipeline import load_scene
     from bimscan.render.cloud import render_cloud
     from bimscan.render.figure import render_figure
-    from bimscan.stats.report import write_stats
+    from bimscan.stats.report import STATS_FILES, is_earlier_stats, write_stats
 
-    out = Path(out_dir)
     demo_spec(head_deg_per_s=head_deg_per_s)  # an impossible head speed is refused before anything is made
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"cannot create {out} ({exc.strerror}); choose another OUT_DIR") from exc
+    out = prepare_output_folder(out_dir, names=DEMO_OUTPUTS, made_by=is_earlier_demo)
+    DatasetFolder(out / "dataset").prepare()  # its own folder and record, checked before any work
+    check_output_folder(out / "stats", names=STATS_FILES, made_by=is_earlier_stats)
+    check_output_folder(out / "pictures", names=picture_names(), made_by=is_earlier_demo_pictures)
     spec_path = write_demo_spec(out / "dataset.toml", head_deg_per_s=head_deg_per_s)
     spec = load_spec(spec_path)
     folder = DatasetFolder(out / "dataset")
@@ -112,7 +138,7 @@ def run_demo(out_dir: str | Path, *, workers: int | None = None, executor: str =
     done = {e.id: e for e in folder.read_manifest().done()}
     stats_report = write_stats(folder.root, out / "stats").out_dir / "report.md" if done else None
     pictures: list[Path] = []
-    (out / "pictures").mkdir(exist_ok=True)
+    prepare_output_folder(out / "pictures", names=picture_names(), made_by=is_earlier_demo_pictures)
     for scene in spec.scenes:
         entry = done.get(unit_id(scene.name, RENDER_CONFIG))
         if entry is None:

@@ -6,6 +6,8 @@ scenes they never trained on and on the holdout buildings, and the report writte
 The file format and its parse are :mod:`bimscan.learn.experiment`'s; this composes the stages
 (``bimscan.dataset`` builds, ``bimscan.learn`` trains and scores), as :mod:`bimscan.pipeline`
 composes a scan. Every step is kept on disk and skipped when found finished: a killed run continues.
+OUT_DIR is an output folder (``bimscan.files.prepare_output_folder``): a new or empty one, or one
+bimscan made; a user's file at a name the experiment writes there is refused before any work.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from bimscan.errors import ConfigError, LearnError
-from bimscan.files import write_atomic
+from bimscan.files import claim_output, json_marker, prepare_output_folder, read_marker, write_atomic
 from bimscan.learn.data import SceneSource
 from bimscan.learn.experiment import (
     DATA_RECORD, Experiment, ExperimentRecord, Variant, VariantResult, parse_experiment, room_sources,
@@ -78,9 +80,10 @@ def run_experiment(experiment: Experiment, out_dir: str | Path, *,
     # every variant's models planned before any work: one that cannot run (too few scored rooms
     # for its folds) stops the experiment now, not after the variants before it have trained
     runs_of = {variant.name: _runs(experiment, variant, scored) for variant in experiment.variants}
-    out.mkdir(parents=True, exist_ok=True)
     _check_holdout_unseen(experiment, out)
     _check_real_labelled(experiment)
+    prepare_output_folder(out, names=EXPERIMENT_OUTPUTS, made_by=is_earlier_experiment)  # a user's folder: refused
+    claim_output(out, "variants/")
     _check_same_experiment(experiment, out)
     _build_datasets(experiment, out, emit)
     holdout = _build_holdout(experiment, out, emit)
@@ -89,6 +92,16 @@ def run_experiment(experiment: Experiment, out_dir: str | Path, *,
     write_report(experiment, results, out)
     emit(f"report: {out / 'report.md'}")
     return results
+
+
+# What an experiment writes into OUT_DIR (``bimscan.files`` output folder names).
+EXPERIMENT_OUTPUTS = ("experiment.json", "datasets/", "holdout/", "variants/", "report.md", "results.csv",
+                      "results.json", "val_miou.png", "label_efficiency.png")
+
+
+def is_earlier_experiment(folder: Path) -> bool:
+    """Whether ``folder`` holds an experiment run before output folders had records (its experiment.json)."""
+    return json_marker(read_marker(folder / "experiment.json"), "variants")
 
 
 def _check_real_labelled(experiment: Experiment) -> None:
@@ -284,6 +297,7 @@ def _build_datasets(experiment: Experiment, out: Path, emit: Callable[[str], Non
     stems = [s.stem for s in specs]
     if len(set(stems)) != len(stems):
         raise ConfigError(f"{experiment.path}: two variant specs share a file name ({stems}); rename one")
+    claim_output(out, "datasets/")
     for spec_path in specs:
         target = _dataset_dir(out, spec_path)
         emit(f"dataset {spec_path.name} -> {target}")

@@ -30,11 +30,37 @@ def test_the_demo_builds_the_dataset_statistics_and_pictures_and_resumes(
     report = (out / "stats" / "report.md").read_text()
     assert "so extents stay stable" in report and "so proportions stay stable" in report
     pictures = sorted(p.name for p in (out / "pictures").iterdir())
-    assert pictures == ["office-1f_exp3.png", "office-1f_model_and_scan.png", "office-2f_exp3.png",
-                        "office-2f_model_and_scan.png"]
+    assert pictures == [".bimscan.json", "office-1f_exp3.png", "office-1f_model_and_scan.png", "office-2f_exp3.png",
+                        "office-2f_model_and_scan.png"]  # the record lists what bimscan wrote in the folder
+    assert json.loads((out / ".bimscan.json").read_text())["files"] == ["dataset.toml", "dataset/", "pictures/",
+                                                                        "stats/"]
     assert str(out / "stats" / "report.md") in printed and str(out / "dataset" / "manifest.json") in printed
 
     mtimes = {p: p.stat().st_mtime_ns for p in (out / "dataset" / "units").rglob("*")}
+    (out / "notes.md").write_text("what I saw")  # a user's file beside the demo's is left alone
     assert main(["demo", str(out), "--head-speed", "360"]) == 0
+    assert (out / "notes.md").read_text() == "what I saw"
     assert "12 units: 0 built, 12 already done, 0 failed" in capsys.readouterr().out
     assert {p: p.stat().st_mtime_ns for p in (out / "dataset" / "units").rglob("*")} == mtimes
+
+
+def test_the_demo_refuses_a_users_folder_and_a_users_file_at_its_names_before_any_work(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "thesis.txt").write_text("three years")
+    assert main(["demo", str(mine)]) == 1
+    assert "mine is a folder bimscan did not make (it holds thesis.txt)" in capsys.readouterr().err
+    assert sorted(p.name for p in mine.iterdir()) == ["thesis.txt"]
+
+    out = tmp_path / "demo"
+    (out / "pictures").mkdir(parents=True)
+    (out / "dataset.toml").write_text("# the demo's spec, as the demo wrote it\n")
+    (out / ".bimscan.json").write_text(json.dumps({"format": "bimscan-output-folder", "version": 1,
+                                                    "files": ["dataset.toml"]}))
+    (out / "pictures" / "office-1f_exp3.png").write_bytes(b"\x89PNG\r\n\x1a\n mine")  # a folder it did not make
+    assert main(["demo", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert f"{out / 'pictures'} was not written by bimscan" in err and err.count("\n") == 1
+    assert not (out / "dataset").exists()  # refused before the build
+    assert (out / "pictures" / "office-1f_exp3.png").read_bytes() == b"\x89PNG\r\n\x1a\n mine"

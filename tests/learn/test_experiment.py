@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from bimscan.cli.main import main
-from bimscan.errors import ConfigError, IfcError, InputFileError, LearnError
+from bimscan.errors import ConfigError, IfcError, InputFileError, LearnError, OutputError
 from bimscan.io.text import write_text_cloud
 from bimscan.types import PointCloud
 from bimscan.learn.experiment import training_sections
@@ -516,6 +516,16 @@ def test_the_holdout_models_are_scanned_with_the_given_sensor_settings(rooms_dir
     with pytest.raises(ConfigError, match="glas") as caught:
         load_experiment(rooms_dir / "exp.toml")
     assert "\n" not in str(caught.value)
+
+
+def test_an_experiment_into_a_users_folder_is_refused_before_any_work_and_kept(rooms_dir: Path) -> None:
+    out = rooms_dir / "results"
+    out.mkdir()
+    (out / "report.md").write_text("# my own report\n")
+    with pytest.raises(OutputError) as caught:
+        run_experiment(load_experiment(rooms_dir / "exp.toml"), out, log=lambda t: None)
+    assert str(caught.value).startswith(f"{out.resolve()} is a folder bimscan did not make (it holds report.md)")
+    assert sorted(p.name for p in out.iterdir()) == ["report.md"] and (out / "report.md").read_text() == "# my own report\n"
 
 
 def test_a_variant_training_on_the_holdout_is_refused_before_any_work(rooms_dir: Path) -> None:
