@@ -122,3 +122,17 @@ def test_a_run_folder_made_before_records_resumes_and_its_users_notes_stay_out_o
     assert (run / "notes.md").read_text() == "lr too high?"
     assert {"last.pt", "metrics.csv", "curves.png", "tile-cache/"} <= read_output_record(run)
     assert "notes.md" not in read_output_record(run)
+
+
+def test_a_run_folder_an_earlier_version_left_in_its_first_epoch_is_taken_and_a_users_is_not(tmp_path: Path) -> None:
+    from bimscan.errors import OutputError
+    from bimscan.files import check_output_folder
+    from bimscan.learn.train import RUN_OUTPUTS, is_earlier_run
+
+    killed = tmp_path / "killed"
+    (killed / "tile-cache").mkdir(parents=True)  # killed before its first checkpoint, by an earlier version
+    (killed / "tile-cache" / "tiles-0123.npz").write_bytes(b"PK")
+    check_output_folder(killed, names=RUN_OUTPUTS, made_by=is_earlier_run)
+    (killed / "metrics.csv").write_text("mine\n")
+    with pytest.raises(OutputError, match="is a folder bimscan did not make"):
+        check_output_folder(killed, names=RUN_OUTPUTS, made_by=is_earlier_run)

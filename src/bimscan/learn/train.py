@@ -38,7 +38,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from bimscan.errors import LearnError
-from bimscan.files import check_output_folder, claim_output, prepare_output_folder, remove_path
+from bimscan.files import check_output_folder, claim_output, folder_entries, prepare_output_folder, remove_path
 from bimscan.processes import die_with_parent
 from bimscan.learn.checkpoint import (
     MODEL_KEYS, capture_rng_state, load_state, read_checkpoint, restore_rng_state, save_checkpoint,
@@ -594,8 +594,12 @@ RUN_OUTPUTS = ("last.pt", "best.pt", "metrics.csv", "curves.png", "tile-cache/")
 
 def is_earlier_run(folder: Path) -> bool:
     """Whether ``folder`` is a run folder made before output folders had records: it holds last.pt
-    (read, and so checked to be a bimscan checkpoint, by ``--resume`` before anything is written)."""
-    return (folder / "last.pt").is_file()
+    (read, and so checked to be a bimscan checkpoint, by ``--resume`` before anything is written),
+    or only a tile cache and temporaries (a run killed in its first epoch)."""
+    if (folder / "last.pt").is_file():
+        return True
+    return all(name == "tile-cache/" or (name.startswith(".") and name.endswith(".tmp"))
+               for name in folder_entries(folder))
 
 
 def _set_up(config: TrainRunConfig, *, ctx: DistributedContext, base_dir: Path, out_dir: Path | None, resume: bool,
