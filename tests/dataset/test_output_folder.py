@@ -92,8 +92,8 @@ def test_a_unit_with_a_users_file_added_is_kept_when_finished_and_refused_before
     assert (report.built, report.reused) == (0, 4) and (unit / "notes.txt").read_text() == "checked on site"
 
     (unit / "cloud.laz").unlink()  # stale: it is to be rebuilt, over the user's file
-    with pytest.raises(OutputError, match="north__sparse is a bimscan data unit that also holds notes.txt, which bimscan "
-                                          "did not write"):
+    with pytest.raises(OutputError, match="north__sparse is a bimscan data unit that also holds notes.txt, which "
+                                          "bimscan did not write"):
         build_dataset(load_spec(reference_dataset.spec), out, executor="serial", progress=False)
     assert no_work == [] and (unit / "notes.txt").read_text() == "checked on site"
 

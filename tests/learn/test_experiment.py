@@ -525,7 +525,8 @@ def test_an_experiment_into_a_users_folder_is_refused_before_any_work_and_kept(r
     with pytest.raises(OutputError) as caught:
         run_experiment(load_experiment(rooms_dir / "exp.toml"), out, log=lambda t: None)
     assert str(caught.value).startswith(f"{out.resolve()} is a folder bimscan did not make (it holds report.md)")
-    assert sorted(p.name for p in out.iterdir()) == ["report.md"] and (out / "report.md").read_text() == "# my own report\n"
+    assert sorted(p.name for p in out.iterdir()) == ["report.md"]
+    assert (out / "report.md").read_text() == "# my own report\n"
 
 
 def test_a_variant_training_on_the_holdout_is_refused_before_any_work(rooms_dir: Path) -> None:

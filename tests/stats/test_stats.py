@@ -75,8 +75,8 @@ def test_statistics_equal_the_hand_computed_values(dataset: Path) -> None:
 def test_stats_writes_tables_plots_and_a_report_that_states_stability_in_numbers(dataset: Path, tmp_path: Path) -> None:
     result = write_stats(dataset, tmp_path / "stats")
     names = sorted(p.name for p in (tmp_path / "stats").iterdir())
-    written = sorted(["units.csv", "configs.csv", "scenes.csv", "stats.json", "points.png", "extents.png", "classes.png",
-                      "report.md"])
+    written = sorted(["units.csv", "configs.csv", "scenes.csv", "stats.json", "points.png", "extents.png",
+                      "classes.png", "report.md"])
     assert names == [".bimscan.json", *written]  # its record lists what bimscan wrote there
     assert json.loads((tmp_path / "stats" / ".bimscan.json").read_text())["files"] == written
     for plot in ("points.png", "extents.png", "classes.png"):
