@@ -307,7 +307,8 @@ def replace_problem(path: str | Path, *, kind: str | None = None) -> str | None:
     """Why bimscan may not replace what is at ``path`` with a new output, in words that follow the
     path ("is a folder that is not a bimscan NumPy cloud (it holds thesis.txt, sub/)"); None when
     it may: nothing is there, or (``kind`` None: a file output) a regular file in the format its
-    suffix names, or (``kind``: a ``FOLDER_OUTPUTS`` key) a folder of that kind holding nothing else."""
+    suffix names, or (``kind``: a ``FOLDER_OUTPUTS`` key) a folder of that kind holding nothing else,
+    and, in an output folder, only what its record lists (``read_output_record``)."""
     path = Path(path)
     if not os.path.lexists(path):
         return None
