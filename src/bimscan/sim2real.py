@@ -105,13 +105,17 @@ def is_earlier_experiment(folder: Path) -> bool:
 
 
 def _check_real_labelled(experiment: Experiment) -> None:
-    """Every scored scene carries labels of the experiment's classes: a cloud without them is
-    refused in seconds, naming where it came from, before the datasets are built."""
-    from bimscan.learn.data import require_labels
+    """Every scored scene carries labels of the experiment's classes and is in metres (for every
+    variant's blocks): a cloud without them, or one in millimetres, is refused in seconds, naming
+    where it came from, before the datasets are built."""
+    from bimscan.learn.data import check_scene_unit, require_labels
     from bimscan.learn.train_config import DEFAULT_CLASS_NAMES
 
-    require_labels(_scored_scenes(experiment), class_names=experiment.class_names or DEFAULT_CLASS_NAMES,
-                   where="[real] scenes or --real")
+    scored = _scored_scenes(experiment)
+    require_labels(scored, class_names=experiment.class_names or DEFAULT_CLASS_NAMES, where="[real] scenes or --real")
+    for blocks in {training_sections(variant)["blocks"] for variant in experiment.variants}:
+        for source in scored:
+            check_scene_unit(source, blocks=blocks)
 
 
 def _scored_scenes(experiment: Experiment) -> list[SceneSource]:

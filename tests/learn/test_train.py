@@ -137,13 +137,24 @@ def test_starting_over_an_existing_run_without_resume_is_refused(trained_run: Pa
         train_model(config, base_dir=base, log=lambda text: None)
 
 
-def test_resuming_with_a_changed_configuration_is_refused(
+def test_resuming_with_a_changed_configuration_is_refused_and_a_finished_run_is_not_called_interrupted(
     tmp_path: Path, room_files: dict[str, list[str]], tiny_config: Callable[..., Path],
 ) -> None:
-    _run(tiny_config(tmp_path, **room_files, epochs=1))
-    changed = tiny_config(tmp_path, **room_files, epochs=1, seed=9)
+    path = tiny_config(tmp_path, **room_files, epochs=2, name="run.toml")
 
-    with pytest.raises(LearnError, match=r"\[train\] seed was 0 in the interrupted run and is 9 now"):
+    def crash(epoch: int, step: int) -> None:
+        if epoch == 1:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        _run(path, on_step_end=crash)
+    changed = tiny_config(tmp_path, **room_files, epochs=2, seed=9, name="changed.toml")
+    with pytest.raises(LearnError, match=r"\[train\] seed was 0 in the interrupted run and is 9 now; resume with the "
+                                         r"same configuration \(--resume\), or start a new run in another out_dir$"):
+        _run(changed, resume=True)
+    _run(path, resume=True)  # both epochs done
+    with pytest.raises(LearnError, match=r"\[train\] seed was 0 in the finished run and is 9 now; start a new run in "
+                                         r"another out_dir$"):
         _run(changed, resume=True)
 
 
@@ -267,14 +278,22 @@ def test_the_logged_learning_rate_is_the_last_one_each_epoch_applied(trained_run
 def test_resuming_on_another_kind_of_device_is_refused(
     tmp_path: Path, room_files: dict[str, list[str]], tiny_config: Callable[..., Path],
 ) -> None:
-    config = tiny_config(tmp_path, **room_files, epochs=1)
-    last = _run(config)
+    config = tiny_config(tmp_path, **room_files, epochs=2)
+
+    def crash(epoch: int, step: int) -> None:
+        if epoch == 1:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        _run(config, on_step_end=crash)
+    last = tmp_path / "run" / "last.pt"
     payload = _load(last)
     used, other = payload["device"], "cuda" if payload["device"] == "cpu" else "cpu"
     payload["device"] = other
     torch.save(payload, last)
 
-    with pytest.raises(LearnError, match=f"the run trained on {other} and would resume on {used}"):
+    with pytest.raises(LearnError, match=f"the interrupted run trained on {other} and would continue on {used}; "
+                                         f'continue it on {other} \\(\\[train\\] device = "{other}"\\)'):
         _run(config, resume=True)
 
 

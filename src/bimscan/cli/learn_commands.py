@@ -195,14 +195,25 @@ def adapt(checkpoint: Path, scans: tuple[Path, ...], out_dir: Path, synthetic: t
     import dataclasses
 
     from bimscan.learn.adapt import adaptation_config
-    from bimscan.learn.train import train_model
+    from bimscan.learn.train import RunTerms, train_model
 
     schedule = AdaptationSchedule() if epochs is None else dataclasses.replace(AdaptationSchedule(), epochs=epochs)
     settings = adaptation_config(checkpoint, scans, synthetic=synthetic, schedule=schedule, device=device)
     last = out_dir / "last.pt"
     resume = last.is_file()
+    terms = RunTerms(  # its refusals name its own arguments, not train's --init, --resume, out_dir
+        run="adaptation", activity="adaptation", start="CHECKPOINT", new_run="give another OUT",
+        again="give the same CHECKPOINT, SCAN... and options to continue it",
+        other_start="give that checkpoint to continue it, or another OUT",
+        named={("data", "adapt"): "SCAN...", ("data", "train"): "--synthetic", ("train", "epochs"): "--epochs",
+               ("train", "device"): "--device"},
+        settings_of=str(checkpoint),
+        diverged=(f"adapting at a learning rate of {{max_lr}} ({schedule.lr_factor:g} x {checkpoint}'s max_lr) diverges "
+                  f"on these scans; label them with {checkpoint} as it is, or adapt another checkpoint"),
+        few_blocks="give more labelled data with --synthetic",
+    )
     result = train_model(settings, base_dir=Path.cwd(), out_dir=out_dir, resume=resume, init=checkpoint,
-                         log=lambda text: click.echo(text, err=True))
+                         log=lambda text: click.echo(text, err=True), terms=terms)
     click.echo(f"adapted {checkpoint} to {len(scans)} scan(s) in {result.epochs_done} epoch(s): {result.checkpoint}; "
                f"label a scan with 'bimscan predict {result.checkpoint} SCAN OUT.laz'")
 

@@ -46,7 +46,7 @@ from bimscan.errors import LearnError
 from bimscan.learn.blocks import pad_block
 from bimscan.learn.data import TileSet, draw_block
 from bimscan.learn.features import extra_features
-from bimscan.learn.model import autocast_context, flush_denormals
+from bimscan.learn.model import CHECKPOINT_ADVICE, autocast_context, check_finite_outputs, flush_denormals
 from bimscan.learn.train_config import (
     IGNORE_LABEL, AdaptationSchedule, AdaptConfig, AugmentConfig, InputConfig, TrainRunConfig,
 )
@@ -91,9 +91,12 @@ def class_thresholds(confidence: np.ndarray, prediction: np.ndarray, *, classes:
 @torch.no_grad()
 def pseudo_label_tiles(
     teacher: nn.Module, tiles: TileSet, *, points: int, inputs: InputConfig, config: AdaptConfig, classes: int,
-    device: torch.device, batch_size: int, amp: str, seed: int, epoch: int,
+    device: torch.device, batch_size: int, amp: str, seed: int, epoch: int, name: str = "the teacher",
+    advice: str = CHECKPOINT_ADVICE,
 ) -> PseudoLabels:
-    """Label every kept point of ``tiles`` with ``teacher`` (in eval mode; see the module docs)."""
+    """Label every kept point of ``tiles`` with ``teacher`` (in eval mode; see the module docs).
+    Outputs that overflow stop it (``check_finite_outputs``; ``name``: the teacher's weights,
+    ``advice``: what to do, for the message)."""
     teacher.eval()
     probability = np.zeros((len(tiles.label), classes), dtype=np.float32)
     queue: list[tuple[np.ndarray, np.ndarray]] = []  # (block input (N, D), point indices into tiles (M,))
@@ -103,6 +106,7 @@ def pseudo_label_tiles(
         mask = torch.from_numpy(np.stack([b.mask for b, _ in queue])).to(device)
         with autocast_context(device, amp), flush_denormals():
             logits = teacher(xyz, mask)
+        check_finite_outputs(logits, mask, model=name, where="the unlabelled scans", advice=advice)
         probs = torch.softmax(logits.float(), dim=-1).cpu().numpy()
         for (block, where), prob in zip(queue, probs, strict=True):
             probability[where] = prob[: len(where)]
@@ -235,8 +239,8 @@ def adaptation_config(checkpoint: Path, scans: Sequence[Path], *, synthetic: Seq
                              "--synthetic PATH (a dataset it trained on, or any labelled scans of its classes)")
     data = DataConfig(train=train, val=None, adapt=(SceneSet(scenes=tuple(str(Path(p).resolve()) for p in scans)),),
                       class_names=stored.data.class_names)
-    train_settings = replace(stored.train, epochs=schedule.epochs, max_lr=stored.train.max_lr * schedule.lr_factor,
-                             freeze=(), **({"device": device} if device else {}))
+    train_settings = replace(stored.train, **schedule.changes(stored.train),  # type: ignore[arg-type]
+                             **({"device": device} if device else {}))
     return replace(stored, data=data, train=train_settings)
 
 

@@ -22,6 +22,7 @@ import hashlib
 import json
 import zlib
 from collections.abc import Iterator, Sequence
+from contextlib import closing
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -45,6 +46,11 @@ from bimscan.types import CloudHeader, PointCloud
 ASPRS_UNCLASSIFIED = (0, 1)
 GREY = 128  # the colour of a point whose scene has none, for a network that reads colour  # LAS classification "created, never classified" and "unclassified"
 CHUNK_POINTS = 1_000_000
+# a scene wider than this or taller than BUILDING_HEIGHT_M, read as metres, is likely in another unit
+BUILDING_EXTENT_M = 2_000.0
+BUILDING_HEIGHT_M = 300.0
+# the units a scan brought to bimscan is likely in when not metres: (name, units per metre), smallest first
+OTHER_UNITS = (("millimetres", 1000.0), ("centimetres", 100.0), ("inches", 39.37), ("feet", 3.281))
 
 
 @dataclass(frozen=True)
@@ -162,6 +168,82 @@ def require_labels(sources: Sequence[SceneSource], *, class_names: Sequence[str]
         if not (table[first.label.astype(np.int64)] != IGNORE_LABEL).any():
             raise LearnError(f"{source.path}: none of its first {len(first):,} points has a label of the classes "
                              f"{', '.join(class_names)} ({where}); check its labels and the scene set's mapping")
+
+
+def likely_unit(wide: float, tall: float) -> str | None:
+    """The first of ``OTHER_UNITS`` in which a scene ``wide`` (the larger horizontal extent) by
+    ``tall`` units is building-sized and at least a storey (2 m) tall, None when none is."""
+    return next((name for name, per_m in OTHER_UNITS
+                 if wide / per_m <= BUILDING_EXTENT_M and 2.0 <= tall / per_m <= BUILDING_HEIGHT_M), None)
+
+
+def unit_refusal(path: Path, *, lower: np.ndarray, upper: np.ndarray, points: int, columns: int,
+                 blocks: BlockConfig, first: bool = False) -> str | None:
+    """The one line that refuses a scene not in metres, or None: when another unit makes its extent
+    (``lower``/``upper`` (3,)) building-sized and its ``points`` are spread over so many of the
+    network's ``blocks.size_m`` columns (``columns``: how many hold points) that they hold fewer
+    than ``blocks.min_points`` each on average. Read as metres, such a scene is labelled a nearly
+    empty block at a time (a room in millimetres: a point or two per column, minutes instead of
+    seconds, and labels of no use) and trains on nothing (training drops columns under
+    ``min_points``). A scan in metres holds thousands of points per column, and a site of any
+    size, georeferenced or not, is as dense as a room. ``first``: the points are the scene's first
+    ones, not all of them (said in the message)."""
+    size = upper - lower
+    wide, tall = float(max(size[0], size[1])), float(size[2])
+    unit = likely_unit(wide, tall)
+    if unit is None or columns == 0 or points / columns >= blocks.min_points:
+        return None
+    which = f"first {points:,}" if first else f"{points:,}"
+    return (f"{extent_line(path, wide, tall)}: it looks like {unit}, so scale it to metres first (its {which} points "
+            f"spread over {columns:,} columns of {blocks.size_m:g} m, {points / columns:.1f} per column, under [blocks] min_points = {blocks.min_points}: "
+            "read as metres, every block would be nearly empty)")
+
+
+def column_cells(xyz: np.ndarray, size_m: float) -> np.ndarray:
+    """(M, 2) float64: the distinct ``size_m`` square columns (x and y indices) the points (N, 3)
+    occupy, sorted; floats, so that no extent overflows them."""
+    return distinct_rows(np.floor(xyz[:, :2] / size_m))
+
+
+def distinct_rows(cells: np.ndarray) -> np.ndarray:
+    """The distinct rows of (N, 2) ``cells``, sorted (faster than ``np.unique(axis=0)``)."""
+    if not len(cells):
+        return cells.reshape(0, 2)
+    cells = cells[np.lexsort((cells[:, 1], cells[:, 0]))]
+    return cells[np.r_[True, (cells[1:] != cells[:-1]).any(axis=1)]]
+
+
+def extent_line(path: Path, wide: float, tall: float) -> str:
+    """"PATH: the scene is W x T units across; bimscan reads metres": the start of the lines that
+    say a scene's unit looks wrong."""
+    def units(value: float) -> str:
+        return f"{value:,.0f}" if value < 1e12 else f"{value:.3g}"
+
+    return f"{path}: the scene is {units(wide)} x {units(tall)} units across; bimscan reads metres"
+
+
+def check_scene_unit(source: SceneSource, *, blocks: BlockConfig) -> None:
+    """LearnError when the scene is by all signs in another unit than metres (``unit_refusal``),
+    or holds no points or non-finite coordinates: every command that reads a scan for learning
+    calls this first, before any expensive work. Reads the scene's first chunk (at most
+    ``CHUNK_POINTS`` points, the whole of a room); a bimscan cloud (a stored header) is written in
+    metres and is not read."""
+    if stored_header(source) is not None:
+        return
+    with closing(iter_raw_chunks(source, labels=False)) as chunks:
+        first = next((chunk for chunk in chunks if len(chunk)), None)
+    if first is None:
+        raise LearnError(f"{source.path}: the scene holds no points; pass a non-empty cloud")
+    finite = np.isfinite(first.xyz).all(axis=1)
+    if not finite.all():
+        raise LearnError(f"{source.path}: {int((~finite).sum()):,} of its first {len(first):,} points have non-finite "
+                         "coordinates; filter them out first")
+    xyz = first.xyz
+    refusal = unit_refusal(source.path, lower=xyz.min(axis=0), upper=xyz.max(axis=0), points=len(xyz),
+                           columns=len(column_cells(xyz, blocks.size_m)), blocks=blocks,
+                           first=len(xyz) >= CHUNK_POINTS)
+    if refusal is not None:
+        raise LearnError(refusal)
 
 
 def _reads_asprs_classification(source: SceneSource, header: CloudHeader | None) -> bool:
@@ -541,7 +623,7 @@ def _tiles_from_points(
     """The tiles of a scene's kept points, sorted by column ``key`` (indices counted from the
     column ``anchor`` (2,) int64, see ``collect_scene_tiles``)."""
     starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]]) if len(key) else np.empty(0, np.int64)
-    ends = np.r_[starts[1:], len(key)].astype(np.int64)
+    ends = np.r_[starts[1:], len(key)].astype(np.int64) if len(key) else np.empty(0, np.int64)
     parts_xyz, parts_label, parts_height, parts_rgb, offsets, origins, keys, totals = [], [], [], [], [0], [], [], []
     for start, end in zip(starts.tolist(), ends.tolist(), strict=True):
         column = int(key[start])

@@ -35,7 +35,7 @@ from bimscan.files import (
 )
 from bimscan.learn.checkpoint import load_trained_model
 from bimscan.io.s3dis import S3DIS_CLASSES
-from bimscan.learn.data import build_scene_label_table, list_scenes, stored_header
+from bimscan.learn.data import build_scene_label_table, check_scene_unit, list_scenes, stored_header
 from bimscan.learn.infer import SceneLabels, label_scene
 from bimscan.learn.mapping import LabelMapping
 from bimscan.learn.metrics import METRIC_NAMES, SegmentationMetrics, compute_metrics
@@ -136,6 +136,8 @@ def evaluate_checkpoint(
     trained.config.eval.stride_for(trained.config.blocks.size_m)
     evaluation.stride_for(trained.config.blocks.size_m)  # a stride that does not divide the blocks: one line now
     sources = list_scenes(scenes, label_field=label_field, mapping=mapping)
+    for source in sources:  # every scene in metres before the first is labelled
+        check_scene_unit(source, blocks=trained.config.blocks)
     results = []
     for source in sources:
         header = stored_header(source)
@@ -144,7 +146,7 @@ def evaluate_checkpoint(
         labels = label_scene(
             trained.model, source, class_names=trained.class_names, blocks=trained.config.blocks,
             evaluation=evaluation, device=torch_device, amp=trained.config.train.amp, work_dir=work_dir,
-            inputs=trained.config.input, warn=warn,
+            inputs=trained.config.input, warn=warn, checkpoint=checkpoint,
             elements=kinds if components is None else len(components.ifc_class),
         )
         if labels.labelled == 0:

@@ -61,7 +61,9 @@ from typing import Any, Literal
 from bimscan.constraints import Checked, Range, setting
 from bimscan.errors import ConfigError, InputFileError, LearnError
 from bimscan.learn.data import SceneSource
-from bimscan.learn.train_config import TRAINING_SECTIONS, SceneSet, check_moved_keys, scene_sets
+from bimscan.learn.train_config import (
+    TRAINING_SECTIONS, AdaptationSchedule, SceneSet, TrainConfig, check_moved_keys, scene_sets,
+)
 from bimscan.toml_files import base_file, build_dataclass, load_toml, over_base, resolve_path
 
 DATA_RECORD = "synthetic_data.digest"  # in a variant's folder: the data its models were trained on
@@ -250,6 +252,9 @@ def parse_experiment(path: str | Path, *, real: Sequence[str | Path] | None = No
                 raise InputFileError(f"{item}: variant {table.name!r} data not found; fix the path in {path}")
             (specs if item.is_file() and item.suffix.lower() == ".toml" else folders).append(item)
         sections = {name: {**shared[name], **getattr(table, name)} for name in TRAINING_SECTIONS}
+        if table.adapt_to:  # bimscan adapt's schedule, from the parent's [train], unless the variant sets its own
+            sections["train"] = {**sections["train"],
+                                 **_adaptation_schedule(table, sections["train"], variants, where=where)}
         replaced = {key: value for key, value in (("device", device), ("seed", seed)) if value is not None}
         sections["train"] = {**sections["train"], **replaced}
         check_moved_keys(sections, where=where)
@@ -288,6 +293,21 @@ def _check_start(table: VariantTable, built: dict[str, Any], earlier: list[Varia
         if mine != other:
             raise ConfigError(f"{where}: init {table.init!r} trains another {what} ({other}) than this variant "
                               f"({mine}); fine-tuning starts from the same network: give both the same {what}")
+
+
+def _adaptation_schedule(table: VariantTable, train: dict[str, Any], earlier: list[Variant], *,
+                         where: str) -> dict[str, Any]:
+    """The ``[train]`` settings of an adapting variant that ``AdaptationSchedule`` decides, as for
+    ``bimscan adapt``: its epochs, a share of its parent's ``max_lr`` and no ``freeze`` (``train``:
+    the variant's section so far), less those the variant sets itself. ``freeze`` is written only
+    when the section freezes something, so that the variants' recorded sections (and fingerprints)
+    stay as the experiment files wrote them."""
+    parent = next(v for v in earlier if v.name == table.init)
+    trained = build_dataclass(TrainConfig, parent.sections["train"], where=f"{where} init {table.init!r} [train]")
+    changes = AdaptationSchedule().changes(trained)
+    if not train.get("freeze"):
+        changes.pop("freeze")
+    return {key: value for key, value in changes.items() if key not in table.train}
 
 
 def _adapt_scenes(value: tuple[str, ...] | str, folder: Path, *,

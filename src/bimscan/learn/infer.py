@@ -37,7 +37,7 @@ import tempfile
 import time
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -47,15 +47,17 @@ from torch import nn
 from bimscan.errors import LearnError
 from bimscan.files import work_folder
 from bimscan.learn.blocks import Block, pad_block, plan_passes
-from bimscan.learn.data import CHUNK_POINTS, GREY, SceneSource, iter_raw_chunks, iter_scene_chunks
+from bimscan.learn.data import (
+    BUILDING_EXTENT_M, BUILDING_HEIGHT_M, CHUNK_POINTS, GREY, SceneSource, column_cells, distinct_rows, extent_line,
+    iter_raw_chunks, iter_scene_chunks, likely_unit, unit_refusal,
+)
 from bimscan.learn.density import voxel_representatives
 from bimscan.learn.features import extra_features
 from bimscan.learn.floors import TILE_M, FloorMap, FloorMapBuilder, storey_of
 from bimscan.learn.metrics import compute_confusion
-from bimscan.learn.model import autocast_context, flush_denormals
+from bimscan.learn.model import autocast_context, check_finite_outputs, flush_denormals
 from bimscan.learn.train_config import IGNORE_LABEL, BlockConfig, EvalConfig, InputConfig
 from bimscan.progress import progress_bar
-from bimscan.types import PointCloud
 
 SPREAD_CHUNK = 262_144  # points interpolated at a time (see spread_votes)
 SPREAD_CELLS = 1.5  # voxels per cell of the vote-spreading grid (bimscan.learn.neighbours)
@@ -69,11 +71,6 @@ def stripe_record(*, components: bool, colour: bool) -> np.dtype:
     return np.dtype(fields)
 STRIPES_NAME = "bimscan-stripes"  # the work folder: .bimscan-stripes.<pid>-<random>.tmp in work_dir or $TMPDIR
 MIN_PADDED = 16  # blocks smaller than N run padded to a power of two at least this
-BUILDING_EXTENT_M = 2_000.0  # wider than this, or taller than BUILDING_HEIGHT_M: likely not metres
-BUILDING_HEIGHT_M = 300.0
-# a scene too large for metres is refused when its columns hold fewer points than this on average
-# (a real scan in metres holds thousands per column; one in millimetres about one)
-MIN_POINTS_PER_COLUMN = 16
 
 
 @dataclass(frozen=True)
@@ -117,10 +114,15 @@ def padded_size(m: int, points: int) -> int:
 class BlockRunner:
     """Batches blocks through the network (blocks of one padded size together) and adds their
     softmax to ``votes`` (M, C) float32, indexed by the blocks' ``index`` (set ``votes`` before
-    adding blocks; ``flush`` before reading it)."""
+    adding blocks; ``flush`` before reading it). Outputs that overflow stop it
+    (:func:`bimscan.learn.model.check_finite_outputs`; ``name``: the model's, for the message,
+    ``scene``: what it labels)."""
 
-    def __init__(self, model: nn.Module, *, device: torch.device, batch_size: int, amp: str) -> None:
+    def __init__(self, model: nn.Module, *, device: torch.device, batch_size: int, amp: str,
+                 name: str = "the model", scene: str = "the scene") -> None:
         self.model = model
+        self.name = name
+        self.scene = scene
         self.device = device
         self.batch_size = batch_size
         self.amp = amp
@@ -150,6 +152,7 @@ class BlockRunner:
         mask = torch.from_numpy(np.stack([b.mask for b, _ in queue])).to(self.device)
         with autocast_context(self.device, self.amp), flush_denormals():  # the network only (see flush_denormals)
             logits = self.model(xyz, mask)
+        check_finite_outputs(logits, mask, model=self.name, where=self.scene)
         probs = torch.softmax(logits.float(), dim=-1).cpu().numpy()
         for (block, weight), prob in zip(queue, probs, strict=True):
             # indices are unique within one pass, so plain fancy-index addition is exact
@@ -162,7 +165,7 @@ def label_scene(
     evaluation: EvalConfig | None = None, inputs: InputConfig | None = None, device: torch.device | str = "cpu",
     amp: str = "off", use_labels: bool = True, work_dir: Path | None = None,
     on_labels: Callable[[np.ndarray, np.ndarray], None] | None = None, chunk_points: int = CHUNK_POINTS,
-    warn: Callable[[str], None] | None = None, elements: int = 0,
+    warn: Callable[[str], None] | None = None, elements: int = 0, checkpoint: str | Path | None = None,
 ) -> SceneLabels:
     """Predict a class for every point of ``source`` (see the module docstring).
 
@@ -175,13 +178,15 @@ def label_scene(
     when the scene's extent looks like another unit than metres (default: a Python warning).
     ``elements`` > 0: the scene's points carry component ids (a bimscan cloud's ``component``)
     of that many components; the predictions are counted per component (``element_counts``).
+    ``checkpoint``: where ``model``'s weights came from, named when its outputs overflow.
     """
     evaluation = evaluation or EvalConfig()
     inputs = inputs or InputConfig(grid_m=0.0, features=("xyz",))
-    return _Labeller(model, source, class_names=class_names, blocks=blocks, evaluation=evaluation, inputs=inputs,
-                     device=torch.device(device), amp=amp, seed=evaluation.seed or 0, use_labels=use_labels,
-                     on_labels=on_labels, max_passes=evaluation.max_passes, elements=elements).run(work_dir=work_dir, chunk_points=chunk_points,
-                                                                   warn=warn)
+    labeller = _Labeller(model, source, class_names=class_names, blocks=blocks, evaluation=evaluation, inputs=inputs,
+                         device=torch.device(device), amp=amp, seed=evaluation.seed or 0, use_labels=use_labels,
+                         on_labels=on_labels, max_passes=evaluation.max_passes, elements=elements,
+                         checkpoint=None if checkpoint is None else str(checkpoint))
+    return labeller.run(work_dir=work_dir, chunk_points=chunk_points, warn=warn)
 
 
 @dataclass
@@ -213,6 +218,7 @@ class _Labeller:
     on_labels: Callable[[np.ndarray, np.ndarray], None] | None
     max_passes: int
     elements: int = 0
+    checkpoint: str | None = None  # where the model's weights came from (messages)
     confusion: np.ndarray = field(init=False)
     element_counts: np.ndarray | None = field(init=False, default=None)
     record: np.dtype = field(init=False, default=RECORD)  # a stripe file's record
@@ -230,7 +236,8 @@ class _Labeller:
         self.record = stripe_record(components=self.elements > 0, colour="rgb" in self.inputs.features)
         self.stride = self.evaluation.stride_for(self.blocks.size_m)
         self.k = int(round(self.blocks.size_m / self.stride))
-        self.runner = BlockRunner(self.model, device=self.device, batch_size=self.evaluation.batch_size, amp=self.amp)
+        self.runner = BlockRunner(self.model, device=self.device, batch_size=self.evaluation.batch_size, amp=self.amp,
+                                  name=self.checkpoint or "the model", scene=str(self.source.path))
         # stripe files in a hidden folder named with this process's id: removed at the end, or by the
         # next run when this one is killed (bimscan.files.work_folder)
         with work_folder(Path(work_dir or tempfile.gettempdir()) / STRIPES_NAME) as temp:
@@ -238,7 +245,7 @@ class _Labeller:
             counts, lower, upper, self.origin = self._bucket(chunk_points)
             self.rows_from = int(np.floor((lower[1] - self.origin[1]) / self.stride))
             self.rows_to = max(self.rows_from, int(np.floor((upper[1] - self.origin[1]) / self.stride)) - self.k + 1)
-            _check_extent(self.source, lower, upper, warn, points=sum(counts.values()),
+            _check_extent(self.source, lower, upper, warn, points=sum(counts.values()), blocks=self.blocks,
                           columns=lambda: self._occupied_columns(counts))
             self.floor_map = self._floor_map(counts)
             self._label_stripes(counts)
@@ -295,9 +302,10 @@ class _Labeller:
         return counts, lower, upper, origin
 
     def _occupied_columns(self, counts: dict[int, int]) -> int:
-        """How many stride x stride cells hold points (one read of the stripe files' y)."""
-        return sum(len(np.unique(np.floor((self._read(s)["xyz"][:, 1] - self.origin[1]) / self.stride)))
-                   for s in counts)
+        """How many of the blocks' columns (``size_m`` square) hold points (one read of the stripe
+        files' x and y; a column spans k stripes)."""
+        cells = [column_cells(self._read(s)["xyz"] - self.origin, self.blocks.size_m) for s in counts]
+        return len(distinct_rows(np.concatenate(cells)))
 
     def _read(self, stripe: int) -> np.ndarray:
         return np.fromfile(self.folder / f"{stripe}.bin", dtype=self.record)
@@ -440,33 +448,25 @@ class _Labeller:
 
 
 def _check_extent(source: SceneSource, lower: np.ndarray, upper: np.ndarray,
-                  warn: Callable[[str], None] | None, *, points: int = 0,
-                  columns: Callable[[], int] | None = None) -> None:
-    """When the scene is larger than a building scanned in metres is, it is likely in millimetres
-    (or feet), and the network's blocks are metres: one warning; a LearnError instead when another
-    unit fits it and its ``points`` are so spread over the columns (``columns()``: how many hold
-    points) that labelling it as metres would run a nearly empty block per point or two (a 10 m room
-    in millimetres: minutes instead of seconds, and labels of no use)."""
+                  warn: Callable[[str], None] | None, *, points: int, blocks: BlockConfig,
+                  columns: Callable[[], int]) -> None:
+    """The whole scene's extent, once streamed: a LearnError when it is by all signs not in metres
+    (``bimscan.learn.data.unit_refusal``, the rule ``check_scene_unit`` applies up front to a
+    scene's first points; ``columns()``: how many of the blocks' columns hold points, counted only
+    when another unit fits), else one warning when it is larger than a building scanned in metres
+    is (it may be in millimetres or feet, and the network's blocks are metres)."""
     size = upper - lower
     wide, tall = float(max(size[0], size[1])), float(size[2])
+    unit = likely_unit(wide, tall)
+    if unit is not None:
+        refusal = unit_refusal(source.path, lower=lower, upper=upper, points=points, columns=columns(), blocks=blocks)
+        if refusal is not None:
+            raise LearnError(refusal)
     if wide <= BUILDING_EXTENT_M and tall <= BUILDING_HEIGHT_M:
         return
-    unit = next((name for name, factor in (("millimetres", 1000.0), ("centimetres", 100.0), ("inches", 39.37),
-                                           ("feet", 3.281))
-                 if wide / factor <= BUILDING_EXTENT_M and tall / factor <= BUILDING_HEIGHT_M and tall / factor >= 2.0),
-                None)
     advice = f": it looks like {unit}, so scale it to metres first" if unit else ": check its unit"
-    line = f"{source.path}: the scene is {_size(wide)} x {_size(tall)} units across; bimscan reads metres" + advice
-    occupied = columns() if columns is not None and unit is not None else 0
-    if occupied and points / occupied < MIN_POINTS_PER_COLUMN:
-        raise LearnError(f"{line} (its {points:,} points spread over {occupied:,} columns, "
-                         f"{points / occupied:.1f} per column: labelling it as metres would pass nearly every point "
-                         "through the network alone)")
+    line = extent_line(source.path, wide, tall) + advice
     (warn or (lambda text: warnings.warn(text, stacklevel=3)))(line)
-
-
-def _size(value: float) -> str:
-    return f"{value:,.0f}" if value < 1e12 else f"{value:.3g}"
 
 
 def spread_votes(
@@ -554,8 +554,3 @@ def _decide(xyz: np.ndarray, votes: np.ndarray, others: Sequence[tuple[np.ndarra
     _, nearest = cKDTree(near_xyz).query(xyz[unseen])
     prediction[unseen] = label[nearest]
     return prediction, int(unseen.sum())
-
-
-def replace_labels(chunk: PointCloud, label: np.ndarray) -> PointCloud:
-    """``chunk`` with its label column replaced by (N,) uint8 ``label``."""
-    return replace(chunk, label=label)

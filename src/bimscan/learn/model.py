@@ -30,6 +30,13 @@ from torch import nn
 from bimscan.errors import LearnError
 from bimscan.learn.train_config import ModelConfig
 
+# what to do when a checkpoint's outputs overflow (non_finite_outputs)
+CHECKPOINT_ADVICE = "pass another checkpoint, or train again with a lower [train] max_lr"
+# The largest output the network may give: float16's largest number. A network trained under
+# float16 AMP (Table 2) cannot give more, and a trained network's outputs are far smaller (a gap of
+# 104 between two already makes a float32 softmax exactly one-hot); past it they are overflow.
+MAX_OUTPUT = 65504.0
+
 
 class MaskedBatchNorm1d(nn.Module):
     """BatchNorm over (B, C, N) whose training statistics use the valid points only.
@@ -336,3 +343,27 @@ def autocast_context(device: torch.device, amp: str) -> contextlib.AbstractConte
     if device.type != "cuda" or amp == "off":
         return contextlib.nullcontext()
     return torch.autocast(device_type="cuda", dtype=torch.float16 if amp == "float16" else torch.bfloat16)
+
+
+def outputs_finite(logits: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """A bool tensor (on the outputs' device, no synchronisation): True when every valid point's
+    (``mask`` (B, N) bool) outputs ``logits`` (B, N, C) are finite and within ``MAX_OUTPUT``
+    (padding may hold anything)."""
+    return ((logits.detach().abs() <= MAX_OUTPUT).all(dim=-1) | ~mask).all()  # NaN compares False
+
+
+def non_finite_outputs(*, model: str, where: str, advice: str = CHECKPOINT_ADVICE) -> LearnError:
+    """The error for outputs that overflow (``outputs_finite``): weights that are finite but absurd
+    (a damaged checkpoint's, a diverging run's) overflow the network, and its softmax then labels
+    every point alike. ``model`` names the weights (a checkpoint), ``where`` what they were
+    labelling, ``advice`` what to do."""
+    return LearnError(f"{model}: the network's outputs on {where} overflow (NaN, infinite or beyond "
+                      f"{MAX_OUTPUT:,.0f}): its weights are finite but absurd; {advice}")
+
+
+def check_finite_outputs(logits: torch.Tensor, mask: torch.Tensor, *, model: str, where: str,
+                         advice: str = CHECKPOINT_ADVICE) -> None:
+    """``non_finite_outputs`` raised unless ``outputs_finite``. Synchronises once (its callers copy
+    the outputs to the CPU next anyway)."""
+    if not bool(outputs_finite(logits, mask)):
+        raise non_finite_outputs(model=model, where=where, advice=advice)

@@ -16,7 +16,7 @@ import numpy as np
 from bimscan.errors import LearnError
 from bimscan.files import work_folder
 from bimscan.learn.checkpoint import load_trained_model
-from bimscan.learn.data import CHUNK_POINTS, SceneSource, list_scenes
+from bimscan.learn.data import CHUNK_POINTS, SceneSource, check_scene_unit, list_scenes
 from bimscan.learn.infer import label_scene
 from bimscan.learn.model import pick_device
 from bimscan.learn.train_config import EvalConfig
@@ -105,6 +105,7 @@ def predict_cloud(
     trained = load_trained_model(checkpoint, device=torch_device, weights=None if evaluation is None else evaluation.weights)
     evaluation = (evaluation or trained.config.eval).with_seed(trained.config.train.seed)
     evaluation.stride_for(trained.config.blocks.size_m)  # a stride that does not divide the blocks: one line now
+    check_scene_unit(source, blocks=trained.config.blocks)  # a scan in millimetres: one line now
     plan = check_prediction_output(in_path, out_path, overwrite=overwrite, top_class=len(trained.class_names) - 1)
     for line in plan.notices():
         (warn or _warn)(line)
@@ -120,7 +121,7 @@ def predict_cloud(
             result = label_scene(
                 trained.model, source, class_names=trained.class_names, blocks=trained.config.blocks,
                 evaluation=evaluation, device=torch_device, amp=trained.config.train.amp, use_labels=False, work_dir=folder, on_labels=keep, chunk_points=chunk_points,
-                inputs=trained.config.input, warn=warn,
+                inputs=trained.config.input, warn=warn, checkpoint=checkpoint,
             )
         labels = np.memmap(folder / "labels.u1", dtype=np.uint8, mode="w+", shape=(result.points,))
         counts = np.zeros(len(trained.class_names), dtype=np.int64)

@@ -27,7 +27,7 @@ import os
 import sys
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -48,13 +48,15 @@ from bimscan.learn.train_config import (
 )
 from bimscan.toml_files import resolve_path
 from bimscan.learn.adapt import AdaptedBlocks, pseudo_label_tiles
-from bimscan.learn.data import SceneSource, TileDataset, TileSet, list_scenes, load_or_collect_tiles, station_count
+from bimscan.learn.data import (
+    SceneSource, TileDataset, TileSet, check_scene_unit, list_scenes, load_or_collect_tiles, station_count,
+)
 from bimscan.learn.features import input_channels
 from bimscan.learn.mapping import load_label_mapping
 from bimscan.learn.metrics import METRIC_NAMES, compute_metrics
 from bimscan.learn.model import (
     PCTSegmentation, autocast_context, build_model, commit_batch_statistics, count_parameters, flush_denormals,
-    pick_device,
+    non_finite_outputs, outputs_finite, pick_device,
 )
 from bimscan.learn.plots import plot_training_curves, write_history_csv
 from bimscan.progress import progress_bar
@@ -77,6 +79,55 @@ class DistributedContext:
     @property
     def is_main(self) -> bool:
         return self.rank == 0
+
+
+@dataclass(frozen=True)
+class RunTerms:
+    """How the command that runs a training names what its user gave it, in the lines that refuse
+    or stop the run: ``bimscan train``'s words (a configuration, ``--init``, ``--resume``,
+    ``out_dir``) by default. ``bimscan adapt`` has its own (``bimscan.cli.learn_commands``): its
+    user gave a checkpoint, scans and a folder, and its run is configured from the checkpoint.
+
+    ``run``: what a run is called; ``activity``: what it does; ``start``: the checkpoint a run
+    starts from; ``new_run``: how to start another; ``again``: how to continue an interrupted one;
+    ``other_start``: what to do when the run to continue started from another checkpoint;
+    ``named``: the settings the command takes as arguments, by (section, key), with the argument's
+    name (an option, "--epochs", or a positional one, "SCAN..."); ``settings_of``: where the other
+    settings come from (None: the configuration; a checkpoint's path: "[train] batch_size of
+    PATH"); ``diverged``: what to do when the run's loss or weights stop being finite ("{max_lr}":
+    its max_lr); ``few_blocks``: what to do when its data hold fewer blocks than one step takes.
+    """
+
+    run: str = "run"
+    activity: str = "training"
+    start: str = "--init"
+    new_run: str = "start a new run in another out_dir"
+    again: str = "resume with the same configuration (--resume)"
+    other_start: str = "--resume continues it as it started: leave --init out"
+    named: dict[tuple[str, str], str] = field(default_factory=dict)
+    settings_of: str | None = None
+    diverged: str = "start again in another out_dir with a lower [train] max_lr (now {max_lr})"
+    few_blocks: str = "lower [train] batch_size or accumulation_steps, or train on more data"
+
+    def name(self, section: str, key: str) -> str:
+        """How the user names ``[section] key``: an argument of the command, or the setting itself."""
+        if (section, key) in self.named:
+            return self.named[(section, key)]
+        return f"[{section}] {key}" if self.settings_of is None else f"[{section}] {key} of {self.settings_of}"
+
+    def when_diverged(self, max_lr: float) -> str:
+        """What to do when a run at ``max_lr`` diverges (``diverged`` with it filled in)."""
+        return self.diverged.replace("{max_lr}", f"{max_lr:g}")
+
+    def given(self, section: str, key: str, value: object) -> str:
+        """How the user gives ``[section] key`` the ``value``: ``--device cpu``, ``[train] device = "cpu"``."""
+        named = self.named.get((section, key))
+        if named is not None and named.startswith("--"):
+            return f"{named} {value}"
+        return f"{self.name(section, key)} = " + (f'"{value}"' if isinstance(value, str) else str(value))
+
+
+TRAIN_TERMS = RunTerms()
 
 
 def init_distributed(device_setting: str) -> DistributedContext:
@@ -135,8 +186,9 @@ class GlobalBatchSampler:
         self.draws = draws
         self.epoch = 0
         self.global_batch = batch_size * accumulation * world
-        expected = size if draws is None else max(1, int(round(float(draws.sum()))))
-        self.steps_per_epoch = math.ceil(expected / self.global_batch)
+        # the blocks an epoch draws: each tile once, or as its scene set's weight says
+        self.epoch_blocks = size if draws is None else max(1, int(round(float(draws.sum()))))
+        self.steps_per_epoch = math.ceil(self.epoch_blocks / self.global_batch)
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = epoch
@@ -160,6 +212,23 @@ class GlobalBatchSampler:
                 micro = self.rank * self.accumulation + k
                 start = step * self.global_batch + micro * self.batch_size
                 yield [(self.epoch, int(i)) for i in order[start:start + self.batch_size]]
+
+
+def check_global_batch(sampler: GlobalBatchSampler, *, terms: RunTerms = TRAIN_TERMS) -> None:
+    """LearnError when one optimizer step takes more than twice the blocks an epoch draws: every
+    block would be in every step at least twice, and a step of 4096 blocks over 30 (a batch_size
+    typed for another machine) an epoch of thousands of draws of the same blocks, a minute instead
+    of a second, and nothing more learnt. A global batch up to twice the epoch's blocks is drawn
+    as usual, wrapping around to the epoch's first blocks (so a few rooms still train with Table
+    2's batch); the run's first line says how many blocks an epoch draws. Checked once the blocks
+    are known, before the network is built."""
+    if sampler.global_batch <= 2 * sampler.epoch_blocks:
+        return
+    raise LearnError(
+        f"one optimizer step takes a global batch of {sampler.global_batch:,} blocks ({terms.name('train', 'batch_size')} "
+        f"{sampler.batch_size} x {sampler.world} process(es) x {terms.name('train', 'accumulation_steps')} "
+        f"{sampler.accumulation}), more than twice the {sampler.epoch_blocks:,} an epoch draws from the training data: "
+        f"every step would repeat each {sampler.global_batch / sampler.epoch_blocks:,.1f} times; {terms.few_blocks}")
 
 
 class WeightEMA:
@@ -244,11 +313,12 @@ def run_micro_batch(
     model: nn.Module, xyz: torch.Tensor, label: torch.Tensor, mask: torch.Tensor, *,
     scaler: torch.amp.GradScaler, amp: str, accumulation: int, weight: torch.Tensor | None = None,
     adapted: int = 0, adapted_weight: float = 1.0,
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """One micro-batch: forward (autocast on CUDA), masked loss, scaled backward of loss / A.
 
     xyz (B, N, 3) float32, label (B, N) int64, mask (B, N) bool on the model's device.
-    Returns (logits (B, N, C), mean loss, labelled points). The benchmark times this too.
+    Returns (logits (B, N, C), mean loss, labelled points, the loss trained on: the mean loss, with
+    the adapted blocks' added). The benchmark times this too.
     Runs with denormals flushed (:func:`bimscan.learn.model.flush_denormals`): the network only,
     never the loader's features. ``adapted``: the last that many blocks are adapted ones
     (:mod:`bimscan.learn.adapt`), whose mean loss adds ``adapted_weight`` times to the others';
@@ -260,12 +330,13 @@ def run_micro_batch(
         if not adapted:
             loss, count = compute_loss(logits, label, weight)
             scaler.scale(loss / accumulation).backward()
-            return logits, loss, count
+            return logits, loss, count, loss
         own = len(xyz) - adapted
         loss, count = compute_loss(logits[:own], label[:own], weight)
         adapted_loss, _ = compute_loss(logits[own:], label[own:], weight)
-        scaler.scale((loss + adapted_weight * adapted_loss) / accumulation).backward()
-    return logits, loss, count
+        objective = loss + adapted_weight * adapted_loss
+        scaler.scale(objective / accumulation).backward()
+    return logits, loss, count, objective
 
 
 def finish_step(
@@ -285,21 +356,33 @@ def finish_step(
             ema.update(model)
 
 
-def check_diverged(model: nn.Module, *, loss: torch.Tensor, epoch: int, step: int, checkpoint: Path,
-                   settings: TrainConfig) -> None:
-    """LearnError when the weights left by an optimizer step are no longer finite (a NaN or
-    infinite loss, an exploding step): the run stops there, before anything is saved, so the last
-    checkpoint (the last finished epoch's) stays the last finite one. Every process of a DDP run
-    holds the same weights, so all stop at the same step. (Under float16 AMP the gradient scaler
-    skips a step whose gradients overflow: the weights stay finite and training goes on.)"""
+def check_diverged(model: nn.Module, *, loss: torch.Tensor, finite_loss: torch.Tensor, epoch: int, step: int,
+                   checkpoint: Path, settings: TrainConfig, started_from: dict[str, Any] | None = None,
+                   terms: RunTerms = TRAIN_TERMS) -> None:
+    """LearnError when a loss or the outputs of the optimizer step (``finite_loss``: a bool tensor,
+    False when a micro-batch's loss was NaN or infinite or its outputs overflowed,
+    :func:`bimscan.learn.model.outputs_finite`) or the weights it left are not finite (an exploding
+    step): the run stops there, before anything is saved, so the last checkpoint (the
+    last finished epoch's) stays the last finite one. One synchronisation per step. Every process
+    of a DDP run holds the same weights, so all stop at the same step. (Under float16 AMP the
+    gradient scaler skips a step whose gradients overflow: the weights stay finite and training goes
+    on; a loss that overflows is the network's outputs overflowing, which no scaling mends.) Outputs
+    that overflow at the first step of a run started from a checkpoint (``started_from``; a resumed
+    run is past its first epoch) are that checkpoint's weights' doing: the message names it."""
     total = torch.stack([p.detach().float().sum() for p in model.parameters()]).sum()
-    if bool(torch.isfinite(total)):
+    if bool(torch.isfinite(total) & finite_loss):
         return
     kept = (f"{checkpoint} (epoch {epoch}) is the last finite checkpoint and is kept" if epoch > 0 and checkpoint.is_file()
             else "no checkpoint was written")
-    raise LearnError(f"training diverged at epoch {epoch + 1}, step {step + 1} (loss {float(loss.detach()):.4g}): the weights "
-                     f"are no longer finite; {kept}; start again in another out_dir with a lower [train] max_lr "
-                     f"(now {settings.max_lr:g})")
+    what = ("the loss or the network's outputs overflow" if not bool(finite_loss)
+            else "the weights are no longer finite")
+    if not bool(finite_loss) and epoch == 0 and step == 0 and started_from is not None:
+        # the first step's forward passes ran on the weights it started from, as they were loaded
+        raise LearnError(f"{started_from['checkpoint']}: its weights make the network's outputs overflow (loss "
+                         f"{float(loss.detach()):.4g} at the first step of the {terms.run} that starts from it): they "
+                         f"are finite but absurd; {kept}; start from another checkpoint")
+    raise LearnError(f"{terms.activity} diverged at epoch {epoch + 1}, step {step + 1} (loss {float(loss.detach()):.4g}): "
+                     f"{what}; {kept}; {terms.when_diverged(settings.max_lr)}")
 
 
 def _update_confusion(confusion: torch.Tensor, logits: torch.Tensor, label: torch.Tensor) -> None:
@@ -315,6 +398,14 @@ def _all_reduce(tensor: torch.Tensor, ctx: DistributedContext) -> torch.Tensor:
     if ctx.world > 1:
         dist.all_reduce(tensor)
     return tensor
+
+
+def _all_finite(finite: torch.Tensor, ctx: DistributedContext) -> torch.Tensor:
+    """``finite`` (a bool tensor) of every process together: a loss or output that is not finite in
+    one stops them all at the same step (under float16 AMP the weights stay finite everywhere)."""
+    if ctx.world == 1:
+        return finite
+    return _all_reduce((~finite).to(torch.int32), ctx) == 0
 
 
 @dataclass(frozen=True)
@@ -393,17 +484,18 @@ def start_from(model: PCTSegmentation, path: Path, payload: dict[str, Any]) -> d
     return {"checkpoint": str(path), "sha256": file_sha256(path), "epoch": int(payload["epoch"])}
 
 
-def check_same_start(recorded: dict[str, Any] | None, init: Path, checkpoint: Path) -> None:
+def check_same_start(recorded: dict[str, Any] | None, init: Path, checkpoint: Path, *,
+                     terms: RunTerms = TRAIN_TERMS) -> None:
     """LearnError unless ``init`` is the checkpoint the run being resumed started from (``recorded``:
     what its checkpoint says of its start, None when it started from random weights)."""
     from bimscan.files import file_sha256
 
     if recorded is None:
-        raise LearnError(f"--init {init}: the run in {checkpoint.parent} started from random weights and --resume "
-                         "continues it as it started; leave --init out, or start a new run in another out_dir")
+        raise LearnError(f"{terms.start} {init}: the {terms.run} in {checkpoint.parent} started from random weights "
+                         f"and continues as it started; leave {terms.start} out, or {terms.new_run}")
     if recorded.get("sha256") != file_sha256(init):
-        raise LearnError(f"--init {init}: the run in {checkpoint.parent} started from another checkpoint "
-                         f"({recorded.get('checkpoint')}) and --resume continues it as it started; leave --init out")
+        raise LearnError(f"{terms.start} {init}: the {terms.run} in {checkpoint.parent} started from another checkpoint "
+                         f"({recorded.get('checkpoint')}); {terms.other_start}")
 
 
 def freeze(model: PCTSegmentation, parts: tuple[str, ...]) -> tuple[nn.Module, ...]:
@@ -425,30 +517,61 @@ def train_mode(model: nn.Module, frozen: tuple[nn.Module, ...]) -> None:
         module.eval()
 
 
-def _check_resumable(stored: dict[str, Any], current: dict[str, Any], where: Path) -> None:
-    """LearnError naming the first setting that differs from the interrupted run's, except those
-    that do not change the model it trains (their ``setting_effect`` is "scores" or "runtime";
-    "device" may change as long as it picks the same kind of device: that is checked on its own,
-    see _train). ``stored`` is complete (keys added since then carry their defaults)."""
-    for section, values in current.items():
-        for key, value in values.items():
-            old = stored.get(section, {}).get(key)
+def check_resumable(state: dict[str, Any], config: TrainRunConfig, *, device: str, world: int, where: Path,
+                    terms: RunTerms = TRAIN_TERMS) -> None:
+    """LearnError, before any work, when the run stored in ``state`` (``where``: its last.pt) cannot
+    continue as ``config`` on this ``device`` kind with ``world`` processes: the first setting that
+    differs from the run's, except those that do not change the model it trains (their
+    ``setting_effect`` is "scores" or "runtime"; "device" may change as long as it picks the same
+    kind of device), and for an interrupted run another kind of device or another number of
+    processes. The stored config is complete (keys added since then carry their defaults). A run
+    that did all its epochs is called finished, not interrupted, and only a new run is offered."""
+    stored = dump_config(parse_config(state["config"], where=f"{where} [config]"))
+    finished = int(state["epoch"]) >= int(stored["train"]["epochs"])  # type: ignore[index]
+    run = f"the {'finished' if finished else 'interrupted'} {terms.run}"
+    advice = terms.new_run if finished else f"{terms.again}, or {terms.new_run}"
+    for section, values in dump_config(config).items():
+        for key, value in values.items():  # type: ignore[union-attr]
+            old = stored.get(section, {}).get(key)  # type: ignore[union-attr]
             if setting_effect(section, key) != "model":
                 continue
-            if (list(old) if isinstance(old, tuple | list) else old) != (list(value) if isinstance(value, tuple | list) else value):
-                raise LearnError(
-                    f"{where}: [{section}] {key} was {old!r} in the interrupted run and is {value!r} now; "
-                    "resume with the same configuration or start a new run in another out_dir"
-                )
+            if _plain(old) != _plain(value):
+                raise LearnError(f"{where}: {terms.name(section, key)} was {_shown(old)} in {run} and is "
+                                 f"{_shown(value)} now; {advice}")
+    if finished:  # nothing left to run: where it would have run is moot
+        return
+    if state["device"] != device:
+        raise LearnError(f"{where}: {run} trained on {state['device']} and would continue on {device}; continue it "
+                         f"on {state['device']} ({terms.given('train', 'device', state['device'])}) or {terms.new_run}")
+    if state["world_size"] != world:
+        raise LearnError(f"{where}: {run} used {state['world_size']} process(es), this one {world}; continue it with "
+                         f"the same number (torchrun --nproc_per_node {state['world_size']}) or {terms.new_run}")
+
+
+def _plain(value: object) -> object:
+    """A stored setting comparable with a current one (tuples come back from storage as lists)."""
+    return [_plain(v) for v in value] if isinstance(value, tuple | list) else value
+
+
+def _shown(value: object) -> str:
+    """A setting for a message: scene sets as the scenes they name."""
+    if isinstance(value, tuple | list) and value and all(isinstance(v, dict) and "scenes" in v for v in value):
+        return repr([scene for v in value for scene in v["scenes"]])
+    return repr(_plain(value))
 
 
 @torch.no_grad()
 def _validate(
     model: nn.Module, dataset: TileDataset, *, ctx: DistributedContext, batch_size: int, amp: str, classes: int,
+    name: str = "the averaged weights", advice: str = "train again with a lower [train] max_lr",
 ) -> tuple[torch.Tensor, float, float]:
+    """The validation set's confusion, loss sum and labelled points with ``model``; outputs that
+    overflow (:func:`bimscan.learn.model.outputs_finite`) stop the run (``name``, ``advice``: for
+    the message)."""
     confusion = torch.zeros(classes, classes, dtype=torch.int64, device=ctx.device)
     sums = torch.zeros(2, dtype=torch.float64, device=ctx.device)  # loss x points, points
     model.eval()
+    finite = torch.ones((), dtype=torch.bool, device=ctx.device)
     mine = list(range(ctx.rank, len(dataset), ctx.world))
     for start in range(0, len(mine), batch_size):
         items = [dataset[(VAL_EPOCH_KEY, i)] for i in mine[start:start + batch_size]]
@@ -457,11 +580,14 @@ def _validate(
         mask = torch.from_numpy(np.stack([it["mask"] for it in items])).to(ctx.device)
         with autocast_context(ctx.device, amp), flush_denormals():
             logits = model(xyz, mask)
+        finite &= outputs_finite(logits, mask)  # checked once, at the end: no synchronisation per batch
         loss, count = compute_loss(logits, label)
         sums += torch.stack([loss.double() * count, count.double()])
         _update_confusion(confusion, logits, label)
     _all_reduce(confusion, ctx)
     _all_reduce(sums, ctx)
+    if not bool(_all_finite(finite, ctx)):  # every process stops, not only the one that saw it
+        raise non_finite_outputs(model=name, where="the validation blocks", advice=advice)
     return confusion, float(sums[0]), float(sums[1])
 
 
@@ -483,7 +609,7 @@ def use_cpu_threads(threads: int) -> None:
 def train_model(
     config: TrainRunConfig, *, base_dir: Path, out_dir: Path | None = None, resume: bool = False,
     init: Path | None = None, on_step_end: Callable[[int, int], None] | None = None,
-    log: Callable[[str], None] | None = None,
+    log: Callable[[str], None] | None = None, terms: RunTerms = TRAIN_TERMS,
 ) -> TrainResult:
     """Train PCT as configured; checkpoints, ``metrics.csv`` and ``curves.png`` go to ``out_dir``.
 
@@ -491,7 +617,8 @@ def train_model(
     ``resume`` continues from ``out_dir/last.pt`` (the interrupted epoch restarts from its
     beginning). ``init``: a checkpoint whose weights (its EMA, the ones it is evaluated with)
     the run starts from instead of random ones (fine-tuning; the checkpoint records it).
-    ``on_step_end(epoch, step)`` is called after every optimizer step (0-based).
+    ``on_step_end(epoch, step)`` is called after every optimizer step (0-based). ``terms``: how the
+    command running it names its inputs in the lines that refuse or stop it (``RunTerms``).
     Run under ``torchrun`` for DDP; every process calls this function.
     """
     settings = config.train
@@ -499,7 +626,7 @@ def train_model(
     ctx = init_distributed(settings.device)
     try:
         return _train(config, settings=settings, ctx=ctx, base_dir=base_dir, out_dir=out_dir, resume=resume,
-                      init=init, on_step_end=on_step_end, log=log)
+                      init=init, on_step_end=on_step_end, log=log, terms=terms)
     finally:
         if ctx.owns_group and dist.is_initialized():
             dist.destroy_process_group()
@@ -532,6 +659,7 @@ class _Run:
     target_tiles: TileSet | None
     started_from: dict[str, Any] | None
     history: list[dict[str, float]]
+    terms: RunTerms = TRAIN_TERMS  # how the command names its inputs (messages)
     start_epoch: int = 0
     best_miou: float = -math.inf
 
@@ -551,10 +679,11 @@ class _Run:
 def _train(
     config: TrainRunConfig, *, settings: TrainConfig, ctx: DistributedContext, base_dir: Path, out_dir: Path | None,
     resume: bool, init: Path | None, on_step_end: Callable[[int, int], None] | None,
-    log: Callable[[str], None] | None,
+    log: Callable[[str], None] | None, terms: RunTerms = TRAIN_TERMS,
 ) -> TrainResult:
     emit = log or (lambda text: print(text, file=sys.stderr, flush=True))
-    run = _set_up(config, ctx=ctx, base_dir=base_dir, out_dir=out_dir, resume=resume, init=init, emit=emit)
+    run = _set_up(config, ctx=ctx, base_dir=base_dir, out_dir=out_dir, resume=resume, init=init, emit=emit,
+                  terms=terms)
     for epoch in range(run.start_epoch, settings.epochs):
         row = _train_epoch(run, epoch, on_step_end)
         _save_epoch(run, epoch, row)
@@ -566,7 +695,7 @@ def _train(
 
 def _read_tiles(config: TrainRunConfig, val_sources: list[SceneSource], train_sources: list[SceneSource],
                 target_sources: list[SceneSource], *, cache_dir: Path, ctx: DistributedContext,
-                ) -> tuple[TileSet | None, TileSet, TileSet | None]:
+                terms: RunTerms = TRAIN_TERMS) -> tuple[TileSet | None, TileSet, TileSet | None]:
     """The validation, training and adaptation tiles of a run (LearnError where a set holds none)."""
     # the validation scenes first: they are few, and unusable ones should stop the run early
     val_tiles = _collect_tiles(val_sources, config=config, cache_dir=cache_dir, ctx=ctx) if val_sources else None
@@ -583,8 +712,9 @@ def _read_tiles(config: TrainRunConfig, val_sources: list[SceneSource], train_so
         target_tiles = _collect_tiles(target_sources, config=config, cache_dir=cache_dir, ctx=ctx,
                                       columns=config.blocks.train_columns, labelled=False)
         if len(target_tiles) == 0:
-            raise LearnError(f"[data] adapt: no column of its {len(target_sources)} scene(s) holds blocks.min_points "
-                             f"({config.blocks.min_points}) points; give scans of the building's rooms")
+            raise LearnError(f"{terms.name('data', 'adapt')}: no column of its {len(target_sources)} scene(s) holds "
+                             f"{terms.name('blocks', 'min_points')} ({config.blocks.min_points}) points; give scans of "
+                             "the building's rooms")
     return val_tiles, train_tiles, target_tiles
 
 
@@ -603,7 +733,7 @@ def is_earlier_run(folder: Path) -> bool:
 
 
 def _set_up(config: TrainRunConfig, *, ctx: DistributedContext, base_dir: Path, out_dir: Path | None, resume: bool,
-            init: Path | None, emit: Callable[[str], None]) -> _Run:
+            init: Path | None, emit: Callable[[str], None], terms: RunTerms = TRAIN_TERMS) -> _Run:
     """Every input checked (before the output folder appears), the tiles read, the network, its
     optimizer and schedule built, and with ``resume`` restored from ``last.pt``."""
     settings = config.train
@@ -627,8 +757,12 @@ def _set_up(config: TrainRunConfig, *, ctx: DistributedContext, base_dir: Path, 
         check_output_folder(out, names=RUN_OUTPUTS, made_by=is_earlier_run)
     state = read_checkpoint(last_path, require=RESUME_KEYS) if resume else None
     if state is not None and init is not None:
-        check_same_start(state.get("init"), init, last_path)
+        check_same_start(state.get("init"), init, last_path, terms=terms)
+    if state is not None:  # accumulation_steps among the settings
+        check_resumable(state, config, device=ctx.device.type, world=ctx.world, where=last_path, terms=terms)
     parent = None if init is None or resume else read_start(init, config)
+    for source in (*val_sources, *train_sources, *target_sources):  # a scan in millimetres: one line now
+        check_scene_unit(source, blocks=config.blocks)
     created = ctx.is_main and not out.exists()
     if ctx.is_main:
         prepare_output_folder(out, names=RUN_OUTPUTS, made_by=is_earlier_run)
@@ -638,7 +772,7 @@ def _set_up(config: TrainRunConfig, *, ctx: DistributedContext, base_dir: Path, 
     classes = len(config.data.class_names)
     try:
         val_tiles, train_tiles, target_tiles = _read_tiles(config, val_sources, train_sources, target_sources,
-                                                           cache_dir=out / "tile-cache", ctx=ctx)
+                                                           cache_dir=out / "tile-cache", ctx=ctx, terms=terms)
     except Exception:
         if created:  # this run made OUT and it holds only tile caches: a bad input leaves nothing behind
             remove_path(out)
@@ -648,6 +782,13 @@ def _set_up(config: TrainRunConfig, *, ctx: DistributedContext, base_dir: Path, 
     val_set = None if val_tiles is None else TileDataset(
         val_tiles, points=config.blocks.points, seed=settings.seed, inputs=config.input,
     )
+    draws = tile_draws(train_tiles, [len(sources) for sources in train_sets],
+                       [scenes.weight for scenes in config.data.train])
+    sampler = GlobalBatchSampler(
+        len(train_set), batch_size=settings.batch_size, accumulation=settings.accumulation_steps,
+        world=ctx.world, rank=ctx.rank, seed=settings.seed, draws=draws,
+    )
+    check_global_batch(sampler, terms=terms)
     weights = class_weights_from_labels(train_tiles.label, classes=classes, mode=settings.class_weights)
     weight = None if weights is None else torch.from_numpy(weights).to(ctx.device)
 
@@ -660,12 +801,6 @@ def _set_up(config: TrainRunConfig, *, ctx: DistributedContext, base_dir: Path, 
     ema = WeightEMA(model, alpha=settings.ema_alpha)
     optimizer = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=settings.max_lr,
                                  weight_decay=settings.weight_decay)
-    draws = tile_draws(train_tiles, [len(sources) for sources in train_sets],
-                       [scenes.weight for scenes in config.data.train])
-    sampler = GlobalBatchSampler(
-        len(train_set), batch_size=settings.batch_size, accumulation=settings.accumulation_steps,
-        world=ctx.world, rank=ctx.rank, seed=settings.seed, draws=draws,
-    )
     scheduler = torch.optim.lr_scheduler.OneCycleLR(
         optimizer, max_lr=settings.max_lr, total_steps=settings.epochs * sampler.steps_per_epoch,
         pct_start=settings.pct_start, anneal_strategy="cos", div_factor=settings.div_factor,
@@ -681,7 +816,7 @@ def _set_up(config: TrainRunConfig, *, ctx: DistributedContext, base_dir: Path, 
                val_set=val_set, weight=weight, frozen=frozen,
                frozen_parameters=sum(p.numel() for module in frozen for p in module.parameters()),
                parameters=count_parameters(model), adapted=adapted, target_tiles=target_tiles,
-               started_from=started_from, history=[])
+               started_from=started_from, history=[], terms=terms)
     if state is not None:
         _restore(run, state)
     elif ctx.is_main:
@@ -692,7 +827,8 @@ def _set_up(config: TrainRunConfig, *, ctx: DistributedContext, base_dir: Path, 
             + ("" if target_tiles is None else f", adapting to {len(target_tiles)} unlabelled blocks from "
                f"{len(set(target_tiles.scene_names))} scenes") + "; "
             f"global batch {sampler.global_batch} = {settings.batch_size} x {ctx.world} process(es) x "
-            f"{settings.accumulation_steps} accumulation, {sampler.steps_per_epoch} steps/epoch, device {ctx.device}"
+            f"{settings.accumulation_steps} accumulation, {sampler.steps_per_epoch} steps/epoch "
+            f"({sampler.steps_per_epoch * sampler.global_batch} blocks drawn), device {ctx.device}"
         )
         if weights is not None:
             emit("class weights (" + settings.class_weights + "): " + ", ".join(
@@ -713,21 +849,9 @@ def _set_up(config: TrainRunConfig, *, ctx: DistributedContext, base_dir: Path, 
 
 
 def _restore(run: _Run, state: dict[str, Any]) -> None:
-    """Continue from ``last.pt`` (``state``): the same configuration, device kind and processes,
-    every weight, optimizer, schedule and generator state as it was."""
-    ctx, last_path = run.ctx, run.last_path
-    stored = dump_config(parse_config(state["config"], where=f"{last_path} [config]"))
-    _check_resumable(stored, dump_config(run.config), last_path)  # accumulation_steps among them
-    if state["device"] != ctx.device.type:
-        raise LearnError(
-            f"{last_path}: the run trained on {state['device']} and would resume on {ctx.device.type}; "
-            f"resume it on {state['device']} ([train] device = \"{state['device']}\") or start a new run in another out_dir"
-        )
-    if state["world_size"] != ctx.world:
-        raise LearnError(
-            f"{last_path}: the run used {state['world_size']} process(es), this one {ctx.world}; resume with "
-            f"the same number (torchrun --nproc_per_node {state['world_size']}) or start a new run"
-        )
+    """Continue from ``last.pt`` (``state``): every weight, optimizer, schedule and generator state
+    as it was."""
+    ctx, last_path = run.ctx, run.last_path  # (what may continue was checked by check_resumable)
     load_state(run.model, state["model"], what="model weights", path=last_path)
     load_state(run.ema.module, state["ema"], what="EMA weights", path=last_path)
     run.ema.steps = state["ema_steps"]
@@ -751,10 +875,15 @@ def _train_epoch(run: _Run, epoch: int, on_step_end: Callable[[int, int], None] 
     accumulation = settings.accumulation_steps
     started = time.perf_counter()
     if run.adapted is not None and run.target_tiles is not None:
+        start = run.started_from if epoch == 0 else None  # the teacher still holds the weights started from
         pseudo = pseudo_label_tiles(run.ema.module, run.target_tiles, points=config.blocks.points, inputs=config.input,
                                     config=config.adapt, classes=classes, device=ctx.device,
                                     batch_size=config.eval.batch_size, amp=settings.amp, seed=settings.seed,
-                                    epoch=epoch)
+                                    epoch=epoch,
+                                    name=f"the averaged weights at epoch {epoch + 1}" if start is None
+                                    else start["checkpoint"],
+                                    advice=run.terms.when_diverged(settings.max_lr) if start is None
+                                    else "start from another checkpoint")
         run.adapted.set_pseudo_labels(pseudo)
         if ctx.is_main:
             run.emit(f"epoch {epoch + 1}: " + pseudo.describe(tuple(config.data.class_names)))
@@ -763,6 +892,8 @@ def _train_epoch(run: _Run, epoch: int, on_step_end: Callable[[int, int], None] 
     confusion = torch.zeros(classes, classes, dtype=torch.int64, device=ctx.device)
     sums = torch.zeros(2, dtype=torch.float64, device=ctx.device)
     last_lr = math.nan
+    # the step's losses and outputs finite so far: checked once per step (no sync per micro-batch)
+    finite = torch.ones((), dtype=torch.bool, device=ctx.device)
     with progress_bar(total=run.sampler.steps_per_epoch, desc=f"epoch {epoch + 1}/{settings.epochs}", unit="step",
                       enabled=ctx.is_main) as bar:
         for index, batch in enumerate(run.loader):
@@ -783,18 +914,21 @@ def _train_epoch(run: _Run, epoch: int, on_step_end: Callable[[int, int], None] 
             last_micro = k == accumulation - 1
             sync = contextlib.nullcontext() if (last_micro or ctx.world == 1) else run.ddp_model.no_sync()
             with sync:
-                logits, loss, count = run_micro_batch(
+                logits, loss, count, objective = run_micro_batch(
                     run.ddp_model, xyz, label, mask, scaler=run.scaler, amp=settings.amp, accumulation=accumulation,
                     weight=run.weight, adapted=adapted, adapted_weight=config.adapt.weight,
                 )
             with torch.no_grad():
+                finite &= torch.isfinite(objective.detach()) & outputs_finite(logits, mask)
                 sums += torch.stack([loss.detach().double() * count, count.double()])
                 _update_confusion(confusion, logits[:own].detach(), label[:own])
             if not last_micro:
                 continue
             last_lr = run.optimizer.param_groups[0]["lr"]  # the LR this step applies; finish_step moves on
             finish_step(run.model, optimizer=run.optimizer, scaler=run.scaler, scheduler=run.scheduler, ema=run.ema)
-            check_diverged(run.model, loss=loss, epoch=epoch, step=step, checkpoint=run.last_path, settings=settings)
+            check_diverged(run.model, loss=loss, finite_loss=_all_finite(finite, ctx), epoch=epoch, step=step,
+                           checkpoint=run.last_path, settings=settings, started_from=run.started_from, terms=run.terms)
+            finite.fill_(True)
             bar.update(1)
             if on_step_end is not None:
                 on_step_end(epoch, step)
@@ -805,6 +939,7 @@ def _train_epoch(run: _Run, epoch: int, on_step_end: Callable[[int, int], None] 
     if run.val_set is not None:
         val_confusion, val_loss, val_points = _validate(
             run.ema.module, run.val_set, ctx=ctx, batch_size=config.eval.batch_size, amp=settings.amp, classes=classes,
+            name=f"the averaged weights at epoch {epoch + 1}", advice=run.terms.when_diverged(settings.max_lr),
         )
         row.update(_metric_row("val", val_confusion, val_loss, val_points))
     else:

@@ -311,11 +311,18 @@ class AdaptationSchedule(Checked):
     """How ``bimscan adapt`` fine-tunes a checkpoint to a user's unlabelled scans: ``epochs`` over
     the checkpoint's synthetic training data (its scene sets as it trained on them), each with the
     adapted blocks beside (``[adapt]``), at ``lr_factor`` times the checkpoint's ``max_lr`` (a
-    fine-tune, not a new training); the rest of its configuration as it was. The shipped
-    experiment's adapted variants use the same (``configs/experiments/sim2real_adapt_cpu.toml``)."""
+    fine-tune, not a new training); the rest of its configuration as it was. An experiment's
+    variant that adapts (``adapt_to``) takes the same from its parent's ``[train]`` unless it sets
+    its own (``bimscan.learn.experiment``; ``configs/experiments/sim2real_adapt_cpu.toml``)."""
 
     epochs: int = setting(1, within=Range(1, 1000))
     lr_factor: float = setting(0.2, within=Range(0.0, 1.0, low_open=True))
+
+    def changes(self, trained: TrainConfig) -> dict[str, object]:
+        """The ``[train]`` settings an adaptation of a model trained with ``trained`` replaces:
+        ``epochs``, ``max_lr`` (``lr_factor`` times its own, to 12 significant digits: a fifth of
+        5e-3 is 1e-3, not 1.0000000000000002e-3) and ``freeze`` (none: adaptation trains every part)."""
+        return {"epochs": self.epochs, "max_lr": float(f"{trained.max_lr * self.lr_factor:.12g}"), "freeze": ()}
 
 
 @dataclass(frozen=True)
