@@ -208,6 +208,8 @@ FILE_SIGNATURES: dict[str, tuple[bytes, ...]] = {
     ".e57": (b"ASTM-E57",),
     ".png": (b"\x89PNG\r\n\x1a\n",),
     ".ifc": (b"ISO-10303-21;",),
+    ".bcf": (b"PK\x03\x04",),  # a BCF file is a zip
+    ".bcfzip": (b"PK\x03\x04",),
     ".trajectory.csv": (b"t,x,y,z,roll,pitch,yaw,pass\n",),  # the walk beside a mobile scan
 }
 
