@@ -1,11 +1,13 @@
 """BCF issues: topics about model components that BIM tools open beside the IFC model.
 
 ``write_bcf(out, topics, project_name=...)`` writes a BCF 2.1 file (BIM Collaboration Format, a zip
-of XML files: the version BIMcollab, Solibri, Navisworks and Bonsai import) through IfcOpenShell's
-``bcf-client`` (import name ``bcf``). Every ``BcfTopic`` becomes a topic with one viewpoint: a
-perspective camera, the topic's components selected (by IFC GlobalId), every component visible,
-and optionally the selected ones coloured and a PNG snapshot. Coordinates are the IFC model's
-world coordinates in metres, as BCF requires.
+of XML files: the version BIMcollab, Solibri, Navisworks and Bonsai import) with the standard
+library alone, following buildingSMART's 2.1 schemas (version.xsd, project.xsd, markup.xsd,
+visinfo.xsd: their element order, the FieldOfView range 45-60, upper-case colours). Every
+``BcfTopic`` becomes a topic folder with ``markup.bcf`` and one viewpoint, ``viewpoint.bcfv`` (the
+name BCF 2.1 asks one viewpoint of every topic to have): a perspective camera, the topic's components selected (by IFC
+GlobalId), every component visible, and optionally the selected ones coloured and a
+``snapshot.png``. Coordinates are the IFC model's world coordinates in metres, as BCF requires.
 
 The bytes are reproducible: topic and viewpoint GUIDs are name-based UUIDs (version 5) of the
 project name, title and GlobalIds; dates are ``SOURCE_DATE_EPOCH`` when set, else 1970-01-01; zip
@@ -17,7 +19,9 @@ from __future__ import annotations
 import datetime as dt
 import io
 import math
+import re
 import uuid
+import xml.etree.ElementTree as ET
 import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -34,10 +38,13 @@ Vector = tuple[float, float, float]
 
 BCF_VERSION = "2.1"
 BCF_SUFFIXES = (".bcf", ".bcfzip")
+VIEWPOINT_NAME = "viewpoint.bcfv"
 SNAPSHOT_NAME = "snapshot.png"
+FIELD_OF_VIEW_DEG = (45.0, 60.0)  # visinfo.xsd 2.1 restricts PerspectiveCamera/FieldOfView to this
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _NAMESPACE = uuid.UUID("5b0d2e8e-6f1c-4d0b-8c52-9f4b7c1e2a63")  # bimscan's BCF GUIDs
 _ZIP_TIME = (1980, 1, 1, 0, 0, 0)  # the earliest time a zip member can carry
+_NOT_XML = re.compile("[^\t\n\r\u0020-\ud7ff\ue000-\ufffd\U00010000-\U0010ffff]")  # outside XML 1.0's Char
 
 
 @dataclass(frozen=True)
@@ -46,8 +53,9 @@ class BcfTopic:
     with ``color``, in its viewpoint). camera_*: the viewpoint's camera in the model's world metres;
     the direction need not be a unit vector and the up vector need not be square to it (both are
     made so on writing), but they must not be parallel. field_of_view_deg: the camera's vertical
-    angle (BCF 2.1 asks viewers for 45-60 degrees; 1-170 is accepted). color: "RRGGBB" or
-    "AARRGGBB" hex. snapshot_png: a PNG image of the view, stored as the viewpoint's snapshot."""
+    angle, 45-60 degrees (the range BCF 2.1's schema allows). color: "RRGGBB" or "AARRGGBB" hex
+    (BCF 2.1's ARGB, the alpha first; written upper-case). snapshot_png: a PNG image of the view, stored as
+    the viewpoint's snapshot. Text must hold only characters XML 1.0 can carry."""
 
     title: str
     description: str
@@ -66,6 +74,11 @@ class BcfTopic:
     def __post_init__(self) -> None:
         if not self.title.strip():
             raise ValueError("a BCF topic needs a title")
+        for name in ("title", "description", "topic_type", "status", "priority"):
+            if getattr(self, name) is not None:
+                _xml_text(getattr(self, name), name)
+        for label in self.labels:
+            _xml_text(label, "label")
         for gid in self.global_ids:
             if len(gid) != 22 or gid[0] not in "0123" or any(c not in IFC_BASE64 for c in gid):
                 raise ValueError(f"{gid!r} in topic {self.title!r} is not an IFC GlobalId (22 characters of IFC's "
@@ -73,8 +86,10 @@ class BcfTopic:
         _unit(self.camera_direction, "camera_direction")
         _camera_up(self.camera_direction, self.camera_up)
         _finite(self.camera_position, "camera_position")
-        if not 1.0 <= self.field_of_view_deg <= 170.0:
-            raise ValueError(f"field_of_view_deg {self.field_of_view_deg} is outside 1-170 degrees")
+        low, high = FIELD_OF_VIEW_DEG
+        if not low <= self.field_of_view_deg <= high:
+            raise ValueError(f"field_of_view_deg {self.field_of_view_deg} is outside {low:g}-{high:g} degrees, the "
+                             "range BCF 2.1 allows; move the camera instead")
         if self.color is not None and (len(self.color) not in (6, 8)
                                        or any(c not in "0123456789abcdefABCDEF" for c in self.color)):
             raise ValueError(f"color {self.color!r} is not 6 (RGB) or 8 (ARGB) hex digits")
@@ -127,62 +142,97 @@ def write_bcf(out: str | Path, topics: Sequence[BcfTopic], *, project_name: str,
 
 
 def _bcf_bytes(topics: Sequence[BcfTopic], *, project_name: str, author: str = "bimscan") -> bytes:
-    """The bytes of the BCF 2.1 file ``write_bcf`` writes."""
-    import bcf.v2.model as mdl
-    from bcf.v2.topic import TopicHandler
-    from bcf.v2.visinfo import VisualizationInfoHandler
-    from bcf.xml_parser import XmlParserSerializer
-    from xsdata.models.datatype import XmlDateTime
-
-    xml = XmlParserSerializer()
+    """The bytes of the BCF 2.1 file ``write_bcf`` writes: ``bcf.version``, ``project.bcfp``, then a
+    folder per topic (its GUID) with ``markup.bcf``, ``viewpoint.bcfv`` and maybe ``snapshot.png``."""
+    _xml_text(project_name, "project_name")
+    _xml_text(author, "author")
     epoch = source_date_epoch()
-    created = XmlDateTime.from_datetime(dt.datetime.fromtimestamp(epoch or 0, tz=dt.UTC))
-    members: dict[str, bytes] = {}
-    project = mdl.ProjectExtension(
-        project=mdl.Project(name=project_name, project_id=str(uuid.uuid5(_NAMESPACE, f"project:{project_name}"))),
-        extension_schema="")
-    members["bcf.version"] = xml.serialize(mdl.Version(version_id=BCF_VERSION, detailed_version=BCF_VERSION)).encode()
-    members["project.bcfp"] = xml.serialize(project).encode()
+    created = dt.datetime.fromtimestamp(epoch or 0, tz=dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+    version = ET.Element("Version", VersionId=BCF_VERSION)
+    _child(version, "DetailedVersion", BCF_VERSION)
+    project = ET.Element("ProjectExtension")
+    _child(_child(project, "Project", ProjectId=str(uuid.uuid5(_NAMESPACE, f"project:{project_name}"))),
+           "Name", project_name)
+    _child(project, "ExtensionSchema", "")  # required; empty: bimscan defines no extensions
+    members = {"bcf.version": _xml_bytes(version), "project.bcfp": _xml_bytes(project)}
     seen: dict[str, int] = {}
     for topic in topics:
         guid = _topic_guid(project_name, topic, seen)
-        handler = TopicHandler(topic_dir=Path(guid), xml_handler=xml)  # a Path, as bcf-client's own
-        handler.markup = mdl.Markup(topic=mdl.Topic(
-            guid=guid, title=topic.title, description=topic.description, creation_author=author,
-            creation_date=created, topic_type=topic.topic_type, topic_status=topic.status,
-            priority=topic.priority, labels=list(topic.labels)))
-        viewpoint = VisualizationInfoHandler(_visualization_info(topic, guid), snapshot=topic.snapshot_png,
-                                             xml_handler=xml)
-        handler.add_visinfo_handler(viewpoint, SNAPSHOT_NAME if topic.snapshot_png is not None else None)
-        handler.save(_Members(members))
+        viewpoint_guid = str(uuid.uuid5(_NAMESPACE, f"viewpoint:{guid}"))
+        members[f"{guid}/"] = b""
+        members[f"{guid}/markup.bcf"] = _xml_bytes(_markup(topic, guid, viewpoint_guid, created, author))
+        members[f"{guid}/{VIEWPOINT_NAME}"] = _xml_bytes(_visualization_info(topic, viewpoint_guid))
+        if topic.snapshot_png is not None:
+            members[f"{guid}/{SNAPSHOT_NAME}"] = topic.snapshot_png
     return _zip(members)
 
 
-def _visualization_info(topic: BcfTopic, topic_guid: str):  # -> bcf.v2.model.VisualizationInfo
-    """The topic's viewpoint: its camera, its components selected (and coloured), all others shown."""
-    import bcf.v2.model as mdl
+def _markup(topic: BcfTopic, guid: str, viewpoint_guid: str, created: str, author: str) -> ET.Element:
+    """markup.bcf: the topic and its one viewpoint (children in markup.xsd's sequence order)."""
+    markup = ET.Element("Markup")
+    element = _child(markup, "Topic", Guid=guid, TopicType=topic.topic_type, TopicStatus=topic.status)
+    _child(element, "Title", topic.title)
+    if topic.priority is not None:
+        _child(element, "Priority", topic.priority)
+    for label in topic.labels:
+        _child(element, "Labels", label)
+    _child(element, "CreationDate", created)
+    _child(element, "CreationAuthor", author)
+    _child(element, "Description", topic.description)
+    viewpoints = _child(markup, "Viewpoints", Guid=viewpoint_guid)
+    _child(viewpoints, "Viewpoint", VIEWPOINT_NAME)
+    if topic.snapshot_png is not None:
+        _child(viewpoints, "Snapshot", SNAPSHOT_NAME)
+    return markup
 
-    direction = _unit(topic.camera_direction, "camera_direction")
-    up = _camera_up(topic.camera_direction, topic.camera_up)
-    selected = [mdl.Component(ifc_guid=gid) for gid in topic.global_ids]
-    coloring = None
-    if topic.color is not None and selected:
-        coloring = mdl.ComponentColoring(color=[mdl.ComponentColoringColor(
-            color=topic.color.upper(), component=[mdl.Component(ifc_guid=gid) for gid in topic.global_ids])])
-    return mdl.VisualizationInfo(
-        guid=str(uuid.uuid5(_NAMESPACE, f"viewpoint:{topic_guid}")),
-        components=mdl.Components(
-            view_setup_hints=mdl.ViewSetupHints(spaces_visible=False, space_boundaries_visible=False,
-                                                openings_visible=False),
-            selection=mdl.ComponentSelection(component=selected) if selected else None,
-            visibility=mdl.ComponentVisibility(default_visibility=True),
-            coloring=coloring),
-        perspective_camera=mdl.PerspectiveCamera(
-            camera_view_point=mdl.Point(x=float(topic.camera_position[0]), y=float(topic.camera_position[1]),
-                                        z=float(topic.camera_position[2])),
-            camera_direction=mdl.Direction(x=direction[0], y=direction[1], z=direction[2]),
-            camera_up_vector=mdl.Direction(x=up[0], y=up[1], z=up[2]),
-            field_of_view=float(topic.field_of_view_deg)))
+
+def _visualization_info(topic: BcfTopic, viewpoint_guid: str) -> ET.Element:
+    """viewpoint.bcfv: the topic's camera, its components selected (and coloured), all others shown
+    (children in visinfo.xsd's sequence order)."""
+    info = ET.Element("VisualizationInfo", Guid=viewpoint_guid)
+    components = _child(info, "Components")
+    _child(components, "ViewSetupHints", SpacesVisible="false", SpaceBoundariesVisible="false",
+           OpeningsVisible="false")
+    if topic.global_ids:
+        selection = _child(components, "Selection")
+        for gid in topic.global_ids:
+            _child(selection, "Component", IfcGuid=gid)
+    _child(components, "Visibility", DefaultVisibility="true")
+    if topic.color is not None and topic.global_ids:
+        color = _child(_child(components, "Coloring"), "Color", Color=topic.color.upper())
+        for gid in topic.global_ids:
+            _child(color, "Component", IfcGuid=gid)
+    camera = _child(info, "PerspectiveCamera")
+    for name, vector in (("CameraViewPoint", _vector(_finite(topic.camera_position, "camera_position"))),
+                         ("CameraDirection", _unit(topic.camera_direction, "camera_direction")),
+                         ("CameraUpVector", _camera_up(topic.camera_direction, topic.camera_up))):
+        point = _child(camera, name)
+        for axis, value in zip("XYZ", vector, strict=True):
+            _child(point, axis, repr(value))  # the shortest text that reads back as the same double
+    _child(camera, "FieldOfView", repr(float(topic.field_of_view_deg)))
+    return info
+
+
+def _child(parent: ET.Element, tag: str, text: str | None = None, **attributes: str) -> ET.Element:
+    element = ET.SubElement(parent, tag, attributes)
+    element.text = text
+    return element
+
+
+def _xml_bytes(root: ET.Element) -> bytes:
+    """A UTF-8 XML document: ElementTree escapes text and attributes, attributes keep their order."""
+    ET.indent(root, space="  ")
+    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode").encode("utf-8") + b"\n"
+
+
+def _xml_text(text: str, name: str) -> str:
+    """``text``, or a ValueError for a character XML 1.0 cannot carry (control characters other than
+    tab and line breaks, lone surrogates, U+FFFE/U+FFFF): ElementTree would write them unescaped."""
+    bad = _NOT_XML.search(text)
+    if bad is not None:
+        raise ValueError(f"{name} {text!r} holds the character U+{ord(bad.group()):04X}, which XML cannot carry; "
+                         "remove it")
+    return text
 
 
 def _topic_guid(project_name: str, topic: BcfTopic, seen: dict[str, int]) -> str:
@@ -192,16 +242,6 @@ def _topic_guid(project_name: str, topic: BcfTopic, seen: dict[str, int]) -> str
     count = seen.get(key, 0)
     seen[key] = count + 1
     return str(uuid.uuid5(_NAMESPACE, f"topic:{key}" + (f"\n#{count}" if count else "")))
-
-
-class _Members:
-    """The zip-like object bcf-client saves a topic into: its members, kept in order, as bytes."""
-
-    def __init__(self, members: dict[str, bytes]) -> None:
-        self.members = members
-
-    def writestr(self, name: str, content: bytes | str) -> None:
-        self.members[name] = content.encode() if isinstance(content, str) else content
 
 
 def _zip(members: dict[str, bytes]) -> bytes:
