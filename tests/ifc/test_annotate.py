@@ -138,11 +138,7 @@ def test_sets_of_other_names_are_kept(tiny_model, tmp_path):
 
 def test_a_damaged_model_that_opens_is_annotated_by_step_id(tiny_model, tmp_path):
     source, wall, _ = _model(tiny_model, tmp_path / "model.ifc")
-    text = source.read_text()
-    # the wall without a GlobalId ('$', as some exporters leave it): bimscan names elements by STEP id
-    damaged = re.sub(rf"(?m)^(#{wall}=IFCWALL\()'[^']*'", r"\1$", text)
-    assert damaged != text
-    source.write_text(damaged)
+    _unset_global_id(source, wall)  # bimscan names elements by STEP id, right also without a GlobalId
     done = write_property_sets(source, tmp_path / "out.ifc", {wall: {"Status": "built"}}, pset_name=SET)
     assert done.elements == 1 and _psets(tmp_path / "out.ifc", wall) == {SET: {"Status": "built"}}
 
@@ -198,3 +194,83 @@ def test_every_element_of_a_real_model_is_annotated_and_its_statements_kept(shar
     ours = [s for s in model.by_type("IfcPropertySet") if s.Name == SET]
     assert len(ours) == len(elements) and all(s.OwnerHistory is not None for s in ours)
     assert set(_statements(source)) <= set(_statements(tmp_path / "out.ifc"))
+
+
+def _unset_global_id(source: Path, step_id: int, value: str = "$") -> None:
+    """The instance's GlobalId replaced by ``value`` (``$``: unset, as some exporters leave it)."""
+    text = source.read_text()
+    damaged = re.sub(rf"(?m)^(#{step_id}=IFC\w+\()'[^']*'", rf"\g<1>{value}", text)
+    assert damaged != text
+    source.write_text(damaged)
+
+
+def test_a_wall_without_a_global_id_gets_the_one_bimscan_derived_and_no_valid_one_changes(tiny_model, tmp_path):
+    from bimscan.ifc.load import load_ifc
+
+    source, wall, door = _model(tiny_model, tmp_path / "model.ifc")
+    door_gid = _open(source).by_id(door).GlobalId
+    _unset_global_id(source, wall)
+    table = load_ifc(source, use_cache=False, threads=1, progress=False).components
+    global_ids = dict(zip(table.step_id, table.global_id, strict=True))  # as a BCF topic names them
+    assert _open(source).by_id(wall).GlobalId is None and global_ids[wall] != door_gid
+    done = write_property_sets(source, tmp_path / "out.ifc", {wall: {"Status": "not built"}}, pset_name=SET,
+                               global_ids=global_ids)
+    assert done == Annotated(elements=1, cleared=0, missing=(), repaired_global_ids=1)
+    model = _open(tmp_path / "out.ifc")
+    assert model.by_guid(global_ids[wall]).id() == wall and model.by_id(door).GlobalId == door_gid
+    assert _psets(tmp_path / "out.ifc", wall) == {SET: {"Status": "not built"}}
+    # apart from the wall's GlobalId, every statement is the source's: only the set was added
+    before, after = _statements(source), _statements(tmp_path / "out.ifc")
+    assert len(set(before) - set(after)) == 1 and len(after) == len(before) + 1 + 1 + 1
+
+
+def test_a_global_id_that_is_no_ifc_guid_in_the_file_is_replaced_too(tiny_model, tmp_path):
+    source, wall, door = _model(tiny_model, tmp_path / "model.ifc")
+    _unset_global_id(source, wall, "'{6F9619FF-8B86-D011-B42D-00CF4FC964FF}'")  # a GUID, but not in IFC's form
+    given = "0K9jUPgsH3aQPnkTHKpmSo"
+    done = write_property_sets(source, tmp_path / "out.ifc", {}, pset_name=SET, global_ids={np.int64(wall): given})
+    assert done == Annotated(elements=0, cleared=0, missing=(), repaired_global_ids=1)
+    assert _open(tmp_path / "out.ifc").by_id(wall).GlobalId == given
+
+
+def test_a_table_holding_the_files_own_global_ids_changes_none_even_one_of_another_form(tiny_model, tmp_path):
+    source, wall, door = _model(tiny_model, tmp_path / "model.ifc")
+    odd = "{6F9619FF-8B86-D011-B42D-00CF4FC964FF}"
+    _unset_global_id(source, wall, f"'{odd}'")  # the loader keeps such a string: its table holds it as it is
+    door_gid = _open(source).by_id(door).GlobalId
+    done = write_property_sets(source, tmp_path / "out.ifc", {door: {"Status": "built"}}, pset_name=SET,
+                               global_ids={wall: odd, door: door_gid})
+    assert done == Annotated(elements=1, cleared=0, missing=(), repaired_global_ids=0)
+    assert _open(tmp_path / "out.ifc").by_id(wall).GlobalId == odd
+
+
+def test_ids_of_global_ids_not_in_the_file_are_reported_missing(tiny_model, tmp_path):
+    source, wall, _ = _model(tiny_model, tmp_path / "model.ifc")
+    _unset_global_id(source, wall)
+    done = write_property_sets(source, tmp_path / "out.ifc", {wall: {"Status": "built"}}, pset_name=SET,
+                               global_ids={wall: "0K9jUPgsH3aQPnkTHKpmSo", 999_999: "1K9jUPgsH3aQPnkTHKpmSo"})
+    assert done == Annotated(elements=1, cleared=0, missing=(999_999,), repaired_global_ids=1)
+
+
+@pytest.mark.parametrize(("entries", "words"), [
+    ({"wall": "#12"}, "is not an IFC GlobalId"),
+    ({"wall": "4K9jUPgsH3aQPnkTHKpmSo"}, "is not an IFC GlobalId"),  # the first character is 0-3
+    ({"door": "0K9jUPgsH3aQPnkTHKpmSo"}, "the file has .*: the ids are of another model"),  # a valid one differs
+    ({"wall": "door's"}, "which #\\d+ has already"),  # the door's, in the file
+    ({"wall": "0K9jUPgsH3aQPnkTHKpmSo", "window": "0K9jUPgsH3aQPnkTHKpmSo"}, "which #\\d+ has already"),
+])
+def test_global_ids_that_would_name_elements_wrongly_are_refused_and_nothing_is_written(tiny_model, tmp_path,
+                                                                                         entries, words):
+    model = tiny_model("IFC4")
+    elements = {name: model.add_box(ifc_class, origin=(2.0 * i, 0.0, 0.0), size=(1.0, 0.2, 2.0))
+                for i, (name, ifc_class) in enumerate([("wall", "IfcWall"), ("door", "IfcDoor"),
+                                                       ("window", "IfcWindow")])}
+    source = model.write(tmp_path / "model.ifc")
+    door_gid = elements["door"].GlobalId
+    for name in ("wall", "window"):
+        _unset_global_id(source, elements[name].id())
+    global_ids = {elements[name].id(): door_gid if gid == "door's" else gid for name, gid in entries.items()}
+    with pytest.raises(ValueError, match=words) as raised:
+        write_property_sets(source, tmp_path / "out.ifc", {}, pset_name=SET, global_ids=global_ids)
+    assert "\n" not in str(raised.value)
+    assert not (tmp_path / "out.ifc").exists()

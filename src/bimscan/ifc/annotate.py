@@ -11,6 +11,12 @@ is replaced whole, so no stale value survives and no set is doubled; one shared 
 is taken off this element only. Every other instance keeps its id and attributes (IfcOpenShell
 writes the file out again, numbers in its own notation). The new sets' GlobalIds derive from the
 set's name and the element, so the same input gives the same bytes.
+
+``global_ids`` (STEP id -> GlobalId, e.g. ``dict(zip(table.step_id, table.global_id))`` of the
+component table) gives the copy the GlobalIds bimscan used: an element whose GlobalId in the file
+is unset (``$``, which bimscan's loader replaces by one derived from the file) or not a valid IFC
+GlobalId gets the given one, so that the annotated copy and BCF topics written with the same
+table name the same element. A valid GlobalId is never changed.
 """
 
 from __future__ import annotations
@@ -26,7 +32,7 @@ import numpy as np
 
 from bimscan.errors import OutputError
 from bimscan.files import atomic_output, check_replaceable
-from bimscan.ifc.guid import derived_global_id
+from bimscan.ifc.guid import derived_global_id, is_global_id
 from bimscan.ifc.schedule import open_model
 
 PropertyValue = str | float | int | bool | None
@@ -38,11 +44,14 @@ RESERVED_PREFIXES = ("Pset_", "Qto_")  # buildingSMART's standard sets: a tool's
 class Annotated:
     """What ``write_property_sets`` did. elements: elements that got the set. cleared: elements
     whose values were all None (they keep no set of that name). missing: the ids of ``values``
-    that name no IfcProduct of the file (absent, or another kind of entity), sorted."""
+    or ``global_ids`` that name no IfcProduct of the file (absent, or another kind of entity),
+    sorted. repaired_global_ids: elements whose unset or invalid GlobalId got the one of
+    ``global_ids``."""
 
     elements: int
     cleared: int
     missing: tuple[int, ...]
+    repaired_global_ids: int = 0
 
 
 def check_annotated_output(out: str | Path, *, source: str | Path, overwrite: bool = False) -> Path:
@@ -65,11 +74,14 @@ def check_annotated_output(out: str | Path, *, source: str | Path, overwrite: bo
 
 def write_property_sets(source: str | Path, out: str | Path,
                         values: Mapping[int, Mapping[str, PropertyValue]], *, pset_name: str,
-                        overwrite: bool = False) -> Annotated:
+                        global_ids: Mapping[int, str] | None = None, overwrite: bool = False) -> Annotated:
     """Write the copy of ``source`` annotated with ``values`` (STEP id -> property name -> value)
-    to ``out``, atomically. Raises InputFileError / IfcError for a missing or unreadable model,
-    OutputError for an output that cannot be written, ValueError for a reserved or empty
-    ``pset_name`` or property name, or a NaN or infinite number."""
+    to ``out``, atomically, with the unset or invalid GlobalIds of the elements ``global_ids``
+    names (STEP id -> GlobalId) set to the given ones. Raises InputFileError / IfcError for a
+    missing or unreadable model, OutputError for an output that cannot be written, ValueError for
+    a reserved or empty ``pset_name`` or property name, a NaN or infinite number, or a
+    ``global_ids`` entry that is no IFC GlobalId, differs from the element's valid one (a table of
+    another model) or is another instance's already."""
     if not pset_name or pset_name.startswith(RESERVED_PREFIXES):
         raise ValueError(f"property set name {pset_name!r} is empty or uses a buildingSMART prefix "
                          f"({', '.join(RESERVED_PREFIXES)}); name it like Bimscan_Progress")
@@ -77,12 +89,13 @@ def write_property_sets(source: str | Path, out: str | Path,
     out = check_annotated_output(out, source=source, overwrite=overwrite)
     model = open_model(source)
     elements = cleared = 0
-    missing = []
+    missing: set[int] = set()
+    repaired = _set_global_ids(model, {int(k): v for k, v in (global_ids or {}).items()}, missing)
     by_id = {int(k): v for k, v in values.items()}  # NumPy ids (ComponentTable.step_id) as ints
     for step_id in sorted(by_id):
         element = _product(model, step_id)
         if element is None:
-            missing.append(step_id)
+            missing.add(step_id)
             continue
         if _annotate(model, element, by_id[step_id], pset_name):
             elements += 1
@@ -93,7 +106,46 @@ def write_property_sets(source: str | Path, out: str | Path,
             model.write(str(temp))
     except OSError as exc:
         raise OutputError(f"could not write {out}: {exc.strerror or exc}; check the folder and free space") from exc
-    return Annotated(elements=elements, cleared=cleared, missing=tuple(missing))
+    return Annotated(elements=elements, cleared=cleared, missing=tuple(sorted(missing)),
+                     repaired_global_ids=repaired)
+
+
+def _set_global_ids(model, global_ids: dict[int, str], missing: set[int]) -> int:
+    """Give each element of ``global_ids`` whose GlobalId is unset or invalid the given one; the
+    number so set. Ids naming no product go to ``missing``. Every entry is checked before any is set."""
+    repairs: dict[str, object] = {}  # GlobalId -> the element (an entity_instance) getting it
+    for step_id in sorted(global_ids):
+        gid = global_ids[step_id]
+        element = _product(model, step_id)
+        if element is None:
+            missing.add(step_id)
+            continue
+        current = getattr(element, "GlobalId", None)
+        if gid == current:
+            continue  # the table holds the file's own (the loader keeps a string of another form as it is)
+        if not is_global_id(gid):
+            raise ValueError(f"global_ids gives #{step_id} {gid!r}, which is not an IFC GlobalId (22 characters "
+                             "of IFC's base 64, the first 0-3); give the component table's global_id")
+        if is_global_id(current):
+            raise ValueError(f"global_ids gives #{step_id} the GlobalId {gid}, but the file has {current}: "
+                             "the ids are of another model; load this model's component table")
+        holder = repairs.get(gid)
+        if holder is None:
+            holder = _holder(model, gid)
+        if holder is not None:
+            raise ValueError(f"global_ids gives #{step_id} the GlobalId {gid}, which #{holder.id()} has already; "
+                             "give each element its own")
+        repairs[gid] = element
+    for gid, element in repairs.items():
+        element.GlobalId = gid
+    return len(repairs)
+
+
+def _holder(model, gid: str):  # -> entity_instance | None
+    try:
+        return model.by_guid(gid)
+    except RuntimeError:  # IfcOpenShell's answer for a GlobalId the file does not hold
+        return None
 
 
 def _product(model, step_id: int):  # -> entity_instance | None

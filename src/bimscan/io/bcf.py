@@ -31,7 +31,7 @@ import numpy as np
 
 from bimscan.errors import OutputError
 from bimscan.files import write_atomic
-from bimscan.ifc.guid import IFC_BASE64
+from bimscan.ifc.guid import is_global_id
 from bimscan.io._writer import check_output_path, output_error, source_date_epoch
 
 Vector = tuple[float, float, float]
@@ -80,7 +80,7 @@ class BcfTopic:
         for label in self.labels:
             _xml_text(label, "label")
         for gid in self.global_ids:
-            if len(gid) != 22 or gid[0] not in "0123" or any(c not in IFC_BASE64 for c in gid):
+            if not is_global_id(gid):
                 raise ValueError(f"{gid!r} in topic {self.title!r} is not an IFC GlobalId (22 characters of IFC's "
                                  "base 64, the first 0-3)")
         _unit(self.camera_direction, "camera_direction")
