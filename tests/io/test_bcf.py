@@ -215,7 +215,7 @@ def test_each_topic_is_a_folder_with_its_markup_viewpoint_and_snapshot(tmp_path)
                          second, f"{second}markup.bcf", f"{second}viewpoint.bcfv"]
     members = _members(path)
     version = members["bcf.version"]
-    assert version.tag == "Version" and version.get("VersionId") == "2.1" and version.findtext("DetailedVersion") == "2.1"
+    assert (version.tag, version.get("VersionId"), version.findtext("DetailedVersion")) == ("Version", "2.1", "2.1")
     for folder in folders:
         markup, viewpoint = members[f"{folder}markup.bcf"], members[f"{folder}viewpoint.bcfv"]
         assert markup.find("Topic").get("Guid") == folder.rstrip("/")
