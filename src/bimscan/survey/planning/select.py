@@ -31,6 +31,7 @@ from __future__ import annotations
 import time
 from collections import deque
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from scipy import sparse
@@ -97,25 +98,39 @@ class CoverProblem:
         """How many connected parts the chosen candidates form in the registration graph."""
         return int(graph_parts(self.edges, np.asarray(chosen, dtype=np.int64)).max() + 1) if len(chosen) else 0
 
+    @cached_property
+    def _entry_column(self) -> np.ndarray:
+        """(nnz,) int64: the candidate of each stored density (the matrix's CSC order)."""
+        return np.repeat(np.arange(self.n_candidates), np.diff(self.density.indptr))
+
+    @cached_property
+    def column_totals(self) -> np.ndarray:
+        """(K,) float64: each candidate's density summed over every sample."""
+        return np.asarray(self.density.sum(axis=0)).ravel()
+
+    def _open_entries(self, summed: np.ndarray, wanting: np.ndarray) -> np.ndarray:
+        """Indices of the stored densities that can still change a gain: on samples under the
+        density, of a class that lacks area (the others add exactly zero), in CSC order."""
+        open_sample = (summed < self.threshold_pts_m2) & (self.klass >= 0) & wanting[np.maximum(self.klass, 0)]
+        return np.flatnonzero(open_sample[self.density.indices])
+
     def gains(self, summed: np.ndarray) -> np.ndarray:
         """(K,) the greedy gain of adding each candidate to a choice with this summed density."""
-        d = self.density
         deficit = self.deficit_m2(summed)
-        rows = d.indices
-        column = np.repeat(np.arange(self.n_candidates), np.diff(d.indptr))
+        wanting = deficit > 0
+        entries = self._open_entries(summed, wanting)
+        rows = self.density.indices[entries]
         klass = self.klass[rows]
-        counted = klass >= 0
         before = summed[rows]
-        after = before + d.data
+        after = before + self.density.data[entries]
         threshold = self.threshold_pts_m2
         area = self.area_m2[rows]
         newly = area * ((before < threshold) & (after >= threshold))
         progress = area * (np.minimum(after, threshold) - np.minimum(before, threshold)) / threshold
-        index = (column * len(self.need_m2) + np.maximum(klass, 0))[counted]
+        index = self._entry_column[entries] * len(self.need_m2) + klass
         shape = (self.n_candidates, len(self.need_m2))
-        hard = np.bincount(index, weights=newly[counted], minlength=shape[0] * shape[1]).reshape(shape)
-        soft = np.bincount(index, weights=progress[counted], minlength=shape[0] * shape[1]).reshape(shape)
-        wanting = deficit > 0
+        hard = np.bincount(index, weights=newly, minlength=shape[0] * shape[1]).reshape(shape)
+        soft = np.bincount(index, weights=progress, minlength=shape[0] * shape[1]).reshape(shape)
         return (np.minimum(hard, deficit[None, :]) + SOFT_GAIN * soft * wanting[None, :]).sum(axis=1)
 
 
@@ -200,7 +215,7 @@ def prune_cover(problem: CoverProblem, chosen: list[int]) -> list[int]:
     while changed and len(chosen) > 1:
         changed = False
         summed = problem.summed(chosen)
-        alone = [float(problem.density[:, j].sum()) for j in chosen]  # least total density first
+        alone = problem.column_totals[chosen]  # least total density first
         for j in [chosen[i] for i in np.argsort(alone, kind="stable")]:
             rest = [c for c in chosen if c != j]
             without = summed - problem.summed([j])
@@ -312,17 +327,14 @@ def iterated_greedy(problem: CoverProblem, chosen: list[int], *, allowed: np.nda
 
 def _newly_covered(problem: CoverProblem, summed: np.ndarray) -> np.ndarray:
     """(K, N): the area of each class that adding each candidate would newly cover."""
-    d = problem.density
-    rows = d.indices
-    column = np.repeat(np.arange(problem.n_candidates), np.diff(d.indptr))
-    klass = problem.klass[rows]
+    entries = problem._open_entries(summed, np.ones(len(problem.need_m2), dtype=bool))
+    rows = problem.density.indices[entries]
     before = summed[rows]
     threshold = problem.threshold_pts_m2
-    newly = problem.area_m2[rows] * ((before < threshold) & (before + d.data >= threshold))
-    counted = klass >= 0
+    newly = problem.area_m2[rows] * ((before < threshold) & (before + problem.density.data[entries] >= threshold))
     shape = (problem.n_candidates, len(problem.need_m2))
-    index = (column * shape[1] + np.maximum(klass, 0))[counted]
-    return np.bincount(index, weights=newly[counted], minlength=shape[0] * shape[1]).reshape(shape)
+    index = problem._entry_column[entries] * shape[1] + problem.klass[rows]
+    return np.bincount(index, weights=newly, minlength=shape[0] * shape[1]).reshape(shape)
 
 
 @dataclass(frozen=True)
