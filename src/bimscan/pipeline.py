@@ -132,12 +132,14 @@ class SiteAndStations:
 def site_and_stations(scene: BimScene, recipe: ScanRecipe, *, progress: bool = False) -> SiteAndStations:
     """The scene dressed as the recipe's site model has it, and its stations, every check first.
 
-    The stations are chosen on the scene as loaded (a file read and checked, or, before a
-    dressing, the check that a tripod can stand somewhere: a model where none can fails here, in
-    seconds), and the work schedule is read before any dressing. Then the scene is dressed, a file's stations kept clear of clutter, and the stations
-    are chosen again on the dressed scene: planned anew (the plan sees the clutter; dressing keeps a
-    tripod spot clear in every room) or the file's checked once more. A bare site model dresses
-    nothing and chooses once.
+    The stations are chosen on the scene as loaded (a file read and its stations placed, or,
+    before a dressing, the check that a tripod can stand somewhere: a model where none can fails
+    here, in seconds), and the work schedule is read before any dressing. Then the scene is
+    dressed, a file's stations kept clear of clutter, and the stations are chosen again on the
+    dressed scene: planned anew (the plan sees the clutter; dressing keeps a tripod spot clear in
+    every room) or the file's read and checked there. A station is checked only on the scene as
+    scanned, as ``bimscan plan`` chose it: a spot in a doorway is free once the stage leaves the
+    door out. A bare site model dresses nothing and chooses once.
     """
     from bimscan.survey.survey import choose_stations, choose_trajectory, require_tripod_spots
 
@@ -153,7 +155,7 @@ def site_and_stations(scene: BimScene, recipe: ScanRecipe, *, progress: bool = F
     stations: tuple[Station, ...] = ()
     if recipe.site.is_bare or from_file:
         with step_line("checking stations" if from_file else "planning stations", enabled=progress):
-            stations, plan = choose_stations(scene, recipe)
+            stations, plan = choose_stations(scene, recipe, check=recipe.site.is_bare)
         if recipe.site.is_bare:
             return SiteAndStations(scene=scene, stations=stations, plan=plan, timings=DressTimings())
     else:

@@ -22,7 +22,7 @@ from bimscan.survey.planning.plan import check_survey, evaluate, impossible_line
 from bimscan.survey.planning.surface import sample_surfaces, triangle_areas
 from bimscan.survey.planning.visibility import BeamGrid
 from bimscan.survey.recipe import ScanRecipe
-from bimscan.survey.stations import format_stations, read_stations
+from bimscan.survey.stations import format_stations, read_stations, station_problem
 from bimscan.types import Station
 
 VZ400 = SCANNERS["riegl_vz400"]
@@ -275,3 +275,26 @@ def test_given_stations_join_the_candidates_after_the_spots(box_room_ifc):
     station = Station(id=0, position=(4.0, 3.0, 1.7), floor_z=0.0)
     space = plan_space(box_room_ifc, given=(station,))
     assert len(space.heads) == space.n_spots + 1 and np.allclose(space.heads[-1], station.position)
+
+
+def test_a_station_in_a_doorway_scans_when_the_stage_leaves_the_door_out(tiny_model, tmp_path):
+    # plan and scan judge a tripod spot alike: the station check, on the site as it is scanned
+    path = two_rooms(tiny_model, tmp_path / "door.ifc", door=True)
+    stations = tmp_path / "stations.csv"
+    stations.write_text("x,y,z,height\n3,2.5,1.7,1.7\n6.18,2.5,1.7,1.7\n", "utf-8")  # 2 cm from the door leaf
+    doors_open = ScanRecipe.resolve(preset="exp1", head_deg_per_s=60.0, stations_from=str(stations),
+                                    site=SiteModel(stage=StageSettings(exclude=("IfcDoor",))))
+    cloud = scan_model(path, tmp_path / "open.laz", doors_open, progress=False).path
+    assert [s.position for s in read_cloud_header(cloud).stations] == [(3.0, 2.5, 1.7), (6.18, 2.5, 1.7)]
+    with pytest.raises(StationError, match="2 cm from IfcDoor .* closer than a scanner head allows"):
+        scan_model(path, tmp_path / "closed.laz", doors_open.with_fields(site=SiteModel()), progress=False)
+
+
+def test_every_candidate_spot_passes_the_station_check_of_the_scan(tiny_model, tmp_path):
+    path = two_rooms(tiny_model, tmp_path / "door.ifc", door=True)
+    recipe = ScanRecipe(site=SiteModel(stage=StageSettings(exclude=("IfcDoor",))))
+    scene = build_site(load_scene(path), recipe)
+    space = plan_space(path, recipe=recipe, scene=scene, classes=("Wall&Column",))
+    prober = Prober(scene.mesh)
+    for floor, head in zip(space.floors[:space.n_spots], space.heads):
+        assert station_problem(Station(id=0, position=tuple(head), floor_z=float(floor[2])), scene, prober) is None

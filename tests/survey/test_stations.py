@@ -87,6 +87,9 @@ def test_whitespace_separated_station_files_are_read(box, tmp_path):
     ("x,y,z\n1,2\n", "has 2 values for 3 columns"),
     ("x,y,z\n1,two,3\n", "must be numbers"),
     ("x,y,height,storey\n2,2,1.7,Attic\n", "unknown storey 'Attic'"),
+    ("x,y,z,storey\n2,2,1.7,Roof 99\n", r"station 1: unknown storey 'Roof 99'; use one of L0$"),  # z given too
+    ("x,y,z\n2,2,1.7\n5,3,1.7\n2,2,1.7\n", r"stations 1 and 3 stand at the same spot \(2, 2, 1.7\)"),
+    ("x,y,z,heading_deg\n2,2,1.7,0\n2.005,2,1.7,90\n", "stations 1 and 2 stand at the same spot"),  # a full turn
     ("x,y,z\n8.1,3,1.7\n", "inside a solid"),
     ("x,y,height\n50,50,1.7\n", "no floor under it"),
     ("# nothing\n", "no stations"),
@@ -130,3 +133,13 @@ def test_nonsense_station_files_are_refused_with_one_line(box, tmp_path, content
     with pytest.raises(StationError, match=message) as caught:
         read_stations(path, scene, scanner, VZ400)
     assert "\n" not in str(caught.value)
+
+
+def test_with_a_partial_head_rotation_two_headings_at_one_spot_are_two_stations(box, tmp_path):
+    scene, scanner = box
+    path = tmp_path / "halves.csv"
+    path.write_text("x,y,z,heading_deg\n2,2,1.7,0\n2,2,1.7,180\n")
+    assert len(read_stations(path, scene, scanner, VZ400, head_span_deg=180.0)) == 2
+    path.write_text("x,y,z,heading_deg\n2,2,1.7,0\n2,2,1.7,360\n")
+    with pytest.raises(StationError, match="same spot"):
+        read_stations(path, scene, scanner, VZ400, head_span_deg=180.0)

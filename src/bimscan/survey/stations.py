@@ -36,6 +36,7 @@ from bimscan.survey.spots import (
 from bimscan.types import BimScene, Space, Station
 
 HEAD_CLEARANCE_M = 0.1  # a TLS head is about 20-30 cm across: its beam origin needs this much free space around it
+SAME_SPOT_M = 0.01  # two stations of a file whose beam origins lie this close are one spot scanned twice
 LEVEL_GAP_M = 1.2  # floor heights further apart than this are separate levels (a storey is at least 2 m)
 FINE_GRID_M = 0.25  # rooms the planner's grid misses are searched on this grid
 
@@ -55,9 +56,15 @@ class PlanReport:
                 f"them): {shown}")
 
 
-def read_stations(path: str | Path, scene: BimScene, prober: Prober, scanner: ScannerModel) -> tuple[Station, ...]:
+def read_stations(path: str | Path, scene: BimScene, prober: Prober, scanner: ScannerModel, *,
+                  head_span_deg: float = 360.0, check: bool = True) -> tuple[Station, ...]:
     """Stations from a CSV file (see module docs); floor-relative rows are placed on the floor,
-    the tripod's height being ``scanner``'s. Each is checked (``check_station``)."""
+    the tripod's height being ``scanner``'s. A storey the model does not have is refused, and so
+    are two rows at one spot (``SAME_SPOT_M``): a scan from both holds that spot's points twice
+    (with a head rotation of less than a full turn, ``head_span_deg``, two headings at one spot
+    scan different sectors and are kept). ``check``: each station is checked (``check_station``)
+    on this scene; leave it to the caller when the stations are to be checked on the scene as it
+    will be scanned (a site dressed from it)."""
     path = Path(path)
     if not path.is_file():
         raise InputFileError(f"{path}: no such station file; check the path")
@@ -95,6 +102,9 @@ def read_stations(path: str | Path, scene: BimScene, prober: Prober, scanner: Sc
             raise StationError(f"{path}: station {number} has a value that is not a finite number (nan or inf); "
                                "give coordinates in metres and the heading in degrees")
         storey_name = values.get("storey", "") or ""
+        if storey_name and storey_name not in storeys:
+            known = f"use one of {', '.join(storeys)}" if storeys else "the model has no storeys: leave the storey empty"
+            raise StationError(f"{path}: station {number}: unknown storey {storey_name!r}; {known}")
         floor_z = None
         if z is None:
             if height is None:
@@ -118,9 +128,29 @@ def read_stations(path: str | Path, scene: BimScene, prober: Prober, scanner: Sc
             floor_z = z - height
         stations.append(Station(id=number - 1, position=(x, y, z), heading_deg=heading, floor_z=floor_z,
                                 storey=storey_name))
-    for station in stations:
-        check_station(station, scene, prober)
+    _refuse_same_spot(path, stations, head_span_deg)
+    if check:
+        for station in stations:
+            check_station(station, scene, prober)
     return tuple(stations)
+
+
+def _refuse_same_spot(path: Path, stations: list[Station], head_span_deg: float) -> None:
+    """StationError naming the first two stations (1-based rows) whose beam origins lie within
+    ``SAME_SPOT_M``, unless a partial head rotation turns them to different headings."""
+    if len(stations) < 2:
+        return
+    xyz = np.array([s.position for s in stations])
+    full_turn = head_span_deg >= 360.0 - 1e-9
+    for a in range(len(stations) - 1):
+        near = np.flatnonzero(np.linalg.norm(xyz[a + 1:] - xyz[a], axis=1) <= SAME_SPOT_M) + a + 1
+        for b in near:
+            turned = (stations[b].heading_deg - stations[a].heading_deg) % 360.0
+            if full_turn or min(turned, 360.0 - turned) < 1e-6:
+                raise StationError(
+                    f"{path}: stations {a + 1} and {b + 1} stand at the same spot "
+                    f"({', '.join(number(c) for c in stations[a].position)}); a scan from both holds that spot's "
+                    "points twice: remove one of the rows")
 
 
 def station_problem(station: Station, scene: BimScene, prober: Prober) -> str | None:

@@ -57,14 +57,17 @@ def station_pulses(recipe: ScanRecipe) -> int:
     return PulsePattern.of(recipe.settings, recipe.scanner).count()
 
 
-def choose_stations(scene: BimScene, recipe: ScanRecipe, *,
-                    prober: Prober | None = None) -> tuple[tuple[Station, ...], PlanReport | None]:
+def choose_stations(scene: BimScene, recipe: ScanRecipe, *, prober: Prober | None = None,
+                    check: bool = True) -> tuple[tuple[Station, ...], PlanReport | None]:
     """The stations of a scene as ``recipe.stations_from`` says: planned (``"auto"``) or read from
-    a CSV file, each checked against the scene (``stations.check_station``). ``prober``: probes of
-    this scene's mesh already built (else built here)."""
+    a CSV file, each checked against the scene (``stations.check_station``; a file's stations only
+    placed when not ``check``: they are checked on the scene as scanned, a site dressed from this
+    one). ``prober``: probes of this scene's mesh already built (else built here)."""
     prober = prober or Prober(scene.mesh, threads=recipe.threads)
     if recipe.stations_from != AUTO_STATIONS:
-        return read_stations(recipe.stations_from, scene, prober, recipe.scanner), None
+        settings = recipe.settings
+        return read_stations(recipe.stations_from, scene, prober, recipe.scanner, check=check,
+                             head_span_deg=settings.head_stop_deg - settings.head_start_deg), None
     return plan_stations(scene, prober, recipe.scanner)
 
 

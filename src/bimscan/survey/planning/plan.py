@@ -102,17 +102,17 @@ def prepare_space(scene: BimScene, scanner: ScannerModel, settings: ScanSettings
     start = time.perf_counter()
     component_class = class_indices(scene, config.classes)
     prober = Prober(scene.mesh, threads=threads)
+    instrument = scanner.instrument_height_m
     with step_line("finding candidate spots", enabled=progress):
         try:
             spots = station_spots(scene, prober, scanner, grid_m=config.grid_m, clearance_m=config.clearance_m,
                                   max_columns=config.max_candidates)
-            floors = spots.floor
+            floors = spots.floor[_accepted(spots.floor, scene, prober, instrument)]
         except StationError:
             if not given:
                 raise
             floors = np.zeros((0, 3))
     n_spots = len(floors)
-    instrument = scanner.instrument_height_m
     heads = floors + [0.0, 0.0, instrument]
     headings = np.zeros(n_spots)
     if given:
@@ -146,6 +146,13 @@ def prepare_space(scene: BimScene, scanner: ScannerModel, settings: ScanSettings
     return PlanningSpace(scene=scene, scanner=scanner, settings=settings, config=config, grid=grid, samples=samples,
                          klass=klass, heads=heads, floors=floors, headings_deg=headings, n_spots=n_spots,
                          visibility=visibility, overlaps=overlaps, edges=edges, problem=problem, seconds=seconds)
+
+
+def _accepted(floors: np.ndarray, scene: BimScene, prober: Prober, instrument: float) -> np.ndarray:
+    """(M,) bool: the spots (M, 3) where the station check of ``bimscan scan --stations`` accepts a
+    station (``survey.stations.station_problem``, on this scene: the site as it will be scanned)."""
+    return np.array([station_problem(Station(id=0, position=(float(x), float(y), float(z) + instrument), floor_z=float(z)),
+                                     scene, prober) is None for x, y, z in floors], dtype=bool).reshape(len(floors))
 
 
 @dataclass(frozen=True)
