@@ -298,3 +298,49 @@ def test_every_candidate_spot_passes_the_station_check_of_the_scan(tiny_model, t
     prober = Prober(scene.mesh)
     for floor, head in zip(space.floors[:space.n_spots], space.heads):
         assert station_problem(Station(id=0, position=tuple(head), floor_z=float(floor[2])), scene, prober) is None
+
+
+def _rewound(scene, flip: np.ndarray, *, twice: np.ndarray | None = None):
+    """The scene with the triangles ``flip`` (F,) bool wound the other way, and those ``twice`` also
+    added a second time, wound the other way (a face an authoring tool exports on both sides)."""
+    mesh = scene.mesh
+    faces = np.where(flip[:, None], mesh.faces[:, ::-1], mesh.faces)
+    component = mesh.face_component
+    if twice is not None:
+        faces = np.concatenate([faces, faces[twice][:, ::-1]])
+        component = np.concatenate([component, component[twice]])
+    mesh = dataclasses.replace(mesh, faces=np.ascontiguousarray(faces), face_component=component,
+                               face_transparency=None)
+    return dataclasses.replace(scene, mesh=mesh)
+
+
+def test_what_a_station_sees_does_not_depend_on_how_the_triangles_are_wound(box_room_ifc):
+    scene = load_scene(box_room_ifc)
+    coarse = {"samples_per_m2": 9.0, "grid_m": 1.5}
+    base = plan_space(box_room_ifc, scene=scene, **coarse)
+    slabs = scene.components.ifc_class[scene.mesh.face_component] == "IfcSlab"
+    some = np.random.default_rng(1).random(scene.mesh.n_triangles) < 0.5
+    for flip in (slabs, some):  # every slab wound inwards; half of all triangles, faces mixed
+        other = plan_space(box_room_ifc, scene=_rewound(scene, flip), **coarse)
+        assert np.array_equal(other.samples.xyz, base.samples.xyz)
+        for column in ("sample", "station", "density_pts_m2"):
+            assert np.array_equal(getattr(other.visibility, column), getattr(base.visibility, column)), column
+        assert np.array_equal(other.edges, base.edges)
+        # the ceiling's underside faces the stations under it (the plan's ceiling view), however it is wound
+        seen = base.visibility.seen
+        assert np.array_equal(other.samples.normal[seen], base.samples.normal[seen])
+        roof = (other.samples.component == list(scene.components.name).index("roof")) & seen
+        assert roof.any() and np.all(other.samples.normal[roof, 2] == -1.0)
+
+
+def test_a_ceiling_exported_twice_once_wound_each_way_is_seen_on_both_copies(box_room_ifc):
+    scene = load_scene(box_room_ifc)
+    roof = list(scene.components.name).index("roof")
+    underside = (scene.mesh.face_component == roof) & (scene.mesh.face_normals()[:, 2] < -0.9)
+    visible = []
+    for model in (scene, _rewound(scene, np.zeros(scene.mesh.n_triangles, dtype=bool), twice=underside)):
+        space = plan_space(box_room_ifc, scene=model, classes=("Slab",), samples_per_m2=9.0, grid_m=1.5)
+        on_roof = (space.samples.component == roof) & space.visibility.reachable
+        visible.append(space.samples.area_m2[on_roof].sum())
+    assert visible[0] > 40.0  # the room's 48 m2 of ceiling, less what hides behind the walls' edges
+    assert visible[1] == pytest.approx(2 * visible[0], rel=0.02)

@@ -78,10 +78,11 @@ def draw_plan_pictures(plan: SurveyPlan, evaluation: PlanEvaluation, folder: Pat
 
 def storey_bands(z: np.ndarray, normal_z: np.ndarray, elevations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """((N,) storey index, (N,) bool ceiling) of surface points at heights z (N,) with normals'
-    z (N,), given the storeys' sorted elevations (M,). A level surface facing down (IfcOpenShell
-    winds solids outward) more than ``CEILING_ABOVE_FLOOR_M`` over a storey's elevation is that
-    storey's ceiling (the highest such storey); anything else belongs to the storey whose band,
-    from half a metre under its elevation to half a metre under the next one's, holds it."""
+    z (N,), given the storeys' sorted elevations (M,). A level surface facing down (the planner
+    turns each sample's normal towards the stations that see it, whatever the model's winding)
+    more than ``CEILING_ABOVE_FLOOR_M`` over a storey's elevation is that storey's ceiling (the
+    highest such storey); anything else belongs to the storey whose band, from half a metre under
+    its elevation to half a metre under the next one's, holds it."""
     down = normal_z <= -0.9
     above = np.searchsorted(elevations + CEILING_ABOVE_FLOOR_M, z, side="left") - 1
     ceiling = down & (above >= 0)

@@ -28,7 +28,7 @@ from bimscan.survey.planning.select import (
     CoverProblem, greedy_cover, improve_cover, iterated_greedy, milp_cover, prune_cover, repair_cover,
 )
 from bimscan.survey.planning.surface import SurfaceSamples, sample_surfaces, triangle_areas
-from bimscan.survey.planning.visibility import BeamGrid, Visibility, compute_visibility
+from bimscan.survey.planning.visibility import BeamGrid, Visibility, compute_visibility, facing_stations
 from bimscan.survey.stations import station_on_floor, station_problem, station_spots, storey_at
 from bimscan.types import BimScene, Station
 
@@ -130,6 +130,7 @@ def prepare_space(scene: BimScene, scanner: ScannerModel, settings: ScanSettings
     grid = BeamGrid.of(settings, scanner)
     visibility = compute_visibility(prober, samples, heads, grid, max_incidence_deg=config.max_incidence_deg,
                                     headings_deg=headings, progress=progress)
+    samples = facing_stations(samples, visibility, heads)
     seconds["visibility"] = time.perf_counter() - start
     start = time.perf_counter()
     with step_line("registration graph", enabled=progress):

@@ -6,6 +6,9 @@ element's cumulative area, so every triangle gets its share to within one sample
 triangle, on a shifted low-discrepancy (R2) sequence, so they lie evenly, not in clumps. Every
 sample stands for the same share of its element's area. Samples sit just inside their triangles
 (1 % towards the centroid), so a ray aimed at one meets that triangle, not an edge it shares.
+Where a sample lies does not depend on how its triangle is wound (its corners are taken in the
+order of their vertex indices), so a model exported with its faces turned the other way is
+sampled the same.
 """
 
 from __future__ import annotations
@@ -24,7 +27,8 @@ _INSET = 0.99  # samples are pulled this far towards their triangle's centroid
 @dataclass(frozen=True)
 class SurfaceSamples:
     """Surface samples: xyz (S, 3) float64 world metres; normal (S, 3) float64 unit normal of the
-    triangle (from its winding; planning uses it two-sided); component (S,) int64; triangle (S,)
+    triangle (from its winding until ``visibility.facing_stations`` turns it towards the stations
+    that see it; visibility uses it two-sided); component (S,) int64; triangle (S,)
     int64 index into the mesh's faces; area_m2 (S,) float64, the surface each sample stands for."""
 
     xyz: np.ndarray
@@ -87,7 +91,7 @@ def sample_surfaces(mesh: SceneMesh, wanted: np.ndarray, *, samples_per_m2: floa
     w = (shift[triangle, 1] + rank * _R2[1]) % 1.0
     root = np.sqrt(u)  # uniform on the triangle (Osada et al. 2002)
     b0, b1, b2 = 1 - root, root * (1 - w), root * w
-    v = mesh.vertices[mesh.faces[triangle]]
+    v = mesh.vertices[np.sort(mesh.faces[triangle], axis=1)]  # the corners in index order: winding-free
     point = b0[:, None] * v[:, 0] + b1[:, None] * v[:, 1] + b2[:, None] * v[:, 2]
     centroid = v.mean(axis=1)
     xyz = centroid + _INSET * (point - centroid)

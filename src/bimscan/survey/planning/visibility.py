@@ -13,11 +13,19 @@ expected point density on the surface is
 (docs/guide/planning.md derives it and checks it against scans). A sample is **seen** from a
 position when the ray from the beam origin to it, cast through the scene's Embree BVH (the
 ``Prober``, the same engine the station checks use), first meets the sample's own component at
-the sample's range, on a face turned the way the sample's is (a surface in front of it, or the
-element's own front face when the sample is on its back face, hides it: the two faces of a 6 mm
-steel flange lie closer than any range tolerance), the range lies in the scanner's limits, the direction in its
-elevation window (and head rotation, for a partial station), and the incidence is at most
-``VISIBLE_INCIDENCE_DEG``. Its points count towards coverage only within the asked incidence limit.
+the sample's range, on a triangle in the sample's own plane (within ``ON_PLANE_M``: a surface in
+front of it, or the element's own front face when the sample is on its back face, hides it; the
+two faces of a 6 mm steel flange lie closer than the range tolerance), the range lies in the
+scanner's limits, the direction in its elevation window (and head rotation, for a partial
+station), and the incidence is at most ``VISIBLE_INCIDENCE_DEG``. Its points count towards
+coverage only within the asked incidence limit.
+
+Nothing here trusts the winding of the model's triangles: authoring tools wind them either way
+(a ceiling exported with its normals into the slab, a face whose triangles disagree), and a
+scanner sees a surface from either side. The incidence is taken two-sided, and a hit counts by
+the plane it lies in, not by the way its triangle faces. ``facing_stations`` then turns each
+sample's normal towards the stations that see it, for what reads a side (the scan's measure,
+the plan's ceiling view).
 
 Rays go only where something may be seen: each position first casts a coarse fan
 (``COARSE_DIRECTIONS`` over its elevation window, about 1.4 degrees apart) and marks the
@@ -29,6 +37,7 @@ of its density there anyway.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from functools import cached_property
@@ -47,6 +56,9 @@ RAYS_PER_CAST = 2_000_000  # rays per call of the engine: ~50 MB of float32 rays
 # sample's range: float32 rays are good to ~0.1 mm here, and a thin element's back face lies at
 # least its thickness (> 5 mm) behind its front one.
 HIT_TOLERANCE_M = 0.005
+# ... and on a triangle whose plane passes this close to the sample: its own triangle, or another
+# of the same face, however either is wound (the far face of a 2 mm plate lies outside it).
+ON_PLANE_M = 0.001
 COARSE_DIRECTIONS = 20_000  # the coarse fan of the visibility pre-pass, within the elevation window
 CELL_M = 1.0  # its cells: a sample is tested when a coarse ray met its component in its cell or a neighbour
 
@@ -140,6 +152,7 @@ def compute_visibility(prober: Prober, samples: SurfaceSamples, heads: np.ndarra
     full_turn = grid.azimuth_span_rad >= 2 * math.pi - 1e-9
     face_component = prober.face_component
     face_normal = prober.face_normals
+    face_corner = prober.mesh.vertices[prober.mesh.faces[:, 0]]
     pairs_sample, pairs_station, pairs_density = [], [], []
     batch: list[tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
     batch_rays = 0
@@ -158,8 +171,9 @@ def compute_visibility(prober: Prober, samples: SurfaceSamples, heads: np.ndarra
             safe = np.maximum(tri, 0)
             hit_component = np.where(tri >= 0, face_component[safe], -1)
             # the sample's own face, not the element's other side a few millimetres in front of it
-            same_side = np.einsum("ij,ij->i", face_normal[safe], samples.normal[idx]) > 0.5
-            seen = (hit_component == samples.component[idx]) & (np.abs(t[start:end] - r) <= HIT_TOLERANCE_M) & same_side
+            off_plane = np.abs(np.einsum("ij,ij->i", face_normal[safe], samples.xyz[idx] - face_corner[safe]))
+            seen = ((hit_component == samples.component[idx]) & (np.abs(t[start:end] - r) <= HIT_TOLERANCE_M)
+                    & (off_plane <= ON_PLANE_M))
             pairs_sample.append(idx[seen])
             pairs_station.append(np.full(int(seen.sum()), k, dtype=np.int64))
             pairs_density.append(density[seen])
@@ -198,6 +212,17 @@ def compute_visibility(prober: Prober, samples: SurfaceSamples, heads: np.ndarra
                       station=np.concatenate(pairs_station) if pairs_station else np.zeros(0, np.int64),
                       density_pts_m2=np.concatenate(pairs_density) if pairs_density else np.zeros(0, np.float32),
                       n_samples=len(samples), n_stations=k_total)
+
+
+def facing_stations(samples: SurfaceSamples, visibility: Visibility, heads: np.ndarray) -> SurfaceSamples:
+    """The samples with each normal turned towards the stations that see it (the side of its
+    surface a scan holds points of; the side most of them stand on, by the cosine of each one's
+    view), whatever way the model winds its triangles; a sample no station sees keeps its winding's."""
+    delta = heads[visibility.station] - samples.xyz[visibility.sample]
+    cosine = np.einsum("ij,ij->i", delta, samples.normal[visibility.sample]) / np.maximum(
+        np.linalg.norm(delta, axis=1), 1e-12)
+    vote = np.bincount(visibility.sample, weights=cosine, minlength=len(samples))
+    return dataclasses.replace(samples, normal=np.where((vote < 0)[:, None], -samples.normal, samples.normal))
 
 
 def _coarse_fan(grid: BeamGrid) -> np.ndarray:
