@@ -354,9 +354,13 @@ def plan_model(model: str | Path, out: str | Path, recipe: ScanRecipe, config: P
     on the scene dressed as ``recipe.site`` has it. With ``check`` (a station file, or "auto" for
     the per-room plan of ``--stations auto``): those stations' figures, on the scene dressed as
     ``bimscan scan`` dresses it for them; with ``cloud`` too (a bimscan scan from those
-    stations), the coverage measured on the scan. Output and input errors come before the parse.
+    stations), the coverage measured on the scan. Output and input errors come before the parse;
+    so does the refusal of a search setting when checking (``PlanConfig.check_for_checking``).
+    ``warn`` receives one line per thing a user should know, as ``scan_model`` gives them (what
+    loading the model repaired, assumed or lost first).
     """
     from bimscan.files import check_input_file
+    from bimscan.ifc.summary import report_lines
     from bimscan.io import iter_cloud_chunks, read_cloud_header
     from bimscan.render.survey_plan import draw_plan_pictures
     from bimscan.survey.planning.measure import patch_density, patch_matrix, points_per_sample
@@ -368,6 +372,8 @@ def plan_model(model: str | Path, out: str | Path, recipe: ScanRecipe, config: P
     check_plan_output(out, overwrite=overwrite)
     if recipe.mobile is not None:
         raise ConfigError("a survey plan is made for tripod stations; leave --platform out")
+    if check is not None:
+        config.check_for_checking()
     header = None
     if cloud is not None:
         if check is None:

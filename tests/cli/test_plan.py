@@ -140,12 +140,58 @@ def test_a_config_file_sets_the_planner_and_the_flags_override_it(box_room_ifc, 
 
 @pytest.mark.parametrize(("args", "message"), [
     (["--classes", "Walls"], "unknown class 'Walls'"),
-    (["--coverage", "0.9,0.8"], "one per class"),
+    (["--coverage", "0.9,0.8"], "error: --coverage 0.9,0.8 must be one fraction, or one per class (4: Wall&Column,"),
+    (["--coverage", "0.9,1.5"], "error: --coverage takes numbers in (0, 1] (fractions, e.g. 0.95), got 1.5 in 0.9,1.5\n"),
+    (["--coverage", "0.9;0.8"], "error: Invalid value for --coverage: '0.9;0.8' is not a list of numbers"),
+    (["--density", "-1"], "error: --density must be a number > 0, got -1\n"),
+    (["--classes", "Slab,Slab"], "error: --classes Slab,Slab must name at least one class, each once"),
+    (["--ladder", "0.8,2"], "error: --ladder takes numbers in (0, 1]"),
+    (["--solver", "greedy", "--time-limit", "5"],
+     "error: --time-limit 5 would change nothing: --solver greedy runs no MILP; leave it out"),
+    (["--check", "auto", "--solver", "milp"], "error: --solver milp would change nothing: a given plan is checked"),
     (["--cloud", "scan.laz"], "--cloud needs --check"),
     (["--check", "missing.csv"], "missing.csv"),
 ])
-def test_bad_asks_are_one_line(box_room_ifc, tmp_path, capsys, args, message):
+def test_bad_asks_are_one_line_in_the_words_typed(box_room_ifc, tmp_path, capsys, args, message):
     assert main(["plan", str(box_room_ifc), str(tmp_path / "out"), *PLAN, *args]) != 0
     err = capsys.readouterr().err
     assert message in err and err.count("error:") == 1
+    assert "density_pts_m2" not in err and "milp_time_limit_s" not in err and "[" not in err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_config_files_own_keys_are_named_as_the_file_has_them(box_room_ifc, tmp_path, capsys):
+    config = tmp_path / "plan.toml"
+    config.write_text('solver = "greedy"\nmilp_time_limit_s = 5.0\n')
+    assert main(["plan", str(box_room_ifc), str(tmp_path / "out"), *PLAN, "--config", str(config)]) == 1
+    assert "plan.toml with the flags: milp_time_limit_s = 5 would change nothing: solver = 'greedy'" in \
+        capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("rows", "message"), [
+    ("x,y,z\n2,2,1.7\n6,4,1.7\n2,2,1.7\n", "stations 1 and 3 stand at the same spot (2, 2, 1.7)"),
+    ("x,y,z,storey\n2,2,1.7,Roof 99\n", "station 1: unknown storey 'Roof 99'; use one of L0"),
+])
+def test_a_checked_plan_with_a_station_twice_or_an_unknown_storey_is_refused(box_room_ifc, tmp_path, capsys, rows,
+                                                                              message):
+    stations = tmp_path / "stations.csv"
+    stations.write_text(rows, "utf-8")
+    for command in (["plan", str(box_room_ifc), str(tmp_path / "check"), *PLAN, "--check", str(stations)],
+                    ["scan", str(box_room_ifc), str(tmp_path / "scan.laz"), *FAST, "--stations", str(stations)]):
+        assert main(command) == 1
+        err = capsys.readouterr().err
+        assert message in err and err.count("error:") == 1
+    assert not (tmp_path / "check").exists() and not (tmp_path / "scan.laz").exists()
+
+
+def test_the_plan_says_how_many_stations_each_coverage_needs(box_room_ifc, tmp_path, capsys):
+    out = tmp_path / "plan"
+    assert main(["plan", str(box_room_ifc), str(out), *FAST, "--density", "300", "--classes", "Slab",
+                 "--ladder", "0.3,0.95,0.6"]) == 0
+    printed = capsys.readouterr().out
+    summary = json.loads((out / "plan.json").read_text("utf-8"))
+    ladder = summary["coverage_ladder"]
+    assert [rung["coverage"] for rung in ladder] == [0.3, 0.6, 0.95]
+    counts = [rung["stations"] for rung in ladder]
+    assert counts[-1] == len(summary["stations"]) >= 2 and counts == sorted(counts) and counts[0] == 1
+    assert f"stations by coverage: 30 % 1, 60 % {counts[1]}, 95 % {counts[2]}" in printed

@@ -18,7 +18,9 @@ from bimscan.site.model import SiteModel, StageSettings
 from bimscan.survey.planning.config import PlanConfig
 from bimscan.survey.planning.graph import normal_bins, scan_order
 from bimscan.survey.planning.measure import patch_density, patch_matrix, points_per_sample
-from bimscan.survey.planning.plan import check_survey, evaluate, impossible_line, plan_survey, prepare_space
+from bimscan.survey.planning.plan import (
+    LadderRung, check_survey, evaluate, impossible_line, plan_survey, prepare_space,
+)
 from bimscan.survey.planning.surface import sample_surfaces, triangle_areas
 from bimscan.survey.planning.visibility import BeamGrid
 from bimscan.survey.recipe import ScanRecipe
@@ -155,6 +157,11 @@ def test_an_unknown_class_names_the_schemes_classes(box_room_ifc):
     ({"overlap": 1.0}, r"^overlap must be a number in \[0, 1\) \(a fraction\), got 1$"),
     ({"min_direction_share": 0.34}, r"^min_direction_share must be a number in \[0, 0.333333\] \(a surface facing"),
     ({"search_rounds": -1}, r"^search_rounds must be an integer >= 0 \(0: no search\), got -1$"),
+    ({"solver": "greedy", "milp_time_limit_s": 5.0},
+     r"^milp_time_limit_s = 5 would change nothing: solver = 'greedy' runs no MILP; leave it out, or choose solver = "
+     r"'milp' or 'auto'$"),
+    ({"solver": "milp", "milp_max_groups": 10}, r"^milp_max_groups = 10 would change nothing: solver = 'milp' runs"),
+    ({"coverage_ladder": (0.8, 0.0)}, r"^coverage_ladder takes numbers in \(0, 1\]"),
 ])
 def test_impossible_settings_are_refused_with_the_value(settings, message):
     with pytest.raises(ConfigError, match=message):
@@ -344,3 +351,11 @@ def test_a_ceiling_exported_twice_once_wound_each_way_is_seen_on_both_copies(box
         visible.append(space.samples.area_m2[on_roof].sum())
     assert visible[0] > 40.0  # the room's 48 m2 of ceiling, less what hides behind the walls' edges
     assert visible[1] == pytest.approx(2 * visible[0], rel=0.02)
+
+
+def test_each_rung_of_the_coverage_ladder_costs_what_a_plan_for_that_coverage_does(box_room_ifc):
+    plan = plan_survey(plan_space(box_room_ifc, classes=("Slab",), coverage_ladder=(0.5, 0.95)))
+    half = plan_survey(plan_space(box_room_ifc, classes=("Slab",), coverage=(0.5,), coverage_ladder=()))
+    assert plan.ladder == (LadderRung(coverage=0.5, stations=len(half.stations)),
+                           LadderRung(coverage=0.95, stations=len(plan.stations)))
+    assert len(half.stations) == 1 < len(plan.stations) and half.ladder == ()

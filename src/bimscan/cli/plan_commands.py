@@ -3,6 +3,8 @@ figures of a given plan (``--check``)."""
 
 from __future__ import annotations
 
+import dataclasses
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -11,6 +13,7 @@ import click
 from bimscan.cli.ifc_commands import LENGTH_UNIT_HELP, SCHEME_HELP
 from bimscan.cli.site_options import site_options
 from bimscan.constraints import choices_of, default_of
+from bimscan.errors import ConfigError
 from bimscan.ifc.units import LENGTH_UNITS
 from bimscan.scan.device import DEFAULT_PRESET, DEFAULT_SCANNER, PRESETS, SCANNERS
 from bimscan.survey.planning.config import DEFAULT_CLASSES, PlanConfig
@@ -20,13 +23,51 @@ if TYPE_CHECKING:
     from bimscan.site.model import SiteModel
 
 _DEFAULTS = PlanConfig()
+# the options that set a PlanConfig key, by the key's name (--seed is the scan's, for the site's dressing)
+_SETTINGS = {f.name for f in dataclasses.fields(PlanConfig)} - {"seed"}
 
 
-def _fractions(text: str) -> tuple[float, ...]:
+def _fractions(text: str, flag: str, example: str) -> tuple[float, ...]:
+    """Comma-separated fractions as typed ('none': no value)."""
+    if text.strip().lower() == "none":
+        return ()
     try:
         return tuple(float(v) for v in text.split(",") if v.strip())
     except ValueError as exc:
-        raise click.BadParameter(f"{text!r}: give a fraction (0.95) or one per class (0.95,0.9,0.9,0.8)") from exc
+        raise click.BadParameter(f"{text!r} is not a list of numbers; give {example}", param_hint=flag) from exc
+
+
+def _in_flag_terms(message: str, given: dict[str, tuple[str, Any, str]]) -> str:
+    """A settings message in the words of the command line: each setting that a flag set (key ->
+    (flag, value, text typed)) named by its flag, its value as typed (``--coverage 0.9,1.5``, not
+    ``coverage = [0.9, 1.5]``)."""
+    for key, (flag, value, typed) in given.items():
+        shown = str(list(value)) if isinstance(value, tuple) else f"{value:g}" if isinstance(value, float) else repr(value)
+        named = rf"(?<![\w-]){key}\b"  # the key, not a flag made of it already
+        message = re.sub(rf"{named} = {re.escape(shown)}", f"{flag} {typed}", message)
+        if isinstance(value, tuple):
+            message = message.replace(shown, typed)
+        message = re.sub(named, flag, message)
+    return message
+
+
+def _plan_config(config_file: str | None, flags: dict[str, tuple[str, Any, str]], *, checking: bool) -> PlanConfig:
+    """The planner's settings: the TOML file's keys, the flags over them (key -> (flag, value, text
+    typed)); refusals name the file's keys, and the flags as typed."""
+    from bimscan.toml_files import build_dataclass, load_toml
+
+    table = dict(load_toml(config_file)) if config_file is not None else {}
+    table |= {key: value for key, (_, value, _) in flags.items()}
+    try:
+        if config_file is None:
+            config = PlanConfig(**table)
+        else:
+            config = build_dataclass(PlanConfig, table, where=f"{config_file} with the flags")
+        if checking:
+            config.check_for_checking()
+    except ConfigError as exc:
+        raise ConfigError(_in_flag_terms(str(exc), flags)) from exc
+    return config
 
 
 @click.command("plan")
@@ -53,7 +94,12 @@ def _fractions(text: str) -> tuple[float, ...]:
                    "--time-limit) or auto (the MILP on small models, its answer when proved optimal). "
                    f"Default: {default_of(PlanConfig, 'solver')}.")
 @click.option("--time-limit", "milp_time_limit_s", type=float, default=None,
-              help=f"Seconds the MILP may take. Default: {_DEFAULTS.milp_time_limit_s:g}.")
+              help=f"Seconds the MILP may take (--solver milp or auto; refused with greedy, which runs no MILP). "
+                   f"Default: {_DEFAULTS.milp_time_limit_s:g}.")
+@click.option("--ladder", "coverage_ladder", default=None,
+              help="Coverages at which the plan also reports the stations needed, every class asked the same "
+                   "share (what the last few percent cost; each costs about as long as the plan's own search), "
+                   f"or 'none'. Default: {','.join(f'{c:g}' for c in _DEFAULTS.coverage_ladder)}.")
 @click.option("--config", "config_file", default=None,
               help="A TOML file of planner settings (the keys of PlanConfig); the flags above override it.")
 @click.option("--check", default=None,
@@ -77,8 +123,8 @@ def _fractions(text: str) -> tuple[float, ...]:
 @site_options
 def plan(model: Path, out: Path, classes: str | None, coverage: str | None, density_pts_m2: float | None,
          max_incidence_deg: float | None, overlap: float | None, grid_m: float | None, solver: str | None,
-         milp_time_limit_s: float | None, config_file: str | None, check: str | None, cloud: Path | None,
-         preset: str | None, scanner: str | None, head_deg_per_s: float | None, seed: int, scheme: str | None,
+         milp_time_limit_s: float | None, coverage_ladder: str | None, config_file: str | None, check: str | None,
+         cloud: Path | None, preset: str | None, scanner: str | None, head_deg_per_s: float | None, seed: int, scheme: str | None,
          length_unit: str | None, threads: int, overwrite: bool, site: SiteModel) -> None:
     """Plan a tripod survey of MODEL.ifc into the folder OUT: the fewest stations such that the
     chosen classes reach the asked coverage at the asked point density, with a connected
@@ -87,22 +133,26 @@ def plan(model: Path, out: Path, classes: str | None, coverage: str | None, dens
     OUT gets stations.csv (in scan order; 'bimscan scan --stations OUT/stations.csv' takes it as it
     is), coverage.csv (per element: GlobalId, class, storey, covered fraction, median density, what
     no spot sees), registration.csv (which stations register to which), plan.json and a picture
-    per storey. With --check STATIONS.csv (or 'auto') the same figures for a given plan; with
+    per storey; it also says how many stations each coverage of --ladder needs (what the last few
+    percent cost). With --check STATIONS.csv (or 'auto') the same figures for a given plan; with
     --cloud as well, measured on its scan. Give the site flags (--clutter, --stage, ...) and
-    --seed that the scan will get.
+    --seed that the scan will get: the stations are checked on that site as the scan checks them.
+    What loading the model repaired or lost is said as 'bimscan scan' says it.
     """
-    from bimscan.toml_files import build_dataclass, load_toml
-
-    overrides: dict[str, Any] = {"density_pts_m2": density_pts_m2, "max_incidence_deg": max_incidence_deg,
-                                 "overlap": overlap, "grid_m": grid_m, "solver": solver,
-                                 "milp_time_limit_s": milp_time_limit_s}
-    if classes is not None:
-        overrides["classes"] = tuple(c.strip() for c in classes.split(",") if c.strip())
-    if coverage is not None:
-        overrides["coverage"] = _fractions(coverage)
-    table = dict(load_toml(config_file)) if config_file is not None else {}
-    table |= {key: value for key, value in overrides.items() if value is not None}
-    config = build_dataclass(PlanConfig, table, where=f"{config_file} with the flags" if config_file else "the flags")
+    context = click.get_current_context()
+    flags: dict[str, tuple[str, Any, str]] = {}
+    for param in context.command.params:
+        value = context.params.get(param.name or "")
+        if param.name in _SETTINGS and value is not None:
+            typed = value if isinstance(value, str) else f"{value:g}" if isinstance(value, float) else str(value)
+            if param.name == "classes":
+                value = tuple(c.strip() for c in value.split(",") if c.strip())
+            elif param.name == "coverage":
+                value = _fractions(value, "--coverage", "a fraction (0.95) or one per class (0.95,0.9,0.9,0.8)")
+            elif param.name == "coverage_ladder":
+                value = _fractions(value, "--ladder", "fractions (0.8,0.9,0.95) or none")
+            flags[param.name] = (param.opts[0], value, typed)
+    config = _plan_config(config_file, flags, checking=check is not None)
     recipe = ScanRecipe.resolve(preset=preset, scanner=scanner, head_deg_per_s=head_deg_per_s, seed=seed,
                                 site=site, threads=threads)
     if cloud is not None and check is None:
@@ -137,6 +187,10 @@ def plan(model: Path, out: Path, classes: str | None, coverage: str | None, dens
     for station in plan_.stations:
         stations_by_storey[station.storey or "-"] = stations_by_storey.get(station.storey or "-", 0) + 1
     click.echo("  stations per storey: " + ", ".join(f"{k} {v}" for k, v in stations_by_storey.items()))
+    if plan_.ladder:
+        click.echo("  stations by coverage: " + ", ".join(
+            f"{100 * rung.coverage:g} % " + ("out of reach" if rung.stations is None else str(rung.stations))
+            for rung in plan_.ladder))
     click.echo(f"  registration graph: {len(evaluation.edges)} edges, "
                + ("connected" if evaluation.parts <= 1 else f"{evaluation.parts} parts (the candidate spots allow "
                                                             f"no fewer than {evaluation.spot_parts})"))

@@ -11,7 +11,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from bimscan.constraints import Checked, Range, setting
+from bimscan.constraints import Checked, Range, default_of, setting
 from bimscan.errors import ConfigError
 
 DEFAULT_CLASSES = ("Wall&Column", "Beam", "Covering", "Slab")
@@ -48,6 +48,13 @@ class PlanConfig(Checked):
     it may differ between machines) or ``auto`` (the MILP only on models of at most
     ``milp_max_groups`` surface groups, and its answer only when it proved it optimal: the same
     model and settings give the same plan everywhere). seed: the surface sampling's seed.
+    coverage_ladder: the coverages at which the plan also reports the stations needed, every class
+    asked the same share (what the last few percent cost; each one is a cover chosen as the plan's
+    is, so each costs about as long as the plan's own search; empty: none).
+
+    A setting that would change nothing is refused: the MILP's time limit and size limit with the
+    greedy solver, its size limit with ``milp`` (which runs it on any model); and, when a given
+    plan is checked (``check_for_checking``), every setting of the search.
     """
 
     classes: tuple[str, ...] = DEFAULT_CLASSES
@@ -69,6 +76,8 @@ class PlanConfig(Checked):
     milp_max_groups: int = setting(3000, within=Range(1, None))
     milp_time_limit_s: float = setting(30.0, within=Range(0.0, None, low_open=True))
     seed: int = 0
+    coverage_ladder: tuple[float, ...] = setting((0.8, 0.9, 0.95), each=Range(0.0, 1.0, low_open=True),
+                                                 hint="fractions, e.g. 0.8,0.9,0.95; none: an empty list")
 
     def check(self) -> None:
         if not self.classes or len(set(self.classes)) != len(self.classes):
@@ -77,6 +86,31 @@ class PlanConfig(Checked):
         if len(self.coverage) not in (1, len(self.classes)):
             raise ConfigError(f"coverage = {list(self.coverage)} must be one fraction, or one per class "
                               f"({len(self.classes)}: {', '.join(self.classes)})")
+        idle = [name for name in ("milp_time_limit_s", "milp_max_groups") if not self._acts(name)]
+        if idle:
+            shown = " and ".join(f"{name} = {_shown(getattr(self, name))}" for name in idle)
+            runs, other = (("runs no MILP", "'milp' or 'auto'") if self.solver == "greedy" else
+                           ("runs the MILP on any model (only 'auto' leaves larger ones out)", "'auto'"))
+            raise ConfigError(f"{shown} would change nothing: solver = {self.solver!r} {runs}; leave "
+                              f"{'it' if len(idle) == 1 else 'them'} out, or choose solver = {other}")
+
+    def _acts(self, name: str) -> bool:
+        """Whether setting ``name`` of the MILP acts under this solver (else it must stay at its default)."""
+        if getattr(self, name) == default_of(PlanConfig, name):
+            return True
+        if name == "milp_time_limit_s":
+            return self.solver != "greedy"
+        return self.solver == "auto"  # milp_max_groups
+
+    def check_for_checking(self) -> None:
+        """Raise ConfigError when a setting that only chooses stations (the search, the MILP, the
+        coverage ladder) is away from its default: it changes nothing when a given plan is checked."""
+        idle = [name for name in ("solver", "search_rounds", "milp_max_groups", "milp_time_limit_s",
+                                  "coverage_ladder") if getattr(self, name) != default_of(PlanConfig, name)]
+        if idle:
+            shown = " and ".join(f"{name} = {_shown(getattr(self, name))}" for name in idle)
+            raise ConfigError(f"{shown} would change nothing: a given plan is checked, no station is chosen; "
+                              f"leave {'it' if len(idle) == 1 else 'them'} out")
 
     def coverage_of(self, name: str) -> float:
         """The coverage asked of class ``name`` (one of ``classes``)."""
@@ -84,3 +118,10 @@ class PlanConfig(Checked):
 
     def to_json(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+
+def _shown(value: Any) -> str:
+    """A setting's value for a message, as a TOML file writes it."""
+    if isinstance(value, tuple):
+        return str(list(value))
+    return f"{value:g}" if isinstance(value, float) else repr(value)

@@ -32,7 +32,6 @@ from bimscan.survey.planning.visibility import BeamGrid, Visibility, compute_vis
 from bimscan.survey.stations import station_on_floor, station_problem, station_spots, storey_at
 from bimscan.types import BimScene, Station
 
-MAX_REFUSED_ROUNDS = 5  # chosen spots the station check refuses are dropped and the cover chosen again
 
 
 @dataclass(frozen=True)
@@ -184,14 +183,25 @@ class SolverReport:
 
 
 @dataclass(frozen=True)
+class LadderRung:
+    """What one coverage costs: ``stations`` (None: no choice of the candidate spots reaches it)
+    chosen as the plan's are, every class asked ``coverage`` of its visible surface."""
+
+    coverage: float
+    stations: int | None
+
+
+@dataclass(frozen=True)
 class SurveyPlan:
     """Stations (in scan order, ids 0..n-1) on a planning space: ``chosen`` their candidate indices;
-    ``solver``: how they were chosen (None for a checked plan)."""
+    ``solver``: how they were chosen (None for a checked plan); ``ladder``: the stations each of
+    ``PlanConfig.coverage_ladder``'s coverages needs (empty for a checked plan)."""
 
     space: PlanningSpace
     chosen: np.ndarray
     stations: tuple[Station, ...]
     solver: SolverReport | None = None
+    ladder: tuple[LadderRung, ...] = ()
 
 
 def impossible_line(space: PlanningSpace) -> str | None:
@@ -217,39 +227,69 @@ def impossible_line(space: PlanningSpace) -> str | None:
 
 
 def plan_survey(space: PlanningSpace, *, progress: bool = False) -> SurveyPlan:
-    """The fewest stations covering the asked classes (see ``select``), in scan order. Raises
-    StationError (one line) when no choice of the candidate spots reaches the coverage."""
+    """The fewest stations covering the asked classes (see ``select``), in scan order, with the
+    coverage ladder (``coverage_ladder``). Raises StationError (one line) when no choice of the
+    candidate spots reaches the coverage. Every candidate spot passed the station check already
+    (``prepare_space``): the stations scan as they are."""
     if space.n_spots == 0:
         raise StationError(f"{space.scene.source}: no candidate spot for a tripod; give stations in a file")
     reason = impossible_line(space)
     if reason is not None:
         raise StationError(reason)
-    config, problem = space.config, space.problem
-    allowed = np.zeros(problem.n_candidates, dtype=bool)
+    allowed = np.zeros(space.problem.n_candidates, dtype=bool)
     allowed[:space.n_spots] = True
-    refused: list[int] = []
+    chosen, report = _choose(space, space.problem, allowed, progress=progress)
+    ladder = coverage_ladder(space, allowed, len(chosen), progress=progress)
     scene, instrument = space.scene, space.scanner.instrument_height_m
-    prober = Prober(scene.mesh)
-    for _ in range(MAX_REFUSED_ROUNDS):
-        chosen, report = _choose(space, allowed, progress=progress)
-        stations = [station_on_floor(i, space.floors[j], scene, instrument) for i, j in enumerate(chosen)]
-        bad = [j for j, s in zip(chosen, stations) if station_problem(s, scene, prober) is not None]
-        if not bad:
-            break
-        refused.extend(bad)
-        allowed[bad] = False
-    else:
-        raise StationError(f"{scene.source}: the station check refused {len(refused)} chosen spots; "
-                           "give stations in a file")
     order = scan_order(np.array(chosen), space.heads, space.edges)
     stations = tuple(station_on_floor(i, space.floors[j], scene, instrument) for i, j in enumerate(order))
-    return SurveyPlan(space=space, chosen=order, stations=stations, solver=report)
+    return SurveyPlan(space=space, chosen=order, stations=stations, solver=report, ladder=ladder)
 
 
-def _choose(space: PlanningSpace, allowed: np.ndarray, *, progress: bool) -> tuple[list[int], SolverReport]:
-    """The cover of the allowed candidates: greedy, pruned, improved; then the MILP (see
-    ``PlanConfig.solver``), its answer repaired on the whole surface and taken when it is smaller."""
+def coverage_ladder(space: PlanningSpace, allowed: np.ndarray, planned: int, *,
+                    progress: bool = False) -> tuple[LadderRung, ...]:
+    """The stations each coverage of ``config.coverage_ladder`` needs, every class asked that share
+    of its visible surface, chosen among the ``allowed`` candidates as the plan's stations are;
+    ``planned``: the plan's own count. A cover of a higher coverage covers a lower one too, so a
+    rung never shows more stations than a higher rung (or the plan, at or under every class's
+    asked coverage) needs."""
     config, problem = space.config, space.problem
+    rungs = sorted(set(config.coverage_ladder))
+    if not rungs:
+        return ()
+    _, visible, _ = space.class_areas()
+    everything = problem.covered_m2(problem.summed(np.flatnonzero(allowed)))
+    asked = np.array([config.coverage_of(c) for c in config.classes])
+    counts: dict[float, int | None] = {}
+    for coverage in rungs:
+        if np.all(asked == coverage):
+            counts[coverage] = planned
+            continue
+        need = coverage * visible
+        if np.any(everything < need * (1 - 1e-9)):
+            counts[coverage] = None
+            continue
+        rung = dataclasses.replace(problem, need_m2=need)
+        with step_line(f"stations for {100 * coverage:g} % coverage", enabled=progress):
+            counts[coverage] = len(_choose(space, rung, allowed, progress=False)[0])
+    best: int | None = None
+    for coverage in reversed(rungs):  # the fewest found at this coverage or any higher one
+        count = counts[coverage]
+        if coverage <= asked.min():
+            count = planned if count is None else min(count, planned)
+        if count is not None and best is not None:
+            count = min(count, best)
+        best = count if count is not None else best
+        counts[coverage] = count
+    return tuple(LadderRung(coverage=c, stations=counts[c]) for c in rungs)
+
+
+def _choose(space: PlanningSpace, problem: CoverProblem, allowed: np.ndarray, *,
+            progress: bool) -> tuple[list[int], SolverReport]:
+    """The cover of ``problem`` (the space's, or a rung of its ladder) among the allowed
+    candidates: greedy, pruned, improved; then the MILP (see ``PlanConfig.solver``), its answer
+    repaired on the whole surface and taken when it is smaller."""
+    config = space.config
     with step_line("greedy cover and search", enabled=progress):
         greedy = prune_cover(problem, greedy_cover(problem, allowed=allowed))
         if not problem.covers(greedy):

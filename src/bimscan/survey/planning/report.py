@@ -6,7 +6,8 @@
   storey, name, areas, covered fraction, median density, status; with a scan measured, the same
   figures on the scan);
 - ``registration.csv``: the registration graph's edges between the stations;
-- ``plan.json``: the settings, the per-class figures, the stations and how they were chosen;
+- ``plan.json``: the settings, the per-class figures, the stations, how they were chosen and the
+  stations each coverage of the ladder needs, and what loading the IFC repaired or lost;
 - ``plan_<n>_<storey>.png``: a picture per storey (``render.survey_plan``).
 
 The folder is written under a temporary name and renamed when complete. An existing OUT is
@@ -181,6 +182,8 @@ def plan_summary(plan: SurveyPlan, evaluation: PlanEvaluation, scan: PlanEvaluat
         "candidate_spots": space.n_spots,
         "surface_samples": len(space.samples),
         "solver": None if plan.solver is None else plan.solver.to_json(),
+        "coverage_ladder": None if plan.solver is None else [
+            {"coverage": rung.coverage, "stations": rung.stations} for rung in plan.ladder],
         "stations": [{"id": s.id, "position": [round(v, 4) for v in s.position],
                       "floor_z": None if s.floor_z is None else round(s.floor_z, 4), "storey": s.storey,
                       "room": s.room} for s in plan.stations],
