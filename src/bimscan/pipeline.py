@@ -391,6 +391,8 @@ def plan_model(model: str | Path, out: str | Path, recipe: ScanRecipe, config: P
     start = time.perf_counter()
     scene = load_scene(model, scheme=scheme, threads=recipe.threads or None, strict=recipe.strict,
                        length_unit=length_unit)
+    for line in report_lines(scene):  # what loading repaired, assumed or lost, as 'bimscan scan' says it
+        say(line)
     steps["load"] = time.perf_counter() - start
     start = time.perf_counter()
     if check is None:

@@ -3,6 +3,7 @@ crashes or hangs the command (issue 13)."""
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import time
@@ -12,10 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bimscan.cli.main import main
 from bimscan.errors import ConfigError, IfcError, InputFileError
 from bimscan.ifc.load import load_ifc
 from bimscan.ifc.step import derived_global_id
-from bimscan.ifc.summary import report_lines
+from bimscan.ifc.summary import report_document, report_lines
 from bimscan.ifc.watchdog import shutdown_workers
 
 
@@ -296,3 +298,72 @@ def test_a_fifo_and_a_symlink_loop_are_called_what_they_are(tmp_path):
     loop.symlink_to(loop)
     with pytest.raises(InputFileError, match="symbolic link loop"):
         load_ifc(loop)
+
+
+def _room(tiny_model, path: Path) -> Path:
+    """A closed room 4 x 3 x 2.6 m (inside): a plan's smallest house."""
+    model = tiny_model("IFC4")
+    model.add_box("IfcSlab", origin=(-0.2, -0.2, -0.2), size=(4.4, 3.4, 0.2), predefined_type="FLOOR", name="floor")
+    model.add_box("IfcSlab", origin=(-0.2, -0.2, 2.6), size=(4.4, 3.4, 0.2), predefined_type="ROOF", name="roof")
+    for name, origin, size in (("south", (-0.2, -0.2, 0.0), (4.4, 0.2, 2.6)), ("north", (-0.2, 3.0, 0.0), (4.4, 0.2, 2.6)),
+                               ("west", (-0.2, 0.0, 0.0), (0.2, 3.0, 2.6)), ("east", (4.0, 0.0, 0.0), (0.2, 3.0, 2.6))):
+        model.add_box("IfcWall", origin=origin, size=size, name=name)
+    return model.write(path)
+
+
+def _without_a_shape(path: Path) -> Path:
+    """The first wall's body emptied: a shape representation without items."""
+    data = path.read_bytes()
+    shape = _attributes(_line(data, b"IFCWALL\\(").group())[6]
+    definition = re.search(rb"(?m)^" + re.escape(shape) + rb"=IFCPRODUCTDEFINITIONSHAPE\(.*\((#[0-9]+)\)\);$", data)
+    assert definition is not None
+    body = re.search(rb"(?m)^" + re.escape(definition.group(1)) + rb"=IFCSHAPEREPRESENTATION\(.*$", data)
+    emptied = re.sub(rb",\(#[0-9]+\)\);$", b",());", body.group())
+    target = path.with_name("shapeless.ifc")
+    target.write_bytes(data[:body.start()] + emptied + data[body.end():])
+    return target
+
+
+def _cut_in_a_wall(path: Path) -> Path:
+    """The file cut in the middle of its last wall's line, a valid end appended."""
+    data = path.read_bytes()
+    *_, wall = re.finditer(rb"(?m)^#[0-9]+=IFCWALL\(.*$", data)
+    target = path.with_name("cut.ifc")
+    target.write_bytes(data[:(wall.start() + wall.end()) // 2] + b"\nENDSEC;\nEND-ISO-10303-21;\n")
+    return target
+
+
+DAMAGES = {
+    "no unit assignment": lambda path: _edit(path, b"IFCUNITASSIGNMENT\\(", None),
+    "a $ GlobalId": lambda path: _edit(path, b"IFCWALL\\(", _with_attributes(_line(path.read_bytes(),
+                                                                                   b"IFCWALL\\(").group(), {0: b"$"})),
+    "a wall without a shape": _without_a_shape,
+    "an unknown entity": lambda path: _edit(path, b"IFCWALL\\(", _line(path.read_bytes(), b"IFCWALL\\(").group().replace(
+        b"=IFCWALL(", b"=IFCWALLX(")),
+    "a file cut short": _cut_in_a_wall,
+}
+PLAN_FAST = ["--preset", "exp1", "--head-speed", "60", "--density", "100", "--classes", "Wall&Column", "--ladder", "none"]
+
+
+@pytest.mark.parametrize("damage", DAMAGES)
+def test_a_plan_of_a_damaged_model_says_what_loading_repaired_and_names_elements_as_a_scan_does(
+        damage, tiny_model, tmp_path, capsys):
+    path = DAMAGES[damage](_room(tiny_model, tmp_path / "room.ifc"))
+    loaded = load_ifc(path)
+    said = report_lines(loaded)
+    assert said, damage
+    out = tmp_path / "plan"
+    assert main(["plan", str(path), str(out), *PLAN_FAST]) == 0
+    err = capsys.readouterr().err
+    for line in said:  # the warnings 'bimscan info' and 'bimscan scan' give
+        assert f"warning: {line}" in err
+    summary = json.loads((out / "plan.json").read_text("utf-8"))
+    assert summary["load_report"] == json.loads(json.dumps(report_document(loaded.report)))
+    assert len(summary["failed"]) == len(loaded.failed)
+    # every element coverage.csv names is the file's GlobalId, or the one the repair warning says it was given
+    in_file = {m.decode() for m in re.findall(rb"=IFC[A-Z]+\('([0-9A-Za-z_$]{22})'", path.read_bytes())}
+    named = set(re.findall(r"\) ([0-9A-Za-z_$]{22})", err))
+    rows = (out / "coverage.csv").read_text("utf-8").splitlines()[1:]
+    assert rows and {row.split(",")[0] for row in rows} <= in_file | named
+    if damage == "a $ GlobalId":
+        assert len(named) == 1 and named <= {row.split(",")[0] for row in rows}

@@ -59,9 +59,29 @@ def report_lines(model: ParsedModel | BimScene) -> list[str]:
         lines.append(f"{name}: {_plural(issue.count, words)}{_lines(issue.lines, issue.count)}: {issue.example}")
     for repair in report.repairs:
         classes = ", ".join(f"{k} {v}" for k, v in repair.per_class.items())
+        named = _made_up_names(model) if repair.kind == "globalid" else ""
         lines.append(f"{name}: repaired {repair.count} {REPAIR_WORDS.get(repair.kind, repair.kind)}: {classes}"
-                     f"{_lines(repair.lines, repair.count)}")
+                     f"{_lines(repair.lines, repair.count)}{named}")
     return lines
+
+
+def _made_up_names(model: ParsedModel | BimScene) -> str:
+    """"; bimscan's outputs name #57 (IfcWall 'south') 2ppg...": the GlobalIds bimscan made up for
+    loaded elements (what a cloud's component table and a plan's coverage.csv call them), the
+    first few; empty when no loaded element needed one."""
+    from bimscan.ifc.step import derived_global_id
+
+    table = model.components
+    if table.step_id is None:
+        return ""
+    made_up = [c for c in range(len(table)) if table.step_id[c] >= 0
+               and table.global_id[c] == derived_global_id(model.file_sha256, int(table.step_id[c]))]
+    if not made_up:
+        return ""
+    shown = ", ".join(f"#{table.step_id[c]} ({table.ifc_class[c]}" + (f" {str(table.name[c])!r}" if table.name[c] else "")
+                      + f") {table.global_id[c]}" for c in made_up[:_SHOWN_FAILURES])
+    more = f" and {len(made_up) - _SHOWN_FAILURES} more" if len(made_up) > _SHOWN_FAILURES else ""
+    return f"; bimscan's outputs name {shown}{more}"
 
 
 def report_document(report: IfcLoadReport) -> dict[str, Any]:

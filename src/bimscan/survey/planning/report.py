@@ -20,6 +20,7 @@ never removes what it did not write (a ``plan_signed_by_client.png`` put beside 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import json
 import math
@@ -35,6 +36,7 @@ from bimscan.files import (
     FOLDER_OUTPUTS, FolderOutput, check_replaceable, dump_json, folder_entries, read_marker, remove_path, replace_path,
     temp_path,
 )
+from bimscan.ifc.summary import report_document
 from bimscan.survey.planning.plan import PlanEvaluation, SurveyPlan
 from bimscan.survey.stations import format_stations
 
@@ -172,6 +174,9 @@ def plan_summary(plan: SurveyPlan, evaluation: PlanEvaluation, scan: PlanEvaluat
         "mode": mode,
         "software": f"bimscan {__version__}",
         "source": {"file": Path(scene.source).name, "sha256": scene.file_sha256, "schema": scene.schema},
+        # what loading the IFC repaired, assumed or lost, as 'bimscan info --json' gives it
+        "load_report": report_document(scene.report),
+        "failed": [dataclasses.asdict(f) for f in scene.failed],
         "config": config.to_json(),
         "scanner": recipe.scanner.name,
         "preset": recipe.preset,
