@@ -83,12 +83,14 @@ class CoverProblem:
 
     def covered_m2(self, summed: np.ndarray) -> np.ndarray:
         """(N,) area of each class covered by a summed density (S,)."""
-        counted = (summed >= self.threshold_pts_m2) & (self.klass >= 0)
-        return np.bincount(self.klass[counted], weights=self.area_m2[counted], minlength=len(self.need_m2))
+        # the uncovered samples weigh zero: the sums are those over the covered ones, bit for bit
+        weights = np.where((summed >= self.threshold_pts_m2) & (self.klass >= 0), self.area_m2, 0.0)
+        return np.bincount(self._class_index, weights=weights, minlength=len(self.need_m2))
 
-    def deficit_m2(self, summed: np.ndarray) -> np.ndarray:
-        """(N,) area each class still lacks (0 where met), with a little slack for float sums."""
-        lack = self.need_m2 - self.covered_m2(summed)
+    def deficit_m2(self, summed: np.ndarray, *, covered_m2: np.ndarray | None = None) -> np.ndarray:
+        """(N,) area each class still lacks (0 where met), with a little slack for float sums;
+        ``covered_m2``: ``covered_m2(summed)`` when already known."""
+        lack = self.need_m2 - (self.covered_m2(summed) if covered_m2 is None else covered_m2)
         return np.where(lack > 1e-9 * np.maximum(self.need_m2, 1.0), lack, 0.0)
 
     def covers(self, chosen: np.ndarray | list[int]) -> bool:
@@ -97,6 +99,11 @@ class CoverProblem:
     def parts(self, chosen: np.ndarray | list[int]) -> int:
         """How many connected parts the chosen candidates form in the registration graph."""
         return int(graph_parts(self.edges, np.asarray(chosen, dtype=np.int64)).max() + 1) if len(chosen) else 0
+
+    @cached_property
+    def _class_index(self) -> np.ndarray:
+        """(S,) int64: each sample's class, 0 for those not to cover (they weigh nothing)."""
+        return np.maximum(self.klass, 0)
 
     @cached_property
     def _entry_column(self) -> np.ndarray:
@@ -114,9 +121,10 @@ class CoverProblem:
         open_sample = (summed < self.threshold_pts_m2) & (self.klass >= 0) & wanting[np.maximum(self.klass, 0)]
         return np.flatnonzero(open_sample[self.density.indices])
 
-    def gains(self, summed: np.ndarray) -> np.ndarray:
-        """(K,) the greedy gain of adding each candidate to a choice with this summed density."""
-        deficit = self.deficit_m2(summed)
+    def gains(self, summed: np.ndarray, *, deficit_m2: np.ndarray | None = None) -> np.ndarray:
+        """(K,) the greedy gain of adding each candidate to a choice with this summed density
+        (``deficit_m2``: ``deficit_m2(summed)`` when already known)."""
+        deficit = self.deficit_m2(summed) if deficit_m2 is None else deficit_m2
         wanting = deficit > 0
         entries = self._open_entries(summed, wanting)
         rows = self.density.indices[entries]
@@ -134,22 +142,27 @@ class CoverProblem:
         return (np.minimum(hard, deficit[None, :]) + SOFT_GAIN * soft * wanting[None, :]).sum(axis=1)
 
 
-def _paths_from(edges: np.ndarray, chosen: list[int]) -> tuple[np.ndarray, np.ndarray]:
-    """Breadth-first search from the chosen set: (K,) hops (-1 unreachable, 0 chosen), (K,) parent."""
-    k = len(edges)
-    hops = np.full(k, -1, dtype=np.int64)
-    parent = np.full(k, -1, dtype=np.int64)
-    queue = deque(chosen)
-    hops[chosen] = 0
-    neighbours = [np.flatnonzero(row) for row in edges]
+def _neighbours(edges: np.ndarray) -> list[list[int]]:
+    """Each candidate's neighbours in the graph ``edges`` (K, K) bool, in index order."""
+    return [np.flatnonzero(row).tolist() for row in edges]
+
+
+def _paths_from(neighbours: list[list[int]], chosen: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    """Breadth-first search from the chosen set over a graph's ``_neighbours``: (K,) hops (-1
+    unreachable, 0 chosen), (K,) parent."""
+    hops = [-1] * len(neighbours)
+    parent = [-1] * len(neighbours)
+    queue = deque(int(c) for c in chosen)
+    for c in queue:
+        hops[c] = 0
     while queue:
         node = queue.popleft()
         for other in neighbours[node]:
             if hops[other] < 0:
                 hops[other] = hops[node] + 1
                 parent[other] = node
-                queue.append(int(other))
-    return hops, parent
+                queue.append(other)
+    return np.array(hops, dtype=np.int64), np.array(parent, dtype=np.int64)
 
 
 def _path(parent: np.ndarray, hops: np.ndarray, end: int) -> list[int]:
@@ -168,11 +181,16 @@ def greedy_cover(problem: CoverProblem, *, start: list[int] | None = None,
     chosen = list(start or [])
     allowed = np.ones(problem.n_candidates, dtype=bool) if allowed is None else allowed
     summed = problem.summed(chosen)
-    while problem.deficit_m2(summed).any():
-        gains = problem.gains(summed)
+    linked = _neighbours(problem.edges & allowed[None, :] & allowed[:, None])
+    while True:
+        covered = problem.covered_m2(summed)
+        deficit = problem.deficit_m2(summed, covered_m2=covered)
+        if not deficit.any():
+            break
+        gains = problem.gains(summed, deficit_m2=deficit)
         gains[chosen] = 0.0
         gains[~allowed] = 0.0
-        hops, parent = _paths_from(problem.edges & allowed[None, :] & allowed[:, None], chosen)
+        hops, parent = _paths_from(linked, chosen)
         reachable = np.flatnonzero(hops > 0)
         add, best_value = [], 0.0
         if len(reachable):
@@ -181,7 +199,7 @@ def greedy_cover(problem: CoverProblem, *, start: list[int] | None = None,
             for j in reachable[np.argsort(-estimate, kind="stable")[:PATH_TRIALS]]:
                 path = _path(parent, hops, int(j))
                 trial = summed + problem.summed(path)
-                value = _progress(problem, summed, trial) / len(path)
+                value = _progress(problem, summed, trial, deficit_m2=deficit, covered_m2=covered) / len(path)
                 if value > best_value + 1e-12:
                     best_value, add = value, path
         # a part of the candidates' graph the chosen cannot reach: it needs its own stations anyway
@@ -195,10 +213,12 @@ def greedy_cover(problem: CoverProblem, *, start: list[int] | None = None,
     return chosen
 
 
-def _progress(problem: CoverProblem, before: np.ndarray, after: np.ndarray) -> float:
-    """The greedy gain of going from one summed density to another (as ``CoverProblem.gains``)."""
-    deficit = problem.deficit_m2(before)
-    hard = np.minimum(problem.covered_m2(after) - problem.covered_m2(before), deficit).sum()
+def _progress(problem: CoverProblem, before: np.ndarray, after: np.ndarray, *, deficit_m2: np.ndarray,
+              covered_m2: np.ndarray) -> float:
+    """The greedy gain of going from one summed density to another (as ``CoverProblem.gains``);
+    ``deficit_m2`` and ``covered_m2``: the problem's figures of ``before``."""
+    deficit = deficit_m2
+    hard = np.minimum(problem.covered_m2(after) - covered_m2, deficit).sum()
     counted = problem.klass >= 0
     wanting = deficit[np.maximum(problem.klass, 0)] > 0
     t = problem.threshold_pts_m2
@@ -239,12 +259,13 @@ def join_parts(problem: CoverProblem, chosen: list[int]) -> list[int]:
     """The choice with candidates added along shortest graph paths until its parts are joined,
     wherever the graph joins them (a part at a time, to its nearest other part)."""
     chosen = list(chosen)
+    neighbours = _neighbours(problem.edges)
     while True:
         parts = graph_parts(problem.edges, np.array(chosen))
         joined = False
         for part in range(int(parts.max()) + 1):
             members = [c for c, p in zip(chosen, parts) if p == part]
-            hops, parent = _paths_from(problem.edges, members)
+            hops, parent = _paths_from(neighbours, members)
             others = [c for c, p in zip(chosen, parts) if p != part and hops[c] > 0]
             if others:
                 target = min(others, key=lambda c: hops[c])
