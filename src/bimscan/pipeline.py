@@ -137,9 +137,10 @@ def site_and_stations(scene: BimScene, recipe: ScanRecipe, *, progress: bool = F
     here, in seconds), and the work schedule is read before any dressing. Then the scene is
     dressed, a file's stations kept clear of clutter, and the stations are chosen again on the
     dressed scene: planned anew (the plan sees the clutter; dressing keeps a tripod spot clear in
-    every room) or the file's read and checked there. A station is checked only on the scene as
-    scanned, as ``bimscan plan`` chose it: a spot in a doorway is free once the stage leaves the
-    door out. A bare site model dresses nothing and chooses once.
+    every room) or the file's read and checked there. A file's stations are checked before the
+    dressing too, unless the stage leaves elements out: then they are judged only on the scene as
+    scanned, as ``bimscan plan`` chose them there (a spot in a doorway is free once the stage leaves
+    the door out). A bare site model dresses nothing and chooses once.
     """
     from bimscan.survey.survey import choose_stations, choose_trajectory, require_tripod_spots
 
@@ -155,7 +156,8 @@ def site_and_stations(scene: BimScene, recipe: ScanRecipe, *, progress: bool = F
     stations: tuple[Station, ...] = ()
     if recipe.site.is_bare or from_file:
         with step_line("checking stations" if from_file else "planning stations", enabled=progress):
-            stations, plan = choose_stations(scene, recipe, check=recipe.site.is_bare)
+            # checked now unless the stage leaves elements out: a station is judged on the scene as scanned
+            stations, plan = choose_stations(scene, recipe, check=recipe.site.stage.is_bare)
         if recipe.site.is_bare:
             return SiteAndStations(scene=scene, stations=stations, plan=plan, timings=DressTimings())
     else:
