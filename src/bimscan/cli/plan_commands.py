@@ -98,8 +98,9 @@ def _plan_config(config_file: str | None, flags: dict[str, tuple[str, Any, str]]
                    f"Default: {_DEFAULTS.milp_time_limit_s:g}.")
 @click.option("--ladder", "coverage_ladder", default=None,
               help="Coverages at which the plan also reports the stations needed, every class asked the same "
-                   "share (what the last few percent cost; each costs about as long as the plan's own search), "
-                   f"or 'none'. Default: {','.join(f'{c:g}' for c in _DEFAULTS.coverage_ladder)}.")
+                   "share (what the last few percent cost; each costs about as long as the plan's own search; "
+                   "the asked --coverage joins them when it is one value), or 'none'. "
+                   f"Default: {','.join(f'{c:g}' for c in _DEFAULTS.coverage_ladder)}.")
 @click.option("--config", "config_file", default=None,
               help="A TOML file of planner settings (the keys of PlanConfig); the flags above override it.")
 @click.option("--check", default=None,

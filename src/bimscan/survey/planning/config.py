@@ -50,7 +50,8 @@ class PlanConfig(Checked):
     model and settings give the same plan everywhere). seed: the surface sampling's seed.
     coverage_ladder: the coverages at which the plan also reports the stations needed, every class
     asked the same share (what the last few percent cost; each one is a cover chosen as the plan's
-    is, so each costs about as long as the plan's own search; empty: none).
+    is, so each costs about as long as the plan's own search; the asked coverage joins them when
+    it is one share for every class; empty: none).
 
     A setting that would change nothing is refused: the MILP's time limit and size limit with the
     greedy solver, its size limit with ``milp`` (which runs it on any model); and, when a given

@@ -248,15 +248,17 @@ def plan_survey(space: PlanningSpace, *, progress: bool = False) -> SurveyPlan:
 
 def coverage_ladder(space: PlanningSpace, allowed: np.ndarray, planned: int, *,
                     progress: bool = False) -> tuple[LadderRung, ...]:
-    """The stations each coverage of ``config.coverage_ladder`` needs, every class asked that share
-    of its visible surface, chosen among the ``allowed`` candidates as the plan's stations are;
+    """The stations each coverage of ``config.coverage_ladder`` (and the asked one, when it is one
+    share for every class) needs, every class asked that share of its visible surface, chosen
+    among the ``allowed`` candidates as the plan's stations are;
     ``planned``: the plan's own count. A cover of a higher coverage covers a lower one too, so a
     rung never shows more stations than a higher rung (or the plan, at or under every class's
     asked coverage) needs."""
     config, problem = space.config, space.problem
-    rungs = sorted(set(config.coverage_ladder))
-    if not rungs:
+    if not config.coverage_ladder:
         return ()
+    # the asked coverage is a rung too, when one share is asked of every class
+    rungs = sorted(set(config.coverage_ladder) | (set(config.coverage) if len(config.coverage) == 1 else set()))
     _, visible, _ = space.class_areas()
     everything = problem.covered_m2(problem.summed(np.flatnonzero(allowed)))
     asked = np.array([config.coverage_of(c) for c in config.classes])
