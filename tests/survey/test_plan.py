@@ -158,8 +158,8 @@ def test_an_unknown_class_names_the_schemes_classes(box_room_ifc):
     ({"min_direction_share": 0.34}, r"^min_direction_share must be a number in \[0, 0.333333\] \(a surface facing"),
     ({"search_rounds": -1}, r"^search_rounds must be an integer >= 0 \(0: no search\), got -1$"),
     ({"solver": "greedy", "milp_time_limit_s": 5.0},
-     r"^milp_time_limit_s = 5 would change nothing: solver = 'greedy' runs no MILP; leave it out, or choose solver = "
-     r"'milp' or 'auto'$"),
+     r"^milp_time_limit_s = 5 would change nothing: solver = 'greedy' runs no MILP; leave it out, or choose 'milp' "
+     r"or 'auto' instead$"),
     ({"solver": "milp", "milp_max_groups": 10}, r"^milp_max_groups = 10 would change nothing: solver = 'milp' runs"),
     ({"coverage_ladder": (0.8, 0.0)}, r"^coverage_ladder takes numbers in \(0, 1\]"),
 ])

@@ -78,7 +78,7 @@ class PlanConfig(Checked):
     milp_time_limit_s: float = setting(30.0, within=Range(0.0, None, low_open=True))
     seed: int = 0
     coverage_ladder: tuple[float, ...] = setting((0.8, 0.9, 0.95), each=Range(0.0, 1.0, low_open=True),
-                                                 hint="fractions, e.g. 0.8,0.9,0.95; none: an empty list")
+                                                 hint="fractions, e.g. 0.8,0.9,0.95")
 
     def check(self) -> None:
         if not self.classes or len(set(self.classes)) != len(self.classes):
@@ -93,7 +93,7 @@ class PlanConfig(Checked):
             runs, other = (("runs no MILP", "'milp' or 'auto'") if self.solver == "greedy" else
                            ("runs the MILP on any model (only 'auto' leaves larger ones out)", "'auto'"))
             raise ConfigError(f"{shown} would change nothing: solver = {self.solver!r} {runs}; leave "
-                              f"{'it' if len(idle) == 1 else 'them'} out, or choose solver = {other}")
+                              f"{'it' if len(idle) == 1 else 'them'} out, or choose {other} instead")
 
     def _acts(self, name: str) -> bool:
         """Whether setting ``name`` of the MILP acts under this solver (else it must stay at its default)."""
