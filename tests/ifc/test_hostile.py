@@ -305,7 +305,8 @@ def _room(tiny_model, path: Path) -> Path:
     model = tiny_model("IFC4")
     model.add_box("IfcSlab", origin=(-0.2, -0.2, -0.2), size=(4.4, 3.4, 0.2), predefined_type="FLOOR", name="floor")
     model.add_box("IfcSlab", origin=(-0.2, -0.2, 2.6), size=(4.4, 3.4, 0.2), predefined_type="ROOF", name="roof")
-    for name, origin, size in (("south", (-0.2, -0.2, 0.0), (4.4, 0.2, 2.6)), ("north", (-0.2, 3.0, 0.0), (4.4, 0.2, 2.6)),
+    for name, origin, size in (("south", (-0.2, -0.2, 0.0), (4.4, 0.2, 2.6)),
+                               ("north", (-0.2, 3.0, 0.0), (4.4, 0.2, 2.6)),
                                ("west", (-0.2, 0.0, 0.0), (0.2, 3.0, 2.6)), ("east", (4.0, 0.0, 0.0), (0.2, 3.0, 2.6))):
         model.add_box("IfcWall", origin=origin, size=size, name=name)
     return model.write(path)
@@ -338,11 +339,12 @@ DAMAGES = {
     "a $ GlobalId": lambda path: _edit(path, b"IFCWALL\\(", _with_attributes(_line(path.read_bytes(),
                                                                                    b"IFCWALL\\(").group(), {0: b"$"})),
     "a wall without a shape": _without_a_shape,
-    "an unknown entity": lambda path: _edit(path, b"IFCWALL\\(", _line(path.read_bytes(), b"IFCWALL\\(").group().replace(
-        b"=IFCWALL(", b"=IFCWALLX(")),
+    "an unknown entity": lambda path: _edit(
+        path, b"IFCWALL\\(", _line(path.read_bytes(), b"IFCWALL\\(").group().replace(b"=IFCWALL(", b"=IFCWALLX(")),
     "a file cut short": _cut_in_a_wall,
 }
-PLAN_FAST = ["--preset", "exp1", "--head-speed", "60", "--density", "100", "--classes", "Wall&Column", "--ladder", "none"]
+PLAN_FAST = ["--preset", "exp1", "--head-speed", "60", "--density", "100", "--classes", "Wall&Column",
+             "--ladder", "none"]
 
 
 @pytest.mark.parametrize("damage", DAMAGES)

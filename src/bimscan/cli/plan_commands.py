@@ -16,7 +16,7 @@ from bimscan.constraints import choices_of, default_of
 from bimscan.errors import ConfigError
 from bimscan.ifc.units import LENGTH_UNITS
 from bimscan.scan.device import DEFAULT_PRESET, DEFAULT_SCANNER, PRESETS, SCANNERS
-from bimscan.survey.planning.config import DEFAULT_CLASSES, PlanConfig
+from bimscan.survey.planning.config import DEFAULT_CLASSES, PlanConfig, setting_text
 from bimscan.survey.recipe import ScanRecipe
 
 if TYPE_CHECKING:
@@ -42,7 +42,7 @@ def _in_flag_terms(message: str, given: dict[str, tuple[str, Any, str]]) -> str:
     (flag, value, text typed)) named by its flag, its value as typed (``--coverage 0.9,1.5``, not
     ``coverage = [0.9, 1.5]``)."""
     for key, (flag, value, typed) in given.items():
-        shown = str(list(value)) if isinstance(value, tuple) else f"{value:g}" if isinstance(value, float) else repr(value)
+        shown = setting_text(value)
         named = rf"(?<![\w-]){key}\b"  # the key, not a flag made of it already
         message = re.sub(rf"{named} = {re.escape(shown)}", f"{flag} {typed}", message)
         if isinstance(value, tuple):
@@ -125,8 +125,8 @@ def _plan_config(config_file: str | None, flags: dict[str, tuple[str, Any, str]]
 def plan(model: Path, out: Path, classes: str | None, coverage: str | None, density_pts_m2: float | None,
          max_incidence_deg: float | None, overlap: float | None, grid_m: float | None, solver: str | None,
          milp_time_limit_s: float | None, coverage_ladder: str | None, config_file: str | None, check: str | None,
-         cloud: Path | None, preset: str | None, scanner: str | None, head_deg_per_s: float | None, seed: int, scheme: str | None,
-         length_unit: str | None, threads: int, overwrite: bool, site: SiteModel) -> None:
+         cloud: Path | None, preset: str | None, scanner: str | None, head_deg_per_s: float | None, seed: int,
+         scheme: str | None, length_unit: str | None, threads: int, overwrite: bool, site: SiteModel) -> None:
     """Plan a tripod survey of MODEL.ifc into the folder OUT: the fewest stations such that the
     chosen classes reach the asked coverage at the asked point density, with a connected
     registration graph.

@@ -78,8 +78,9 @@ def _made_up_names(model: ParsedModel | BimScene) -> str:
                and table.global_id[c] == derived_global_id(model.file_sha256, int(table.step_id[c]))]
     if not made_up:
         return ""
-    shown = ", ".join(f"#{table.step_id[c]} ({table.ifc_class[c]}" + (f" {str(table.name[c])!r}" if table.name[c] else "")
-                      + f") {table.global_id[c]}" for c in made_up[:_SHOWN_FAILURES])
+    shown = ", ".join(f"#{table.step_id[c]} ({table.ifc_class[c]}"
+                      + (f" {str(table.name[c])!r}" if table.name[c] else "") + f") {table.global_id[c]}"
+                      for c in made_up[:_SHOWN_FAILURES])
     more = f" and {len(made_up) - _SHOWN_FAILURES} more" if len(made_up) > _SHOWN_FAILURES else ""
     return f"; bimscan's outputs name {shown}{more}"
 

@@ -103,7 +103,8 @@ def read_stations(path: str | Path, scene: BimScene, prober: Prober, scanner: Sc
                                "give coordinates in metres and the heading in degrees")
         storey_name = values.get("storey", "") or ""
         if storey_name and storey_name not in storeys:
-            known = f"use one of {', '.join(storeys)}" if storeys else "the model has no storeys: leave the storey empty"
+            known = (f"use one of {', '.join(storeys)}" if storeys else
+                     "the model has no storeys: leave the storey empty")
             raise StationError(f"{path}: station {number}: unknown storey {storey_name!r}; {known}")
         floor_z = None
         if z is None:

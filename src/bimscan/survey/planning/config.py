@@ -89,7 +89,7 @@ class PlanConfig(Checked):
                               f"({len(self.classes)}: {', '.join(self.classes)})")
         idle = [name for name in ("milp_time_limit_s", "milp_max_groups") if not self._acts(name)]
         if idle:
-            shown = " and ".join(f"{name} = {_shown(getattr(self, name))}" for name in idle)
+            shown = " and ".join(f"{name} = {setting_text(getattr(self, name))}" for name in idle)
             runs, other = (("runs no MILP", "'milp' or 'auto'") if self.solver == "greedy" else
                            ("runs the MILP on any model (only 'auto' leaves larger ones out)", "'auto'"))
             raise ConfigError(f"{shown} would change nothing: solver = {self.solver!r} {runs}; leave "
@@ -109,7 +109,7 @@ class PlanConfig(Checked):
         idle = [name for name in ("solver", "search_rounds", "milp_max_groups", "milp_time_limit_s",
                                   "coverage_ladder") if getattr(self, name) != default_of(PlanConfig, name)]
         if idle:
-            shown = " and ".join(f"{name} = {_shown(getattr(self, name))}" for name in idle)
+            shown = " and ".join(f"{name} = {setting_text(getattr(self, name))}" for name in idle)
             raise ConfigError(f"{shown} would change nothing: a given plan is checked, no station is chosen; "
                               f"leave {'it' if len(idle) == 1 else 'them'} out")
 
@@ -121,8 +121,8 @@ class PlanConfig(Checked):
         return dataclasses.asdict(self)
 
 
-def _shown(value: Any) -> str:
-    """A setting's value for a message, as a TOML file writes it."""
+def setting_text(value: Any) -> str:
+    """A setting's value for a message, as a TOML file writes it (and as ``constraints`` shows it)."""
     if isinstance(value, tuple):
         return str(list(value))
     return f"{value:g}" if isinstance(value, float) else repr(value)

@@ -33,7 +33,6 @@ from bimscan.survey.stations import station_on_floor, station_problem, station_s
 from bimscan.types import BimScene, Station
 
 
-
 @dataclass(frozen=True)
 class PlanningSpace:
     """Everything a plan is chosen from and judged on.
@@ -151,8 +150,9 @@ def prepare_space(scene: BimScene, scanner: ScannerModel, settings: ScanSettings
 def _accepted(floors: np.ndarray, scene: BimScene, prober: Prober, instrument: float) -> np.ndarray:
     """(M,) bool: the spots (M, 3) where the station check of ``bimscan scan --stations`` accepts a
     station (``survey.stations.station_problem``, on this scene: the site as it will be scanned)."""
-    return np.array([station_problem(Station(id=0, position=(float(x), float(y), float(z) + instrument), floor_z=float(z)),
-                                     scene, prober) is None for x, y, z in floors], dtype=bool).reshape(len(floors))
+    stations = (Station(id=0, position=(float(x), float(y), float(z) + instrument), floor_z=float(z))
+                for x, y, z in floors)
+    return np.array([station_problem(s, scene, prober) is None for s in stations], dtype=bool).reshape(len(floors))
 
 
 @dataclass(frozen=True)
