@@ -359,3 +359,22 @@ def test_each_rung_of_the_coverage_ladder_costs_what_a_plan_for_that_coverage_do
     assert plan.ladder == (LadderRung(coverage=0.5, stations=len(half.stations)),
                            LadderRung(coverage=0.95, stations=len(plan.stations)))
     assert len(half.stations) == 1 < len(plan.stations) and half.ladder == ()
+
+
+def test_a_ceiling_flush_with_the_slabs_underside_is_seen_whole_and_so_is_the_underside(tiny_model, tmp_path):
+    # the covering's underside and the roof slab's lie in one plane: whichever the engine reports, the ray got there
+    model = tiny_model("IFC4")
+    model.add_box("IfcSlab", origin=(-W, -W, -S), size=(6 + 2 * W, 5 + 2 * W, S), predefined_type="FLOOR", name="floor")
+    model.add_box("IfcSlab", origin=(-W, -W, 3.0), size=(6 + 2 * W, 5 + 2 * W, S), predefined_type="ROOF", name="roof")
+    for name, origin, size in (("south", (-W, -W, 0.0), (6 + 2 * W, W, 3.0)), ("north", (-W, 5.0, 0.0), (6 + 2 * W, W, 3.0)),
+                               ("west", (-W, 0.0, 0.0), (W, 5.0, 3.0)), ("east", (6.0, 0.0, 0.0), (W, 5.0, 3.0))):
+        model.add_box("IfcWall", origin=origin, size=size, name=name)
+    model.add_box("IfcCovering", origin=(0.0, 0.0, 3.0), size=(6.0, 5.0, 0.02), predefined_type="CEILING", name="ceiling")
+    space = plan_space(model.write(tmp_path / "flush.ifc"), classes=("Covering", "Slab"), samples_per_m2=9.0,
+                       grid_m=1.5)
+    names = list(space.scene.components.name)
+    x, y, z = space.samples.xyz.T
+    middle = (np.abs(z - 3.0) < 1e-6) & (np.abs(x - 3.0) < 2.5) & (np.abs(y - 2.5) < 2.0)  # away from the walls
+    for name in ("ceiling", "roof"):
+        mine = (space.samples.component == names.index(name)) & middle
+        assert mine.sum() > 50 and space.visibility.reachable[mine].all(), name

@@ -12,13 +12,15 @@ expected point density on the surface is
 
 (docs/guide/planning.md derives it and checks it against scans). A sample is **seen** from a
 position when the ray from the beam origin to it, cast through the scene's Embree BVH (the
-``Prober``, the same engine the station checks use), first meets the sample's own component at
-the sample's range, on a triangle in the sample's own plane (within ``ON_PLANE_M``: a surface in
-front of it, or the element's own front face when the sample is on its back face, hides it; the
-two faces of a 6 mm steel flange lie closer than the range tolerance), the range lies in the
-scanner's limits, the direction in its elevation window (and head rotation, for a partial
-station), and the incidence is at most ``VISIBLE_INCIDENCE_DEG``. Its points count towards
-coverage only within the asked incidence limit.
+``Prober``, the same engine the station checks use), first meets a surface at the sample's range,
+on a triangle in the sample's own plane (within ``ON_PLANE_M``): the ray reaches the sample. A
+surface in front of it hides it, and so does the element's own front face when the sample is on
+its back face (the two faces of a 6 mm steel flange lie closer than the range tolerance); another
+element's face flush with the sample's (a ceiling modelled flush with the slab's underside) does
+not, whichever of the two the engine reports. The range lies in the scanner's limits, the
+direction in its elevation window (and head rotation, for a partial station), and the incidence
+is at most ``VISIBLE_INCIDENCE_DEG``. Its points count towards coverage only within the asked
+incidence limit.
 
 Nothing here trusts the winding of the model's triangles: authoring tools wind them either way
 (a ceiling exported with its normals into the slab, a face whose triangles disagree), and a
@@ -56,8 +58,9 @@ RAYS_PER_CAST = 2_000_000  # rays per call of the engine: ~50 MB of float32 rays
 # sample's range: float32 rays are good to ~0.1 mm here, and a thin element's back face lies at
 # least its thickness (> 5 mm) behind its front one.
 HIT_TOLERANCE_M = 0.005
-# ... and on a triangle whose plane passes this close to the sample: its own triangle, or another
-# of the same face, however either is wound (the far face of a 2 mm plate lies outside it).
+# ... and on a triangle whose plane passes this close to the sample: its own triangle, another of
+# the same face, or a face flush with it, however any is wound (the far face of a 2 mm plate lies
+# outside it).
 ON_PLANE_M = 0.001
 COARSE_DIRECTIONS = 20_000  # the coarse fan of the visibility pre-pass, within the elevation window
 CELL_M = 1.0  # its cells: a sample is tested when a coarse ray met its component in its cell or a neighbour
@@ -150,7 +153,6 @@ def compute_visibility(prober: Prober, samples: SurfaceSamples, heads: np.ndarra
     cos_visible = math.cos(math.radians(VISIBLE_INCIDENCE_DEG))
     cos_limit = math.cos(math.radians(max_incidence_deg))
     full_turn = grid.azimuth_span_rad >= 2 * math.pi - 1e-9
-    face_component = prober.face_component
     face_normal = prober.face_normals
     face_corner = prober.mesh.vertices[prober.mesh.faces[:, 0]]
     pairs_sample, pairs_station, pairs_density = [], [], []
@@ -169,11 +171,9 @@ def compute_visibility(prober: Prober, samples: SurfaceSamples, heads: np.ndarra
             end = start + len(idx)
             tri = triangle[start:end]
             safe = np.maximum(tri, 0)
-            hit_component = np.where(tri >= 0, face_component[safe], -1)
-            # the sample's own face, not the element's other side a few millimetres in front of it
+            # the sample's own face (or one flush with it), not the element's other side a few millimetres in front
             off_plane = np.abs(np.einsum("ij,ij->i", face_normal[safe], samples.xyz[idx] - face_corner[safe]))
-            seen = ((hit_component == samples.component[idx]) & (np.abs(t[start:end] - r) <= HIT_TOLERANCE_M)
-                    & (off_plane <= ON_PLANE_M))
+            seen = (tri >= 0) & (np.abs(t[start:end] - r) <= HIT_TOLERANCE_M) & (off_plane <= ON_PLANE_M)
             pairs_sample.append(idx[seen])
             pairs_station.append(np.full(int(seen.sum()), k, dtype=np.int64))
             pairs_density.append(density[seen])
