@@ -234,3 +234,24 @@ def test_furniture_with_only_a_demolition_task_is_not_there_before_its_storey_is
     assert standing == {"2024-01-01": {"floor": False, "chair": False},  # no floor yet: no chair floating over it
                         "2024-03-01": {"floor": True, "chair": True},
                         "2024-06-01": {"floor": True, "chair": False}}
+
+
+def test_a_generated_buildings_schedule_raises_it_task_by_task_until_all_of_it_stands(office_scene, tmp_path):
+    from bimscan.ifc.generate import make_building
+    from bimscan.ifc.schedule import read_schedule
+
+    # the office of the scene, with a work schedule: the same elements under the same GlobalIds
+    building = make_building(tmp_path / "office.ifc", seed=1, storeys=1, schedule_start="2024-03-04")
+    schedule = read_schedule(building.path)
+    gids, classes = office_scene.components.global_id.tolist(), office_scene.components.ifc_class
+    assert all(schedule[g].built is not None for g in gids)
+
+    def standing(at: str) -> np.ndarray:
+        return built_components(office_scene, StageSettings(at=at), seed=0, schedule=schedule)
+
+    finishes = sorted({task.finish for task in building.works})
+    counts = [int(standing(day).sum()) for day in ["2024-03-01", *finishes]]
+    assert counts[0] == 0 and counts[-1] == len(gids)
+    assert all(a < b for a, b in zip(counts, counts[1:]))  # every finish adds what its task built
+    assert set(classes[standing(finishes[0])].tolist()) == {"IfcSlab", "IfcColumn", "IfcBeam"}  # the structure
+    assert standing("2030-01-01").all()

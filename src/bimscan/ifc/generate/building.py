@@ -13,10 +13,12 @@ through a slab opening; a double-height hall under an opening in the floor above
 multi-storey buildings); ceiling coverings cut around columns and downstand beams; furniture;
 and one IfcSpace per room for station planning. Shapes the api has no function for (stair flights, furniture,
 railings, coverings of several pieces) are built with IfcOpenShell's ShapeBuilder, as the api
-itself does.
+itself does. On request, a construction work schedule whose tasks build the elements storey by
+storey (``work_schedule.py``).
 
 Every GlobalId derives from (style, seed, storeys, counter) and the header timestamp is fixed,
-so the same options give the same bytes.
+so the same options give the same bytes. The work schedule is written after the building, so an
+element has the same GlobalId with a schedule and without one.
 """
 
 from __future__ import annotations
@@ -80,6 +82,7 @@ from bimscan.ifc.generate.styles import (
     STYLES,
     WINDOW_PANEL_M,
 )
+from bimscan.ifc.generate.work_schedule import BuildTask, add_work_schedule, schedule_start_date
 
 # Fixed header fields: the file's bytes must not depend on when or where it was made.
 HEADER_TIMESTAMP = "2024-01-01T00:00:00"
@@ -100,6 +103,8 @@ class GeneratedBuilding:
     height_m: top of the building (flat roof slab or gable ridge), world Z in metres (ground
         floor slab top at 0).
     plan: the plan the file was authored from (``floor_plan.planned_elements(plan)`` lists what it holds).
+    schedule_start: the first day of the work schedule (YYYY-MM-DD), None without one.
+    works: the work schedule's tasks that build elements, in WBS order (empty without one).
     """
 
     path: Path | None
@@ -112,11 +117,15 @@ class GeneratedBuilding:
     footprint_m: tuple[float, float, float, float]
     height_m: float
     plan: BuildingPlan
+    schedule_start: str | None = None
+    works: tuple[BuildTask, ...] = ()
 
 
-def check_building_options(*, seed: int, storeys: int, style: str = DEFAULT_STYLE) -> None:
-    """Raise ConfigError unless ``seed`` is an integer in [0, 2**63), ``storeys`` in 1..10 and
-    ``style`` one of ``STYLES``."""
+def check_building_options(
+    *, seed: int, storeys: int, style: str = DEFAULT_STYLE, schedule_start: str | None = None
+) -> None:
+    """Raise ConfigError unless ``seed`` is an integer in [0, 2**63), ``storeys`` in 1..10,
+    ``style`` one of ``STYLES`` and ``schedule_start`` None or a date YYYY-MM-DD."""
     if not _is_int(seed) or not 0 <= seed <= MAX_SEED:
         raise ConfigError(f"seed must be an integer from 0 to {MAX_SEED}, got {seed!r}; pass a non-negative integer")
     if not _is_int(storeys) or not MIN_STOREYS <= storeys <= MAX_STOREYS:
@@ -126,6 +135,8 @@ def check_building_options(*, seed: int, storeys: int, style: str = DEFAULT_STYL
         )
     if not isinstance(style, str) or style not in STYLES:
         raise ConfigError(f"style must be one of {', '.join(STYLES)}, got {style!r}; pick one of those")
+    if schedule_start is not None:
+        schedule_start_date(schedule_start)
 
 
 def _is_int(value: object) -> bool:
@@ -133,21 +144,30 @@ def _is_int(value: object) -> bool:
 
 
 def make_building(
-    path: str | Path | None = None, *, seed: int = 0, storeys: int = 2, style: str = DEFAULT_STYLE
+    path: str | Path | None = None,
+    *,
+    seed: int = 0,
+    storeys: int = 2,
+    style: str = DEFAULT_STYLE,
+    schedule_start: str | None = None,
 ) -> GeneratedBuilding:
     """Generate a seeded building of ``style``; write it as IFC4 to ``path`` when given.
 
-    The file is written atomically (a temporary file in the same folder, then renamed), so a
-    failure never leaves a half-written file. Same (style, seed, storeys) -> same bytes.
+    With ``schedule_start`` (YYYY-MM-DD) the file holds a construction work schedule from that day
+    whose tasks build every element (``work_schedule.py``); without it, none.
 
-    Raises ConfigError for a bad seed, storey count or style, OutputError when ``path``'s folder
-    is missing, ``path`` does not end in ``.ifc``, or the file cannot be written.
+    The file is written atomically (a temporary file in the same folder, then renamed), so a
+    failure never leaves a half-written file. Same (style, seed, storeys, schedule_start) -> same
+    bytes.
+
+    Raises ConfigError for a bad seed, storey count, style or start, OutputError when ``path``'s
+    folder is missing, ``path`` does not end in ``.ifc``, or the file cannot be written.
     """
-    check_building_options(seed=seed, storeys=storeys, style=style)
+    check_building_options(seed=seed, storeys=storeys, style=style, schedule_start=schedule_start)
     target = Path(path) if path is not None else None
     if target is not None:
         _check_output_path(target)
-    model, building = build_building_model(seed=seed, storeys=storeys, style=style)
+    model, building = build_building_model(seed=seed, storeys=storeys, style=style, schedule_start=schedule_start)
     if target is None:
         return building
     _write_atomically(target, model.to_string())
@@ -155,17 +175,20 @@ def make_building(
 
 
 def build_building_model(
-    *, seed: int = 0, storeys: int = 2, style: str = DEFAULT_STYLE
+    *, seed: int = 0, storeys: int = 2, style: str = DEFAULT_STYLE, schedule_start: str | None = None
 ) -> tuple[ifcopenshell.file, GeneratedBuilding]:
     """The seeded building as an in-memory ``ifcopenshell.file`` plus its summary (path None)."""
-    check_building_options(seed=seed, storeys=storeys, style=style)
+    check_building_options(seed=seed, storeys=storeys, style=style, schedule_start=schedule_start)
     seed, storeys = int(seed), int(storeys)
+    key = f"{style}:{seed}:{storeys}"
     plan = plan_building(seed=seed, storeys=storeys, style=style)
+    start = None if schedule_start is None else schedule_start_date(schedule_start)
     with _no_owner_history():
         author = _Author(plan, name=f"bimscan-{style}-seed{seed}-storeys{storeys}")
         author.add_building()
+        works = () if start is None else add_work_schedule(author.model, plan, start=start, key=key)
     author.sort_unordered_sets()
-    author.assign_global_ids(key=f"{style}:{seed}:{storeys}")
+    author.assign_global_ids(key=key)
     summary = GeneratedBuilding(
         path=None,
         seed=seed,
@@ -178,6 +201,8 @@ def build_building_model(
         footprint_m=(0.0, 0.0, plan.width_m, plan.depth_m),
         height_m=plan.height_m,
         plan=plan,
+        schedule_start=None if start is None else start.isoformat(),
+        works=works,
     )
     return author.model, summary
 
