@@ -54,6 +54,7 @@ def test_make_building_help_names_its_options(capsys: pytest.CaptureFixture[str]
     text = capsys.readouterr().out
     assert "--seed" in text and "--storeys" in text and "1..10" in text
     assert "--style" in text and "office|residential|site" in text
+    assert "--schedule START" in text and "YYYY-MM-DD" in text
 
 
 @pytest.mark.parametrize("style", ["office", "residential", "site"])
@@ -115,3 +116,27 @@ def test_missing_output_folder_gives_a_one_line_error(tmp_path: Path, capsys: py
     err = capsys.readouterr().err
     assert err.startswith("error: ") and err.count("\n") == 1 and "does not exist" in err
     assert not out.parent.exists()
+
+
+def test_make_building_with_a_schedule_says_when_the_works_begin_and_end(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "works.ifc"
+    assert main(["make-building", str(out), "--storeys", "1", "--seed", "2", "--schedule", "2024-03-02"]) == 0
+    line = capsys.readouterr().out
+    model = ifcopenshell.open(str(out))
+    tasks = [t for t in model.by_type("IfcTask") if not t.IsNestedBy]  # those that build, not their summaries
+    last = max(t.TaskTime.ScheduleFinish for t in tasks)[:10]
+    assert line.count("\n") == 1 and line.rstrip().endswith(
+        f"; work schedule of {len(tasks)} tasks from 2024-03-04 to {last}")  # Saturday: works begin on Monday
+    assert len(model.by_type("IfcWorkSchedule")) == 1
+
+
+def test_make_building_refuses_a_schedule_start_that_is_not_a_date(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["make-building", str(tmp_path / "b.ifc"), "--storeys", "1", "--schedule", "2024-02-30"]) == 1
+    err = capsys.readouterr().err
+    assert err == "error: schedule start = '2024-02-30' is not a date; give the first day of works as YYYY-MM-DD " \
+                  "(e.g. 2024-03-04)\n"
+    assert list(tmp_path.iterdir()) == []
