@@ -111,14 +111,14 @@ def test_existing_outputs_are_kept_without_overwrite(tmp_path, scene):
         export_obj(scene, tmp_path / "obj")
     assert (tmp_path / "obj" / "model.obj").read_bytes() == before
     export_obj(scene, tmp_path / "obj", overwrite=True)
-    assert not [p for p in (tmp_path / "obj").iterdir() if p.name.startswith(".")]  # no staging left
+    assert [p.name for p in (tmp_path / "obj").iterdir() if p.name.startswith(".")] == [".bimscan.json"]  # no staging
 
 
 def test_overwrite_replaces_a_previous_export_with_helios_files_but_never_a_users_folder(tmp_path, scene):
     out = tmp_path / "project"
     export_obj(scene, out, helios=True)
     export_obj(scene, out, helios=True, overwrite=True)  # its own components/ and helios/: replaced
-    assert not [p for p in out.iterdir() if p.name.startswith(".")]
+    assert [p.name for p in out.iterdir() if p.name.startswith(".")] == [".bimscan.json"]
     (out / "components" / "my_notes.txt").write_text("mine")
     with pytest.raises(OutputError, match=r"components is a folder of bimscan component OBJs that also holds "
                                           r"my_notes.txt, which bimscan did not write"):
@@ -167,3 +167,41 @@ def test_a_disk_full_export_is_an_output_error_and_leaves_no_folder(tmp_path, sc
     with pytest.raises(OutputError, match="disk full while writing"):
         export_obj(scene, tmp_path / "obj")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_users_files_beside_the_export_are_never_replaced(tmp_path, scene):
+    from bimscan.files import OUTPUT_RECORD
+
+    # a folder of the user's: refused before any work, even with overwrite, whatever its names
+    users = tmp_path / "survey"
+    users.mkdir()
+    (users / "index.csv").write_text("sheet,page\n1,2\n")
+    (users / "notes.md").write_text("mine")
+    for overwrite in (False, True):
+        with pytest.raises(OutputError, match="folder bimscan did not make"):
+            export_obj(scene, users, overwrite=overwrite)
+    assert (users / "index.csv").read_text() == "sheet,page\n1,2\n" and sorted(p.name for p in users.iterdir()) == [
+        "index.csv", "notes.md"]
+    # an export's folder: the user's file beside it is kept by a rerun, and one at an export's name is refused
+    out = tmp_path / "obj"
+    export_obj(scene, out)
+    (out / "notes.md").write_text("mine")
+    export_obj(scene, out, overwrite=True)
+    assert (out / "notes.md").read_text() == "mine"
+    (out / "classes.mtl").unlink()
+    (out / "classes.mtl").write_text("newmtl mine\n")
+    record = (out / OUTPUT_RECORD).read_bytes()
+    (out / OUTPUT_RECORD).write_bytes(record.replace(b'"classes.mtl",', b""))
+    with pytest.raises(OutputError, match="classes.mtl was not written by bimscan"):
+        export_obj(scene, out, overwrite=True)
+    assert (out / "classes.mtl").read_text() == "newmtl mine\n"
+
+
+def test_an_export_an_earlier_version_wrote_is_still_replaced(tmp_path, scene):
+    from bimscan.files import OUTPUT_RECORD
+
+    out = tmp_path / "obj"
+    export_obj(scene, out)
+    (out / OUTPUT_RECORD).unlink()  # as an export before output folders had their record
+    export_obj(scene, out, overwrite=True)
+    assert (out / OUTPUT_RECORD).is_file() and (out / "model.obj").is_file()

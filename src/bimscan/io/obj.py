@@ -17,11 +17,14 @@
 Coordinates are written in metres with 6 decimals (1 micrometre). Text is formatted with one
 ``%`` operation per component block, which writes a 2.4M-triangle model in seconds. Everything
 is built in a hidden staging folder inside ``out_dir`` and moved into place at the end; a failure
-leaves ``out_dir`` as it was. With ``overwrite``, an output already in ``out_dir`` is replaced
-only when it is what this export writes there (``bimscan.files.check_replaceable``): files of
-the same names, a ``components/`` folder of bimscan component OBJs only
-(``FOLDER_OUTPUTS["obj-components"]``) and a ``helios/`` folder of bimscan's HELIOS++ files only
-(``FOLDER_OUTPUTS["helios"]``).
+leaves ``out_dir`` as it was. ``out_dir`` is an output folder as every command's
+(``bimscan.files.prepare_output_folder``): new, empty, or one bimscan made (its record lists what
+bimscan wrote there; an earlier version's export is recognised by its ``index.csv``). With
+``overwrite``, an output already in ``out_dir`` is replaced only when the record lists it and it
+is what this export writes there (``bimscan.files.check_replaceable``): a ``components/`` folder of
+bimscan component OBJs only (``FOLDER_OUTPUTS["obj-components"]``) and a ``helios/`` folder of
+bimscan's HELIOS++ files only (``FOLDER_OUTPUTS["helios"]``). Files the user put beside them are
+never touched.
 """
 
 from __future__ import annotations
@@ -41,9 +44,11 @@ from bimscan.errors import InputFileError, OutputError
 from bimscan.files import (
     FOLDER_OUTPUTS,
     FolderOutput,
+    check_output_folder,
     check_replaceable,
     file_head,
     folder_entries,
+    prepare_output_folder,
     read_marker,
     temp_path,
 )
@@ -140,6 +145,13 @@ def _block(fmt: str, values: np.ndarray) -> str:
     return (fmt * len(values)) % tuple(values.ravel().tolist())
 
 
+def _exported_here(folder: Path) -> bool:
+    """Whether ``folder`` holds an export an earlier bimscan wrote (before output folders had
+    their record): its ``index.csv`` starts with the index's header."""
+    head = file_head(folder / "index.csv", 256)
+    return head is not None and head.startswith(",".join(INDEX_COLUMNS).encode())
+
+
 def export_obj(scene: BimScene, out_dir: str | Path, *, helios: bool = False, helios_survey: bytes | None = None,
                helios_files: Mapping[str, bytes] | None = None,
                overwrite: bool = False) -> ObjExport:
@@ -158,6 +170,8 @@ def export_obj(scene: BimScene, out_dir: str | Path, *, helios: bool = False, he
     if out_dir.exists() and not out_dir.is_dir():
         raise OutputError(f"{out_dir} is a file, not a folder; choose another output folder")
     names = ["model.obj", MATERIALS_NAME, COMPONENTS_DIR, "index.csv"] + ([HELIOS_DIR] if helios else [])
+    folder_names = [name + "/" if name in _FOLDER_KINDS else name for name in names]
+    check_output_folder(out_dir, names=folder_names, made_by=_exported_here)
     existing = [n for n in names if (out_dir / n).exists() or (out_dir / n).is_symlink()]
     if existing and not overwrite:
         raise OutputError(f"{out_dir} already holds {', '.join(existing)}; pass --overwrite to replace them or choose "
@@ -171,7 +185,7 @@ def export_obj(scene: BimScene, out_dir: str | Path, *, helios: bool = False, he
     stage = temp_path(out_dir / "obj-export")
     done = False
     try:
-        out_dir.mkdir(exist_ok=True)
+        prepare_output_folder(out_dir, names=folder_names, made_by=_exported_here)
         stage.mkdir()
         files = _write_all(scene, stage, helios=helios)
         if helios_survey is not None:
