@@ -19,9 +19,7 @@ never removes what it did not write (a ``plan_signed_by_client.png`` put beside 
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import io
 import json
 import math
 import os
@@ -33,7 +31,7 @@ import numpy as np
 
 from bimscan.errors import OutputError
 from bimscan.files import (
-    FOLDER_OUTPUTS, FolderOutput, check_replaceable, dump_json, folder_entries, read_marker, remove_path, replace_path,
+    FOLDER_OUTPUTS, FolderOutput, check_replaceable, csv_bytes, dump_json, folder_entries, read_marker, remove_path, replace_path,
     temp_path,
 )
 from bimscan.ifc.summary import report_document
@@ -104,14 +102,6 @@ def coverage_rows(evaluation: PlanEvaluation, scan: PlanEvaluation | None = None
     return rows
 
 
-def _csv(rows: list[dict[str, str]], columns: tuple[str, ...]) -> bytes:
-    out = io.StringIO()
-    writer = csv.DictWriter(out, fieldnames=columns, lineterminator="\n")
-    writer.writeheader()
-    writer.writerows(rows)
-    return out.getvalue().encode("utf-8")
-
-
 def write_plan_folder(out: Path, plan: SurveyPlan, evaluation: PlanEvaluation, *, summary: dict[str, Any],
                       scan: PlanEvaluation | None = None, overwrite: bool = False,
                       pictures: Callable[[Path], list[str]] | None = None) -> list[str]:
@@ -127,11 +117,11 @@ def write_plan_folder(out: Path, plan: SurveyPlan, evaluation: PlanEvaluation, *
                     f"order, for {', '.join(config.classes)} at {config.density_pts_m2:g} points/m2",)
         (staged / STATIONS_FILE).write_text(format_stations(plan.stations, comments=comments), "utf-8")
         columns = COVERAGE_COLUMNS + (SCAN_COLUMNS if scan is not None else ())
-        (staged / COVERAGE_FILE).write_bytes(_csv(coverage_rows(evaluation, scan), columns))
+        (staged / COVERAGE_FILE).write_bytes(csv_bytes(coverage_rows(evaluation, scan), columns))
         edges = [{"station_a": str(a), "station_b": str(b), "shared_m2": _number(shared, 2),
                   "shared_fraction": _number(fraction), "weakest_direction_share": _number(weakest)}
                  for a, b, shared, fraction, weakest in evaluation.edges]
-        (staged / REGISTRATION_FILE).write_bytes(_csv(edges, ("station_a", "station_b", "shared_m2", "shared_fraction",
+        (staged / REGISTRATION_FILE).write_bytes(csv_bytes(edges, ("station_a", "station_b", "shared_m2", "shared_fraction",
                                                               "weakest_direction_share")))
         names = pictures(staged) if pictures is not None else []
         document = {"kind": PLAN_KIND, **summary, "pictures": names}
