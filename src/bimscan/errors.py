@@ -67,5 +67,9 @@ class DatasetError(BimscanError):
     """A dataset build or dataset folder is inconsistent."""
 
 
+class CompareError(BimscanError):
+    """A scan could not be aligned to its model, or compared with it (no overlap, wrong units)."""
+
+
 class LearnError(BimscanError):
     """A training, evaluation or prediction input is invalid."""

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import os
 import shutil
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import closing
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -285,12 +285,51 @@ def read_cloud(path: str | Path, *, label_field: str | None = None, labels: bool
 
 def iter_cloud_chunks(
     path: str | Path, *, chunk_points: int = 2_000_000, label_field: str | None = None, labels: bool = True,
+    station_field: str | None = None,
 ) -> Iterator[PointCloud]:
-    """Stream a cloud as ``PointCloud`` chunks of at most ``chunk_points`` rows (see read_cloud)."""
+    """Stream a cloud as ``PointCloud`` chunks of at most ``chunk_points`` rows (see read_cloud).
+    ``station_field``: a LAS/LAZ dimension holding each point's station (``point_source_id``)."""
     path = check_input_path(path)
-    chunks = CHUNK_READERS[input_format(path)](path, chunk_points=chunk_points, label_field=label_field,
-                                               labels=labels)
+    kind = input_format(path)
+    extra = {}
+    if station_field is not None:
+        if kind not in ("las", "laz"):
+            raise InputFileError(f"{path}: only LAS/LAZ files name a field for stations; pass the stations another way")
+        extra["station_field"] = station_field
+    chunks = CHUNK_READERS[kind](path, chunk_points=chunk_points, label_field=label_field, labels=labels, **extra)
     return _finite_points(chunks, path)
+
+
+def iter_cloud_runs(path: str | Path, runs: Sequence[tuple[int, int]], *, labels: bool = False,
+                    station_field: str | None = None) -> Iterator[tuple[int, PointCloud]]:
+    """The points of each (first point, count) run of ``path``, in file order, as (first, chunk): a
+    sparse look at a large cloud. LAS/LAZ seek to each run (a LAZ decompresses only the chunks the
+    runs fall in); other formats are streamed once and cut. ``runs`` must be sorted and disjoint."""
+    path = check_input_path(path)
+    kind = input_format(path)
+    ordered = list(runs)
+    if any(b[0] < a[0] + a[1] for a, b in zip(ordered, ordered[1:])):
+        raise ValueError("runs must be sorted and disjoint")
+    if kind in ("las", "laz"):
+        extra = {} if station_field is None else {"station_field": station_field}
+        chunks = CHUNK_READERS[kind](path, chunk_points=1, labels=labels, runs=ordered, **extra)
+        for (first, _), chunk in zip(ordered, _finite_points(chunks, path)):
+            yield first, chunk
+        return
+    seen, index = 0, 0
+    for chunk in iter_cloud_chunks(path, labels=labels, station_field=station_field):
+        end = seen + len(chunk)
+        while index < len(ordered) and ordered[index][0] < end:
+            first, count = ordered[index]
+            start, stop = max(first, seen), min(first + count, end)
+            if stop > start:
+                yield start, chunk.take(slice(start - seen, stop - seen))
+            if first + count > end:  # the run goes on into the next chunk
+                break
+            index += 1
+        seen = end
+        if index == len(ordered):
+            return
 
 
 def _finite_points(chunks: Iterator[PointCloud], path: Path) -> Iterator[PointCloud]:
@@ -474,6 +513,6 @@ __all__ = [
     "LIKELY_BYTES_PER_POINT", "POINT_COUNTERS", "WRITABLE_FORMATS", "WRITERS", "CloudWriter", "CopyCheck", "ExtraField",
     "LabelledCopier", "LabelledCopyPlan",
     "ObjExport", "WrittenCloud", "check_cloud_output", "check_free_space", "count_points", "export_obj", "input_format",
-    "iter_cloud_chunks", "labelled_output_format", "open_cloud_writer", "output_format", "plan_labelled_copy",
+    "iter_cloud_chunks", "iter_cloud_runs", "labelled_output_format", "open_cloud_writer", "output_format", "plan_labelled_copy",
     "read_cloud", "read_cloud_header", "read_obj", "write_labelled_copy",
 ]

@@ -39,7 +39,7 @@ import io
 import struct
 import unicodedata
 import uuid
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -434,15 +434,30 @@ def _rgb8(raw: np.ndarray) -> np.ndarray:
     return (rgb >> 8).astype(np.uint8) if len(rgb) and rgb.max() > 255 else rgb.astype(np.uint8)
 
 
+def _stations(values: np.ndarray, field: str, path: Path) -> np.ndarray:
+    """(N,) uint16 station ids from a dimension's values; InputFileError for values that are no ids."""
+    if values.dtype.kind in "fc" and len(values) and not np.array_equal(values, np.round(values)):
+        raise InputFileError(f"{path}: dimension {field!r} holds fractions, not station ids; name another field")
+    if len(values) and (values.min() < 0 or values.max() > np.iinfo(np.uint16).max):
+        raise InputFileError(f"{path}: dimension {field!r} holds {values.min()}..{values.max()}, not station ids "
+                             "(0..65535); name another field")
+    return values.astype(np.uint16)
+
+
 def iter_las_chunks(
     path: str | Path, *, chunk_points: int = 2_000_000, label_field: str | None = None, labels: bool = True,
+    station_field: str | None = None, runs: Sequence[tuple[int, int]] | None = None,
 ) -> Iterator[PointCloud]:
-    """Stream a LAS/LAZ file as ``PointCloud`` chunks of at most ``chunk_points`` rows.
+    """Stream a LAS/LAZ file as ``PointCloud`` chunks of at most ``chunk_points`` rows (with ``runs``:
+    one chunk per (first point, count) run, read by seeking to it: a sparse look at a large file,
+    a LAZ file decompressing only the chunks the runs fall in).
 
     Labels come from ``label_field`` (any dimension, e.g. an extra dimension ``"gt"``), else from
     ``classification``. Files bimscan wrote give back the columns that were written; foreign
     files give xyz, label, intensity and time (``gps_time`` when the point format has it).
-    ``labels`` False: label None (not decoded).
+    ``labels`` False: label None (not decoded). ``station_field``: the dimension that holds each
+    point's station (``point_source_id``, where registration software puts the scan position of a
+    merged cloud), read as the ``station`` column.
     """
     path = check_input_path(path)
     if chunk_points < 1:
@@ -456,6 +471,9 @@ def iter_las_chunks(
             raise InputFileError(
                 f"{path}: no dimension {label_field!r} to read labels from; the file has {', '.join(names)}"
             )
+        if station_field is not None and station_field not in names:
+            raise InputFileError(
+                f"{path}: no dimension {station_field!r} to read stations from; the file has {', '.join(names)}")
         if document is not None:
             columns = set(document["columns"])
         else:
@@ -465,7 +483,10 @@ def iter_las_chunks(
             columns.add("label")
         if not labels:
             columns.discard("label")
+        if station_field is not None:
+            columns.add("station")
         label_source = label_field or "classification"
+        station_source = station_field or "station"
         scales, offsets = las_header.scales, las_header.offsets
 
         def to_cloud(points: laspy.ScaleAwarePointRecord) -> PointCloud:
@@ -479,8 +500,8 @@ def iter_las_chunks(
                 if "label" in columns else None,
                 component=np.asarray(raw["component"], dtype=np.int32)
                 if "component" in columns and "component" in names else None,
-                station=np.asarray(raw["station"], dtype=np.uint16)
-                if "station" in columns and "station" in names else None,
+                station=_stations(np.asarray(points[station_source]), station_source, path)
+                if "station" in columns and station_source in names else None,
                 intensity=np.asarray(raw["intensity"], dtype=np.uint16) if "intensity" in columns else None,
                 time=np.asarray(raw["gps_time"], dtype=np.float64)
                 if "time" in columns and "gps_time" in names else None,
@@ -497,6 +518,11 @@ def iter_las_chunks(
         try:
             if las_header.point_count == 0:  # one empty chunk still tells which columns exist
                 yield to_cloud(reader.read_points(0))
+                return
+            if runs is not None:
+                for first, count in runs:
+                    reader.seek(first)
+                    yield to_cloud(reader.read_points(count))
                 return
             for points in reader.chunk_iterator(chunk_points):
                 yield to_cloud(points)
