@@ -6,15 +6,16 @@ of a virtual terrestrial laser scanner (TLS) or a handheld or backpack scanner w
 bimscan plans the survey (the fewest stations that cover the chosen elements at the asked
 density), builds whole datasets of scenes x configurations, validates them, and trains a
 segmentation network on them that it scores on real scans and adapts to a user's own unlabelled
-scans.
+scans. It brings a site scan back onto its model: aligned without a starting guess, each element
+judged built, not built, hidden or out of tolerance, against the work schedule.
 
 The pipeline, stage by stage (one subpackage each): ``ifc`` (parse; generated buildings) ->
 ``semantics`` (labels) -> ``site`` (the site as scanned) -> ``scan`` (scanner and lidar models,
 sensor effects, ray engines) -> ``survey`` (stations, walks, multi-station and mobile runs; its
 ``planning``: survey planning) -> ``process`` (filters, checks, subsampling) -> ``io`` (LAS/LAZ,
 E57, PLY, NumPy, OBJ, HELIOS++) -> ``dataset`` (local or on a Ray cluster) -> ``stats`` and
-``render`` -> ``learn`` (training, evaluation, prediction, adaptation); ``cli``, ``pipeline`` and
-``sim2real`` compose them.
+``render`` -> ``learn`` (training, evaluation, prediction, adaptation); ``compare`` (a site
+scan against its model: alignment, progress); ``cli``, ``pipeline`` and ``sim2real`` compose them.
 """
 
 from __future__ import annotations

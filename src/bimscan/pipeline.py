@@ -460,3 +460,257 @@ def _check_cloud_stations(cloud: str | Path, stored: Sequence[Station], given: S
             np.linalg.norm(np.subtract(a.position, b.position)) > 0.01 for a, b in zip(stored, given)):
         raise StationError(f"{cloud} was scanned from {len(stored)} stations that are not the {len(given)} checked "
                            "ones; give the station file the cloud was scanned with to --check")
+
+
+# -- scan against model ----------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class AlignRun:
+    """What ``align_model`` wrote: the alignment, the folder and its files, seconds per step."""
+
+    alignment: Any
+    out: Path
+    files: tuple[str, ...]
+    steps: Mapping[str, float]
+
+
+def align_model(model: str | Path, scan: str | Path, out: str | Path, config: Any, *, init: str | Path | None = None,
+                aligned_format: str | None = None, overwrite: bool = False, length_unit: str | None = None,
+                log: Callable[[str], None] | None = None) -> AlignRun:
+    """``bimscan align``: put ``scan`` into ``model``'s frame (``bimscan.compare.align``) and write the
+    alignment folder ``out`` (``bimscan.compare.report``); ``init``: a rough matrix or point pairs
+    file to start from; ``aligned_format``: also write the moved scan in this format ("laz", ...)."""
+    from bimscan.compare.align import align_digest
+    from bimscan.compare.digest import digest_scan
+    from bimscan.compare.report import (
+        ALIGN_KIND, ALIGNED_STEM, TRANSFORM_JSON, TRANSFORM_TEXT, StagedFolder, check_folder_output, format_matrix,
+        read_transform, transform_document, write_json,
+    )
+    from bimscan.compare.surfaces import ModelSurfaces
+    from bimscan.ifc.georef import read_map_conversion
+    from bimscan.io import check_input_path, count_points
+
+    out, scan = Path(out), check_input_path(scan)
+    check_folder_output(out, kind="alignment", overwrite=overwrite)
+    start = read_transform(init, pairs=True) if init is not None else None
+    total = count_points(scan)
+    steps: dict[str, float] = {}
+    clock = time.perf_counter()
+    scene = load_scene(model, length_unit=length_unit)
+    surfaces = ModelSurfaces(scene.mesh)
+    steps["model"] = time.perf_counter() - clock
+    clock = time.perf_counter()
+    with progress_bar(total=total, desc="align: read", unit="pt") as bar:
+        seen = [0]
+
+        def advance(points: int) -> None:
+            bar.update(points - seen[0])
+            seen[0] = points
+
+        digest = digest_scan(scan, voxel_m=config.voxel_m, progress=advance)
+    steps["read"] = time.perf_counter() - clock
+    with step_line("align: search and fit"):
+        alignment = align_digest(digest, surfaces, config, init=start, georeference=read_map_conversion(model))
+    steps |= alignment.steps
+    with StagedFolder(out, kind="alignment") as staged:
+        document = transform_document(alignment.matrix, kind=ALIGN_KIND, model=Path(model), scan=scan,
+                                      alignment=alignment.to_json() | {"settings": config.to_json()})
+        write_json(staged.path / TRANSFORM_JSON, document)
+        (staged.path / TRANSFORM_TEXT).write_text(format_matrix(alignment.matrix), encoding="utf-8")
+        files = [TRANSFORM_JSON, TRANSFORM_TEXT]
+        if aligned_format is not None:
+            clock = time.perf_counter()
+            name = f"{ALIGNED_STEM}.{aligned_format}" if aligned_format != "npy" else ALIGNED_STEM
+            write_moved_cloud(scan, staged.path / name, alignment.matrix, origin=surfaces.centre, total=total,
+                              metadata={"alignment": alignment.to_json()})
+            files.append(name)
+            steps["write"] = time.perf_counter() - clock
+    return AlignRun(alignment=alignment, out=out, files=tuple(files), steps=steps)
+
+
+def write_moved_cloud(scan: Path, out: Path, matrix: np.ndarray, *, origin: np.ndarray, total: int,
+                      metadata: Mapping[str, Any]) -> None:
+    """The scan's points (every column it has; beam origins moved too) moved by ``matrix`` into ``out``."""
+    from bimscan.compare.planes import apply
+    from bimscan.io import iter_cloud_chunks, open_cloud_writer, read_cloud_header
+    from bimscan.semantics import DEFAULT_SCHEME
+    from bimscan.types import CloudHeader
+
+    stored = read_cloud_header(scan)
+    header = CloudHeader(
+        scheme=stored.scheme if stored is not None else load_label_scheme(DEFAULT_SCHEME),
+        components=None if stored is None else stored.components,
+        stations=() if stored is None else tuple(
+            dataclasses.replace(s, position=tuple(float(v) for v in apply(matrix, np.array([s.position]))[0]))
+            for s in stored.stations),
+        origin=tuple(float(v) for v in np.round(origin)),  # type: ignore[arg-type]
+        metadata={**({} if stored is None else {"source_metadata": dict(stored.metadata)}), **metadata,
+                  "moved_from": str(scan)})
+    with progress_bar(total=total, desc="write", unit="pt") as bar, open_cloud_writer(out, header=header) as writer:
+        for chunk in iter_cloud_chunks(scan, labels=stored is not None):
+            moved = dataclasses.replace(
+                chunk, xyz=apply(matrix, chunk.xyz),
+                sensor_xyz=None if chunk.sensor_xyz is None else apply(matrix, chunk.sensor_xyz))
+            writer.write(moved)
+            bar.update(len(chunk))
+
+
+@dataclass(frozen=True)
+class ProgressRun:
+    """What ``compare_model`` wrote: the comparison, the alignment (with ``align``), the summary,
+    the folder and its files, seconds per step."""
+
+    result: Any
+    alignment: Any
+    summary: Mapping[str, Any]
+    out: Path
+    files: tuple[str, ...]
+    steps: Mapping[str, float]
+
+
+def compare_model(model: str | Path, scan: str | Path, out: str | Path, config: Any, *, align: Any = None,
+                  transform: str | Path | None = None, at: str | None = None, checkpoint: str | Path | None = None,
+                  stations: str | Path | None = None, points_format: str | None = "laz", overwrite: bool = False,
+                  length_unit: str | None = None, log: Callable[[str], None] | None = None) -> ProgressRun:
+    """``bimscan progress``: compare ``scan`` with ``model`` element by element
+    (``bimscan.compare.progress``) and write the progress folder ``out`` (``bimscan.compare.report``).
+
+    The scan's frame: ``align`` (an AlignConfig: align it first), or ``transform`` (a matrix file),
+    or the model's. ``at``: judge against the work schedule on this ISO date. ``checkpoint``: a
+    segmentation model whose Others points support no element. ``stations``: a station file (id,x,y,z
+    in the scan's frame). ``points_format``: the per-point output's format (None: none).
+    """
+    from bimscan.compare.align import align_digest
+    from bimscan.compare.digest import digest_scan
+    from bimscan.compare.progress import compare_scan, summary as progress_summary
+    from bimscan.compare.report import (
+        BCF_FILE, ELEMENTS_FILE, ELEMENT_COLUMNS, IFC_FILE, POINTS_STEM, PROGRESS_KIND, PSET_NAME, SUMMARY_FILE,
+        TRANSFORM_JSON, TRANSFORM_TEXT, StagedFolder, bcf_topics, check_folder_output, element_rows,
+        format_matrix, points_writer, property_values, read_station_file, read_transform, transform_document,
+        write_json,
+    )
+    from bimscan.compare.surfaces import ModelSurfaces
+    from bimscan.files import csv_bytes, remove_path
+    from bimscan.ifc.georef import read_map_conversion
+    from bimscan.io import check_input_path
+
+    out, scan, model = Path(out), check_input_path(scan), Path(model)
+    check_folder_output(out, kind="progress", overwrite=overwrite)
+    if align is not None and transform is not None:
+        raise ConfigError("--align and --transform both say where the scan lies; give one")
+    matrix = read_transform(transform) if transform is not None else np.eye(4)
+    given_stations = read_station_file(stations) if stations is not None else None
+    steps: dict[str, float] = {}
+    clock = time.perf_counter()
+    scene = load_scene(model, length_unit=length_unit)
+    surfaces = ModelSurfaces(scene.mesh)
+    schedule = None
+    if at is not None:
+        from bimscan.ifc.schedule import read_schedule
+
+        schedule = read_schedule(model)
+        if not schedule:
+            raise ConfigError(f"{model}: --at {at}: the model links no element to a dated task (IfcTask with task "
+                              "times); leave --at out or add a work schedule to the model")
+    steps["model"] = time.perf_counter() - clock
+    alignment = None
+    if align is not None:
+        clock = time.perf_counter()
+        with step_line("progress: align"):
+            alignment = align_digest(digest_scan(scan, voxel_m=align.voxel_m), surfaces, align,
+                                     georeference=read_map_conversion(model))
+        matrix = alignment.matrix
+        steps["align"] = time.perf_counter() - clock
+    supports: SegmentationSupport | None = None
+    with StagedFolder(out, kind="progress") as staged:
+        if checkpoint is not None:
+            clock = time.perf_counter()
+            supports = SegmentationSupport(checkpoint, scan, staged.path, log=log)
+            steps["segment"] = time.perf_counter() - clock
+        writer = points_writer(staged.path, POINTS_STEM, points_format, scene=scene, origin=surfaces.centre,
+                               matrix=matrix, scan=scan) if points_format is not None else None
+        try:
+            result = compare_scan(scene, scan, matrix=matrix, config=config, at=at, schedule=schedule,
+                                  stations=given_stations, supports=supports,
+                                  on_chunk=None if writer is None else writer.write, surfaces=surfaces)
+            files = [] if writer is None else [writer.close()]
+            if checkpoint is not None:
+                remove_path(staged.path / _LABELLED)
+        except BaseException:
+            if writer is not None:
+                writer.abort()
+            raise
+        steps |= result.steps
+        clock = time.perf_counter()
+        summary = progress_summary(result, scene)
+        document = transform_document(matrix, kind=PROGRESS_KIND, model=model, scan=scan,
+                                      alignment=None if alignment is None else alignment.to_json())
+        write_json(staged.path / TRANSFORM_JSON, document)
+        (staged.path / TRANSFORM_TEXT).write_text(format_matrix(matrix), encoding="utf-8")
+        (staged.path / ELEMENTS_FILE).write_bytes(csv_bytes(element_rows(result, scene), ELEMENT_COLUMNS))
+        files += [TRANSFORM_JSON, TRANSFORM_TEXT, ELEMENTS_FILE]
+        values = property_values(result, scene)
+        if values:
+            from bimscan.ifc.annotate import write_property_sets
+
+            global_ids = {int(step): str(gid) for step, gid in zip(scene.components.step_id.tolist(),
+                                                                   scene.components.global_id.tolist()) if step >= 0}
+            write_property_sets(model, staged.path / IFC_FILE, values, pset_name=PSET_NAME, global_ids=global_ids)
+            files.append(IFC_FILE)
+        topics = bcf_topics(result, scene)
+        if topics:
+            from bimscan.io.bcf import write_bcf
+
+            write_bcf(staged.path / BCF_FILE, topics, project_name=model.stem)
+            files.append(BCF_FILE)
+        from bimscan.render.progress import draw_progress_pictures
+
+        storeys = sorted(((s.name, s.elevation_m) for s in scene.storeys), key=lambda s: s[1])
+        status_of_sample = result.elements.status[result.samples.component]
+        files += draw_progress_pictures(
+            staged.path, title=f"{model.name} against {scan.name}", storeys=storeys, sample_xyz=result.samples.xyz,
+            sample_normal_z=result.samples.normal[:, 2], sample_status=status_of_sample,
+            view_origins=np.array([v.origin for v in result.views]).reshape(-1, 3), point_xyz=result.point_xyz,
+            point_signed=result.point_signed, tolerance_m=config.default_tolerance_m)
+        summary = {"kind": PROGRESS_KIND, "model": str(model), "scan": str(scan), "files": sorted(files),
+                   **summary, **({} if supports is None else {"segmentation": supports.to_json()})}
+        write_json(staged.path / SUMMARY_FILE, summary)
+        files.append(SUMMARY_FILE)
+        steps["write"] = time.perf_counter() - clock
+    return ProgressRun(result=result, alignment=alignment, summary=summary, out=out, files=tuple(sorted(files)),
+                       steps=steps)
+
+
+_LABELLED = "labels.laz"  # the segmentation model's labels of the scan, while the comparison runs
+
+
+class SegmentationSupport:
+    """Which points may support an element: those a segmentation model does not call Others (clutter,
+    people, furniture: what stands in the building without being part of it). Reads the model's
+    labelled copy of the scan chunk by chunk beside the comparison (the same points, the same order)."""
+
+    def __init__(self, checkpoint: str | Path, scan: Path, work: Path, *, log: Callable[[str], None] | None) -> None:
+        from bimscan.io import iter_cloud_chunks
+        from bimscan.learn.predict import predict_cloud
+
+        self.checkpoint = Path(checkpoint)
+        self.labelled = work / _LABELLED
+        result = predict_cloud(checkpoint, scan, self.labelled, warn=log)
+        if "Others" not in result.class_names:
+            raise ConfigError(f"{checkpoint}: the model's classes ({', '.join(result.class_names)}) have no Others "
+                              "to leave out; give a model trained on the spc5 classes")
+        self.others = result.class_names.index("Others")
+        self._chunks = iter_cloud_chunks(self.labelled, chunk_points=2_000_000)
+        self.points = self.left_out = 0
+
+    def __call__(self, chunk: PointCloud, xyz: np.ndarray) -> np.ndarray:
+        labels = next(self._chunks, None)
+        if labels is None or len(labels) != len(chunk) or labels.label is None:
+            raise OutputError(f"{self.labelled}: the labelled copy does not follow the scan's points; run again")
+        keep = labels.label != self.others
+        self.points += len(keep)
+        self.left_out += int((~keep).sum())
+        return keep
+
+    def to_json(self) -> dict[str, Any]:
+        return {"checkpoint": str(self.checkpoint), "others_share": round(self.left_out / max(self.points, 1), 6)}

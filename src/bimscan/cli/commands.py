@@ -9,7 +9,7 @@ import click
 
 from bimscan import __version__
 from bimscan.cli import (
-    dataset_commands, generate_commands, ifc_commands, learn_commands, plan_commands, scan_commands,
+    compare_commands, dataset_commands, generate_commands, ifc_commands, learn_commands, plan_commands, scan_commands,
 )
 
 
@@ -23,12 +23,14 @@ def cli() -> None:
     IFC -> labelled components -> site as scanned -> planned survey (tripod stations or a walk)
         -> virtual scanner -> labelled clouds -> datasets (local or on Ray) -> statistics
         -> segmentation: train, evaluate on real scans, adapt to your own, predict.
+    A site scan against its model: align it, then say per element what is built (progress).
 
     Start with `bimscan demo OUT` (the whole pipeline on two generated buildings, in minutes);
     `bimscan COMMAND --help` says what each command takes.
     """
 
 
-for _module in (ifc_commands, generate_commands, scan_commands, plan_commands, dataset_commands, learn_commands):
+for _module in (ifc_commands, generate_commands, scan_commands, plan_commands, compare_commands, dataset_commands,
+                learn_commands):
     for _command in _module.COMMANDS:
         cli.add_command(_command)
