@@ -12,7 +12,8 @@ from bimscan.cli.main import main
 ROOT = Path(__file__).parents[1]
 # each part of the product, in words a first page must use for it (issue 50: "terrestrial laser scans" only)
 PARTS = {"tripod": r"tripod|TLS", "mobile": r"mobile|handheld", "survey planning": r"plan",
-         "datasets": r"dataset", "training": r"train", "adaptation": r"adapt"}
+         "datasets": r"dataset", "training": r"train", "adaptation": r"adapt",
+         "scan against model": r"built"}
 
 
 def _missing(text: str) -> list[str]:
@@ -22,7 +23,7 @@ def _missing(text: str) -> list[str]:
 def test_the_package_docstring_names_every_part_of_the_product():
     assert _missing(bimscan.__doc__ or "") == []
     for package in ("ifc", "semantics", "site", "scan", "survey", "planning", "process", "io", "dataset", "stats",
-                    "render", "learn", "cli", "pipeline"):
+                    "render", "learn", "compare", "cli", "pipeline"):
         assert f"``{package}``" in (bimscan.__doc__ or ""), package
 
 
