@@ -31,7 +31,7 @@ from bimscan.compare.surfaces import ModelSurfaces
 from bimscan.errors import CompareError, number
 
 PLANAR = 0.6  # planarity above which a centroid's plane takes part in the coarse search
-PLANE_POINTS = 3_000_000  # centroids whose planes are estimated at most (more: a subset, the radius grown to match)
+PLANE_POINTS = 1_000_000  # centroids whose planes are estimated at most (more: a subset, the radius grown to match)
 SCORE_POINTS = 4000  # centroids scoring each coarse pose
 SHORTLIST_POINTS = 15_000  # centroids of the short ICP of the best coarse poses
 SCORE_REACH_M = 0.2  # a centroid this close to the model counts for a coarse pose
