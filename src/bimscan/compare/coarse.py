@@ -205,7 +205,7 @@ def height_offsets(scan_z: np.ndarray, model_z: np.ndarray, model_weight: np.nda
 def coarse_candidates(scan_xyz: np.ndarray, scan_normal: np.ndarray, scan_weight: np.ndarray,
                       model_xyz: np.ndarray, model_normal: np.ndarray, model_weight: np.ndarray, *,
                       levelling: np.ndarray, step_deg: float, grid_m: float, headings: int = 4,
-                      offsets: int = 3, heights: int = 2, scan_facing: np.ndarray | None = None) -> list[Candidate]:
+                      offsets: int = 3, heights: int = 4, scan_facing: np.ndarray | None = None) -> list[Candidate]:
     """Coarse poses (scan-local -> model-local) from the scan's planar points (xyz, unit normals,
     weights; scan-local) and the model's surface samples (model-local, outward normals), given the
     levelling rotation. Best floor-plan correlation first. ``scan_facing`` (N, 3): the normals
