@@ -49,8 +49,10 @@ CHUNK_POINTS = 2_000_000
 SAMPLE_POINTS = 1_500_000  # points of a walk sampled in the first pass, at random
 RESERVOIR_POINTS = 20_000  # at most 4x this many of them kept per view
 RUN_POINTS = 20_000  # the contiguous run of a station's points its pulse spacing is measured on
-LOOK_RUNS = 300  # a tripod scan's first pass reads this many runs of consecutive points
-LOOK_RUN_POINTS = 8000  # of this many points each (about 2.4 million points, however large the scan)
+LOOK_RUNS = 300  # a tripod scan's first pass reads at least this many runs of consecutive points
+LOOK_RUN_POINTS = 8000  # of this many points each (about 2.4 million points)
+LOOK_GAP_POINTS = 150_000  # and one run in at most this many points: a dense station's runs hold few mirror
+                           # lines each, and its origin needs lines of many headings
 WINDOW_POINTS = 64  # the runs cut into pieces of this many points: pieces of mirror lines
 MOBILE_CELL_DEG = 2.0  # a walk's views: multi-beam lidars' rings lie about 2 degrees apart
 MIN_EXPLAINED_SHARE = 0.8  # an estimated station explaining fewer of its points is not one scanner position
@@ -140,7 +142,7 @@ def _look(scan_path: Path, matrix: np.ndarray, config: ProgressConfig, total: in
 
     field_name = station_field(scan_path)
     length = min(LOOK_RUN_POINTS, max(total, 1))
-    count = max(1, min(LOOK_RUNS, total // length))
+    count = max(1, min(max(LOOK_RUNS, total // LOOK_GAP_POINTS), total // length))
     gap = total // count
     runs = [(i * gap, min(length, total - i * gap)) for i in range(count)] if total else [(0, 0)]
     first = next(iter_cloud_runs(scan_path, runs[:1], station_field=field_name), None)
