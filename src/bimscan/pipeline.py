@@ -464,6 +464,18 @@ def _check_cloud_stations(cloud: str | Path, stored: Sequence[Station], given: S
 
 # -- scan against model ----------------------------------------------------------------------------
 
+def _check_report_folder(out: Path, *, kind: str, overwrite: bool) -> None:
+    """OutputError before any slow work when ``out`` cannot be written: what is there is not a folder
+    of ``kind`` bimscan wrote (said first, naming what it holds), or the shared output rules
+    (``io._writer.check_output_path``: parent, permissions, ``--overwrite``) refuse it."""
+    from bimscan.files import check_replaceable
+    from bimscan.io._writer import check_output_path
+
+    if out.exists() or out.is_symlink():
+        check_replaceable(out, kind=kind)
+    check_output_path(out, overwrite=overwrite, kind=kind)
+
+
 @dataclass(frozen=True)
 class AlignRun:
     """What ``align_model`` wrote: the alignment, the folder and its files, seconds per step."""
@@ -483,7 +495,7 @@ def align_model(model: str | Path, scan: str | Path, out: str | Path, config: An
     from bimscan.compare.align import align_digest
     from bimscan.compare.digest import digest_scan
     from bimscan.compare.report import (
-        ALIGN_KIND, ALIGNED_STEM, TRANSFORM_JSON, TRANSFORM_TEXT, StagedFolder, check_folder_output, format_matrix,
+        ALIGN_KIND, ALIGNED_STEM, TRANSFORM_JSON, TRANSFORM_TEXT, StagedFolder, format_matrix,
         read_transform, transform_document, write_json,
     )
     from bimscan.compare.surfaces import ModelSurfaces
@@ -491,7 +503,7 @@ def align_model(model: str | Path, scan: str | Path, out: str | Path, config: An
     from bimscan.io import check_input_path, count_points
 
     out, scan = Path(out), check_input_path(scan)
-    check_folder_output(out, kind="alignment", overwrite=overwrite)
+    _check_report_folder(out, kind="alignment", overwrite=overwrite)
     start = read_transform(init, pairs=True) if init is not None else None
     total = count_points(scan)
     steps: dict[str, float] = {}
@@ -585,7 +597,7 @@ def compare_model(model: str | Path, scan: str | Path, out: str | Path, config: 
     from bimscan.compare.progress import compare_scan, summary as progress_summary
     from bimscan.compare.report import (
         BCF_FILE, ELEMENTS_FILE, ELEMENT_COLUMNS, IFC_FILE, POINTS_STEM, PROGRESS_KIND, PSET_NAME, SUMMARY_FILE,
-        TRANSFORM_JSON, TRANSFORM_TEXT, StagedFolder, bcf_topics, check_folder_output, element_rows,
+        TRANSFORM_JSON, TRANSFORM_TEXT, StagedFolder, bcf_topics, element_rows,
         format_matrix, points_writer, property_values, read_station_file, read_transform, transform_document,
         write_json,
     )
@@ -595,7 +607,7 @@ def compare_model(model: str | Path, scan: str | Path, out: str | Path, config: 
     from bimscan.io import check_input_path
 
     out, scan, model = Path(out), check_input_path(scan), Path(model)
-    check_folder_output(out, kind="progress", overwrite=overwrite)
+    _check_report_folder(out, kind="progress", overwrite=overwrite)
     if align is not None and transform is not None:
         raise ConfigError("--align and --transform both say where the scan lies; give one")
     matrix = read_transform(transform) if transform is not None else np.eye(4)

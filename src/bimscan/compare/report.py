@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from bimscan.errors import InputFileError, OutputError
+from bimscan.errors import InputFileError
 from bimscan.files import (
     FOLDER_OUTPUTS,
     FolderOutput,
@@ -89,21 +89,6 @@ FOLDER_OUTPUTS["progress"] = FolderOutput(
     what="a bimscan progress folder",
     foreign=_foreign(PROGRESS_KIND, (POINTS_STEM,), (TRANSFORM_JSON, TRANSFORM_TEXT, ELEMENTS_FILE, SUMMARY_FILE,
                                                      IFC_FILE, BCF_FILE), True, SUMMARY_FILE))
-
-
-def check_folder_output(out: Path, *, kind: str, overwrite: bool) -> None:
-    """OutputError now (before any slow work) when the folder ``out`` of ``kind`` ("alignment",
-    "progress") cannot be written: its parent is missing, or something is there that is not such a
-    folder bimscan wrote, or it is one and ``overwrite`` is off."""
-    from bimscan.files import check_replaceable
-
-    if not out.parent.is_dir():
-        raise OutputError(f"output folder {out.parent} does not exist; create it first or choose another OUT")
-    if not (out.exists() or out.is_symlink()):
-        return
-    check_replaceable(out, kind=kind)
-    if not overwrite:
-        raise OutputError(f"{out} already exists; pass --overwrite to replace it, or choose another OUT")
 
 
 class StagedFolder:

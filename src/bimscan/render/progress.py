@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.files import atomic_output
-from bimscan.render.survey_plan import storey_bands, storey_slug
+from bimscan.render.survey_plan import frame_plan_view, storey_bands, storey_slug
 
 STATUS_COLORS = {"built": "#2ca02c", "built out of tolerance": "#ff7f0e", "not built": "#d62728",
                  "not visible": "#c7c7c7"}
@@ -84,11 +84,7 @@ def _draw_status(path: Path, title: str, xyz: np.ndarray, status: np.ndarray, be
         axis.scatter(xyz[index, 0], xyz[index, 1], s=2.0, c=colors, linewidths=0, antialiased=False, rasterized=True)
         if len(views):
             axis.scatter(views[:, 0], views[:, 1], s=14, facecolors="white", edgecolors="black", linewidths=0.8)
-        axis.set_title(heading, fontsize=10)
-        axis.set_aspect("equal")
-        axis.set_xlim(lo[0] - 1, hi[0] + 1)
-        axis.set_ylim(lo[1] - 1, hi[1] + 1)
-        axis.set_xlabel("x (m)")
+        frame_plan_view(axis, heading, lo, hi)
     axes[0].set_ylabel("y (m)")
     handles = [Line2D([], [], marker="o", linestyle="", color=c, label=n) for n, c in STATUS_COLORS.items()]
     handles.append(Line2D([], [], marker="o", linestyle="", markerfacecolor="white", markeredgecolor="black",

@@ -121,11 +121,7 @@ def _draw_storey(plan: SurveyPlan, evaluation: PlanEvaluation, states: np.ndarra
             axis.annotate(f"{100 * element.covered_fraction:.0f}%", (x, y), xytext=(4, 4), textcoords="offset points",
                           fontsize=7, color="#d62728")
         _draw_stations(axis, plan, stations)
-        axis.set_title(heading, fontsize=10)
-        axis.set_aspect("equal")
-        axis.set_xlim(lo[0] - 1, hi[0] + 1)
-        axis.set_ylim(lo[1] - 1, hi[1] + 1)
-        axis.set_xlabel("x (m)")
+        frame_plan_view(axis, heading, lo, hi)
     axes[0].set_ylabel("y (m)")
     handles = [Line2D([], [], marker="o", linestyle="", color=c, label=n) for n, c in STATE_COLORS.items()]
     handles += [Line2D([], [], marker="x", linestyle="", color="#d62728", markeredgewidth=2,
@@ -138,6 +134,15 @@ def _draw_storey(plan: SurveyPlan, evaluation: PlanEvaluation, states: np.ndarra
     figure.suptitle(title, fontsize=11)
     with atomic_output(path) as temp:  # no software tag: the same plan gives the same bytes
         figure.savefig(temp, format="png", dpi=100, metadata={"Software": None})
+
+
+def frame_plan_view(axis, heading: str, lo: np.ndarray, hi: np.ndarray) -> None:  # type: ignore[no-untyped-def]
+    """A plan view's title, equal axes and limits (the xy box ``lo``..``hi`` and a metre around)."""
+    axis.set_title(heading, fontsize=10)
+    axis.set_aspect("equal")
+    axis.set_xlim(lo[0] - 1, hi[0] + 1)
+    axis.set_ylim(lo[1] - 1, hi[1] + 1)
+    axis.set_xlabel("x (m)")
 
 
 def _draw_stations(axis, plan: SurveyPlan, stations: list) -> None:
