@@ -644,7 +644,7 @@ def compare_model(model: str | Path, scan: str | Path, out: str | Path, config: 
         try:
             result = compare_scan(scene, scan, matrix=matrix, config=config, at=at, schedule=schedule,
                                   stations=given_stations, supports=supports,
-                                  on_chunk=None if writer is None else writer.write, surfaces=surfaces)
+                                  on_chunk=None if writer is None else writer.write, surfaces=surfaces, warn=log)
             files = [] if writer is None else [writer.close()]
             if checkpoint is not None:
                 remove_path(staged.path / _LABELLED)

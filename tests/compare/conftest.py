@@ -76,9 +76,9 @@ def motion(seed: int, *, tilt_deg: float = 0.0) -> np.ndarray:
 
 
 def move_as_foreign_las(scan_path: Path, out: Path, matrix: np.ndarray, *, scale: float = 0.001,
-                        stations: bool = True) -> Path:
+                        stations: bool = True, times: bool = False) -> Path:
     """The scan moved by ``matrix``, as another tool's LAS: 1 mm steps around a map offset, station ids
-    in point_source_id (or none), no bimscan header."""
+    in point_source_id (or none), the pulses' GPS times when asked, no bimscan header."""
     import laspy
 
     header = laspy.LasHeader(point_format=1, version="1.2")
@@ -91,5 +91,7 @@ def move_as_foreign_las(scan_path: Path, out: Path, matrix: np.ndarray, *, scale
             record.x, record.y, record.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
             if stations:
                 record.point_source_id = points.station
+            if times:
+                record.gps_time = points.gps_time
             writer.write_points(record)
     return out

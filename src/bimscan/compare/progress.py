@@ -37,7 +37,7 @@ from bimscan.compare.distance import BandDistances
 from bimscan.compare.evidence import Evidence
 from bimscan.compare.planes import apply
 from bimscan.compare.surfaces import ModelSurfaces
-from bimscan.compare.views import View, angular_spacing_deg, estimate_origin
+from bimscan.compare.views import PulseRun, View, angular_spacing_deg, estimate_origin
 from bimscan.errors import CompareError
 from bimscan.progress import progress_bar
 from bimscan.survey.planning.surface import SurfaceSamples
@@ -53,7 +53,7 @@ LOOK_RUNS = 300  # a tripod scan's first pass reads at least this many runs of c
 LOOK_RUN_POINTS = 8000  # of this many points each (about 2.4 million points)
 LOOK_GAP_POINTS = 150_000  # and one run in at most this many points: a dense station's runs hold few mirror
                            # lines each, and its origin needs lines of many headings
-WINDOW_POINTS = 64  # the runs cut into pieces of this many points: pieces of mirror lines
+STATION_RUNS = 16  # a station met in fewer runs is looked at again in this many
 MOBILE_CELL_DEG = 2.0  # a walk's views: multi-beam lidars' rings lie about 2 degrees apart
 MIN_EXPLAINED_SHARE = 0.8  # an estimated station explaining fewer of its points is not one scanner position
 TRANSPARENT = 0.5  # surfaces at least this transparent (glazing) decide nothing
@@ -115,7 +115,7 @@ class _Look:
     mobile: bool
     sample: dict[int, list[np.ndarray]] = field(default_factory=dict)
     run: dict[int, list[np.ndarray]] = field(default_factory=dict)
-    windows: dict[int, list[np.ndarray]] = field(default_factory=dict)
+    runs: dict[int, list[PulseRun]] = field(default_factory=dict)
     counts: dict[int, int] = field(default_factory=dict)
     origin_sums: dict[int, np.ndarray] = field(default_factory=dict)
     t0: float | None = None
@@ -137,7 +137,9 @@ def _look(scan_path: Path, matrix: np.ndarray, config: ProgressConfig, total: in
     """The first pass. A tripod scan is looked at in ``LOOK_RUNS`` runs of consecutive points spread
     evenly through the file (a LAS/LAZ file seeks to them, so this costs a fraction of a full read
     however large the scan): every station shows in proportion to its points, each run holds whole
-    mirror lines. A walk is read whole: each second of it needs its beam origins."""
+    mirror lines; a station met in fewer than ``STATION_RUNS`` runs is looked at again in that many
+    over its stretch of the file (its origin needs mirror lines of many headings). A walk is read
+    whole: each second of it needs its beam origins."""
     from bimscan.io import iter_cloud_chunks, iter_cloud_runs
 
     field_name = station_field(scan_path)
@@ -151,18 +153,15 @@ def _look(scan_path: Path, matrix: np.ndarray, config: ProgressConfig, total: in
     chunk = first[1]
     mobile = chunk.time is not None and chunk.sensor_xyz is not None
     look = _Look(mobile=mobile, t0=float(chunk.time.min()) if mobile else None)  # type: ignore[union-attr]
-    if mobile:
-        parts = ((look.points, c) for c in iter_cloud_chunks(scan_path, chunk_points=CHUNK_POINTS, labels=False))
-    else:
-        parts = iter_cloud_runs(scan_path, runs, station_field=field_name)
     rng = np.random.default_rng(config.seed)
-    for start, chunk in parts:
-        if not len(chunk):
-            continue
+
+    def take(start: int, chunk: PointCloud) -> np.ndarray:
+        """Gather a chunk's points by view; its view keys."""
         xyz = apply(matrix, chunk.xyz)
         keys = _view_keys(chunk, look, config.window_s)
         keep = rng.random(len(chunk)) < (min(1.0, SAMPLE_POINTS / max(total, 1)) if mobile else 1.0)
-        for key in np.unique(keys):
+        present = np.unique(keys)
+        for key in present:
             if key < 0:
                 continue
             mine = keys == key
@@ -175,20 +174,64 @@ def _look(scan_path: Path, matrix: np.ndarray, config: ProgressConfig, total: in
                 mine_index = np.flatnonzero(mine)
                 if sum(len(a) for a in look.run.get(k, [])) < RUN_POINTS // 2:
                     look.run[k] = [xyz[mine_index]]  # a contiguous run of the station: its pulse spacing
-                cuts = np.flatnonzero(np.diff((start + mine_index) // WINDOW_POINTS)) + 1
-                cuts = np.union1d(cuts, np.flatnonzero(np.diff(mine_index) > 1) + 1).astype(np.int64)
-                look.windows.setdefault(k, []).extend(np.split(xyz[mine_index], cuts))
+                for part in np.split(mine_index, np.flatnonzero(np.diff(mine_index) > 1) + 1):
+                    look.runs.setdefault(k, []).append(PulseRun(
+                        xyz=xyz[part], time=None if chunk.time is None else chunk.time[part]))
             else:
                 origins = apply(matrix, chunk.sensor_xyz[mine])  # type: ignore[index]
                 look.origin_sums[k] = look.origin_sums.get(k, np.zeros(3)) + origins.sum(axis=0)
         look.points += len(chunk)
-        on_points(len(chunk) if mobile else round(len(chunk) * total / max(count * length, 1)))
+        return present
+
+    if mobile:
+        for chunk in iter_cloud_chunks(scan_path, chunk_points=CHUNK_POINTS, labels=False):
+            if len(chunk):
+                take(look.points, chunk)
+                on_points(len(chunk))
+        return look
+    met: list[tuple[int, int, np.ndarray]] = []
+    for start, chunk in iter_cloud_runs(scan_path, runs, station_field=field_name):
+        met.append((start, len(chunk), take(start, chunk) if len(chunk) else np.zeros(0, dtype=np.int64)))
+        on_points(round(len(chunk) * total / max(count * length, 1)))
+    for start, chunk in iter_cloud_runs(scan_path, _more_runs(met, total, length), station_field=field_name):
+        if len(chunk):
+            take(start, chunk)
     return look
 
 
+def _more_runs(met: list[tuple[int, int, np.ndarray]], total: int, length: int) -> list[tuple[int, int]]:
+    """Runs (first, count) over the stretch of the file of each station met in fewer than
+    ``STATION_RUNS`` of the runs ``met`` ((first, count, view keys) in file order): ``STATION_RUNS``
+    spread over it, none overlapping the runs read; sorted and disjoint."""
+    where: dict[int, list[int]] = {}
+    for i, (_, _, keys) in enumerate(met):
+        for key in keys.tolist():
+            if key >= 0:
+                where.setdefault(int(key), []).append(i)
+    taken = [(a, a + n) for a, n, _ in met]
+    wanted: list[tuple[int, int]] = []
+    for key, index in sorted(where.items()):
+        if len(index) >= STATION_RUNS:
+            continue
+        low = taken[index[0] - 1][1] if index[0] > 0 else 0  # from the run before its first to the one after
+        high = taken[index[-1] + 1][0] if index[-1] + 1 < len(taken) else total
+        for first in np.linspace(low, max(low, high - length), STATION_RUNS).astype(np.int64).tolist():
+            wanted.append((first, min(length, high - first)))
+    chosen: list[tuple[int, int]] = []
+    for first, n in sorted(set(wanted)):
+        end = first + n
+        if n <= 0 or any(a < end and first < b for a, b in taken):
+            continue
+        taken.append((first, end))
+        chosen.append((first, n))
+    return chosen
+
+
 def _views(look: _Look, scan_path: Path, matrix: np.ndarray, config: ProgressConfig,
-           stations: dict[int, np.ndarray] | None, surfaces: ModelSurfaces, distances: BandDistances) -> list[View]:
-    """The views of the scan, model frame (see ``bimscan.compare.views``)."""
+           stations: dict[int, np.ndarray] | None, surfaces: ModelSurfaces, distances: BandDistances,
+           warn: Callable[[str], None]) -> list[View]:
+    """The views of the scan, model frame (see ``bimscan.compare.views``). A station that cannot be
+    placed from its points is left out, with a warning, when others can: its points decide nothing."""
     if not look.counts:
         raise CompareError(
             f"{scan_path}: the scan says nothing of where it was scanned from (no station ids, no beam origins); "
@@ -203,6 +246,7 @@ def _views(look: _Look, scan_path: Path, matrix: np.ndarray, config: ProgressCon
         return views
     known = {k: apply(matrix, np.asarray(v, dtype=np.float64)[None])[0] for k, v in scan_stations(scan_path).items()}
     given = {k: apply(matrix, v[None])[0] for k, v in (stations or {}).items()}
+    unplaced: list[CompareError] = []
     for key in sorted(look.counts):
         sample = np.concatenate(look.sample.get(key, [np.zeros((0, 3))]))
         if key in given:
@@ -211,19 +255,27 @@ def _views(look: _Look, scan_path: Path, matrix: np.ndarray, config: ProgressCon
             origin, source = known[key], "scan"
         else:
             try:
-                origin, explained, lined = estimate_origin(sample, surfaces, distances, look.windows.get(key, []))
+                origin, explained, lined = estimate_origin(sample, surfaces, distances, look.runs.get(key, []))
             except CompareError as exc:
-                raise CompareError(f"{scan_path}: station {key}: {exc}") from exc
+                if "several scanner positions" in str(exc):
+                    raise CompareError(f"{scan_path}: station {key}: {exc}") from exc
+                unplaced.append(CompareError(f"{scan_path}: station {key}: {exc}"))
+                continue
             source = "estimated" if lined else "estimated roughly"
             if not lined and explained < MIN_EXPLAINED_SHARE:
-                raise CompareError(
+                unplaced.append(CompareError(
                     f"{scan_path}: the points of station {key} do not look like one scanner position (the best place "
                     f"found sees {explained:.0%} of them on the front of an unobstructed surface): a merged cloud "
                     "without station ids, or a poor alignment; give the stations with --stations FILE, or pass the "
-                    "scan with its stations (E57 scans, LAS point source ids)")
+                    "scan with its stations (E57 scans, LAS point source ids)"))
+                continue
         run = np.concatenate(look.run[key])
         cell = config.cell_deg or float(np.clip(1.5 * angular_spacing_deg(run, origin), 0.05, 2.0))
         views.append(View(id=key, origin=origin, source=source, points=look.counts[key], cell_deg=cell))
+    if unplaced and not views:
+        raise unplaced[0]
+    for problem in unplaced:
+        warn(f"{problem} Its points decide nothing here.")
     return views
 
 
@@ -268,7 +320,7 @@ def compare_scan(scene: BimScene, scan_path: str | Path, *, matrix: np.ndarray, 
                  stations: dict[int, np.ndarray] | None = None,
                  supports: Callable[[PointCloud, np.ndarray], np.ndarray] | None = None,
                  on_chunk: Callable[[PointCloud, np.ndarray, np.ndarray, np.ndarray], None] | None = None,
-                 surfaces: ModelSurfaces | None = None) -> ProgressResult:
+                 surfaces: ModelSurfaces | None = None, warn: Callable[[str], None] | None = None) -> ProgressResult:
     """Compare the scan at ``scan_path`` (placed in the model by ``matrix`` (4, 4), scan frame ->
     model frame) with ``scene``, element by element (see the module docs).
 
@@ -277,7 +329,8 @@ def compare_scan(scene: BimScene, scan_path: str | Path, *, matrix: np.ndarray, 
     supports(chunk, xyz_model) -> (N,) bool: which points may support an element (None: all; a
     segmentation model's "not Others"). on_chunk(chunk, xyz_model, signed_distance (N,) float64
     (NaN beyond the band), component (N,) int64 (-1 beyond the band)): every chunk as compared
-    (to write the per-point distances).
+    (to write the per-point distances). warn: receives one line per station left out (its place could
+    not be found from its points).
     """
     from bimscan.io import count_points, iter_cloud_chunks
 
@@ -291,7 +344,7 @@ def compare_scan(scene: BimScene, scan_path: str | Path, *, matrix: np.ndarray, 
         clock = time.perf_counter()
         look = _look(scan_path, matrix, config, total, bar.update)
         distances = BandDistances(mesh, band_m=config.band_m)
-        views = _views(look, scan_path, matrix, config, stations, surfaces, distances)
+        views = _views(look, scan_path, matrix, config, stations, surfaces, distances, warn or (lambda line: None))
         steps["look"] = time.perf_counter() - clock
 
         clock = time.perf_counter()

@@ -19,7 +19,10 @@ normal faces) and no built element stands between them; from elsewhere points fa
 and on the backs of surfaces. ``estimate_origin`` scores places by the share of the station's
 points they explain so (rays cast through the elements its points lie on: those are built),
 on a grid around the densest part of its points (a scanner's density falls with the square of the
-range), and refines the best.
+range), and refines the best. First, though, it asks the pulses themselves (``refine_by_lines``):
+a rotating-mirror scanner's consecutive pulses lie on vertical lines through its origin, equally
+spaced in elevation and in time; that places it to millimetres when the lines come from many
+headings, and no single line carries the answer.
 """
 
 from __future__ import annotations
@@ -46,10 +49,22 @@ ON_SURFACE_M = 0.05  # a point this near the model lies on it; a ray reaching th
 FACING_COSINE = 0.02  # a surface is seen from its front: the beam meets it from the side its normal faces
 LINE_ITERATIONS = 20
 MIN_LINE_POINTS = 12
-MIN_LINE_EXTENT_M = 0.5  # a run shorter than this in plan view (up a wall) says nothing of the origin's xy
+MIN_LINE_EXTENT_M = 0.15  # a piece shorter than this in plan view (up a wall) says nothing of the origin's xy,
+MIN_LINE_SHAPE = 50.0  # nor one less than this many times longer than it strays from a straight line
 MAX_LINE_RMS_M = 0.01  # a run farther than this from a straight line in plan view is no mirror line
 MIN_LINES = 8
 LINE_MISS_M = 0.02
+MAX_LINE_LEVERAGE = 0.2  # no one mirror line may carry more than this share of where the lines meet
+PIECE_POINTS = (64, 512)  # the runs cut into pieces of these many points: pieces of mirror lines for the origin's
+                         # xy (a dense scanner's 64 pulses span too little of a small room's floor)
+TIMED_HEIGHT_SPAN_M = 4.0  # timed lines search the height this far around the first estimate, in 10 cm steps
+TIMED_LINES = 100  # the height search reads at most this many timed lines (the longest)
+MIN_RADIUS_M = 0.3  # points this near the origin's vertical say little of their elevation
+MIN_TIMED_LINE_POINTS = 30  # a whole mirror line of timed pulses
+MIN_LINE_SPAN_DEG = 5.0  # spanning this much elevation says where its pulses come from
+LINE_TURN_DEG = 1.0  # consecutive pulses this far apart in heading are on different lines
+LINE_JUMP_DEG = 5.0  # or this far apart in elevation (a mirror line's pulses lie a fraction of a degree apart)
+LINE_GAP_TICKS = 50  # or this many pulse periods apart in time
 LINE_HEIGHT_SPAN_M = 1.0  # the height is searched this far around the first estimate, in 1 cm steps
 HEIGHT_LINES = 300  # the height search reads at most this many lines (the longest)
 LINE_START_HEIGHT_M = 1.5  # the mirror lines' height search starts this far above the station's floor
@@ -61,6 +76,15 @@ CLEAR_M = 0.01  # a point this much nearer to one element than to any other lies
 MIN_BUILT_POINTS = 20  # an element holding this many of a station's points (and MIN_BUILT_SHARE of them)
 MIN_BUILT_SHARE = 0.002  # stands, and hides what is behind it, when its points are at least
 BUILT_DENSITY_SHARE = 0.1  # this share as dense per square metre as the station's typical element
+
+
+@dataclass(frozen=True)
+class PulseRun:
+    """Consecutive points of one station as the scanner fired them: xyz (K, 3) float64 model frame,
+    and their times (K,) seconds, None when the file holds none."""
+
+    xyz: np.ndarray
+    time: np.ndarray | None
 
 
 @dataclass(frozen=True)
@@ -102,9 +126,9 @@ def hidden_share(points: np.ndarray, origin: np.ndarray, *, cell_deg: float = ES
 
 
 def estimate_origin(points: np.ndarray, surfaces: ModelSurfaces, distances: BandDistances,
-                    windows: list[np.ndarray]) -> tuple[np.ndarray, float, bool]:
-    """The beam origin (3,) of a tripod station from a sample of its points (N, 3) and short runs of
-    its consecutive points (``windows``), all in the model's frame; the share of the sample it
+                    runs: list[PulseRun]) -> tuple[np.ndarray, float, bool]:
+    """The beam origin (3,) of a tripod station from a sample of its points (N, 3) and runs of its
+    consecutive points (``runs``), all in the model's frame; the share of the sample it
     explains; whether its mirror lines placed it (to millimetres; else to a grid search's
     decimetres). See the module docs."""
     if len(points) < 100:
@@ -150,7 +174,7 @@ def estimate_origin(points: np.ndarray, surfaces: ModelSurfaces, distances: Band
     centre = np.array([(xs[i] + xs[i + 1]) / 2, (ys[j] + ys[j + 1]) / 2])
     near = np.linalg.norm(xy - centre, axis=1) < SEARCH_RADIUS_M
     floor = float(np.percentile(points[near, 2], 2)) if near.any() else float(points[:, 2].min())
-    lined = refine_by_lines(windows, np.array([centre[0], centre[1], floor + LINE_START_HEIGHT_M]))
+    lined = refine_by_lines(runs, np.array([centre[0], centre[1], floor + LINE_START_HEIGHT_M]))
     if lined is not None:
         origin, through = lined
         if through < MIN_LINES_THROUGH:
@@ -183,43 +207,62 @@ def estimate_origin(points: np.ndarray, surfaces: ModelSurfaces, distances: Band
                     best, best_origin, improved = score, origin, True
         if not improved:
             step /= 2
-    lined = refine_by_lines(windows, best_origin)
+    lined = refine_by_lines(runs, best_origin)
     if lined is not None and explained(lined[0], every) >= best - LINES_TRUSTED_LOSS:
         return lined[0], explained(lined[0], every), True
     return best_origin, best, False
 
 
-def refine_by_lines(windows: list[np.ndarray], start: np.ndarray) -> tuple[np.ndarray, float] | None:
-    """The beam origin (3,) from short runs of a station's consecutive points (each (K, 3), in the
-    order the scanner fired them), starting near ``start``, and the share of the runs (by weight)
+def _piece_lines(runs: list[PulseRun]) -> tuple[list[np.ndarray], np.ndarray, np.ndarray, np.ndarray]:
+    """The runs cut into pieces of each of ``PIECE_POINTS`` consecutive points (pieces of mirror
+    lines), and those that are straight lines in plan view: (their points, plan-view normals (L, 2),
+    offsets (L,) so that normal @ xy = offset on the line, lengths (L,) metres)."""
+    segments: list[np.ndarray] = []
+    normals, offsets, extents = [], [], []
+    for size in PIECE_POINTS:
+        for run in runs:
+            n = len(run.xyz)
+            bounds = [(a, min(a + size, n)) for a in range(0, n, size)]
+            for length in {b - a for a, b in bounds}:
+                if length < MIN_LINE_POINTS:
+                    continue
+                starts = np.array([a for a, b in bounds if b - a == length])
+                pieces = run.xyz[starts[:, None] + np.arange(length)]  # (m, length, 3)
+                centre = pieces[:, :, :2].mean(axis=1)
+                centred = pieces[:, :, :2] - centre[:, None, :]
+                _, vectors = np.linalg.eigh(np.einsum("mki,mkj->mij", centred, centred) / length)
+                along, across = vectors[:, :, 1], vectors[:, :, 0]
+                extent = np.ptp(np.einsum("mki,mi->mk", centred, along), axis=1)
+                straight = np.sqrt(np.mean(np.einsum("mki,mi->mk", centred, across) ** 2, axis=1))
+                good = (extent >= MIN_LINE_EXTENT_M) & (straight <= MAX_LINE_RMS_M) & (extent >= MIN_LINE_SHAPE * straight)
+                for i in np.flatnonzero(good).tolist():
+                    segments.append(pieces[i])
+                normals.append(across[good])
+                offsets.append(np.einsum("mi,mi->m", across[good], centre[good]))
+                extents.append(extent[good])
+    if not segments:
+        return [], np.zeros((0, 2)), np.zeros(0), np.zeros(0)
+    return segments, np.concatenate(normals), np.concatenate(offsets), np.concatenate(extents)
+
+
+def refine_by_lines(runs: list[PulseRun], start: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """The beam origin (3,) from runs of a station's consecutive points (in the order the scanner
+    fired them), starting near ``start``, and the share of the mirror lines' pieces (by weight)
     that pass through it (near 1 for one scanner position; far less for a merged cloud); None when
     the runs show no mirror lines (another tool shuffled the points, or the station saw too little).
 
     A rotating-mirror scanner fires its pulses along vertical lines: the points of one line lie in
-    a vertical half-plane through the beam origin, so in plan view a run that spans some depth (a
-    line across a floor or a ceiling) is a straight line through the origin's xy: the origin is
-    their least-squares intersection, each weighed by the square of its length. Along a line the
-    pulses are equally spaced in elevation: the origin's height is where its steps are most even.
+    a vertical half-plane through the beam origin, so in plan view a piece of a run that spans some
+    depth (a line across a floor or a ceiling) is a straight line through the origin's xy: the
+    origin is their least-squares intersection, each weighed by the square of its length. Along a
+    line the pulses are equally spaced in elevation (the mirror turns evenly between pulses): the
+    origin's height is where the elevations of each whole line grow most evenly with the pulses'
+    times, or where a line's elevation steps are most even when the file has no times.
     """
-    segments, normals, offsets, weights = [], [], [], []
-    for run in windows:
-        if len(run) < MIN_LINE_POINTS:
-            continue
-        xy = run[:, :2]
-        centre = xy.mean(axis=0)
-        _, singular, vt = np.linalg.svd(xy - centre, full_matrices=False)
-        along = (xy - centre) @ vt[0]
-        extent = float(np.ptp(along))
-        straight = singular[1] / np.sqrt(len(run))
-        if extent < MIN_LINE_EXTENT_M or straight > MAX_LINE_RMS_M:
-            continue
-        segments.append(run)
-        normals.append(vt[1])
-        offsets.append(float(vt[1] @ centre))
-        weights.append(extent**2)
+    segments, normal, offset, extent = _piece_lines(runs)
+    weight = extent**2
     if len(segments) < MIN_LINES:
         return None
-    normal, offset, weight = np.array(normals), np.array(offsets), np.array(weights)
     use = np.ones(len(normal), dtype=bool)
     origin = np.array(start, dtype=np.float64)
     scale = np.inf
@@ -237,18 +280,105 @@ def refine_by_lines(windows: list[np.ndarray], start: np.ndarray) -> tuple[np.nd
         use = kept
         if not use.any():
             return None
-    kept = np.flatnonzero(use)
-    kept = kept[np.argsort(-weight[kept], kind="stable")[:HEIGHT_LINES]]  # the longest lines say the height
-    lines = [segments[i] for i in np.sort(kept)]
-    height = np.concatenate([line[:, 2] for line in lines])
-    radius = np.concatenate([np.hypot(line[:, 0] - origin[0], line[:, 1] - origin[1]) for line in lines])
-    starts = np.concatenate([[0], np.cumsum([len(line) for line in lines])]).astype(np.int64)
-    coarse = origin[2] + np.arange(-LINE_HEIGHT_SPAN_M, LINE_HEIGHT_SPAN_M + 1e-9, 0.02)
-    best = coarse[int(np.argmin(_elevation_unevenness(height, radius, starts, coarse)))]
-    fine = best + np.arange(-0.02, 0.02 + 1e-9, 0.002)
-    origin[2] = fine[int(np.argmin(_elevation_unevenness(height, radius, starts, fine)))]
+    kept_normal, kept_weight = normal[use], weight[use]
+    system = (kept_normal * kept_weight[:, None]).T @ kept_normal
+    leverage = kept_weight * np.einsum("ij,jk,ik->i", kept_normal, np.linalg.inv(system), kept_normal)
+    if leverage.max() > MAX_LINE_LEVERAGE:
+        return None  # one or two lines place the origin (the rest agree on a direction only): not trusted
+    timed = _timed_lines(runs, origin)
+    if timed is not None:
+        height, radius, time, starts = timed
+        score = lambda heights: _time_unevenness(height, radius, time, starts, heights)  # noqa: E731
+    else:
+        kept = np.flatnonzero(use)
+        kept = kept[np.argsort(-weight[kept], kind="stable")[:HEIGHT_LINES]]  # the longest pieces say the height
+        lines = [segments[i] for i in np.sort(kept)]
+        height = np.concatenate([line[:, 2] for line in lines])
+        radius = np.concatenate([np.hypot(line[:, 0] - origin[0], line[:, 1] - origin[1]) for line in lines])
+        starts = np.concatenate([[0], np.cumsum([len(line) for line in lines])]).astype(np.int64)
+        score = lambda heights: _elevation_unevenness(height, radius, starts, heights)  # noqa: E731
+    span, steps = (TIMED_HEIGHT_SPAN_M, (0.1, 0.01, 0.001)) if timed is not None else (LINE_HEIGHT_SPAN_M, (0.02, 0.002))
+    for step in steps:  # each search finer, around the best of the last
+        heights = origin[2] + np.arange(-span, span + 1e-9, step)
+        origin[2] = heights[int(np.argmin(score(heights)))]
+        span = step
     through = np.abs(normal @ origin[:2] - offset) <= 3.0 * LINE_MISS_M
     return origin, float(weight[through].sum() / weight.sum())
+
+
+def _timed_lines(runs: list[PulseRun], origin: np.ndarray) -> tuple[np.ndarray, ...] | None:
+    """The whole mirror lines of timed runs, seen from ``origin``'s xy: (heights, plan-view
+    distances, times, line starts), the longest ``TIMED_LINES`` lines; None when the runs have no
+    times (or too few lines). A line ends where the heading from the origin turns (the mirror's other
+    side, the next station), where the elevation jumps (the mirror's next face or turn) or where the
+    times do not go on (a gap, a file that stores no real times)."""
+    if not runs or any(run.time is None for run in runs):
+        return None
+    lines: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    for run in runs:
+        offset = run.xyz[:, :2] - origin[:2]
+        radius = np.hypot(offset[:, 0], offset[:, 1])
+        near = radius > MIN_RADIUS_M
+        xyz, radius, time = run.xyz[near], radius[near], np.asarray(run.time, dtype=np.float64)[near]
+        if len(xyz) < MIN_TIMED_LINE_POINTS:
+            continue
+        heading = np.degrees(np.arctan2(xyz[:, 1] - origin[1], xyz[:, 0] - origin[0]))
+        elevation = np.degrees(np.arctan2(xyz[:, 2] - origin[2], radius))
+        tick = np.diff(time)
+        typical = float(np.median(tick))
+        if not typical > 0:
+            return None  # times that stand still say nothing of the pulses
+        breaks = ((np.abs((np.diff(heading) + 180.0) % 360.0 - 180.0) > LINE_TURN_DEG)
+                  | (np.abs(np.diff(elevation)) > LINE_JUMP_DEG) | (tick <= 0) | (tick > LINE_GAP_TICKS * typical))
+        bounds = np.r_[0, np.flatnonzero(breaks) + 1, len(xyz)]
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            if b - a >= MIN_TIMED_LINE_POINTS and np.ptp(elevation[a:b]) >= MIN_LINE_SPAN_DEG:
+                lines.append((xyz[a:b, 2], radius[a:b], time[a:b]))
+    if len(lines) < MIN_LINES:
+        return None
+    lines.sort(key=lambda line: -len(line[0]))
+    lines = lines[:TIMED_LINES]
+    starts = np.concatenate([[0], np.cumsum([len(line[0]) for line in lines])]).astype(np.int64)
+    return (np.concatenate([line[0] for line in lines]), np.concatenate([line[1] for line in lines]),
+            np.concatenate([line[2] - line[2][0] for line in lines]), starts)
+
+
+@nb.njit(cache=True, parallel=True)
+def _time_unevenness(height: np.ndarray, radius: np.ndarray, time: np.ndarray, starts: np.ndarray,
+                     heights: np.ndarray) -> np.ndarray:
+    """How far the pulses' elevations, seen from each of ``heights``, stray from growing evenly with
+    their times: the median over lines (line l: ``[starts[l]:starts[l + 1]]``) of the residual of a
+    straight line fitted to elevation against time, relative to the elevations' spread (sqrt(1 - R^2):
+    from far above or below, every line's elevations shrink together); inf without lines."""
+    out = np.empty(heights.shape[0])
+    n_lines = starts.shape[0] - 1
+    for h in nb.prange(heights.shape[0]):
+        z = heights[h]
+        residuals = np.empty(n_lines)
+        for line in range(n_lines):
+            a, b = starts[line], starts[line + 1]
+            n = b - a
+            mean_t, mean_e = 0.0, 0.0
+            elevation = np.empty(n)
+            for k in range(n):
+                elevation[k] = np.arctan2(height[a + k] - z, radius[a + k])
+                mean_t += time[a + k]
+                mean_e += elevation[k]
+            mean_t /= n
+            mean_e /= n
+            stt, ste, see = 0.0, 0.0, 0.0
+            for k in range(n):
+                stt += (time[a + k] - mean_t) ** 2
+                ste += (time[a + k] - mean_t) * (elevation[k] - mean_e)
+                see += (elevation[k] - mean_e) ** 2
+            slope = ste / stt if stt > 0.0 else 0.0
+            total = 0.0
+            for k in range(n):
+                r = elevation[k] - mean_e - slope * (time[a + k] - mean_t)
+                total += r * r
+            residuals[line] = np.sqrt(total / see) if see > 0.0 else np.inf
+        out[h] = np.median(residuals) if n_lines > 0 else np.inf
+    return out
 
 
 @nb.njit(cache=True, parallel=True)
