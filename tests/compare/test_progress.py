@@ -51,6 +51,28 @@ def test_an_element_no_station_could_see_is_not_visible_never_not_built(building
     assert _statuses(result, scene)["far away, behind walls"] == "not visible"
 
 
+def test_a_dark_finish_that_returns_few_pulses_is_never_called_not_built(building_ifc, tmp_path):
+    # a dense scan (pulses 0.08 by 0.17 degrees apart) in which nine in ten pulses on the column come
+    # back too weak to record (a dark, glossy finish): the directions with no return lie among
+    # returns from the column itself, so they say nothing of it
+    import laspy
+
+    stations = tmp_path / "one.stations.csv"
+    stations.write_text("x,y,height\n3.0,2.5,1.5\n")
+    dense = tmp_path / "dense.laz"
+    assert main(["scan", str(building_ifc), str(dense), "--stations", str(stations), "--preset", "exp5",
+                 "--head-speed", "20", "--no-noise"]) == 0
+    scene = load_scene(building_ifc)
+    column = int(np.flatnonzero(scene.components.name == "column")[0])
+    cloud = laspy.read(dense)
+    on_column = np.asarray(cloud.component) == column
+    cloud.points = cloud.points[~(on_column & (np.random.default_rng(3).random(len(on_column)) < 0.9))]
+    dark = tmp_path / "dark.laz"
+    cloud.write(dark)
+    result = compare_scan(scene, dark, matrix=np.eye(4), config=ProgressConfig())
+    assert _statuses(result, scene)["column"] in ("built", "not visible")
+
+
 def test_stations_are_found_from_their_points_when_the_file_gives_only_their_ids(building_ifc, partial_scan, tmp_path):
     from bimscan.io import read_cloud_header
 

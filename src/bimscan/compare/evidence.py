@@ -13,10 +13,13 @@ A beam from a view's origin towards a model surface sample either
 - returned from nearer only: something in front hides it (another element, clutter, a person):
   **hidden**, no decision;
 - returned nothing, in a direction where the tripod scanner fired all around (its returns fill
-  the neighbouring directions): the beam went out through where the surface would be, into the
-  sky or past the scanner's range: **passed** as well (an opening with no wall or window in it).
-  Where it did not fire all around (the edge of its field of view, a walk's multi-beam lidar with
-  gaps between its rings), no return decides nothing.
+  the neighbouring directions) and every return around came from beyond the sample: the beam
+  went out through where the surface would be, into the sky or past the scanner's range:
+  **passed** as well (an opening with no wall or window in it). A return around at or before the
+  sample's range says the surface may well be there and this pulse came back too weak (a dark or
+  glossy finish, a grazing angle): nothing is decided. Where it did not fire all around (the edge
+  of its field of view, a walk's multi-beam lidar with gaps between its rings), no return decides
+  nothing.
 
 Glazing decides nothing either way (a laser passes glass): samples on transparent surfaces are
 left out by the caller.
@@ -34,13 +37,13 @@ from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
-from scipy.ndimage import maximum_filter
+from scipy.ndimage import maximum_filter, minimum_filter
 
 from bimscan.compare.views import View
 from bimscan.survey.planning.surface import SurfaceSamples
 
 MIN_RANGE_M = 0.5
-FIRED_DEG = 1.0  # the grid of each view's fired-directions image
+FIRED_DEG = 1.0  # the grid of each view's image of its nearest returns by direction
 FIRED_ROWS, FIRED_COLUMNS = int(180 / FIRED_DEG), int(360 / FIRED_DEG)
 MAX_WINDOW_M = 0.5  # the widest range window at grazing incidence
 _VIEW_SHIFT = 40  # a pair's key: view << 40 | cell
@@ -99,7 +102,8 @@ class Evidence:
     nearest: np.ndarray
     support: np.ndarray
     coarse: np.ndarray  # (P,) int64 the pair's direction on the fired images' grid: row * FIRED_COLUMNS + column
-    fired: np.ndarray  # (V, FIRED_ROWS, FIRED_COLUMNS) bool: the view returned something in that direction
+    fired: np.ndarray  # (V, FIRED_ROWS, FIRED_COLUMNS) float32: the view's nearest return in that direction (inf:
+                       # none); (0, ...) when no view decides by an empty direction (a walk)
     view_cell_rad: np.ndarray  # (V,) the cell of each view (by position in the views list)
     empty_decides: np.ndarray  # (V,) bool: no return in a fired-all-around direction is a pass (tripods)
     view_index: dict[int, int]  # view id -> position
@@ -136,7 +140,8 @@ class Evidence:
                         window=np.concatenate(window)[order] if n else np.zeros(0),
                         nearest=np.full(n, np.inf), support=np.zeros(n, dtype=np.int64),
                         coarse=np.concatenate(coarse)[order] if n else np.zeros(0, np.int64),
-                        fired=np.zeros((len(views), FIRED_ROWS, FIRED_COLUMNS), dtype=np.bool_),
+                        fired=np.full((len(views) if any(v.source != "sensor" for v in views) else 0, FIRED_ROWS,
+                                       FIRED_COLUMNS), np.inf, dtype=np.float32),
                         view_cell_rad=np.array([np.radians(v.cell_deg) for v in views]),
                         empty_decides=np.array([v.source != "sensor" for v in views], dtype=np.bool_),
                         view_index={v.id: i for i, v in enumerate(views)})
@@ -155,9 +160,14 @@ class Evidence:
         seen_pair = self.support > 0
         passed_pair = ~seen_pair & np.isfinite(self.nearest) & (self.nearest > self.expected + self.window)
         view = (self.key >> _VIEW_SHIFT).astype(np.int64)
-        around = maximum_filter(~self.fired, size=(1, 3, 3), mode="wrap") if len(self.fired) else self.fired
-        fired_all_around = ~around.reshape(len(self.fired), -1)[view, self.coarse] if len(view) else np.zeros(0, bool)
-        passed_pair |= ~np.isfinite(self.nearest) & self.empty_decides[view] & fired_all_around
+        if len(self.fired) and len(view):
+            # the nearest return of each direction and its eight neighbours, and whether all nine returned
+            image = self.fired.reshape(len(self.fired), FIRED_ROWS, FIRED_COLUMNS)
+            nearest_around = minimum_filter(image, size=(1, 3, 3), mode="wrap").reshape(len(image), -1)
+            farthest_around = maximum_filter(image, size=(1, 3, 3), mode="wrap").reshape(len(image), -1)
+            fired_all_around = np.isfinite(farthest_around[view, self.coarse])
+            beyond = nearest_around[view, self.coarse] > self.expected + self.window
+            passed_pair |= ~np.isfinite(self.nearest) & self.empty_decides[view] & fired_all_around & beyond
         seen = np.zeros(n_samples, dtype=bool)
         seen[self.sample[seen_pair]] = True
         passed = np.zeros(n_samples, dtype=bool)
@@ -165,26 +175,65 @@ class Evidence:
         return seen, passed & ~seen
 
 
-@nb.njit(cache=True, nogil=True)
-def _update(pair_key: np.ndarray, pair_component: np.ndarray, expected: np.ndarray, window: np.ndarray,
-            nearest: np.ndarray, support: np.ndarray, fired: np.ndarray, xyz: np.ndarray, view_position: np.ndarray,
-            origins: np.ndarray, cell_rad: np.ndarray, component: np.ndarray) -> None:
-    """Each point's beam (from its view's origin) into the pairs of its view's cell: the nearest
-    return, and a support when it lies in the pair's range window and on the pair's element."""
+@nb.njit(cache=True, parallel=True)
+def _locate(pair_key: np.ndarray, xyz: np.ndarray, view_position: np.ndarray, origins: np.ndarray,
+            cell_rad: np.ndarray, first: np.ndarray, fired: np.ndarray, distance: np.ndarray) -> None:
+    """Each point's beam (from its view's origin): the first pair of its view's cell (``first``, -1:
+    none, or no view), its fired-image cell and its range. Read-only on the pairs: parallel."""
     n = pair_key.shape[0]
-    for i in range(xyz.shape[0]):
+    for i in nb.prange(xyz.shape[0]):
         v = view_position[i]
+        first[i] = -1
         if v < 0:
             continue
         dx, dy, dz = xyz[i, 0] - origins[v, 0], xyz[i, 1] - origins[v, 1], xyz[i, 2] - origins[v, 2]
         r = np.sqrt(dx * dx + dy * dy + dz * dz)
-        f = _fired_cell(dx, dy, dz, r)
-        fired[v, f // FIRED_COLUMNS, f % FIRED_COLUMNS] = True
+        distance[i] = r
+        fired[i] = _fired_cell(dx, dy, dz, r)
         k = (np.int64(v) << _VIEW_SHIFT) | _cell_key(dx, dy, dz, r, cell_rad[v])
         j = np.searchsorted(pair_key, k)
+        if j < n and pair_key[j] == k:
+            first[i] = j
+
+
+@nb.njit(cache=True, nogil=True)
+def _record(pair_key: np.ndarray, pair_component: np.ndarray, expected: np.ndarray, window: np.ndarray,
+            nearest: np.ndarray, support: np.ndarray, fired_image: np.ndarray, view_position: np.ndarray,
+            component: np.ndarray, first: np.ndarray, fired: np.ndarray, distance: np.ndarray) -> None:
+    """Into the pairs ``_locate`` found, in the points' order: the nearest return, and a support when
+    it lies in the pair's range window and on the pair's element."""
+    n = pair_key.shape[0]
+    for i in range(first.shape[0]):
+        v = view_position[i]
+        if v < 0:
+            continue
+        if fired_image.shape[0] > 0:
+            f = fired[i]
+            row, column = f // FIRED_COLUMNS, f % FIRED_COLUMNS
+            if distance[i] < fired_image[v, row, column]:
+                fired_image[v, row, column] = distance[i]
+        j = first[i]
+        if j < 0:
+            continue
+        k = pair_key[j]
+        r = distance[i]
         while j < n and pair_key[j] == k:
             if r < nearest[j]:
                 nearest[j] = r
             if component[i] == pair_component[j] and abs(r - expected[j]) <= window[j]:
                 support[j] += 1
             j += 1
+
+
+def _update(pair_key: np.ndarray, pair_component: np.ndarray, expected: np.ndarray, window: np.ndarray,
+            nearest: np.ndarray, support: np.ndarray, fired: np.ndarray, xyz: np.ndarray, view_position: np.ndarray,
+            origins: np.ndarray, cell_rad: np.ndarray, component: np.ndarray) -> None:
+    """Each point's beam (from its view's origin) into the pairs of its view's cell: the nearest
+    return, and a support when it lies in the pair's range window and on the pair's element. The
+    search runs on every core, the updates in the points' order (the same bytes every run)."""
+    first = np.empty(len(xyz), dtype=np.int64)
+    cells = np.zeros(len(xyz), dtype=np.int64)
+    distance = np.zeros(len(xyz))
+    _locate(pair_key, xyz, view_position, origins, cell_rad, first, cells, distance)
+    _record(pair_key, pair_component, expected, window, nearest, support, fired, view_position, component, first,
+            cells, distance)
