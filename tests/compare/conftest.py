@@ -33,7 +33,20 @@ def build_building(path: Path, tiny_model: type) -> Path:
     model.add_box("IfcBeam", origin=(0, 2.4, h - 0.4), size=(12, 0.2, 0.4), name="beam")
     model.add_box("IfcCovering", origin=(0.5, 0.3, 2.6), size=(3.5, 1.8, 0.05), predefined_type="CEILING",
                   name="ceiling")
+    fixed_global_ids(model)
     return model.write(path)
+
+
+def fixed_global_ids(model) -> None:
+    """GlobalIds from each entity's place in the file: IfcOpenShell draws them at random, and the
+    as-built deviations a scan draws follow the GlobalId (the same test would scan differently
+    each session)."""
+    import uuid
+
+    import ifcopenshell.guid
+
+    for index, entity in enumerate(model.file.by_type("IfcRoot")):
+        entity.GlobalId = ifcopenshell.guid.compress(uuid.uuid5(uuid.NAMESPACE_URL, f"bimscan-test/{index}").hex)
 
 
 @pytest.fixture(scope="session")

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numba as nb
 import numpy as np
 
 from bimscan.compare.config import ProgressConfig
@@ -382,20 +383,14 @@ def compare_scan(scene: BimScene, scan_path: str | Path, *, matrix: np.ndarray, 
             view_position = np.where(found, lookup_positions[slot] if len(lookup_positions) else -1, -1)
             may_support = np.ones(len(chunk), dtype=bool) if supports is None else supports(chunk, xyz)
             answer = distances.query(xyz)
-            triangle = answer.triangle
-            near = triangle >= 0
-            component = np.where(near, mesh.face_component[np.maximum(triangle, 0)], -1).astype(np.int64)
             # a point about as near to another element's surface is on a face the two share: it
             # supports neither
-            with np.errstate(invalid="ignore"):  # inf - inf where no surface is near
-                clear = near & (answer.second - answer.distance > CONTACT_M)
-            evidence.add(xyz, view_position, origins, np.where(may_support & clear, component, -1))
-            signed = np.full(len(chunk), np.nan)
-            signed[near] = np.einsum("ij,ij->i", xyz[near] - answer.point[near], outward[triangle[near]])
-            attached += np.bincount(component[clear & may_support], minlength=n_components)
-            # a bounded sample per element for its fit
-            index = np.flatnonzero(clear & may_support)
-            kept.add(seen_points + index, xyz[index], component[index], signed[index])
+            component, supporting, signed = _attach(answer.triangle, answer.distance, answer.second, answer.point,
+                                                    xyz, mesh.face_component, outward, may_support, CONTACT_M)
+            evidence.add(xyz, view_position, origins, supporting)
+            index = np.flatnonzero(supporting >= 0)
+            attached += np.bincount(supporting[index], minlength=n_components)
+            kept.add(seen_points, index, xyz, supporting, signed)  # a bounded sample per element for its fit
             view_counts += np.bincount(view_position[view_position >= 0], minlength=len(views))
             if on_chunk is not None:
                 on_chunk(chunk, xyz, signed, component)
@@ -438,6 +433,30 @@ def compare_scan(scene: BimScene, scan_path: str | Path, *, matrix: np.ndarray, 
                           seconds=time.perf_counter() - started, steps=steps)
 
 
+@nb.njit(cache=True, parallel=True)
+def _attach(triangle: np.ndarray, distance: np.ndarray, second: np.ndarray, point: np.ndarray, xyz: np.ndarray,
+            face_component: np.ndarray, outward: np.ndarray, may_support: np.ndarray,
+            contact_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each point's element (N,) int64 (-1 beyond the band), the element it may support (-1: none;
+    or it lies within ``contact_m`` as near to another element's surface, on a face the two share)
+    and its signed distance (N,) (in front of the surface: positive; NaN beyond the band)."""
+    n = triangle.shape[0]
+    component = np.empty(n, dtype=np.int64)
+    supporting = np.empty(n, dtype=np.int64)
+    signed = np.empty(n)
+    for i in nb.prange(n):
+        t = triangle[i]
+        if t < 0:
+            component[i], supporting[i], signed[i] = -1, -1, np.nan
+            continue
+        c = face_component[t]
+        component[i] = c
+        supporting[i] = c if may_support[i] and second[i] - distance[i] > contact_m else -1
+        signed[i] = ((xyz[i, 0] - point[i, 0]) * outward[t, 0] + (xyz[i, 1] - point[i, 1]) * outward[t, 1]
+                     + (xyz[i, 2] - point[i, 2]) * outward[t, 2])
+    return component, supporting, signed
+
+
 class _ElementSample:
     """At most ``per_element`` points of each element: those of lowest priority (a hash of their
     place in the file, so the same points whatever the chunking). Points above an element's current
@@ -449,12 +468,14 @@ class _ElementSample:
         self.parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
         self.held = 0
 
-    def add(self, index: np.ndarray, xyz: np.ndarray, component: np.ndarray, signed: np.ndarray) -> None:
-        """Offer points: their places in the file (N,) int64, xyz (N, 3), component (N,), signed distance (N,)."""
-        priority = _priority(index, self.seed)
-        keep = priority < self.cut[component]
-        self.parts.append((xyz[keep], component[keep], priority[keep], signed[keep]))
-        self.held += int(keep.sum())
+    def add(self, first: int, index: np.ndarray, xyz: np.ndarray, component: np.ndarray, signed: np.ndarray) -> None:
+        """Offer the rows ``index`` (K,) of a chunk whose first point is the file's ``first``: xyz (N, 3),
+        component (N,), signed distance (N,)."""
+        priority = _priority(first + index, self.seed)
+        keep = priority < self.cut[component[index]]
+        rows = index[keep]
+        self.parts.append((xyz[rows], component[rows], priority[keep], signed[rows]))
+        self.held += len(rows)
         if self.held > 2 * self.per_element * len(self.cut) + 1_000_000:
             self._prune()
 
