@@ -189,8 +189,16 @@ def _locate(pair_key: np.ndarray, xyz: np.ndarray, view_position: np.ndarray, or
         dx, dy, dz = xyz[i, 0] - origins[v, 0], xyz[i, 1] - origins[v, 1], xyz[i, 2] - origins[v, 2]
         r = np.sqrt(dx * dx + dy * dy + dz * dz)
         distance[i] = r
-        fired[i] = _fired_cell(dx, dy, dz, r)
-        k = (np.int64(v) << _VIEW_SHIFT) | _cell_key(dx, dy, dz, r, cell_rad[v])
+        # both cells from one elevation and one azimuth (as _fired_cell and _cell_key compute them)
+        elevation = np.arcsin(min(max(dz / max(r, 1e-12), -1.0), 1.0)) + np.pi / 2
+        azimuth = np.arctan2(dy, dx) + np.pi
+        fired[i] = (min(int(elevation / np.radians(FIRED_DEG)), FIRED_ROWS - 1) * FIRED_COLUMNS
+                    + min(int(azimuth / np.radians(FIRED_DEG)), FIRED_COLUMNS - 1))
+        cell = cell_rad[v]
+        row = int(np.floor(elevation / cell))
+        columns = max(1, int(np.floor(2 * np.pi * np.cos((row + 0.5) * cell - np.pi / 2) / cell)))
+        column = int(np.floor(azimuth / (2 * np.pi) * columns)) % columns
+        k = (np.int64(v) << _VIEW_SHIFT) | (row << 20) | column
         j = np.searchsorted(pair_key, k)
         if j < n and pair_key[j] == k:
             first[i] = j

@@ -57,8 +57,8 @@ LINE_MISS_M = 0.02
 MAX_LINE_LEVERAGE = 0.2  # no one mirror line may carry more than this share of where the lines meet
 PIECE_POINTS = (64, 512)  # the runs cut into pieces of these many points: pieces of mirror lines for the origin's
                          # xy (a dense scanner's 64 pulses span too little of a small room's floor)
-TIMED_HEIGHT_SPAN_M = 4.0  # timed lines search the height this far around the first estimate, in 10 cm steps
-TIMED_LINES = 100  # the height search reads at most this many timed lines (the longest)
+TIMED_HEIGHT_SPAN_M = 4.0  # timed lines search the height this far around the first estimate, in 20 cm steps
+TIMED_LINES = 60  # the height search reads at most this many timed lines (the longest)
 MIN_RADIUS_M = 0.3  # points this near the origin's vertical say little of their elevation
 MIN_TIMED_LINE_POINTS = 30  # a whole mirror line of timed pulses
 MIN_LINE_SPAN_DEG = 5.0  # spanning this much elevation says where its pulses come from
@@ -297,7 +297,7 @@ def refine_by_lines(runs: list[PulseRun], start: np.ndarray) -> tuple[np.ndarray
         radius = np.concatenate([np.hypot(line[:, 0] - origin[0], line[:, 1] - origin[1]) for line in lines])
         starts = np.concatenate([[0], np.cumsum([len(line) for line in lines])]).astype(np.int64)
         score = lambda heights: _elevation_unevenness(height, radius, starts, heights)  # noqa: E731
-    span, steps = (TIMED_HEIGHT_SPAN_M, (0.1, 0.01, 0.001)) if timed is not None else (LINE_HEIGHT_SPAN_M, (0.02, 0.002))
+    span, steps = (TIMED_HEIGHT_SPAN_M, (0.2, 0.02, 0.002)) if timed is not None else (LINE_HEIGHT_SPAN_M, (0.02, 0.002))
     for step in steps:  # each search finer, around the best of the last
         heights = origin[2] + np.arange(-span, span + 1e-9, step)
         origin[2] = heights[int(np.argmin(score(heights)))]
