@@ -121,6 +121,29 @@ def test_a_station_that_cannot_be_placed_is_left_out_with_a_warning(building_ifc
     assert len(lines) == 1 and "station 9" in lines[0] and "decide nothing" in lines[0]
 
 
+def test_a_station_the_first_look_never_met_is_named_not_silently_dropped(building_ifc, partial_scan, tmp_path,
+                                                                          monkeypatch):
+    import laspy
+
+    from bimscan.compare import progress
+
+    foreign = move_as_foreign_las(partial_scan, tmp_path / "foreign.las", np.eye(4))
+    cloud = laspy.read(foreign)  # 500 points in the middle of the file under a station id of their own
+    middle = len(cloud.points) * 3 // 8  # between the first look's runs at 0, 1/4, 1/2 and 3/4 of the file
+    cloud.point_source_id[middle:middle + 500] = 9
+    cloud.write(foreign)
+    # a first look of four short runs, as on a scan of hundreds of millions of points
+    monkeypatch.setattr(progress, "LOOK_RUNS", 4)
+    monkeypatch.setattr(progress, "LOOK_RUN_POINTS", 2000)
+    monkeypatch.setattr(progress, "LOOK_GAP_POINTS", 10**9)
+    monkeypatch.setattr(progress, "STATION_RUNS", 0)  # and no second look
+    lines: list[str] = []
+    result = compare_scan(load_scene(building_ifc), foreign, matrix=np.eye(4), config=ProgressConfig(),
+                          warn=lines.append)
+    assert 9 not in {v.id for v in result.views}
+    assert any("station 9 (500 points)" in line and "--stations" in line for line in lines), lines
+
+
 def test_a_merged_cloud_without_stations_is_refused_saying_how_to_give_them(building_ifc, partial_scan, tmp_path):
     foreign = move_as_foreign_las(partial_scan, tmp_path / "merged.las", np.eye(4), stations=False)
     with pytest.raises(CompareError, match="--stations"):

@@ -38,7 +38,7 @@ from bimscan.compare.distance import BandDistances
 from bimscan.compare.evidence import Evidence
 from bimscan.compare.planes import apply
 from bimscan.compare.surfaces import ModelSurfaces
-from bimscan.compare.views import PulseRun, View, angular_spacing_deg, estimate_origin
+from bimscan.compare.views import MergedStationsError, PulseRun, View, angular_spacing_deg, estimate_origin
 from bimscan.errors import CompareError
 from bimscan.progress import progress_bar
 from bimscan.survey.planning.surface import SurfaceSamples
@@ -257,9 +257,9 @@ def _views(look: _Look, scan_path: Path, matrix: np.ndarray, config: ProgressCon
         else:
             try:
                 origin, explained, lined = estimate_origin(sample, surfaces, distances, look.runs.get(key, []))
+            except MergedStationsError as exc:
+                raise CompareError(f"{scan_path}: station {key}: {exc}") from exc
             except CompareError as exc:
-                if "several scanner positions" in str(exc):
-                    raise CompareError(f"{scan_path}: station {key}: {exc}") from exc
                 unplaced.append(CompareError(f"{scan_path}: station {key}: {exc}"))
                 continue
             source = "estimated" if lined else "estimated roughly"
@@ -372,6 +372,7 @@ def compare_scan(scene: BimScene, scan_path: str | Path, *, matrix: np.ndarray, 
         lookup_positions = np.array([position_of[k] for k in lookup_keys.tolist()], dtype=np.int64)
         outward = surfaces.outward
         seen_points = 0
+        unmet: dict[int, int] = {}
         for chunk in iter_cloud_chunks(scan_path, chunk_points=CHUNK_POINTS, labels=False,
                                        station_field=station_field(scan_path)):
             if not len(chunk):
@@ -381,6 +382,11 @@ def compare_scan(scene: BimScene, scan_path: str | Path, *, matrix: np.ndarray, 
             slot = np.clip(np.searchsorted(lookup_keys, keys), 0, max(len(lookup_keys) - 1, 0))
             found = (lookup_keys[slot] == keys) if len(lookup_keys) else np.zeros(len(keys), dtype=bool)
             view_position = np.where(found, lookup_positions[slot] if len(lookup_positions) else -1, -1)
+            if not look.mobile and not found.all():  # a station the first look never met, between its runs
+                missed, count = np.unique(keys[~found & (keys >= 0)], return_counts=True)
+                for key, n in zip(missed.tolist(), count.tolist()):
+                    if key not in look.counts:
+                        unmet[key] = unmet.get(key, 0) + n
             may_support = np.ones(len(chunk), dtype=bool) if supports is None else supports(chunk, xyz)
             answer = distances.query(xyz)
             # a point about as near to another element's surface is on a face the two share: it
@@ -397,6 +403,10 @@ def compare_scan(scene: BimScene, scan_path: str | Path, *, matrix: np.ndarray, 
             seen_points += len(chunk)
             bar.update(len(chunk))
         points_xyz, points_component, points_signed = kept.result()
+        for key, n in sorted(unmet.items()):
+            (warn or (lambda line: None))(
+                f"{scan_path}: station {key} ({n:,} points) lies between the parts of the file the first look read, "
+                "so it was not placed: its points decide nothing here; give the stations with --stations FILE")
         views = [dataclasses.replace(v, points=int(c)) for v, c in zip(views, view_counts)]
         steps["compare"] = time.perf_counter() - clock
 

@@ -65,7 +65,7 @@ MIN_LINE_SPAN_DEG = 5.0  # spanning this much elevation says where its pulses co
 LINE_TURN_DEG = 1.0  # consecutive pulses this far apart in heading are on different lines
 LINE_JUMP_DEG = 5.0  # or this far apart in elevation (a mirror line's pulses lie a fraction of a degree apart)
 LINE_GAP_TICKS = 50  # or this many pulse periods apart in time
-LINE_HEIGHT_SPAN_M = 1.0  # the height is searched this far around the first estimate, in 1 cm steps
+LINE_HEIGHT_SPAN_M = 1.0  # the height is searched this far around the first estimate, in 2 cm steps
 HEIGHT_LINES = 300  # the height search reads at most this many lines (the longest)
 LINE_START_HEIGHT_M = 1.5  # the mirror lines' height search starts this far above the station's floor
 LINES_TRUSTED_SHARE = 0.85  # an origin placed by the mirror lines is kept when it explains this much
@@ -76,6 +76,10 @@ CLEAR_M = 0.01  # a point this much nearer to one element than to any other lies
 MIN_BUILT_POINTS = 20  # an element holding this many of a station's points (and MIN_BUILT_SHARE of them)
 MIN_BUILT_SHARE = 0.002  # stands, and hides what is behind it, when its points are at least
 BUILT_DENSITY_SHARE = 0.1  # this share as dense per square metre as the station's typical element
+
+
+class MergedStationsError(CompareError):
+    """The points under one station id come from several scanner positions (a merged cloud)."""
 
 
 @dataclass(frozen=True)
@@ -178,7 +182,7 @@ def estimate_origin(points: np.ndarray, surfaces: ModelSurfaces, distances: Band
     if lined is not None:
         origin, through = lined
         if through < MIN_LINES_THROUGH:
-            raise CompareError(f"a station's mirror lines meet in no one place (only {through:.0%} of them pass through "
+            raise MergedStationsError(f"a station's mirror lines meet in no one place (only {through:.0%} of them pass through "
                                "the best): its points come from several scanner positions (a merged cloud under one "
                                "station id); give the stations with --stations FILE, or per-station ids")
         share = explained(origin, np.arange(len(points)))
@@ -282,6 +286,8 @@ def refine_by_lines(runs: list[PulseRun], start: np.ndarray) -> tuple[np.ndarray
             return None
     kept_normal, kept_weight = normal[use], weight[use]
     system = (kept_normal * kept_weight[:, None]).T @ kept_normal
+    if np.linalg.cond(system) > 1e6:
+        return None
     leverage = kept_weight * np.einsum("ij,jk,ik->i", kept_normal, np.linalg.inv(system), kept_normal)
     if leverage.max() > MAX_LINE_LEVERAGE:
         return None  # one or two lines place the origin (the rest agree on a direction only): not trusted
