@@ -493,17 +493,21 @@ class _ElementSample:
         if not self.parts:
             return
         xyz, component, priority, signed = (np.concatenate([p[i] for p in self.parts]) for i in range(4))
-        if len(self.cut) < 1 << 20:  # one sort by element then priority (its top 44 bits: ties as good as impossible)
-            order = np.argsort((component.astype(np.uint64) << np.uint64(44)) | (priority >> np.uint64(20)))
-        else:
-            order = np.lexsort((priority, component))
-        ranked = component[order]
-        first = np.r_[True, ranked[1:] != ranked[:-1]]
-        start = np.maximum.accumulate(np.where(first, np.arange(len(order)), 0))
-        rank = np.arange(len(order)) - start
-        keep = order[rank < self.per_element]
-        full = order[rank == self.per_element - 1]  # the last kept of each full element: its new cut
-        self.cut[component[full]] = priority[full]
+        # grouped by element (a radix sort when element numbers fit 16 bits), then each element's
+        # per_element lowest priorities by partition: no sort of the 64-bit priorities
+        group_key = component.astype(np.uint16) if len(self.cut) <= 1 << 16 else component
+        by_element = np.argsort(group_key, kind="stable")
+        grouped = component[by_element]
+        bounds = np.flatnonzero(np.r_[True, grouped[1:] != grouped[:-1], True])
+        keep_parts = []
+        for a, b in zip(bounds[:-1].tolist(), bounds[1:].tolist()):
+            members = by_element[a:b]
+            if b - a > self.per_element:
+                lowest = np.argpartition(priority[members], self.per_element - 1)[: self.per_element]
+                members = members[lowest]
+                self.cut[grouped[a]] = priority[members].max()  # its new cut: the highest it keeps
+            keep_parts.append(members)
+        keep = np.concatenate(keep_parts) if keep_parts else np.zeros(0, dtype=np.int64)
         self.parts = [(xyz[keep], component[keep], priority[keep], signed[keep])]
         self.held = len(keep)
 
