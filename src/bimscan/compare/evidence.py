@@ -50,23 +50,18 @@ _VIEW_SHIFT = 40  # a pair's key: view << 40 | cell
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _cell_key(dx: float, dy: float, dz: float, distance: float, cell: float) -> int:
-    """The angular cell of direction (dx, dy, dz) of length ``distance``: rows of ``cell`` radians
+def _cells(dx: float, dy: float, dz: float, distance: float, cell: float) -> tuple[int, int]:
+    """Direction (dx, dy, dz) of length ``distance``: its cell on the fired images' grid (rows of
+    FIRED_DEG in elevation, columns in azimuth) and its angular cell key: rows of ``cell`` radians
     in elevation, each cut into columns of ``cell`` of arc (so cells near the zenith are not slivers)."""
-    sine = min(max(dz / max(distance, 1e-12), -1.0), 1.0)
-    row = int(np.floor((np.arcsin(sine) + np.pi / 2) / cell))
+    elevation = np.arcsin(min(max(dz / max(distance, 1e-12), -1.0), 1.0)) + np.pi / 2
+    azimuth = np.arctan2(dy, dx) + np.pi
+    fired = (min(int(elevation / np.radians(FIRED_DEG)), FIRED_ROWS - 1) * FIRED_COLUMNS
+             + min(int(azimuth / np.radians(FIRED_DEG)), FIRED_COLUMNS - 1))
+    row = int(np.floor(elevation / cell))
     columns = max(1, int(np.floor(2 * np.pi * np.cos((row + 0.5) * cell - np.pi / 2) / cell)))
-    column = int(np.floor((np.arctan2(dy, dx) + np.pi) / (2 * np.pi) * columns)) % columns
-    return (row << 20) | column
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _fired_cell(dx: float, dy: float, dz: float, distance: float) -> int:
-    """A direction's cell on the fired images' grid (rows of FIRED_DEG in elevation, columns in azimuth)."""
-    sine = min(max(dz / max(distance, 1e-12), -1.0), 1.0)
-    row = min(int((np.arcsin(sine) + np.pi / 2) / np.radians(FIRED_DEG)), FIRED_ROWS - 1)
-    column = min(int((np.arctan2(dy, dx) + np.pi) / np.radians(FIRED_DEG)), FIRED_COLUMNS - 1)
-    return row * FIRED_COLUMNS + column
+    column = int(np.floor(azimuth / (2 * np.pi) * columns)) % columns
+    return fired, (row << 20) | column
 
 
 @nb.njit(cache=True)
@@ -74,7 +69,7 @@ def fired_cells(offset: np.ndarray, distance: np.ndarray) -> np.ndarray:
     """(N,) int64 each direction's cell on the fired images' grid."""
     cells = np.empty(offset.shape[0], dtype=np.int64)
     for i in range(offset.shape[0]):
-        cells[i] = _fired_cell(offset[i, 0], offset[i, 1], offset[i, 2], distance[i])
+        cells[i] = _cells(offset[i, 0], offset[i, 1], offset[i, 2], distance[i], 1.0)[0]
     return cells
 
 
@@ -83,7 +78,7 @@ def cell_keys(offset: np.ndarray, distance: np.ndarray, cell: float) -> np.ndarr
     """(N,) int64 the angular cell of each direction ``offset`` (N, 3) of length ``distance`` (N,)."""
     keys = np.empty(offset.shape[0], dtype=np.int64)
     for i in range(offset.shape[0]):
-        keys[i] = _cell_key(offset[i, 0], offset[i, 1], offset[i, 2], distance[i], cell)
+        keys[i] = _cells(offset[i, 0], offset[i, 1], offset[i, 2], distance[i], cell)[1]
     return keys
 
 
@@ -189,16 +184,8 @@ def _locate(pair_key: np.ndarray, xyz: np.ndarray, view_position: np.ndarray, or
         dx, dy, dz = xyz[i, 0] - origins[v, 0], xyz[i, 1] - origins[v, 1], xyz[i, 2] - origins[v, 2]
         r = np.sqrt(dx * dx + dy * dy + dz * dz)
         distance[i] = r
-        # both cells from one elevation and one azimuth (as _fired_cell and _cell_key compute them)
-        elevation = np.arcsin(min(max(dz / max(r, 1e-12), -1.0), 1.0)) + np.pi / 2
-        azimuth = np.arctan2(dy, dx) + np.pi
-        fired[i] = (min(int(elevation / np.radians(FIRED_DEG)), FIRED_ROWS - 1) * FIRED_COLUMNS
-                    + min(int(azimuth / np.radians(FIRED_DEG)), FIRED_COLUMNS - 1))
-        cell = cell_rad[v]
-        row = int(np.floor(elevation / cell))
-        columns = max(1, int(np.floor(2 * np.pi * np.cos((row + 0.5) * cell - np.pi / 2) / cell)))
-        column = int(np.floor(azimuth / (2 * np.pi) * columns)) % columns
-        k = (np.int64(v) << _VIEW_SHIFT) | (row << 20) | column
+        fired[i], key = _cells(dx, dy, dz, r, cell_rad[v])
+        k = (np.int64(v) << _VIEW_SHIFT) | key
         j = np.searchsorted(pair_key, k)
         if j < n and pair_key[j] == k:
             first[i] = j
