@@ -1,6 +1,6 @@
 """Scan against model, measured against the truth bimscan's own scans carry.
 
-Run: python benchmarks/bench_progress.py [--quick | --large | --cases NAME,...] [--keep DIR [--rescore]]
+Run: python benchmarks/bench_progress.py [--quick | --large | --cases NAME,...] [--keep DIR [--rescore | --reuse-align]]
 
 Every case is a scan bimscan makes of a shared IFC model or a generated building, as the site
 stands at a construction stage or date (walls missing, clutter, people, as-built deviations,
@@ -28,6 +28,11 @@ scanned a date), each timed as a whole process. Against the truth:
 - deviation: for the elements the truth displaced by more than twice the scanner's range noise
   (10 mm), the reported offset against the true one along the axes the fit pins: the share
   within 5 mm;
+- deviation against the site's grid: the cases with as-built deviations are compared once more
+  with ``--transform control.csv``, six surveyed targets (the model's bounding-box corners and two
+  mid-height points, each known to CONTROL_SIGMA_M per axis in both frames, as a total station's
+  control and a target's fitted centre are) instead of the found pose, which is the mean of the
+  deviated elements themselves;
 - schedule (the cases scanned with ``--at DATE``, judged with the same date): how many elements
   the comparison calls on time, not due, behind, ahead (the site stands as scheduled: behind and
   ahead are errors);
@@ -62,6 +67,7 @@ VISIBLE_SHARE = 0.05
 MAX_INCIDENCE_DEG = 80.0
 TRUTH_RANGE_M = 30.0  # a handheld walk's lidar (VLP-16: 100 m, but sparse past a few rooms)
 IN_FRONT_M = 0.05
+CONTROL_SIGMA_M = 0.002  # a control target's place, per axis, in the site grid and in the scan (survey practice: 1-2 mm)
 
 
 @dataclass(frozen=True)
@@ -178,6 +184,22 @@ def move_foreign(scan: Path, out: Path, matrix: np.ndarray) -> None:
             record.point_source_id = points.station
             record.gps_time = points.gps_time
             writer.write_points(record)
+
+
+def write_control(case: Case, model: Path, out: Path, matrix: np.ndarray) -> None:
+    """Six control targets: the model's bounding-box corners (at floor and roof height) and two
+    mid-height points, as point pairs scan -> model, each end off by CONTROL_SIGMA_M per axis."""
+    from bimscan.pipeline import load_scene
+
+    vertices = load_scene(model).mesh.vertices
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    mid = (lo + hi) / 2
+    targets = np.array([[lo[0], lo[1], lo[2]], [hi[0], lo[1], hi[2]], [hi[0], hi[1], lo[2]], [lo[0], hi[1], hi[2]],
+                        [mid[0], lo[1], mid[2]], [mid[0], hi[1], mid[2]]])
+    rng = np.random.default_rng(2000 + case.seed)
+    site = targets + rng.normal(scale=CONTROL_SIGMA_M, size=targets.shape)
+    scanned = (targets + rng.normal(scale=CONTROL_SIGMA_M, size=targets.shape)) @ matrix[:3, :3].T + matrix[:3, 3]
+    out.write_text("".join(",".join(f"{v:.4f}" for v in (*s, *m)) + "\n" for s, m in zip(scanned, site)))
 
 
 def truth(case: Case, model: Path, scan: Path, work: Path) -> dict[str, object]:
@@ -334,6 +356,8 @@ def main() -> None:
     parser.add_argument("--large", action="store_true", help=f"only {', '.join(c.name for c in LARGE)}")
     parser.add_argument("--rescore", action="store_true",
                         help="with --keep: score the folders a run left there again, without running align and progress")
+    parser.add_argument("--reuse-align", action="store_true",
+                        help="with --keep: take the alignments a run left there, run progress again")
     parser.add_argument("--keep", type=Path, default=None, help="keep the scans and folders here")
     args = parser.parse_args()
     wanted = set(QUICK) if args.quick else {c.name for c in LARGE} if args.large else set(args.cases.split(",")) \
@@ -362,17 +386,25 @@ def main() -> None:
                 else:
                     move_foreign(scan, moved, true_motion)
             align_dir, progress_dir = work / f"{case.name}-align", work / f"{case.name}-progress"
+            control_dir = work / f"{case.name}-control"
+            as_built = "--as-built" in case.scan_args
             times = work / f"{case.name}-seconds.json"
             if args.rescore and (progress_dir / "summary.json").is_file():
                 spent = json.loads(times.read_text()) if times.is_file() else {}
                 align_s, progress_s = spent.get("align", float("nan")), spent.get("progress", float("nan"))
             else:
-                for folder in (align_dir, progress_dir):
+                reuse = args.reuse_align and (align_dir / "transform.json").is_file()
+                for folder in (progress_dir, control_dir) if reuse else (align_dir, progress_dir, control_dir):
                     shutil.rmtree(folder, ignore_errors=True)
-                align_s = run(BIMSCAN + ["align", str(model), str(moved), str(align_dir)], log=log)
+                align_s = json.loads(times.read_text())["align"] if reuse and times.is_file() else \
+                    run(BIMSCAN + ["align", str(model), str(moved), str(align_dir)], log=log)
                 at = ["--at", case.at] if case.at else []
                 progress_s = run(BIMSCAN + ["progress", str(model), str(moved), str(progress_dir), "--transform",
                                             str(align_dir / "transform.json"), *at], log=log)
+                if as_built:
+                    write_control(case, model, work / f"{case.name}-control.csv", true_motion)
+                    run(BIMSCAN + ["progress", str(model), str(moved), str(control_dir), "--transform",
+                                   str(work / f"{case.name}-control.csv"), "--points", "none", *at], log=log)
                 times.write_text(json.dumps({"align": align_s, "progress": progress_s}))
             found = np.array(json.loads((align_dir / "transform.json").read_text())["matrix"])
             facts = truth(case, model, scan, work)
@@ -384,6 +416,9 @@ def main() -> None:
                 lower, upper = np.minimum(lower, chunk.xyz.min(axis=0)), np.maximum(upper, chunk.xyz.max(axis=0))
             summary = json.loads((progress_dir / "summary.json").read_text())
             measured = score(case, model, progress_dir, found, np.linalg.inv(true_motion), lower, upper, facts)
+            measured["deviation_errors_control_mm"] = [] if not (control_dir / "summary.json").is_file() else \
+                score(case, model, control_dir, np.array(json.loads((control_dir / "transform.json").read_text())[
+                    "matrix"]), np.linalg.inv(true_motion), lower, upper, facts)["deviation_errors_mm"]
             measured |= {"case": case.name, "points": summary["points"], "align_s": align_s,
                          "progress_s": progress_s,
                          "station_cm": [] if case.handheld else station_errors_cm(scan, progress_dir)}
@@ -441,7 +476,9 @@ def report(rows: list[dict[str, object]]) -> None:
     never = sum(int(row["never_seen_not_built"]) for row in rows)  # type: ignore[arg-type]
     print(f"\nelements no station could see called 'not built': {never}")
     for key, what in (("deviation_errors_mm", "against the true offsets"),
-                      ("deviation_errors_given_pose_mm", "against the true offsets as the found pose shows them")):
+                      ("deviation_errors_given_pose_mm", "against the true offsets as the found pose shows them"),
+                      ("deviation_errors_control_mm", "against the true offsets, the scan placed by six control "
+                                                      "targets")):
         errors = [e for row in rows for e in row[key]]  # type: ignore[union-attr]
         if errors:
             errors_array = np.array(errors)

@@ -598,8 +598,8 @@ def compare_model(model: str | Path, scan: str | Path, out: str | Path, config: 
     from bimscan.compare.report import (
         BCF_FILE, ELEMENTS_FILE, ELEMENT_COLUMNS, IFC_FILE, POINTS_STEM, PROGRESS_KIND, PSET_NAME, SUMMARY_FILE,
         TRANSFORM_JSON, TRANSFORM_TEXT, StagedFolder, bcf_topics, element_rows,
-        format_matrix, points_writer, property_values, read_station_file, read_transform, transform_document,
-        write_json,
+        CONTROL_RESIDUAL_M, control_document, format_matrix, pair_residuals_m, points_writer, property_values,
+        read_station_file, read_transform, transform_document, write_json,
     )
     from bimscan.compare.surfaces import ModelSurfaces
     from bimscan.files import csv_bytes, remove_path
@@ -610,7 +610,13 @@ def compare_model(model: str | Path, scan: str | Path, out: str | Path, config: 
     _check_report_folder(out, kind="progress", overwrite=overwrite)
     if align is not None and transform is not None:
         raise ConfigError("--align and --transform both say where the scan lies; give one")
-    matrix = read_transform(transform) if transform is not None else np.eye(4)
+    matrix = read_transform(transform, pairs=True) if transform is not None else np.eye(4)
+    residuals = pair_residuals_m(transform, matrix) if transform is not None else None
+    control = None if residuals is None else control_document(Path(transform), residuals)  # type: ignore[arg-type]
+    if residuals is not None and residuals.max() > CONTROL_RESIDUAL_M and log is not None:
+        worst = int(np.argmax(residuals))
+        log(f"{transform}: point pair {worst + 1} lies {residuals[worst] * 1000:.0f} mm from where the pose the pairs "
+            f"agree on puts it (median {np.median(residuals) * 1000:.1f} mm); check that pair")
     given_stations = read_station_file(stations) if stations is not None else None
     steps: dict[str, float] = {}
     clock = time.perf_counter()
@@ -656,7 +662,7 @@ def compare_model(model: str | Path, scan: str | Path, out: str | Path, config: 
         clock = time.perf_counter()
         summary = progress_summary(result, scene)
         document = transform_document(matrix, kind=PROGRESS_KIND, model=model, scan=scan,
-                                      alignment=None if alignment is None else alignment.to_json())
+                                      alignment=None if alignment is None else alignment.to_json(), control=control)
         write_json(staged.path / TRANSFORM_JSON, document)
         (staged.path / TRANSFORM_TEXT).write_text(format_matrix(matrix), encoding="utf-8")
         (staged.path / ELEMENTS_FILE).write_bytes(csv_bytes(element_rows(result, scene), ELEMENT_COLUMNS))
@@ -685,7 +691,8 @@ def compare_model(model: str | Path, scan: str | Path, out: str | Path, config: 
             view_origins=np.array([v.origin for v in result.views]).reshape(-1, 3), point_xyz=result.point_xyz,
             point_signed=result.point_signed, tolerance_m=config.default_tolerance_m)
         summary = {"kind": PROGRESS_KIND, "model": str(model), "scan": str(scan), "files": sorted(files),
-                   **summary, **({} if supports is None else {"segmentation": supports.to_json()})}
+                   **summary, **({} if supports is None else {"segmentation": supports.to_json()}),
+                   **({} if control is None else {"control": control})}
         write_json(staged.path / SUMMARY_FILE, summary)
         files.append(SUMMARY_FILE)
         steps["write"] = time.perf_counter() - clock

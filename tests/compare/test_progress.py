@@ -216,6 +216,36 @@ def test_the_progress_folder_holds_what_a_site_engineer_opens(building_ifc, part
     assert np.all(np.isnan(distance[~attached]))
 
 
+def test_control_point_pairs_place_the_scan_and_a_mistyped_pair_is_named(building_ifc, partial_scan, tmp_path, capsys):
+    true = motion(5)  # model -> scan: surveyed targets known in both frames
+    moved = move_as_foreign_las(partial_scan, tmp_path / "moved.las", true)
+    targets = np.array([[0.5, 0.5, 0.1], [9.5, 0.5, 0.1], [9.5, 7.5, 2.9], [0.5, 7.5, 2.9], [5.0, 4.0, 1.5]])
+    in_scan = targets @ true[:3, :3].T + true[:3, 3]
+    in_scan[4] += [0.03, 0.0, 0.0]  # a target picked 3 cm off
+    pairs = tmp_path / "control.csv"
+    pairs.write_text("".join(",".join(f"{v:.4f}" for v in (*s, *m)) + "\n" for s, m in zip(in_scan, targets)))
+    out = tmp_path / "progress"
+    assert main(["progress", str(building_ifc), str(moved), str(out), "--transform", str(pairs), "--points", "none"]) == 0
+    printed = capsys.readouterr()
+    assert "placed by 5 point pairs" in printed.out
+    assert "point pair 5 lies" in printed.err and printed.err.count("point pair") == 1, printed.err
+    document = json.loads((out / "transform.json").read_text())
+    assert document["control"]["pairs"] == 5 and max(document["control"]["residual_mm"]) > 10
+    found = np.array(document["matrix"])
+    assert np.abs(found @ true - np.eye(4))[:3].max() < 0.01  # the pose the pairs agree on: within a centimetre
+    rows = {r["name"]: r for r in csv.DictReader((out / "elements.csv").open())}
+    assert rows["column"]["status"] == "not built" and rows["south"]["status"] == "built"
+
+
+def test_control_point_pairs_on_one_line_are_refused(building_ifc, partial_scan, tmp_path, capsys):
+    pairs = tmp_path / "line.csv"
+    pairs.write_text("".join(f"{x},0,0,{x},0,0\n" for x in (0.0, 1.0, 2.0, 3.0)))
+    assert main(["progress", str(building_ifc), str(partial_scan), str(tmp_path / "out"), "--transform", str(pairs)]) == 1
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "one line" in error
+    assert not (tmp_path / "out").exists()
+
+
 def test_the_same_comparison_gives_the_same_files(building_ifc, partial_scan, tmp_path):
     for name in ("a", "b"):
         assert main(["progress", str(building_ifc), str(partial_scan), str(tmp_path / name), "--points", "none"]) == 0

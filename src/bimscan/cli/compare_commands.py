@@ -87,8 +87,10 @@ def align(model: Path, scan: Path, out: Path, init: Path | None, levelled: bool,
 @click.argument("out", type=click.Path(path_type=Path))
 @click.option("--align", "align_first", is_flag=True, help="Align the scan to the model first (as 'bimscan align').")
 @click.option("--transform", type=click.Path(path_type=Path), default=None,
-              help="The scan's pose in the model: a transform.json of 'bimscan align' or a 4x4 matrix file. "
-                   "Default: the scan is in the model's frame already.")
+              help="The scan's pose in the model: a transform.json of 'bimscan align', a 4x4 matrix file, or a CSV "
+                   "of three or more point pairs scan_x,scan_y,scan_z,model_x,model_y,model_z (surveyed control "
+                   "targets: deviations are then measured against the site's grid). Default: the scan is in the "
+                   "model's frame already.")
 @click.option("--at", callback=_date, default=None,
               help="A date (YYYY-MM-DD): judge each element against what the model's work schedule has standing "
                    "then (on time, behind, ahead), with percent complete per storey and class.")
@@ -137,6 +139,10 @@ def progress(model: Path, scan: Path, out: Path, align_first: bool, transform: P
                f"({result.points:,} points, {len(result.views)} views)")
     if run.alignment is not None:
         _echo_alignment(run.alignment)
+    control = run.summary.get("control")
+    if control is not None:
+        click.echo(f"  placed by {control['pairs']} point pairs: their residuals median {control['median_mm']:.1f} mm, "
+                   f"largest {control['max_mm']:.1f} mm")
     click.echo("  class            elements   built   out of tol.   not built   not visible   complete")
     for name, tally in run.summary["by_class"].items():
         complete = "-" if tally["complete_share"] is None else f"{100 * tally['complete_share']:.0f} %"

@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from bimscan.compare.planes import apply
 from bimscan.errors import InputFileError
 from bimscan.files import (
     FOLDER_OUTPUTS,
@@ -49,6 +50,9 @@ from bimscan.files import (
 
 TRANSFORM_JSON = "transform.json"
 TRANSFORM_TEXT = "transform.txt"
+# a control point pair further than this from where the pose all pairs agree on puts it is named in a
+# warning: a mismatched or mistyped target (survey control for scan registration: a few millimetres)
+CONTROL_RESIDUAL_M = 0.01
 ELEMENTS_FILE = "elements.csv"
 SUMMARY_FILE = "summary.json"
 IFC_FILE = "progress.ifc"
@@ -166,6 +170,10 @@ def read_transform(path: str | Path, *, pairs: bool = False) -> np.ndarray:
             if len(numbers) < 3:
                 raise InputFileError(f"{path}: {len(numbers)} point pairs; give at least three, not on one line")
             data = np.array(numbers)
+            if not np.all(np.isfinite(data)) or np.linalg.matrix_rank(data[:, :3] - data[:, :3].mean(axis=0),
+                                                                     tol=1e-3) < 2:
+                raise InputFileError(f"{path}: the point pairs' scan points lie on one line (or are not finite "
+                                     "numbers); give three or more points spread over the site")
             return _rigid_from_pairs(data[:, :3], data[:, 3:])
         matrix = np.array(numbers, dtype=np.float64) if numbers and all(len(r) == 4 for r in numbers) else np.zeros(0)
     if matrix.shape != (4, 4) or not np.all(np.isfinite(matrix)):
@@ -179,15 +187,37 @@ def read_transform(path: str | Path, *, pairs: bool = False) -> np.ndarray:
     return matrix
 
 
+def pair_residuals_m(path: str | Path, matrix: np.ndarray) -> np.ndarray | None:
+    """Where ``matrix`` leaves each point pair of the file ``path`` (its distances, metres), or None
+    when the file holds a matrix, not point pairs: how well control points agree with the pose."""
+    text = Path(path).read_text("utf-8-sig")
+    if text.lstrip().startswith("{"):
+        return None
+    rows = [line.replace(",", " ").split() for line in text.splitlines()
+            if line.strip() and not line.lstrip().startswith("#")]
+    if not rows or any(len(r) != 6 for r in rows):
+        return None
+    data = np.array([[float(v) for v in row] for row in rows])
+    return np.linalg.norm(apply(matrix, data[:, :3]) - data[:, 3:], axis=1)
+
+
 def transform_document(matrix: np.ndarray, *, kind: str, model: Path, scan: Path,
-                       alignment: dict[str, Any] | None) -> dict[str, Any]:
+                       alignment: dict[str, Any] | None, control: dict[str, Any] | None = None) -> dict[str, Any]:
     """What ``transform.json`` holds."""
     document: dict[str, Any] = {"kind": kind, "model": str(model), "scan": str(scan),
                                 "matrix": [[float(v) for v in row] for row in matrix],
                                 "maps": "scan frame -> model frame (world metres): p_model = matrix @ [p_scan, 1]"}
     if alignment is not None:
         document["alignment"] = alignment
+    if control is not None:
+        document["control"] = control
     return document
+
+
+def control_document(path: Path, residuals_m: np.ndarray) -> dict[str, Any]:
+    """What a pose from control point pairs records: the file, the pairs' residuals (mm)."""
+    return {"file": str(path), "pairs": len(residuals_m), "residual_mm": [round(float(r) * 1000, 2) for r in residuals_m],
+            "median_mm": round(float(np.median(residuals_m)) * 1000, 2), "max_mm": round(float(residuals_m.max()) * 1000, 2)}
 
 
 def _finite(value: float, scale: float = 1.0, digits: int = 1) -> str:
