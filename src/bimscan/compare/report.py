@@ -143,6 +143,12 @@ def _rigid_from_pairs(scan: np.ndarray, model: np.ndarray) -> np.ndarray:
     return matrix
 
 
+def _rows(text: str) -> list[list[str]]:
+    """The values of a matrix or point-pair file, line by line (commas or blanks; # comments)."""
+    return [line.replace(",", " ").split() for line in text.splitlines()
+            if line.strip() and not line.lstrip().startswith("#")]
+
+
 def read_transform(path: str | Path, *, pairs: bool = False) -> np.ndarray:
     """A 4x4 scan -> model matrix from ``path``: an alignment's ``transform.json``, or four lines of four
     numbers (``transform.txt``, CloudCompare's matrix file); with ``pairs`` also a CSV of three or more
@@ -159,8 +165,7 @@ def read_transform(path: str | Path, *, pairs: bool = False) -> np.ndarray:
             raise InputFileError(f"{path}: not a bimscan transform.json (no 4x4 'matrix'); pass the file "
                                  "'bimscan align' wrote") from exc
     else:
-        rows = [line.replace(",", " ").split() for line in text.splitlines()
-                if line.strip() and not line.lstrip().startswith("#")]
+        rows = _rows(text)
         try:
             numbers = [[float(v) for v in row] for row in rows]
         except ValueError as exc:
@@ -193,8 +198,7 @@ def pair_residuals_m(path: str | Path, matrix: np.ndarray) -> np.ndarray | None:
     text = Path(path).read_text("utf-8-sig")
     if text.lstrip().startswith("{"):
         return None
-    rows = [line.replace(",", " ").split() for line in text.splitlines()
-            if line.strip() and not line.lstrip().startswith("#")]
+    rows = _rows(text)
     if not rows or any(len(r) != 6 for r in rows):
         return None
     data = np.array([[float(v) for v in row] for row in rows])
