@@ -17,11 +17,14 @@ F = TypeVar("F", bound=Callable[..., object])
 
 
 def inference_options(command: F) -> F:
-    """The options evaluate and predict share: --device and how to label (--stride, --votes,
+    """The options evaluate and predict share: --device, --ensemble and how to label (--stride, --votes,
     --label-neighbours, --batch-size, --max-passes, --weights, --seed: the checkpoint's [eval]
     unless given)."""
     options = [
         click.option("--device", type=DEVICES, default=default_of(TrainConfig, "device"), show_default=True),
+        click.option("--ensemble", "ensemble", multiple=True, type=click.Path(path_type=Path, dir_okay=False),
+                     help="Another checkpoint whose class probabilities are averaged with CHECKPOINT's (repeatable; "
+                          "seeds of one recipe: the same classes, inputs and blocks). How to label is CHECKPOINT's."),
         click.option("--stride", "stride_m", type=float, default=None,
                      help="Columns every this many metres (a whole divisor of the block size). Default: the "
                           "checkpoint's [eval] stride_m."),
@@ -97,8 +100,8 @@ def train(config: Path, resume: bool, out_dir: Path | None, init: Path | None) -
 @inference_options
 def evaluate(
     checkpoint: Path, scenes: tuple[Path, ...], out_dir: Path | None, label_field: str | None, mapping: Path | None,
-    device: str, stride_m: float | None, votes: int | None, label_neighbours: int | None, batch_size: int | None,
-    max_passes: int | None, weights: str | None, seed: int | None,
+    device: str, ensemble: tuple[Path, ...], stride_m: float | None, votes: int | None, label_neighbours: int | None,
+    batch_size: int | None, max_passes: int | None, weights: str | None, seed: int | None,
 ) -> None:
     """Score CHECKPOINT on labelled SCENE... (every point): OA, mIoU, mAcc, FWIoU, kappa per scene.
 
@@ -119,7 +122,7 @@ def evaluate(
                                      batch_size=batch_size, max_passes=max_passes, weights=weights, seed=seed)
     results = evaluate_checkpoint(
         checkpoint, scenes, label_field=label_field, mapping=label_mapping, device=device, evaluation=evaluation,
-        warn=lambda line: click.echo(f"warning: {line}", err=True),
+        warn=lambda line: click.echo(f"warning: {line}", err=True), ensemble=ensemble,
     )
     click.echo(format_markdown(results), nl=False)  # the metrics table, then IoU per class
     if out_dir is not None:
@@ -138,8 +141,8 @@ def evaluate(
                    "it (same format); it is replaced at the end.")
 @inference_options
 def predict(
-    checkpoint: Path, in_path: Path, out_path: Path, overwrite: bool, device: str, stride_m: float | None,
-    votes: int | None, label_neighbours: int | None, batch_size: int | None, max_passes: int | None,
+    checkpoint: Path, in_path: Path, out_path: Path, overwrite: bool, device: str, ensemble: tuple[Path, ...],
+    stride_m: float | None, votes: int | None, label_neighbours: int | None, batch_size: int | None, max_passes: int | None,
     weights: str | None, seed: int | None,
 ) -> None:
     """Label every point of the scan IN with CHECKPOINT and write OUT (.laz/.las/.ply/.e57 or a folder;
@@ -160,7 +163,7 @@ def predict(
                                      batch_size=batch_size, max_passes=max_passes, weights=weights, seed=seed)
     result = predict_cloud(
         checkpoint, in_path, out_path, device=device, evaluation=evaluation, overwrite=overwrite,
-        warn=lambda line: click.echo(f"warning: {line}", err=True),
+        warn=lambda line: click.echo(f"warning: {line}", err=True), ensemble=ensemble,
     )
     shares = ", ".join(
         f"{name} {100.0 * count / max(result.points, 1):.1f}%"

@@ -170,3 +170,51 @@ def load_trained_model(
     load_state(model, payload[key], what=f"{key} weights", path=path)
     model.to(device).eval()
     return TrainedModel(model=model, config=config, class_names=class_names, epoch=int(payload["epoch"]), weights=weights)
+
+
+class Ensemble(nn.Module):
+    """Networks whose class probabilities are averaged (seeds or recipes of one set of classes,
+    inputs and blocks): the output is the log of the members' mean softmax, so that a softmax of
+    it, as inference takes, is that mean. Each member's outputs are checked for overflow first,
+    named by its checkpoint."""
+
+    def __init__(self, members: list[nn.Module], names: list[str]) -> None:
+        super().__init__()
+        self.members = nn.ModuleList(members)
+        self.names = names
+
+    def forward(self, xyz: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        from bimscan.learn.model import check_finite_outputs
+
+        total: torch.Tensor | None = None
+        for member, name in zip(self.members, self.names, strict=True):
+            logits = member(xyz, mask)
+            check_finite_outputs(logits, mask, model=name, where="the ensemble's blocks")
+            probabilities = torch.softmax(logits.float(), dim=-1)
+            total = probabilities if total is None else total + probabilities
+        assert total is not None
+        # float32's smallest normal is 1e-38: a class no member gives any chance stays finite
+        return torch.log((total / len(self.members)).clamp_min(1e-30))
+
+
+def load_trained_models(
+    paths: list[str | Path], *, device: torch.device | str = "cpu", weights: Literal["ema", "live"] | None = None,
+) -> TrainedModel:
+    """``load_trained_model`` of one checkpoint; of several, their ``Ensemble`` with the first's
+    configuration. Checkpoints that differ in classes, inputs or blocks are refused: their
+    probabilities are not of the same points or the same classes."""
+    if len(paths) == 1:
+        return load_trained_model(paths[0], device=device, weights=weights)
+    loaded = [load_trained_model(path, device=device, weights=weights) for path in paths]
+    first = loaded[0]
+    for path, other in zip(paths[1:], loaded[1:], strict=True):
+        for what, mine, theirs in (("classes", first.class_names, other.class_names),
+                                   ("[input]", first.config.input, other.config.input),
+                                   ("[blocks] size_m and points", (first.config.blocks.size_m, first.config.blocks.points),
+                                    (other.config.blocks.size_m, other.config.blocks.points))):
+            if mine != theirs:
+                raise LearnError(f"{path}: its {what} differ from those of {paths[0]}; an ensemble averages "
+                                 "checkpoints trained on the same classes, inputs and blocks (seeds of one recipe)")
+    ensemble = Ensemble([t.model for t in loaded], [str(p) for p in paths]).to(device).eval()
+    return TrainedModel(model=ensemble, config=first.config, class_names=first.class_names,  # type: ignore[arg-type]
+                        epoch=first.epoch, weights=first.weights)

@@ -33,7 +33,7 @@ from bimscan.errors import LearnError
 from bimscan.files import (
     check_output_folder, dump_json, json_marker, prepare_output_folder, read_marker, write_atomic,
 )
-from bimscan.learn.checkpoint import load_trained_model
+from bimscan.learn.checkpoint import load_trained_models
 from bimscan.io.s3dis import S3DIS_CLASSES
 from bimscan.learn.data import build_scene_label_table, check_scene_unit, list_scenes, stored_header
 from bimscan.learn.infer import SceneLabels, label_scene
@@ -123,15 +123,18 @@ class SceneEvaluation:
 def evaluate_checkpoint(
     checkpoint: str | Path, scenes: Sequence[str | Path], *, label_field: str | None = None,
     mapping: LabelMapping | None = None, device: str = "auto", evaluation: EvalConfig | None = None,
-    work_dir: Path | None = None, warn: Callable[[str], None] | None = None,
+    work_dir: Path | None = None, warn: Callable[[str], None] | None = None, ensemble: Sequence[str | Path] = (),
 ) -> list[SceneEvaluation]:
     """Label every point of each scene with the checkpoint's network and score it.
 
     Scenes must carry ground truth (after the mapping); class names come from the checkpoint.
-    ``evaluation``: how to label (default: the checkpoint's own ``[eval]``).
+    ``evaluation``: how to label (default: the checkpoint's own ``[eval]``). ``ensemble``: more
+    checkpoints whose class probabilities are averaged with the checkpoint's
+    (``bimscan.learn.checkpoint.Ensemble``).
     """
     torch_device = pick_device(device)
-    trained = load_trained_model(checkpoint, device=torch_device, weights=None if evaluation is None else evaluation.weights)
+    trained = load_trained_models([checkpoint, *ensemble], device=torch_device,
+                                  weights=None if evaluation is None else evaluation.weights)
     evaluation = (evaluation or trained.config.eval).with_seed(trained.config.train.seed)
     trained.config.eval.stride_for(trained.config.blocks.size_m)
     evaluation.stride_for(trained.config.blocks.size_m)  # a stride that does not divide the blocks: one line now

@@ -6,7 +6,7 @@ format with everything it holds, else through the target format's writer)."""
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -15,7 +15,7 @@ import numpy as np
 
 from bimscan.errors import LearnError
 from bimscan.files import work_folder
-from bimscan.learn.checkpoint import load_trained_model
+from bimscan.learn.checkpoint import load_trained_models
 from bimscan.learn.data import CHUNK_POINTS, SceneSource, check_scene_unit, list_scenes
 from bimscan.learn.infer import label_scene
 from bimscan.learn.model import pick_device
@@ -78,6 +78,7 @@ def check_prediction_output(
 def predict_cloud(
     checkpoint: str | Path, in_path: str | Path, out_path: str | Path, *, device: str = "auto",
     evaluation: EvalConfig | None = None, overwrite: bool = False, chunk_points: int = CHUNK_POINTS, warn: Callable[[str], None] | None = None,
+    ensemble: Sequence[str | Path] = (),
 ) -> PredictionResult:
     """Label every point of ``in_path`` and write ``out_path`` (format by suffix, see bimscan.io).
 
@@ -89,6 +90,7 @@ def predict_cloud(
     columns and every per-point field that format holds (extra dimensions, normals, scalar
     fields, ...), and ``warn`` receives one line naming what it does not (a CRS in a PLY, ...).
     The input's own labels are replaced (they are neither read for use nor checked).
+    ``ensemble``: more checkpoints whose class probabilities are averaged with the checkpoint's.
 
     ``out_path`` is checked before any work (the input's columns too: E57 cannot hold a mobile
     scan's); an output that is the input itself is refused unless the copy keeps all of it, and
@@ -102,7 +104,8 @@ def predict_cloud(
     check_prediction_output(in_path, out_path, overwrite=overwrite)  # before the checkpoint is read
     source: SceneSource = list_scenes([in_path])[0]
     torch_device = pick_device(device)
-    trained = load_trained_model(checkpoint, device=torch_device, weights=None if evaluation is None else evaluation.weights)
+    trained = load_trained_models([checkpoint, *ensemble], device=torch_device,
+                                  weights=None if evaluation is None else evaluation.weights)
     evaluation = (evaluation or trained.config.eval).with_seed(trained.config.train.seed)
     evaluation.stride_for(trained.config.blocks.size_m)  # a stride that does not divide the blocks: one line now
     check_scene_unit(source, blocks=trained.config.blocks)  # a scan in millimetres: one line now
@@ -141,6 +144,7 @@ def predict_cloud(
             metadata={
                 "prediction": {
                     "checkpoint": str(checkpoint), "epoch": trained.epoch, "weights": trained.weights,
+                    **({"ensemble": [str(p) for p in ensemble]} if ensemble else {}),
                     "source": str(in_path), "seed": evaluation.seed, "max_passes": evaluation.max_passes,
                     "block_size_m": trained.config.blocks.size_m, "points_per_block": trained.config.blocks.points,
                     "evaluation": asdict(evaluation),
