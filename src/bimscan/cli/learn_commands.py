@@ -126,7 +126,8 @@ def evaluate(
     )
     click.echo(format_markdown(results), nl=False)  # the metrics table, then IoU per class
     if out_dir is not None:
-        title = f"{checkpoint.name}: confusion over {len(results)} scene(s), all points"
+        members = f" (+ {len(ensemble)} more, averaged)" if ensemble else ""
+        title = f"{checkpoint.name}{members}: confusion over {len(results)} scene(s), all points"
         files = write_evaluation(results, out_dir, results[0].class_names, title=title)
         click.echo("wrote " + ", ".join(str(p) for p in files.paths()))
 
