@@ -599,7 +599,7 @@ def compare_model(model: str | Path, scan: str | Path, out: str | Path, config: 
         BCF_FILE, ELEMENTS_FILE, ELEMENT_COLUMNS, IFC_FILE, POINTS_STEM, PROGRESS_KIND, PSET_NAME, SUMMARY_FILE,
         TRANSFORM_JSON, TRANSFORM_TEXT, StagedFolder, bcf_topics, element_rows,
         CONTROL_RESIDUAL_M, control_document, format_matrix, pair_residuals_m, points_writer, property_values,
-        read_station_file, read_transform, transform_document, write_json,
+        read_pose, read_station_file, transform_document, write_json,
     )
     from bimscan.compare.surfaces import ModelSurfaces
     from bimscan.files import csv_bytes, remove_path
@@ -610,8 +610,8 @@ def compare_model(model: str | Path, scan: str | Path, out: str | Path, config: 
     _check_report_folder(out, kind="progress", overwrite=overwrite)
     if align is not None and transform is not None:
         raise ConfigError("--align and --transform both say where the scan lies; give one")
-    matrix = read_transform(transform, pairs=True) if transform is not None else np.eye(4)
-    residuals = pair_residuals_m(transform, matrix) if transform is not None else None
+    matrix, pairs = read_pose(transform, pairs=True) if transform is not None else (np.eye(4), None)
+    residuals = None if pairs is None else pair_residuals_m(pairs, matrix)
     control = None if residuals is None else control_document(Path(transform), residuals)  # type: ignore[arg-type]
     if residuals is not None and residuals.max() > CONTROL_RESIDUAL_M and log is not None:
         worst = int(np.argmax(residuals))

@@ -153,6 +153,11 @@ def read_transform(path: str | Path, *, pairs: bool = False) -> np.ndarray:
     """A 4x4 scan -> model matrix from ``path``: an alignment's ``transform.json``, or four lines of four
     numbers (``transform.txt``, CloudCompare's matrix file); with ``pairs`` also a CSV of three or more
     point pairs ``scan_x,scan_y,scan_z,model_x,model_y,model_z`` (solved by Kabsch)."""
+    return read_pose(path, pairs=pairs)[0]
+
+
+def read_pose(path: str | Path, *, pairs: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+    """``read_transform``'s matrix and, when the file held point pairs, those pairs (N, 6)."""
     path = check_input_file(path, what="a transform file")
     try:
         text = path.read_text("utf-8-sig")
@@ -179,7 +184,7 @@ def read_transform(path: str | Path, *, pairs: bool = False) -> np.ndarray:
                                                                      tol=1e-3) < 2:
                 raise InputFileError(f"{path}: the point pairs' scan points lie on one line (or are not finite "
                                      "numbers); give three or more points spread over the site")
-            return _rigid_from_pairs(data[:, :3], data[:, 3:])
+            return _rigid_from_pairs(data[:, :3], data[:, 3:]), data
         matrix = np.array(numbers, dtype=np.float64) if numbers and all(len(r) == 4 for r in numbers) else np.zeros(0)
     if matrix.shape != (4, 4) or not np.all(np.isfinite(matrix)):
         raise InputFileError(f"{path}: not a 4x4 matrix of finite numbers; pass four lines of four numbers"
@@ -189,20 +194,13 @@ def read_transform(path: str | Path, *, pairs: bool = False) -> np.ndarray:
             or np.linalg.det(rotation) < 0:
         raise InputFileError(f"{path}: the matrix is not a rigid motion (a rotation and a translation, last row "
                              "0 0 0 1); bimscan aligns without scaling or mirroring")
-    return matrix
+    return matrix, None
 
 
-def pair_residuals_m(path: str | Path, matrix: np.ndarray) -> np.ndarray | None:
-    """Where ``matrix`` leaves each point pair of the file ``path`` (its distances, metres), or None
-    when the file holds a matrix, not point pairs: how well control points agree with the pose."""
-    text = Path(path).read_text("utf-8-sig")
-    if text.lstrip().startswith("{"):
-        return None
-    rows = _rows(text)
-    if not rows or any(len(r) != 6 for r in rows):
-        return None
-    data = np.array([[float(v) for v in row] for row in rows])
-    return np.linalg.norm(apply(matrix, data[:, :3]) - data[:, 3:], axis=1)
+def pair_residuals_m(pairs: np.ndarray, matrix: np.ndarray) -> np.ndarray:
+    """Where ``matrix`` leaves each point pair (N, 6) scan -> model (its distances, metres): how well
+    control points agree with the pose."""
+    return np.linalg.norm(apply(matrix, pairs[:, :3]) - pairs[:, 3:], axis=1)
 
 
 def transform_document(matrix: np.ndarray, *, kind: str, model: Path, scan: Path,
