@@ -9,6 +9,7 @@ the bytes of the local executor. The cluster is torn down whatever happens.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -174,10 +175,20 @@ def _build_on_cluster(cluster: LocalCluster, spec: Path, out: Path, *,
         deadline = time.monotonic() + 240
         while kill_when_writing is not None and killed is None and build.poll() is None and time.monotonic() < deadline:
             names = os.listdir(out / "units") if (out / "units").is_dir() else []
-            writing = [m["unit"] for m in map(_STAGING.match, names) if m and kill_when_writing.runs(int(m["pid"]))]
-            if writing:
-                killed = (writing[0], kill_when_writing.kill())
-            time.sleep(0.02)
+            writing = [(name, m["unit"], int(m["pid"])) for name, m in zip(names, map(_STAGING.match, names))
+                       if m and kill_when_writing.runs(int(m["pid"]))]
+            for staging, unit, pid in writing[:1]:
+                # Freeze the writer at once (one signal: listing the node's processes to kill them takes
+                # long enough on a loaded machine for a small unit to finish), then kill the node only
+                # if the unit is still unfinished; a unit finished in between is not a lost unit.
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGSTOP)
+                if (out / "units" / staging).exists():
+                    killed = (unit, kill_when_writing.kill())
+                else:
+                    with contextlib.suppress(ProcessLookupError):
+                        os.kill(pid, signal.SIGCONT)
+            time.sleep(0.005)
         output, _ = build.communicate(timeout=240)
     finally:
         if build.poll() is None:
