@@ -22,7 +22,7 @@ from bimscan.errors import InputFileError, LearnError
 from bimscan.files import atomic_output
 from bimscan.learn.train_config import EvalConfig, TrainRunConfig, parse_config
 from bimscan.learn.features import input_channels
-from bimscan.learn.model import PCTSegmentation, build_model
+from bimscan.learn.model import build_model
 
 CHECKPOINT_FORMAT = "bimscan-pct-checkpoint"
 CHECKPOINT_VERSION = 1
@@ -145,9 +145,10 @@ def stored_eval_config(path: str | Path) -> EvalConfig:
 
 @dataclass
 class TrainedModel:
-    """A network restored from a checkpoint, in eval mode, with what inference needs."""
+    """A model restored from a checkpoint (a PCT, gradient-boosted trees or an ``Ensemble``), in
+    eval mode, with what inference needs."""
 
-    model: PCTSegmentation
+    model: nn.Module
     config: TrainRunConfig
     class_names: tuple[str, ...]
     epoch: int
@@ -165,9 +166,15 @@ def load_trained_model(
     class_names = tuple(payload["class_names"])
     if len(class_names) < 2:
         raise InputFileError(f"{path}: damaged checkpoint, {len(class_names)} class name(s); pass a bimscan checkpoint")
-    model = build_model(len(class_names), config.model, in_dim=input_channels(config.input.features))
-    key = "ema" if weights == "ema" else "model"
-    load_state(model, payload[key], what=f"{key} weights", path=path)
+    model: nn.Module
+    if config.model.kind == "gbm":  # trees have no averaged weights: "ema" and "live" are the same trees
+        from bimscan.learn.boosted import boosted_trees_from
+
+        model = boosted_trees_from(payload, config, path=path)
+    else:
+        model = build_model(len(class_names), config.model, in_dim=input_channels(config.input.features))
+        key = "ema" if weights == "ema" else "model"
+        load_state(model, payload[key], what=f"{key} weights", path=path)
     model.to(device).eval()
     return TrainedModel(model=model, config=config, class_names=class_names, epoch=int(payload["epoch"]), weights=weights)
 
@@ -216,5 +223,5 @@ def load_trained_models(
                 raise LearnError(f"{path}: its {what} differ from those of {paths[0]}; an ensemble averages "
                                  "checkpoints trained on the same classes, inputs and blocks (seeds of one recipe)")
     ensemble = Ensemble([t.model for t in loaded], [str(p) for p in paths]).to(device).eval()
-    return TrainedModel(model=ensemble, config=first.config, class_names=first.class_names,  # type: ignore[arg-type]
+    return TrainedModel(model=ensemble, config=first.config, class_names=first.class_names,
                         epoch=first.epoch, weights=first.weights)

@@ -561,7 +561,7 @@ def _shown(value: object) -> str:
 
 
 @torch.no_grad()
-def _validate(
+def validate(
     model: nn.Module, dataset: TileDataset, *, ctx: DistributedContext, batch_size: int, amp: str, classes: int,
     name: str = "the averaged weights", advice: str = "train again with a lower [train] max_lr",
 ) -> tuple[torch.Tensor, float, float]:
@@ -591,7 +591,7 @@ def _validate(
     return confusion, float(sums[0]), float(sums[1])
 
 
-def _metric_row(prefix: str, confusion: torch.Tensor | None, loss_sum: float, points: float) -> dict[str, float]:
+def metric_row(prefix: str, confusion: torch.Tensor | None, loss_sum: float, points: float) -> dict[str, float]:
     if confusion is None:
         return {f"{prefix}_{name}": math.nan for name in ("loss", *METRIC_NAMES)}
     metrics = compute_metrics(confusion.cpu().numpy())
@@ -611,7 +611,8 @@ def train_model(
     init: Path | None = None, on_step_end: Callable[[int, int], None] | None = None,
     log: Callable[[str], None] | None = None, terms: RunTerms = TRAIN_TERMS,
 ) -> TrainResult:
-    """Train PCT as configured; checkpoints, ``metrics.csv`` and ``curves.png`` go to ``out_dir``.
+    """Train the model as configured (PCT; ``[model] kind = "gbm"``: trees, see
+    :mod:`bimscan.learn.boosted`); checkpoints, ``metrics.csv`` and ``curves.png`` go to ``out_dir``.
 
     ``base_dir`` anchors the config's relative paths; ``out_dir`` overrides ``[train] out_dir``.
     ``resume`` continues from ``out_dir/last.pt`` (the interrupted epoch restarts from its
@@ -625,6 +626,11 @@ def train_model(
     use_cpu_threads(settings.cpu_threads)
     ctx = init_distributed(settings.device)
     try:
+        if config.model.kind == "gbm":
+            from bimscan.learn.boosted import train_boosted
+
+            return train_boosted(config, ctx=ctx, base_dir=base_dir, out_dir=out_dir, resume=resume, init=init,
+                                 log=log, terms=terms)
         return _train(config, settings=settings, ctx=ctx, base_dir=base_dir, out_dir=out_dir, resume=resume,
                       init=init, on_step_end=on_step_end, log=log, terms=terms)
     finally:
@@ -732,10 +738,25 @@ def is_earlier_run(folder: Path) -> bool:
                for name in folder_entries(folder))
 
 
-def _set_up(config: TrainRunConfig, *, ctx: DistributedContext, base_dir: Path, out_dir: Path | None, resume: bool,
-            init: Path | None, emit: Callable[[str], None], terms: RunTerms = TRAIN_TERMS) -> _Run:
-    """Every input checked (before the output folder appears), the tiles read, the network, its
-    optimizer and schedule built, and with ``resume`` restored from ``last.pt``."""
+@dataclass
+class RunInputs:
+    """A run's inputs, checked and read (``prepare_run_inputs``): its folder, training scene sets,
+    tiles (validation and adaptation: None when not given), and with ``--resume`` the checkpoint's
+    ``state``, with ``--init`` the ``parent`` checkpoint read."""
+
+    out: Path
+    train_sets: list[list[SceneSource]]
+    val_tiles: TileSet | None
+    train_tiles: TileSet
+    target_tiles: TileSet | None
+    state: dict[str, Any] | None
+    parent: dict[str, Any] | None
+
+
+def prepare_run_inputs(config: TrainRunConfig, *, ctx: DistributedContext, base_dir: Path, out_dir: Path | None,
+                       resume: bool, init: Path | None, terms: RunTerms = TRAIN_TERMS) -> RunInputs:
+    """Every input of a run checked (before the output folder appears), the folder prepared and the
+    tiles read; a bad input leaves no folder this run made."""
     settings = config.train
     out = Path(out_dir) if out_dir is not None else resolve_path(base_dir, settings.out_dir)
     last_path = out / "last.pt"
@@ -769,7 +790,6 @@ def _set_up(config: TrainRunConfig, *, ctx: DistributedContext, base_dir: Path, 
         claim_output(out, "tile-cache/")
     if ctx.world > 1:
         dist.barrier()  # the folder and its record are made before any process writes its tile cache there
-    classes = len(config.data.class_names)
     try:
         val_tiles, train_tiles, target_tiles = _read_tiles(config, val_sources, train_sources, target_sources,
                                                            cache_dir=out / "tile-cache", ctx=ctx, terms=terms)
@@ -777,6 +797,20 @@ def _set_up(config: TrainRunConfig, *, ctx: DistributedContext, base_dir: Path, 
         if created:  # this run made OUT and it holds only tile caches: a bad input leaves nothing behind
             remove_path(out)
         raise
+    return RunInputs(out=out, train_sets=train_sets, val_tiles=val_tiles, train_tiles=train_tiles,
+                     target_tiles=target_tiles, state=state, parent=parent)
+
+
+def _set_up(config: TrainRunConfig, *, ctx: DistributedContext, base_dir: Path, out_dir: Path | None, resume: bool,
+            init: Path | None, emit: Callable[[str], None], terms: RunTerms = TRAIN_TERMS) -> _Run:
+    """Every input checked (before the output folder appears), the tiles read, the network, its
+    optimizer and schedule built, and with ``resume`` restored from ``last.pt``."""
+    settings = config.train
+    inputs = prepare_run_inputs(config, ctx=ctx, base_dir=base_dir, out_dir=out_dir, resume=resume, init=init,
+                                terms=terms)
+    out, train_sets, state, parent = inputs.out, inputs.train_sets, inputs.state, inputs.parent
+    val_tiles, train_tiles, target_tiles = inputs.val_tiles, inputs.train_tiles, inputs.target_tiles
+    classes = len(config.data.class_names)
     train_set = TileDataset(train_tiles, points=config.blocks.points, seed=settings.seed, inputs=config.input,
                             augment=config.augment)
     val_set = None if val_tiles is None else TileDataset(
@@ -935,15 +969,15 @@ def _train_epoch(run: _Run, epoch: int, on_step_end: Callable[[int, int], None] 
     _all_reduce(confusion, ctx)
     _all_reduce(sums, ctx)
     row: dict[str, float] = {"epoch": epoch + 1, "lr": float(last_lr)}
-    row.update(_metric_row("train", confusion, float(sums[0]), float(sums[1])))
+    row.update(metric_row("train", confusion, float(sums[0]), float(sums[1])))
     if run.val_set is not None:
-        val_confusion, val_loss, val_points = _validate(
+        val_confusion, val_loss, val_points = validate(
             run.ema.module, run.val_set, ctx=ctx, batch_size=config.eval.batch_size, amp=settings.amp, classes=classes,
             name=f"the averaged weights at epoch {epoch + 1}", advice=run.terms.when_diverged(settings.max_lr),
         )
-        row.update(_metric_row("val", val_confusion, val_loss, val_points))
+        row.update(metric_row("val", val_confusion, val_loss, val_points))
     else:
-        row.update(_metric_row("val", None, 0.0, 0.0))
+        row.update(metric_row("val", None, 0.0, 0.0))
     row["seconds"] = time.perf_counter() - started
     return row
 

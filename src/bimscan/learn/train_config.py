@@ -184,8 +184,19 @@ class AugmentConfig(Checked):
 
 @dataclass(frozen=True)
 class ModelConfig(Checked):
-    """PCT segmentation network size (defaults: Guo et al. 2021, about 2.4M parameters at C=5)."""
+    """The model: ``kind`` "pct", the PCT segmentation network (its size: defaults of Guo et al.
+    2021, about 2.4M parameters at C=5), or "gbm", gradient-boosted trees (LightGBM) on per-point
+    geometric features of the same blocks (:mod:`bimscan.learn.boosted`; the ``gbm_`` keys):
+    ``gbm_rounds`` boosting rounds of one tree per class with at most ``gbm_leaves`` leaves and
+    ``gbm_min_leaf_points`` points per leaf, shrunk by ``gbm_learning_rate``, trained on at most
+    ``gbm_points`` points drawn evenly from the ``[train] epochs`` augmented draws of every block."""
 
+    kind: Literal["pct", "gbm"] = "pct"
+    gbm_rounds: int = setting(300, within=Range(1, 100_000))
+    gbm_leaves: int = setting(63, within=Range(2, 131_072))
+    gbm_learning_rate: float = setting(0.05, within=Range(0.0, 1.0, low_open=True))
+    gbm_min_leaf_points: int = setting(200, within=Range(1, 1 << 30))
+    gbm_points: int = setting(1_500_000, within=Range(1000, 1 << 31))
     embed_dim: int = setting(128, within=Range(4, 4096))
     attention_layers: int = setting(4, within=Range(1, 64))
     fuse_dim: int = setting(1024, within=Range(1, 1 << 16))
