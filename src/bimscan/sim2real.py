@@ -79,7 +79,9 @@ def run_experiment(experiment: Experiment, out_dir: str | Path, *,
     scored = _scored_scenes(experiment)
     # every variant's models planned before any work: one that cannot run (too few scored rooms
     # for its folds) stops the experiment now, not after the variants before it have trained
-    runs_of = {variant.name: _runs(experiment, variant, scored) for variant in experiment.variants}
+    runs_of: dict[str, list[Run]] = {}
+    for variant in experiment.variants:
+        runs_of[variant.name] = _runs(experiment, variant, scored, runs_of)
     _check_holdout_unseen(experiment, out)
     _check_real_labelled(experiment)
     prepare_output_folder(out, names=EXPERIMENT_OUTPUTS, made_by=is_earlier_experiment)  # a user's folder: refused
@@ -124,8 +126,17 @@ def _scored_scenes(experiment: Experiment) -> list[SceneSource]:
     return resolve_scene_set(experiment.real, base=Path("/"))
 
 
-def _runs(experiment: Experiment, variant: Variant, scored: list[SceneSource]) -> list[Run]:
-    """The models of a variant (see the module docs: never scored on a room it trained on)."""
+def _runs(experiment: Experiment, variant: Variant, scored: list[SceneSource],
+          earlier: dict[str, list[Run]] | None = None) -> list[Run]:
+    """The models of a variant (see the module docs: never scored on a room it trained on); an
+    ensemble's are its members' runs, which must be alike (the same folds and scored scenes)."""
+    if variant.ensemble:
+        members = [(earlier or {})[name] for name in variant.ensemble]
+        plan = [[(r.fold, r.scored) for r in runs] for runs in members]
+        if any(other != plan[0] for other in plan[1:]):
+            raise ConfigError(f"variant {variant.name!r} ensemble: its members are scored on other scenes or folds; "
+                              "average variants trained on the same rooms")
+        return [Run(variant, r.fold, r.train_rooms, r.scored, adapt=r.adapt) for r in members[0]]
     if variant.adapt_to == "scored":  # transductive: adapted to the very scenes it is scored on, unlabelled
         return [Run(variant, None, (), tuple(scored), adapt=tuple(scored))]
     if variant.adapt_to == "others":  # inductive: each fold adapted to the scored scenes outside it
@@ -168,9 +179,15 @@ def _synthetic(variant: Variant, out: Path) -> tuple[str, ...]:
     return tuple(str(_dataset_dir(out, s)) for s in variant.specs) + tuple(str(f) for f in variant.folders)
 
 
-def training_config(experiment: Experiment, run: Run, out: Path) -> TrainRunConfig:
+def training_config(experiment: Experiment, run: Run, out: Path, runs_of: dict[str, list[Run]] | None = None,
+                    number: int = 0) -> TrainRunConfig:
     """A run's whole training configuration: its synthetic data and rooms, its scored scenes as
-    validation, the variant's sections."""
+    validation, the variant's sections; an ensemble's (run ``number`` of ``runs_of``): its first
+    member's run's, with the ensemble's ``[eval]``."""
+    if run.variant.ensemble:
+        first = (runs_of or {})[run.variant.ensemble[0]][number]
+        return dataclasses.replace(training_config(experiment, first, out),
+                                   eval=training_sections(run.variant)["eval"])
     train: list[SceneSet] = []
     synthetic = _synthetic(run.variant, out)
     if synthetic:
@@ -194,6 +211,8 @@ def _fingerprint(experiment: Experiment, variant: Variant, out: Path) -> str:
     document = {"sections": variant.sections, "synthetic": _synthetic(variant, out), "init": variant.init,
                 "rooms": "all" if variant.rooms == "all" else [str(s.path) for s in variant.rooms],
                 "room_weight": variant.room_weight, "folds": experiment.folds, "class_names": experiment.class_names}
+    if variant.ensemble:  # (absent otherwise, as adapt_to)
+        document["ensemble"] = list(variant.ensemble)
     if variant.adapt_to:  # (absent otherwise: the fingerprints of variants without it stay what they were)
         # "scored" and "others" adapt to the scored scenes: other real scenes (--real), another model
         document["adapt_to"] = [variant.adapt_to, *experiment.real.scenes] if isinstance(variant.adapt_to, str) \
@@ -357,16 +376,24 @@ def _run_variant(experiment: Experiment, variant: Variant, runs_of: dict[str, li
         return VariantResult.from_json(json.loads(result_path.read_text(encoding="utf-8")))
     runs = runs_of[variant.name]
     evaluations, holdouts, histories, seconds = [], [], [], 0.0
-    config = training_config(experiment, runs[0], out)
+    config = training_config(experiment, runs[0], out, runs_of)
     class_names = tuple(config.data.class_names)
-    for run in runs:
-        config = training_config(experiment, run, out)
+    for number, run in enumerate(runs):
+        config = training_config(experiment, run, out, runs_of, number)
         where = run.folder(out)
         last = where / "train" / "last.pt"
+        members: list[Path] = []
+        if variant.ensemble:  # its members' models of this run, trained by their own variants above
+            members = [runs_of[name][number].folder(out) / "train" / "last.pt" for name in variant.ensemble]
+            last = members[0]
+            for path in members:
+                if not path.is_file():
+                    raise LearnError(f"{path}: a member of ensemble {variant.name!r} has no model; run the experiment "
+                                     "from its start")
         init = None if variant.init is None else _parent_checkpoint(runs_of[variant.init], run, out)
         done = int(read_checkpoint(last)["epoch"]) if last.is_file() else 0
         label = variant.name + ("" if run.fold is None else f" fold {run.fold + 1}/{len(runs)}")
-        if done < config.train.epochs:
+        if done < config.train.epochs and not members:
             emit(f"variant {label}: training{' (resuming after epoch ' + str(done) + ')' if done else ''} on "
                  f"{len(run.train_rooms)} real room(s){' and synthetic data' if variant.specs or variant.folders else ''}"
                  + (f", adapting to {len(run.adapt)} unlabelled scene(s)" if run.adapt else "")
@@ -374,21 +401,22 @@ def _run_variant(experiment: Experiment, variant: Variant, runs_of: dict[str, li
             train_model(config, base_dir=experiment.path.parent, out_dir=where / "train", resume=last.is_file(),
                         init=init, log=emit)
         use_cpu_threads(config.train.cpu_threads)  # the scores, too, are sums in thread order
-        history = read_checkpoint(last)["history"]
+        history = [] if members else read_checkpoint(last)["history"]  # an ensemble has no epochs of its own
         histories.append(history)
-        seconds += float(sum(row.get("seconds", 0.0) for row in history))
+        for path in members or [last]:  # an ensemble cost its members' training
+            seconds += float(sum(row.get("seconds", 0.0) for row in read_checkpoint(path)["history"]))
         if run.scored:
             emit(f"variant {label}: evaluating on {len(run.scored)} real scene(s)")
             mapping = None if experiment.real.mapping is None else load_label_mapping(experiment.real.mapping)
             found = evaluate_checkpoint(last, [s.path for s in run.scored], label_field=experiment.real.label_field,
                                         mapping=mapping, device=config.train.device, evaluation=config.eval,
-                                        work_dir=where)
+                                        work_dir=where, ensemble=members[1:])
             write_evaluation(found, where / "eval", class_names,
                              title=f"{label}: confusion on {len(found)} real scene(s), all points")
             evaluations += found
         if holdout is not None:
             found = evaluate_checkpoint(last, [holdout], device=config.train.device, evaluation=config.eval,
-                                        work_dir=where)
+                                        work_dir=where, ensemble=members[1:])
             write_evaluation(found, where / "holdout", class_names,
                              title=f"{label}: confusion on {len(found)} holdout building(s), all points")
             holdouts.append(found)
@@ -408,7 +436,7 @@ def _run_variant(experiment: Experiment, variant: Variant, runs_of: dict[str, li
         adapted=[[s.name for s in run.adapt] for run in runs],
         excluded=sorted({s.name for run in runs for s in run.train_rooms} & {s.name for s in _scored_scenes(experiment)}),
         folds=len(runs) if runs[0].fold is not None else 0, evaluation=dataclasses.asdict(config.eval),
-        init=variant.init)
+        init=variant.init, ensemble=list(variant.ensemble))
     write_atomic(result_path, (json.dumps(result.to_json(), indent=2, allow_nan=True) + "\n").encode("utf-8"))
     p = result.pooled
     emit(f"variant {variant.name}: mIoU {p['miou']:.3f} kappa {p['kappa']:.3f} OA {p['oa']:.3f} (real points it never "

@@ -641,3 +641,61 @@ def test_an_inductive_variant_with_one_scored_room_is_refused_before_any_work(ro
         run_experiment(load_experiment(rooms_dir / "exp.toml", real=[rooms_dir / "r1.txt"]), out, log=lambda t: None)
 
     assert not out.exists()
+
+
+FAMILIES = EXPERIMENT[:EXPERIMENT.index("[[variants]]")] + """\
+[[variants]]
+name = "recipe"
+data = "spec.toml"
+
+[[variants]]
+name = "trees"
+data = "spec.toml"
+model = { kind = "gbm", gbm_rounds = 20, gbm_leaves = 15, gbm_min_leaf_points = 20 }
+
+[[variants]]
+name = "both"
+description = "the two families averaged"
+ensemble = ["recipe", "trees"]
+eval = { votes = 2 }
+"""
+
+
+def test_an_ensemble_variant_scores_the_mean_of_its_members_models_and_trains_nothing(experiment_dir: Path) -> None:
+    from bimscan.learn.checkpoint import load_trained_model
+    from bimscan.learn.evaluate import evaluate_checkpoint
+
+    (experiment_dir / "exp.toml").write_text(FAMILIES, encoding="utf-8")
+    out = experiment_dir / "out"
+    experiment = load_experiment(experiment_dir / "exp.toml")
+    results = {r.variant: r for r in run_experiment(experiment, out, log=lambda text: None)}
+    assert type(load_trained_model(out / "variants/trees/train/last.pt").model).__name__ == "BoostedTrees"
+    both = results["both"]
+    assert both.ensemble == ["recipe", "trees"] and not (out / "variants/both/train").exists()
+    assert both.train_seconds == pytest.approx(results["recipe"].train_seconds + results["trees"].train_seconds)
+    assert both.evaluation["votes"] == 2 and results["recipe"].evaluation["votes"] == 1  # its own [eval]
+    # its scores are those of the members' mean probabilities, members in the order named
+    evaluation = training_sections(next(v for v in experiment.variants if v.name == "both"))["eval"]
+    found = evaluate_checkpoint(out / "variants/recipe/train/last.pt", [experiment_dir / "real.txt"], device="cpu",
+                                evaluation=evaluation, ensemble=[out / "variants/trees/train/last.pt"])
+    assert found[0].labels.confusion.tolist() == both.confusion
+    assert "The mean class probabilities of recipe, trees (trains nothing)" in (out / "report.md").read_text()
+
+
+@pytest.mark.parametrize(("patch", "message"), [
+    (('ensemble = ["recipe", "trees"]', 'ensemble = ["recipe", "forest"]'), "'forest' is not an earlier variant"),
+    (('ensemble = ["recipe", "trees"]', 'ensemble = ["recipe"]'), "name two earlier variants or more"),
+    (('ensemble = ["recipe", "trees"]', 'ensemble = ["recipe", "trees"]\ndata = "spec.toml"'), "remove data"),
+    (('ensemble = ["recipe", "trees"]\neval', 'ensemble = ["recipe", "trees"]\nmodel = { dropout = 0.1 }\neval'),
+     "only its [eval] may be set"),
+    (('name = "trees"\ndata = "spec.toml"', 'name = "trees"\ndata = "spec.toml"\ninput = { grid_m = 0.2 }'),
+     "reads other [input] than 'recipe'"),
+])
+def test_bad_ensemble_variants_are_one_line_errors_before_any_work(
+    experiment_dir: Path, patch: tuple[str, str], message: str,
+) -> None:
+    text = FAMILIES.replace(*patch)
+    assert text != FAMILIES
+    (experiment_dir / "exp.toml").write_text(text, encoding="utf-8")
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        load_experiment(experiment_dir / "exp.toml")

@@ -23,7 +23,10 @@ One TOML file (loaded like every config, :func:`bimscan.toml_files.build_datacla
   scored real scenes themselves, the transductive protocol of unsupervised domain adaptation;
   ``"others"``, in folds, each fold's model adapted to the scored scenes outside its fold and
   scored on its own, the inductive one; or a list of scans) and overrides of the training
-  sections (``[adapt]`` among them).
+  sections (``[adapt]`` among them); or ``ensemble``: earlier variants whose models' class
+  probabilities are averaged run by run (fold by fold), a variant that trains nothing and is
+  scored as the others are (its members must read the same ``[input]`` and ``[blocks]``; its own
+  ``[eval]`` may differ).
 
 Scoring never counts a room a model trained on. A variant whose rooms are not among the scored
 scenes is trained once and scored on all of them; one whose rooms are, on the others; one
@@ -136,10 +139,19 @@ class VariantTable(TrainingTables):
     room_weight: float = setting(1.0, within=Range(0, 100, low_open=True))
     init: str | None = None
     adapt_to: tuple[str, ...] | Literal["scored", "others"] = ()
+    ensemble: tuple[str, ...] = ()
 
     def check(self) -> None:
         if not NAME_PATTERN.match(self.name):
             raise ConfigError(f"name {self.name!r} is not a usable name (letters, digits, . _ -, at most 64)")
+        if self.ensemble:
+            if len(self.ensemble) < 2 or len(set(self.ensemble)) != len(self.ensemble):
+                raise ConfigError(f"variant {self.name!r} ensemble: name two earlier variants or more, each once")
+            given = [key for key in ("data", "rooms", "init", "adapt_to") if getattr(self, key)]
+            if given:
+                raise ConfigError(f"variant {self.name!r}: an ensemble trains nothing, it averages its members' "
+                                  f"models; remove {', '.join(given)}")
+            return
         if not self.data and not self.rooms:
             raise ConfigError(f"variant {self.name!r} trains on nothing; give 'data' (synthetic) and/or 'rooms' (real)")
         if self.adapt_to and self.init is None:
@@ -175,6 +187,7 @@ class Variant:
     init: str | None
     sections: dict[str, Any]
     adapt_to: tuple[SceneSource, ...] | Literal["scored", "others"] = ()
+    ensemble: tuple[str, ...] = ()  # earlier variants whose models it averages (it trains nothing)
 
 
 @dataclass(frozen=True)
@@ -246,6 +259,9 @@ def parse_experiment(path: str | Path, *, real: Sequence[str | Path] | None = No
             raise ConfigError(f"{where}: the name is used twice; give every variant its own name")
         if table.init is not None and all(v.name != table.init for v in variants):
             raise ConfigError(f"{where} init: {table.init!r} is not an earlier variant; name one defined above it")
+        if table.ensemble:
+            variants.append(_ensemble_variant(table, variants, where=where))
+            continue
         specs, folders = [], []
         for item in (resolve_path(folder, value).resolve() for value in table.data):
             if not item.exists():
@@ -274,6 +290,34 @@ def parse_experiment(path: str | Path, *, real: Sequence[str | Path] | None = No
                             holdout=parsed.holdout, variants=tuple(variants), class_names=head.class_names,
                             workers=head.workers, folds=head.folds)
     return experiment
+
+
+def _ensemble_variant(table: VariantTable, earlier: list[Variant], *, where: str) -> Variant:
+    """An ensemble variant: its members earlier variants of the same inputs and blocks; its
+    training sections its first member's, with its own ``[eval]`` over them."""
+    members = []
+    for name in table.ensemble:
+        member = next((v for v in earlier if v.name == name), None)
+        if member is None:
+            raise ConfigError(f"{where} ensemble: {name!r} is not an earlier variant; name variants defined above it")
+        members.append(member)
+    first = members[0]
+    for member in members[1:]:
+        for section, keys in (("input", None), ("blocks", ("size_m", "points"))):
+            mine, theirs = (build_dataclass(TRAINING_SECTIONS[section], v.sections[section], where=where)
+                            for v in (first, member))
+            if keys is not None:
+                mine, theirs = tuple(getattr(mine, k) for k in keys), tuple(getattr(theirs, k) for k in keys)
+            if mine != theirs:
+                raise ConfigError(f"{where} ensemble: {member.name!r} reads other [{section}] than {first.name!r}; "
+                                  "an ensemble averages models of the same inputs and blocks")
+    for key in ("blocks", "input", "augment", "model", "train", "adapt"):
+        if getattr(table, key):
+            raise ConfigError(f"{where} [{key}]: an ensemble trains nothing; only its [eval] may be set")
+    sections = {**first.sections, "eval": {**first.sections["eval"], **table.eval}}
+    build_dataclass(TRAINING_SECTIONS["eval"], sections["eval"], where=f"{where} [eval]")
+    return Variant(name=table.name, description=table.description, specs=(), folders=(), rooms=(), room_weight=1.0,
+                   init=None, sections=sections, ensemble=table.ensemble)
 
 
 def _check_start(table: VariantTable, built: dict[str, Any], earlier: list[Variant], parsed: ExperimentFile, *,
@@ -439,6 +483,7 @@ class VariantResult:
     evaluation: dict[str, Any]
     init: str | None
     adapted: list[list[str]] = field(default_factory=list)  # per run, the unlabelled scenes it adapted to
+    ensemble: list[str] = field(default_factory=list)  # the variants it averages (it trained nothing)
 
     def to_json(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -446,7 +491,7 @@ class VariantResult:
     @staticmethod
     def from_json(data: dict[str, Any]) -> VariantResult:
         fields = {f.name for f in dataclasses.fields(VariantResult)}
-        if set(data) != fields and set(data) != fields - {"adapted"}:  # results from before adaptation read too
+        if not fields - {"adapted", "ensemble"} <= set(data) <= fields:  # results from before these read too
             raise LearnError("a variant result of another bimscan version; delete the variant's folder to rerun it")
         return VariantResult(**{**data, "class_names": tuple(data["class_names"])})
 

@@ -87,8 +87,11 @@ def format_report(experiment: Experiment, results: Sequence[VariantResult]) -> s
         excluded = f"; its training rooms ({', '.join(r.excluded)}) are not scored" if r.excluded and not r.folds else ""
         folds = "; each fold's model scored on its held-out rooms" if r.folds else ""
         text = f" {r.description}" if r.description else ""
-        lines.append(f"- **{r.variant}**:{text} Trained on {', '.join(how)}; scored on {scored} real scene(s)"
-                     f"{excluded}{folds}. Training {r.train_seconds / 60:.1f} min. Evaluation: columns every "
+        trained = (f"The mean class probabilities of {', '.join(r.ensemble)} (trains nothing)" if r.ensemble
+                   else f"Trained on {', '.join(how)}")
+        cost = "Its members' training" if r.ensemble else "Training"
+        lines.append(f"- **{r.variant}**:{text} {trained}; scored on {scored} real scene(s)"
+                     f"{excluded}{folds}. {cost} {r.train_seconds / 60:.1f} min. Evaluation: columns every "
                      f"{r.evaluation['stride_m']} m, {r.evaluation['votes']} vote(s), label neighbours "
                      f"{r.evaluation['label_neighbours']}. Confusion: `variants/{r.variant}/.../eval/confusion.png`.")
     scenes = sorted({s for r in results for s in r.scenes})
