@@ -52,6 +52,7 @@ def test_the_tree_features_place_each_point_in_its_column_and_keep_the_inputs_th
 ) -> None:
     features = ("xyz", "height", "normals", "shape", "rgb")
     block = np.zeros((4, 3 + 1 + 3 + 3 + 3), dtype=np.float32)
+    block[:, :2] = [[0.0, 0.0], [0.5, 0.5], [0.01, 0.02], [-0.5, 0.3]]  # the first and third in one plan cell
     block[:, 2] = [-1.0, 0.5, 1.0, 0.0]  # z
     block[:, 3] = [0.0, 0.5, 0.9, 0.3]  # height
     block[:, 4:7] = [[0, 0, 1], [1, 0, 0], [0, 0, 1], [0.6, 0, 0.8]]  # normals
@@ -65,6 +66,11 @@ def test_the_tree_features_place_each_point_in_its_column_and_keep_the_inputs_th
     np.testing.assert_allclose(column["below_top"], [2.0, 0.5, 0.0, 1.0])
     np.testing.assert_allclose(column["above_bottom"], [0.0, 1.5, 2.0, 1.0])
     np.testing.assert_allclose(column["normal_z"], [1.0, 0.0, 1.0, 0.8])
+    np.testing.assert_allclose(column["cell_share"], [0.5, 0.25, 0.5, 0.25])
+    np.testing.assert_allclose(column["cell_span"], [2.0, 0.0, 2.0, 0.0])
+    np.testing.assert_allclose(column["cell_spread"], [1.0, 0.0, 1.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(column["below_cell_top"], [2.0, 0.0, 0.0, 0.0])  # the floor point has the top above it
+    np.testing.assert_allclose(column["above_cell_bottom"], [0.0, 0.0, 2.0, 0.0])
     np.testing.assert_allclose(column["red_contrast"], [0.0, 0.0, 0.0, -0.6], atol=1e-6)  # against the median
     assert "normal_x" not in names and "x" not in names  # which way a wall faces, where the block lies: not read
 
@@ -134,3 +140,9 @@ def test_a_checkpoint_whose_trees_are_damaged_is_refused_in_one_line(tmp_path: P
     with pytest.raises(LearnError, match=r"damaged\.pt: ") as refused:
         load_trained_model(damaged)
     assert "\n" not in str(refused.value)
+    # trees that split on other features than this bimscan computes (another version's) are refused too
+    payload = torch.load(trees_run / "trees" / "last.pt", weights_only=True)
+    payload["config"]["input"]["features"] = ["xyz", "height", "normals", "shape", "shape_wide"]
+    torch.save(payload, damaged)
+    with pytest.raises(LearnError, match=r"damaged\.pt: its trees split on 14 features that are not the 17"):
+        load_trained_model(damaged)

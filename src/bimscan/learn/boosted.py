@@ -12,6 +12,11 @@ family alike. What they see of a point (``tree_feature_names``):
 - its place in its block's column: normalised z, its rank among the block's heights (0 lowest,
   1 highest) and its distance below the block's highest and above its lowest point (normalised
   units): a ceiling is its column's top, a floor its bottom, whatever the storey's height;
+- what lies above and below it: the block's points binned in plan into ``CELL`` squares
+  (Weinmann et al.'s 2D accumulation features): the cell's share of the block's points, its
+  height span and the standard deviation of its heights, and the point's distance below the
+  cell's highest and above its lowest point (a beam has the ceiling just above it, a wall spans
+  its cell from floor to ceiling, a table top has the floor below it);
 - ``height`` above the floor under it (the storey's), with that input;
 - from ``normals``: n_z (0 on a wall, 1 on a slab; n_x and n_y say only which way a wall faces,
   which rotation augmentation makes noise, and are left out);
@@ -54,11 +59,15 @@ from bimscan.learn.train_config import IGNORE_LABEL, ModelConfig, TrainRunConfig
 from bimscan.progress import progress_bar
 
 BOOSTER_KEY = "booster"  # the checkpoint's "model" (and "ema") entry: LightGBM's model text
+# plan cells of the accumulation features, in the block's normalised units (a 3 m block: about
+# 0.15 m; Weinmann et al. 2015 use 0.25 m)
+CELL = 0.1
 
 
 def tree_feature_names(features: tuple[str, ...]) -> list[str]:
     """The trees' per-point features for a block of ``[input] features`` (see the module docstring)."""
-    names = ["z", "z_rank", "below_top", "above_bottom"]
+    names = ["z", "z_rank", "below_top", "above_bottom", "cell_share", "cell_span", "cell_spread",
+             "below_cell_top", "above_cell_bottom"]
     for name in features[1:]:
         if name == "height":
             names.append("height")
@@ -79,6 +88,7 @@ def block_tree_features(block: np.ndarray, features: tuple[str, ...]) -> np.ndar
     rank = np.empty(m, dtype=np.float32)
     rank[np.argsort(z, kind="stable")] = np.arange(m, dtype=np.float32) / max(m - 1, 1)
     columns = [z, rank, z.max() - z, z - z.min()] if m else [z, rank, z, z]
+    columns += _cell_features(block[:, :3])
     at = 3
     for name in features[1:]:
         width = FEATURE_CHANNELS[name]
@@ -96,6 +106,26 @@ def block_tree_features(block: np.ndarray, features: tuple[str, ...]) -> np.ndar
     return np.stack(columns, axis=1).astype(np.float32)
 
 
+def _cell_features(xyz: np.ndarray) -> list[np.ndarray]:
+    """Per point: its plan cell's share of the points, height span, height standard deviation,
+    and the point's distance below the cell's top and above its bottom."""
+    m = len(xyz)
+    if m == 0:
+        return [np.zeros(0, dtype=np.float32)] * 5
+    cells = np.floor(xyz[:, :2] / CELL).astype(np.int64)
+    _, cell, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
+    cell = cell.reshape(-1)
+    z = xyz[:, 2].astype(np.float64)
+    top = np.full(len(counts), -np.inf)
+    bottom = np.full(len(counts), np.inf)
+    np.maximum.at(top, cell, z)
+    np.minimum.at(bottom, cell, z)
+    mean = np.bincount(cell, weights=z, minlength=len(counts)) / counts
+    spread = np.sqrt(np.maximum(np.bincount(cell, weights=z * z, minlength=len(counts)) / counts - mean ** 2, 0.0))
+    return [(counts[cell] / m).astype(np.float32), (top - bottom)[cell].astype(np.float32),
+            spread[cell].astype(np.float32), (top[cell] - z).astype(np.float32), (z - bottom[cell]).astype(np.float32)]
+
+
 class BoostedTrees(nn.Module):
     """LightGBM trees as a segmentation model: ``forward(xyz, mask)`` of a batch of blocks (B, N, D)
     gives (B, N, C) log class probabilities (padding rows 0), what inference and ensembles read
@@ -109,11 +139,14 @@ class BoostedTrees(nn.Module):
         self.features = features
         self.classes = classes
         self.booster = lightgbm.Booster(model_str=booster_text)
-        expected = len(tree_feature_names(features))
-        if self.booster.num_feature() != expected or self.booster.params.get("num_class", classes) != classes:
-            raise LearnError(f"gradient-boosted trees of {self.booster.num_feature()} features and "
-                             f"{self.booster.params.get('num_class')} classes do not fit [input] features "
-                             f"{list(features)} ({expected} features) and {classes} classes; the checkpoint is damaged")
+        expected = tree_feature_names(features)
+        if self.booster.feature_name() != expected:
+            raise LearnError(f"its trees split on {len(self.booster.feature_name())} features that are not the "
+                             f"{len(expected)} this bimscan computes from [input] features {list(features)} (trees of "
+                             "another version or a damaged checkpoint); train them again")
+        if self.booster.num_model_per_iteration() != classes:
+            raise LearnError(f"its trees tell {self.booster.num_model_per_iteration()} classes apart, not its "
+                             f"{classes} class names; the checkpoint is damaged")
 
     def forward(self, xyz: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         blocks = xyz.detach().float().cpu().numpy()
