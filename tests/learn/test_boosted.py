@@ -146,3 +146,26 @@ def test_a_checkpoint_whose_trees_are_damaged_is_refused_in_one_line(tmp_path: P
     torch.save(payload, damaged)
     with pytest.raises(LearnError, match=r"damaged\.pt: its trees split on 14 features that are not the 17"):
         load_trained_model(damaged)
+
+
+def test_an_ensemble_of_models_reading_other_features_gives_each_its_own_channels(
+    tmp_path: Path, trained_run: Path, tiny_config: Callable[..., Path],
+) -> None:
+    path = _tree_config(tmp_path, tiny_config, out_dir="wide")
+    path.write_text(path.read_text() + '\n[input]\nfeatures = ["xyz", "height", "normals", "shape", "shape_wide"]\n',
+                    encoding="utf-8")
+    config, base = load_train_config(path)
+    train_model(config, base_dir=base, log=lambda text: None)
+    network, trees = trained_run / "run" / "last.pt", tmp_path / "wide" / "last.pt"
+    together = load_trained_models([network, trees])
+    assert together.config.input.features == ("xyz", "height", "normals", "shape", "shape_wide")  # computed once
+    one, two = load_trained_model(network).model, load_trained_model(trees).model
+    generator = torch.Generator().manual_seed(1)
+    xyz = torch.rand(2, 64, 13, generator=generator) * 2 - 1
+    mask = torch.ones(2, 64, dtype=torch.bool)
+    with torch.inference_mode():
+        mean = (torch.softmax(one(xyz[..., :10], mask), -1) + torch.softmax(two(xyz, mask), -1)) / 2
+        mixed = torch.softmax(together.model(xyz, mask), -1)
+    torch.testing.assert_close(mixed, mean, atol=1e-5, rtol=1e-4)
+    found = evaluate_checkpoint(network, [trained_run / "real.txt"], device="cpu", ensemble=[trees])
+    assert found[0].labels.confusion.sum() > 0

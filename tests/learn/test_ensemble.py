@@ -53,7 +53,7 @@ def test_checkpoints_of_other_inputs_are_refused_naming_what_differs(tmp_path: P
     payload["config"]["input"]["grid_m"] = 0.2
     other = tmp_path / "other.pt"
     torch.save(payload, other)
-    with pytest.raises(LearnError, match=r"\[input\] differ"):
+    with pytest.raises(LearnError, match=r"its \[input\] grid_m \(0\.2 against 0\.05\) differs from"):
         load_trained_models([checkpoint, other])
 
 

@@ -689,7 +689,9 @@ def test_an_ensemble_variant_scores_the_mean_of_its_members_models_and_trains_no
     (('ensemble = ["recipe", "trees"]\neval', 'ensemble = ["recipe", "trees"]\nmodel = { dropout = 0.1 }\neval'),
      "only its [eval] may be set"),
     (('name = "trees"\ndata = "spec.toml"', 'name = "trees"\ndata = "spec.toml"\ninput = { grid_m = 0.2 }'),
-     "reads other [input] than 'recipe'"),
+     "'trees' has another [input] grid_m (0.2 against 0.15) than 'recipe'"),
+    (('name = "trees"\ndata = "spec.toml"', 'name = "trees"\ndata = "spec.toml"\nblocks = { points = 64 }'),
+     "'trees' reads other [blocks] than 'recipe'"),
 ])
 def test_bad_ensemble_variants_are_one_line_errors_before_any_work(
     experiment_dir: Path, patch: tuple[str, str], message: str,

@@ -8,6 +8,7 @@ file holds tensors and plain data only, never pickled code.
 
 from __future__ import annotations
 
+import dataclasses
 import random
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -20,7 +21,7 @@ from torch import nn
 
 from bimscan.errors import InputFileError, LearnError
 from bimscan.files import atomic_output
-from bimscan.learn.train_config import EvalConfig, TrainRunConfig, parse_config
+from bimscan.learn.train_config import EvalConfig, TrainRunConfig, merge_inputs, parse_config
 from bimscan.learn.features import input_channels
 from bimscan.learn.model import build_model
 
@@ -180,22 +181,27 @@ def load_trained_model(
 
 
 class Ensemble(nn.Module):
-    """Networks whose class probabilities are averaged (seeds or recipes of one set of classes,
-    inputs and blocks): the output is the log of the members' mean softmax, so that a softmax of
-    it, as inference takes, is that mean. Each member's outputs are checked for overflow first,
-    named by its checkpoint."""
+    """Models whose class probabilities are averaged (seeds, recipes or families of one set of
+    classes and blocks): the output is the log of the members' mean softmax, so that a softmax of
+    it, as inference takes, is that mean. Each member reads its own ``channels`` of the ensemble's
+    input (``merge_inputs``; None: all, in order). Each member's outputs are checked for overflow
+    first, named by its checkpoint."""
 
-    def __init__(self, members: list[nn.Module], names: list[str]) -> None:
+    def __init__(self, members: list[nn.Module], names: list[str], channels: list[list[int]] | None = None) -> None:
         super().__init__()
         self.members = nn.ModuleList(members)
         self.names = names
+        # each member's input channels among the ensemble's (None: all of them, in order)
+        self.channels: list[list[int] | None] = list(channels) if channels is not None else [None] * len(members)
 
     def forward(self, xyz: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         from bimscan.learn.model import check_finite_outputs
 
         total: torch.Tensor | None = None
-        for member, name in zip(self.members, self.names, strict=True):
-            logits = member(xyz, mask)
+        for member, name, channels in zip(self.members, self.names, self.channels, strict=True):
+            own = xyz if channels is None or channels == list(range(xyz.shape[-1])) else \
+                xyz.index_select(-1, torch.as_tensor(channels, device=xyz.device))
+            logits = member(own, mask)
             check_finite_outputs(logits, mask, model=name, where="the ensemble's blocks")
             probabilities = torch.softmax(logits.float(), dim=-1)
             total = probabilities if total is None else total + probabilities
@@ -216,12 +222,18 @@ def load_trained_models(
     first = loaded[0]
     for path, other in zip(paths[1:], loaded[1:], strict=True):
         for what, mine, theirs in (("classes", first.class_names, other.class_names),
-                                   ("[input]", first.config.input, other.config.input),
                                    ("[blocks] size_m and points", (first.config.blocks.size_m, first.config.blocks.points),
                                     (other.config.blocks.size_m, other.config.blocks.points))):
             if mine != theirs:
                 raise LearnError(f"{path}: its {what} differ from those of {paths[0]}; an ensemble averages "
-                                 "checkpoints trained on the same classes, inputs and blocks (seeds of one recipe)")
-    ensemble = Ensemble([t.model for t in loaded], [str(p) for p in paths]).to(device).eval()
-    return TrainedModel(model=ensemble, config=first.config, class_names=first.class_names,
+                                 "checkpoints trained on the same classes and blocks")
+        try:
+            merge_inputs([first.config.input, other.config.input])
+        except ValueError as exc:
+            raise LearnError(f"{path}: its {exc} differs from {paths[0]}'s; an ensemble averages models that read "
+                             "the same points and features computed alike (their feature lists may differ)") from None
+    inputs, channels = merge_inputs([t.config.input for t in loaded])
+    ensemble = Ensemble([t.model for t in loaded], [str(p) for p in paths], channels).to(device).eval()
+    config = dataclasses.replace(first.config, input=inputs)  # the features every member reads, computed once
+    return TrainedModel(model=ensemble, config=config, class_names=first.class_names,
                         epoch=first.epoch, weights=first.weights)

@@ -25,8 +25,8 @@ One TOML file (loaded like every config, :func:`bimscan.toml_files.build_datacla
   scored on its own, the inductive one; or a list of scans) and overrides of the training
   sections (``[adapt]`` among them); or ``ensemble``: earlier variants whose models' class
   probabilities are averaged run by run (fold by fold), a variant that trains nothing and is
-  scored as the others are (its members must read the same ``[input]`` and ``[blocks]``; its own
-  ``[eval]`` may differ).
+  scored as the others are (its members must read the same ``[blocks]`` and points, their features
+  computed alike, :func:`bimscan.learn.train_config.merge_inputs`; its own ``[eval]`` may differ).
 
 Scoring never counts a room a model trained on. A variant whose rooms are not among the scored
 scenes is trained once and scored on all of them; one whose rooms are, on the others; one
@@ -65,7 +65,7 @@ from bimscan.constraints import Checked, Range, setting
 from bimscan.errors import ConfigError, InputFileError, LearnError
 from bimscan.learn.data import SceneSource
 from bimscan.learn.train_config import (
-    TRAINING_SECTIONS, AdaptationSchedule, SceneSet, TrainConfig, check_moved_keys, scene_sets,
+    TRAINING_SECTIONS, AdaptationSchedule, SceneSet, TrainConfig, check_moved_keys, merge_inputs, scene_sets,
 )
 from bimscan.toml_files import base_file, build_dataclass, load_toml, over_base, resolve_path
 
@@ -302,15 +302,19 @@ def _ensemble_variant(table: VariantTable, earlier: list[Variant], *, where: str
             raise ConfigError(f"{where} ensemble: {name!r} is not an earlier variant; name variants defined above it")
         members.append(member)
     first = members[0]
+    def built(variant: Variant, section: str) -> Any:
+        return build_dataclass(TRAINING_SECTIONS[section], variant.sections[section], where=where)
+
     for member in members[1:]:
-        for section, keys in (("input", None), ("blocks", ("size_m", "points"))):
-            mine, theirs = (build_dataclass(TRAINING_SECTIONS[section], v.sections[section], where=where)
-                            for v in (first, member))
-            if keys is not None:
-                mine, theirs = tuple(getattr(mine, k) for k in keys), tuple(getattr(theirs, k) for k in keys)
-            if mine != theirs:
-                raise ConfigError(f"{where} ensemble: {member.name!r} reads other [{section}] than {first.name!r}; "
-                                  "an ensemble averages models of the same inputs and blocks")
+        blocks = [(b.size_m, b.points) for b in (built(first, "blocks"), built(member, "blocks"))]
+        if blocks[0] != blocks[1]:
+            raise ConfigError(f"{where} ensemble: {member.name!r} reads other [blocks] than {first.name!r}; an "
+                              "ensemble averages models of the same blocks")
+        try:
+            merge_inputs([built(first, "input"), built(member, "input")])
+        except ValueError as exc:
+            raise ConfigError(f"{where} ensemble: {member.name!r} has another {exc} than {first.name!r}; an ensemble "
+                              "averages models that read the same points and features computed alike") from None
     for key in ("blocks", "input", "augment", "model", "train", "adapt"):
         if getattr(table, key):
             raise ConfigError(f"{where} [{key}]: an ensemble trains nothing; only its [eval] may be set")

@@ -148,6 +148,30 @@ class InputConfig(Checked):
             raise ConfigError(f"features take each of {', '.join(FEATURE_NAMES)} at most once, got {list(self.features)}")
 
 
+# What models must share to be averaged point by point: the same points (grid) and features that
+# mean the same (neighbourhoods, height scale); their feature lists may differ.
+SHARED_INPUT_SETTINGS = ("grid_m", "height_scale_m", "normal_neighbours", "wide_neighbours")
+
+
+def merge_inputs(inputs: list[InputConfig]) -> tuple[InputConfig, list[list[int]]]:
+    """The inputs several models read together (an ensemble): the first's, with the features only
+    others read appended, and for each model the union's channels it reads, in its own order.
+    ValueError naming the setting when they differ in one of ``SHARED_INPUT_SETTINGS``."""
+    first = inputs[0]
+    for other in inputs[1:]:
+        for key in SHARED_INPUT_SETTINGS:
+            if getattr(first, key) != getattr(other, key):
+                raise ValueError(f"[input] {key} ({getattr(other, key)} against {getattr(first, key)})")
+    features = list(first.features)
+    for other in inputs[1:]:
+        features += [name for name in other.features if name not in features]
+    start, offset = {}, 0
+    for name in features:
+        start[name], offset = offset, offset + FEATURE_CHANNELS[name]
+    channels = [[start[name] + c for name in own.features for c in range(FEATURE_CHANNELS[name])] for own in inputs]
+    return replace(first, features=tuple(features)), channels
+
+
 @dataclass(frozen=True)
 class AugmentConfig(Checked):
     """Training augmentations (:mod:`bimscan.learn.augment`); ``enabled = false`` is the paper's
