@@ -257,6 +257,14 @@ def test_the_shipped_experiments_train_the_one_cpu_recipe(shipped_configs: Path)
     assert [len(finetune[f"finetune-{n}"].rooms) for n in (1, 3)] == [1, 3] and finetune["finetune-12"].rooms == "all"
     assert training_sections(finetune["synthetic-only"]) == training_sections(recipe.variants[0])
 
+    families = {v.name: v for v in load_experiment(experiments / "families_cpu.toml").variants}
+    assert list(families) == ["pct", "trees", "pct-and-trees"]
+    assert training_sections(families["pct"]) == training_sections(recipe.variants[0])
+    trees = _config(families["trees"])
+    assert trees.model.kind == "gbm" and families["trees"].specs == families["pct"].specs
+    assert dataclasses.replace(trees.model, kind="pct") == whole.model and trees.input == whole.input
+    assert families["pct-and-trees"].ensemble == ("pct", "trees")
+
     adapt = load_experiment(experiments / "sim2real_adapt_cpu.toml")
     variants = {v.name: v for v in adapt.variants}
     assert list(variants) == ["synthetic-only", "adapt-transductive", "adapt-inductive"]
