@@ -120,6 +120,17 @@ def test_trees_and_a_pct_of_the_same_inputs_make_an_ensemble_of_their_mean_proba
     torch.testing.assert_close(mixed[mask], mean[mask], atol=1e-5, rtol=1e-4)
 
 
+def test_bimscan_train_fits_trees_from_the_command_line(
+    tmp_path: Path, tiny_config: Callable[..., Path], capsys: pytest.CaptureFixture[str],
+) -> None:
+    config = _tree_config(tmp_path, tiny_config, out_dir="cli")
+    assert main(["train", str(config)]) == 0
+    captured = capsys.readouterr()
+    assert "trained gradient-boosted trees; checkpoint" in captured.out
+    assert "trained gradient-boosted trees (25 rounds x 5 classes) on " in captured.err  # points, time, scores
+    assert isinstance(load_trained_model(tmp_path / "cli" / "last.pt").model, BoostedTrees)
+
+
 def test_what_trees_cannot_do_is_refused_in_one_line(
     tmp_path: Path, trees_run: Path, tiny_config: Callable[..., Path], capsys: pytest.CaptureFixture[str],
 ) -> None:

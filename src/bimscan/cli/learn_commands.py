@@ -1,4 +1,4 @@
-"""Segmentation baseline commands: train, evaluate, predict (PCT, the paper's Table 2/3)."""
+"""Segmentation commands: train, evaluate, predict (PCT, the paper's Table 2/3, and gradient-boosted trees)."""
 
 from __future__ import annotations
 
@@ -69,9 +69,11 @@ def evaluation_settings(checkpoint: Path, **given: object):  # -> EvalConfig
               help="Start from this checkpoint's weights (fine-tuning: same network and classes); its own "
                    "schedule is the config's [train] (epochs, max_lr, freeze).")
 def train(config: Path, resume: bool, out_dir: Path | None, init: Path | None) -> None:
-    """Train PCT on synthetic scenes as CONFIG.toml says (Table 2 defaults).
+    """Train PCT on synthetic scenes as CONFIG.toml says (Table 2 defaults), or gradient-boosted
+    trees on per-point features of the same blocks with [model] kind = "gbm".
 
-    Writes last.pt (every epoch), best.pt (best validation mIoU), metrics.csv and curves.png.
+    Writes last.pt (every epoch; the trees: once, fitted), best.pt (a PCT's best validation mIoU),
+    metrics.csv and curves.png.
     For DDP start it with torchrun, e.g.
     `torchrun --nproc_per_node 4 -m bimscan.cli.main train CONFIG.toml`.
     """
@@ -82,7 +84,8 @@ def train(config: Path, resume: bool, out_dir: Path | None, init: Path | None) -
     result = train_model(settings, base_dir=base, out_dir=out_dir, resume=resume, init=init,
                          log=lambda text: click.echo(text, err=True))
     if int(os.environ.get("RANK", "0")) == 0:
-        click.echo(f"trained {result.epochs_done} epoch(s); checkpoint {result.checkpoint}; "
+        what = "gradient-boosted trees" if settings.model.kind == "gbm" else f"{result.epochs_done} epoch(s)"
+        click.echo(f"trained {what}; checkpoint {result.checkpoint}; "
                    f"metrics {result.out_dir / 'metrics.csv'}; curves {result.out_dir / 'curves.png'}")
 
 
@@ -235,9 +238,10 @@ def sim2real(experiment: Path, out_dir: Path, real: tuple[Path, ...], device: st
     """Train variants (synthetic scans, real rooms, fine-tuned) and score each on real scans it never
     saw (see configs/experiments/sim2real_cpu.toml, configs/experiments/finetune_cpu.toml).
 
-    Builds the variants' datasets and the holdout buildings' scans (resumable), trains one PCT per
-    variant (or per fold, when it trains on the scored rooms), evaluates each on the real scenes it
-    did not train on and on the holdout buildings, and writes OUT_DIR/report.md, results.csv/.json,
+    Builds the variants' datasets and the holdout buildings' scans (resumable), trains one model per
+    variant (or per fold, when it trains on the scored rooms; an ensemble variant averages earlier
+    variants' models), evaluates each on the real scenes it did not train on and on the holdout
+    buildings, and writes OUT_DIR/report.md, results.csv/.json,
     val_miou.png, label_efficiency.png and per variant its confusion matrices and curves. Run the
     same command again to continue a killed run.
     """
