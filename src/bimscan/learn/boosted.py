@@ -194,6 +194,12 @@ def lightgbm_parameters(model: ModelConfig, *, classes: int, seed: int, threads:
     }
 
 
+def _blocks_as_they_are(items: list[dict[str, np.ndarray]]) -> list[dict[str, np.ndarray]]:
+    """The DataLoader's batch: the blocks themselves, unstacked (a module-level function: workers
+    started by spawn or forkserver pickle it)."""
+    return items
+
+
 def train_boosted(config: TrainRunConfig, *, ctx: DistributedContext, base_dir: Path, out_dir: Path | None,
                   resume: bool, init: Path | None, log: Callable[[str], None] | None,
                   terms: RunTerms = TRAIN_TERMS) -> TrainResult:
@@ -233,18 +239,18 @@ def train_boosted(config: TrainRunConfig, *, ctx: DistributedContext, base_dir: 
          "blocks")
     loader = torch.utils.data.DataLoader(
         train_set, batch_sampler=sampler, num_workers=settings.num_workers,
-        persistent_workers=settings.num_workers > 0, collate_fn=lambda items: items)
+        persistent_workers=settings.num_workers > 0, collate_fn=_blocks_as_they_are)
     rows, labels = [], []
     with progress_bar(total=blocks_drawn, desc="block features", unit="block") as bar:
         for epoch in range(settings.epochs):
             sampler.set_epoch(epoch)
             for step, items in enumerate(loader):
                 for k, item in enumerate(items):
-                    kept = item["mask"] & (item["label"] != IGNORE_LABEL)
-                    block = item["xyz"][item["mask"]]
-                    label = item["label"][item["mask"]]
-                    features = block_tree_features(block, config.input.features)[kept[item["mask"]]]
-                    label = label[kept[item["mask"]]]
+                    real = item["mask"]  # the block's points (the rest is padding)
+                    label = item["label"][real]
+                    labelled = label != IGNORE_LABEL
+                    features = block_tree_features(item["xyz"][real], config.input.features)[labelled]
+                    label = label[labelled]
                     if len(label) > share:
                         rng = np.random.default_rng(np.random.SeedSequence([settings.seed, 23, epoch, step, k]))
                         pick = np.sort(rng.choice(len(label), size=share, replace=False))
