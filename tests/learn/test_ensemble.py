@@ -53,7 +53,7 @@ def test_checkpoints_of_other_inputs_are_refused_naming_what_differs(tmp_path: P
     payload["config"]["input"]["grid_m"] = 0.2
     other = tmp_path / "other.pt"
     torch.save(payload, other)
-    with pytest.raises(LearnError, match=r"its \[input\] grid_m \(0\.2 against 0\.05\) differs from"):
+    with pytest.raises(LearnError, match=r"its \[input\] grid_m \(0\.2 against 0\.05\) differs from an earlier member's"):
         load_trained_models([checkpoint, other])
 
 
@@ -71,3 +71,18 @@ def test_predict_with_an_ensemble_from_the_command_line_records_it(
     assert "wrote" in capsys.readouterr().out
     header = read_cloud_header(out)
     assert header is not None and header.metadata["prediction"]["ensemble"] == [str(twin)]
+
+
+def test_merged_inputs_compute_each_feature_once_with_the_settings_of_the_models_that_read_it() -> None:
+    from bimscan.learn.train_config import InputConfig, merge_inputs
+
+    network = InputConfig(grid_m=0.1, features=("xyz", "height", "normals", "shape"), wide_neighbours=128)
+    trees = InputConfig(grid_m=0.1, features=("xyz", "shape_wide", "height"), wide_neighbours=64)
+    union, channels = merge_inputs([network, trees])
+    assert union.features == ("xyz", "height", "normals", "shape", "shape_wide")
+    assert union.wide_neighbours == 64  # the network does not read shape_wide: the trees' neighbourhood counts
+    assert channels == [list(range(10)), [0, 1, 2, 10, 11, 12, 3]]
+    with pytest.raises(ValueError, match=r"\[input\] wide_neighbours \(32 against 64\)"):
+        merge_inputs([network, trees, InputConfig(grid_m=0.1, features=("xyz", "shape_wide"), wide_neighbours=32)])
+    with pytest.raises(ValueError, match=r"\[input\] grid_m \(0.2 against 0.1\)"):
+        merge_inputs([network, InputConfig(grid_m=0.2, features=("xyz",))])

@@ -697,7 +697,7 @@ def test_an_ensemble_variant_scores_the_mean_of_its_members_models_and_trains_no
     (('ensemble = ["recipe", "trees"]\neval', 'ensemble = ["recipe", "trees"]\nmodel = { dropout = 0.1 }\neval'),
      "only its [eval] may be set"),
     (('name = "trees"\ndata = "spec.toml"', 'name = "trees"\ndata = "spec.toml"\ninput = { grid_m = 0.2 }'),
-     "'trees' has another [input] grid_m (0.2 against 0.15) than 'recipe'"),
+     "'trees' has another [input] grid_m (0.2 against 0.15) than an earlier member"),
     (('name = "trees"\ndata = "spec.toml"', 'name = "trees"\ndata = "spec.toml"\nblocks = { points = 64 }'),
      "'trees' reads other [blocks] than 'recipe'"),
 ])

@@ -220,7 +220,7 @@ def load_trained_models(
         return load_trained_model(paths[0], device=device, weights=weights)
     loaded = [load_trained_model(path, device=device, weights=weights) for path in paths]
     first = loaded[0]
-    for path, other in zip(paths[1:], loaded[1:], strict=True):
+    for number, (path, other) in enumerate(zip(paths[1:], loaded[1:], strict=True), start=2):
         for what, mine, theirs in (("classes", first.class_names, other.class_names),
                                    ("[blocks] size_m and points", (first.config.blocks.size_m, first.config.blocks.points),
                                     (other.config.blocks.size_m, other.config.blocks.points))):
@@ -228,10 +228,10 @@ def load_trained_models(
                 raise LearnError(f"{path}: its {what} differ from those of {paths[0]}; an ensemble averages "
                                  "checkpoints trained on the same classes and blocks")
         try:
-            merge_inputs([first.config.input, other.config.input])
+            merge_inputs([t.config.input for t in loaded[:number]])
         except ValueError as exc:
-            raise LearnError(f"{path}: its {exc} differs from {paths[0]}'s; an ensemble averages models that read "
-                             "the same points and features computed alike (their feature lists may differ)") from None
+            raise LearnError(f"{path}: its {exc} differs from an earlier member's; an ensemble averages models that "
+                             "read the same points and features computed alike (their feature lists may differ)") from None
     inputs, channels = merge_inputs([t.config.input for t in loaded])
     ensemble = Ensemble([t.model for t in loaded], [str(p) for p in paths], channels).to(device).eval()
     config = dataclasses.replace(first.config, input=inputs)  # the features every member reads, computed once

@@ -305,16 +305,16 @@ def _ensemble_variant(table: VariantTable, earlier: list[Variant], *, where: str
     def built(variant: Variant, section: str) -> Any:
         return build_dataclass(TRAINING_SECTIONS[section], variant.sections[section], where=where)
 
-    for member in members[1:]:
+    for number, member in enumerate(members[1:], start=2):
         blocks = [(b.size_m, b.points) for b in (built(first, "blocks"), built(member, "blocks"))]
         if blocks[0] != blocks[1]:
             raise ConfigError(f"{where} ensemble: {member.name!r} reads other [blocks] than {first.name!r}; an "
                               "ensemble averages models of the same blocks")
         try:
-            merge_inputs([built(first, "input"), built(member, "input")])
+            merge_inputs([built(v, "input") for v in members[:number]])
         except ValueError as exc:
-            raise ConfigError(f"{where} ensemble: {member.name!r} has another {exc} than {first.name!r}; an ensemble "
-                              "averages models that read the same points and features computed alike") from None
+            raise ConfigError(f"{where} ensemble: {member.name!r} has another {exc} than an earlier member; an "
+                              "ensemble averages models that read the same points and features computed alike") from None
     for key in ("blocks", "input", "augment", "model", "train", "adapt"):
         if getattr(table, key):
             raise ConfigError(f"{where} [{key}]: an ensemble trains nothing; only its [eval] may be set")

@@ -148,20 +148,28 @@ class InputConfig(Checked):
             raise ConfigError(f"features take each of {', '.join(FEATURE_NAMES)} at most once, got {list(self.features)}")
 
 
-# What models must share to be averaged point by point: the same points (grid) and features that
-# mean the same (neighbourhoods, height scale); their feature lists may differ.
-SHARED_INPUT_SETTINGS = ("grid_m", "height_scale_m", "normal_neighbours", "wide_neighbours")
+# What models averaged point by point must share: the same points (grid) and, for the features
+# both read, the settings those features are computed with; their feature lists may differ.
+SHARED_INPUT_SETTINGS: dict[str, tuple[str, ...]] = {
+    "grid_m": (), "height_scale_m": ("height",), "normal_neighbours": ("normals", "shape"),
+    "wide_neighbours": ("shape_wide",),
+}
 
 
 def merge_inputs(inputs: list[InputConfig]) -> tuple[InputConfig, list[list[int]]]:
-    """The inputs several models read together (an ensemble): the first's, with the features only
-    others read appended, and for each model the union's channels it reads, in its own order.
-    ValueError naming the setting when they differ in one of ``SHARED_INPUT_SETTINGS``."""
+    """The inputs several models read together (an ensemble): the first's features, then those
+    only others read, each setting of ``SHARED_INPUT_SETTINGS`` taken from a model that reads the
+    features it shapes; and for each model the union's channels it reads, in its own order.
+    ValueError naming the setting when two models read a feature computed with other settings."""
     first = inputs[0]
-    for other in inputs[1:]:
-        for key in SHARED_INPUT_SETTINGS:
-            if getattr(first, key) != getattr(other, key):
-                raise ValueError(f"[input] {key} ({getattr(other, key)} against {getattr(first, key)})")
+    settings: dict[str, object] = {}
+    for key, shaped in SHARED_INPUT_SETTINGS.items():
+        readers = [i for i in inputs if not shaped or any(name in i.features for name in shaped)]
+        for other in readers[1:]:
+            if getattr(other, key) != getattr(readers[0], key):
+                raise ValueError(f"[input] {key} ({getattr(other, key)} against {getattr(readers[0], key)})")
+        if readers:
+            settings[key] = getattr(readers[0], key)
     features = list(first.features)
     for other in inputs[1:]:
         features += [name for name in other.features if name not in features]
@@ -169,7 +177,7 @@ def merge_inputs(inputs: list[InputConfig]) -> tuple[InputConfig, list[list[int]
     for name in features:
         start[name], offset = offset, offset + FEATURE_CHANNELS[name]
     channels = [[start[name] + c for name in own.features for c in range(FEATURE_CHANNELS[name])] for own in inputs]
-    return replace(first, features=tuple(features)), channels
+    return replace(first, features=tuple(features), **settings), channels
 
 
 @dataclass(frozen=True)
