@@ -23,11 +23,14 @@ done
 extras="all${test}${docs}"
 cd "$(dirname "$0")/.."
 
-# Open3D's wheel imports only with libusb-1.0 present.
-if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
+# System libraries two wheels load: Open3D's libusb-1.0, LightGBM's OpenMP runtime (libgomp).
+missing=()
+ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0' || missing+=(libusb-1.0-0)
+ldconfig -p 2>/dev/null | grep -q 'libgomp.so.1' || missing+=(libgomp1)
+if [ ${#missing[@]} -gt 0 ]; then
   if [ "$(id -u)" = 0 ]; then sudo_cmd=""; else sudo_cmd="sudo"; fi
   $sudo_cmd apt-get update -qq
-  $sudo_cmd apt-get install -y -qq libusb-1.0-0
+  $sudo_cmd apt-get install -y -qq "${missing[@]}"
 fi
 
 [ -x .venv/bin/python ] || python3 -m venv .venv
