@@ -50,6 +50,7 @@ from bimscan.errors import LearnError
 from bimscan.learn.checkpoint import save_checkpoint
 from bimscan.learn.data import TileDataset
 from bimscan.learn.features import FEATURE_CHANNELS
+from bimscan.learn.metrics import compute_confusion
 from bimscan.learn.plots import plot_training_curves, write_history_csv
 from bimscan.learn.train import (
     TRAIN_TERMS, DistributedContext, GlobalBatchSampler, RunTerms, TrainResult, class_weights_from_labels,
@@ -112,9 +113,10 @@ def _cell_features(xyz: np.ndarray) -> list[np.ndarray]:
     m = len(xyz)
     if m == 0:
         return [np.zeros(0, dtype=np.float32)] * 5
-    cells = np.floor(xyz[:, :2] / CELL).astype(np.int64)
-    _, cell, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
-    cell = cell.reshape(-1)
+    cells = np.floor(xyz[:, :2] / CELL).astype(np.int64)  # a block spans [-1, 1]: a few dozen cells a side
+    cells -= cells.min(axis=0)
+    key = cells[:, 0] * (int(cells[:, 1].max()) + 1) + cells[:, 1]
+    _, cell, counts = np.unique(key, return_inverse=True, return_counts=True)  # 1-D: no row-wise sort
     z = xyz[:, 2].astype(np.float64)
     top = np.full(len(counts), -np.inf)
     bottom = np.full(len(counts), np.inf)
@@ -270,9 +272,8 @@ def train_boosted(config: TrainRunConfig, *, ctx: DistributedContext, base_dir: 
                                  callbacks=[lambda env: bar.update(1)])
     text = booster.model_to_string()
     trees = BoostedTrees(text, features=config.input.features, classes=classes)
-    train_confusion = np.zeros((classes, classes), dtype=np.int64)
     probabilities = trees.predict(table)
-    np.add.at(train_confusion, (target, probabilities.argmax(axis=1)), 1)
+    train_confusion = compute_confusion(target, probabilities.argmax(axis=1), num_classes=classes)
     train_loss = float(-np.log(np.clip(probabilities[np.arange(len(target)), target], 1e-30, None)).sum())
     row: dict[str, float] = {"epoch": settings.epochs, "lr": model.gbm_learning_rate}
     row.update(metric_row("train", torch.from_numpy(train_confusion), train_loss, float(len(target))))

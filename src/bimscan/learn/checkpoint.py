@@ -187,20 +187,21 @@ class Ensemble(nn.Module):
     input (``merge_inputs``; None: all, in order). Each member's outputs are checked for overflow
     first, named by its checkpoint."""
 
-    def __init__(self, members: list[nn.Module], names: list[str], channels: list[list[int]] | None = None) -> None:
+    def __init__(self, members: list[nn.Module], names: list[str],
+                 channels: list[list[int] | None] | None = None) -> None:
         super().__init__()
         self.members = nn.ModuleList(members)
         self.names = names
-        # each member's input channels among the ensemble's (None: all of them, in order)
-        self.channels: list[list[int] | None] = list(channels) if channels is not None else [None] * len(members)
+        # each member's input channels among the ensemble's, as index tensors made once (None: all, in order)
+        self.channels = [None if c is None else torch.as_tensor(c, dtype=torch.long)
+                         for c in (channels if channels is not None else [None] * len(members))]
 
     def forward(self, xyz: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         from bimscan.learn.model import check_finite_outputs
 
         total: torch.Tensor | None = None
         for member, name, channels in zip(self.members, self.names, self.channels, strict=True):
-            own = xyz if channels is None or channels == list(range(xyz.shape[-1])) else \
-                xyz.index_select(-1, torch.as_tensor(channels, device=xyz.device))
+            own = xyz if channels is None else xyz.index_select(-1, channels.to(xyz.device))
             logits = member(own, mask)
             check_finite_outputs(logits, mask, model=name, where="the ensemble's blocks")
             probabilities = torch.softmax(logits.float(), dim=-1)
@@ -233,7 +234,9 @@ def load_trained_models(
             raise LearnError(f"{path}: its {exc} differs from an earlier member's; an ensemble averages models that "
                              "read the same points and features computed alike (their feature lists may differ)") from None
     inputs, channels = merge_inputs([t.config.input for t in loaded])
-    ensemble = Ensemble([t.model for t in loaded], [str(p) for p in paths], channels).to(device).eval()
+    every = list(range(input_channels(inputs.features)))  # a member that reads them all, in order, takes xyz as it is
+    ensemble = Ensemble([t.model for t in loaded], [str(p) for p in paths],
+                        [None if c == every else c for c in channels]).to(device).eval()
     config = dataclasses.replace(first.config, input=inputs)  # the features every member reads, computed once
     return TrainedModel(model=ensemble, config=config, class_names=first.class_names,
                         epoch=first.epoch, weights=first.weights)
