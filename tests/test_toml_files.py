@@ -10,7 +10,9 @@ import pytest
 
 from bimscan.errors import ConfigError
 from bimscan.scan.device import PRESETS, SCANNER_TABLES, SCANNERS, load_scanner, load_settings
-from bimscan.scan.multibeam import LIDARS, load_lidar
+from bimscan.scan.lidars import MOBILE_LIDARS, load_lidar
+from bimscan.scan.multibeam import LIDARS
+from bimscan.scan.risley import RISLEY_SCANNERS
 from bimscan.survey.platform import PLATFORM_NAMES, PLATFORMS, load_platform
 from bimscan.toml_files import load_named
 
@@ -26,8 +28,9 @@ def _copy(name: str, folder: Path) -> Path:
 KINDS = {
     "scanner": (load_scanner, SCANNERS, "scanner 'nope' is neither a file nor a known scanner (riegl_vz400); pass a "
                                         "scanner TOML file", lambda folder: _copy("riegl_vz400", folder)),
-    "lidar": (load_lidar, LIDARS, "multi-beam scanner 'nope' is neither a file nor a known multi-beam scanner "
-                                  "(hesai_xt32, velodyne_vlp16); pass a scanner TOML file with kind = \"multibeam\"",
+    "lidar": (load_lidar, MOBILE_LIDARS, "lidar 'nope' is neither a file nor a known lidar (hesai_xt32, velodyne_vlp16, "
+                                         "dji_zenmuse_l2, dji_zenmuse_l2_repetitive, livox_avia, livox_mid40, "
+                                         "livox_mid70); pass a scanner TOML file with kind = \"multibeam\" or \"risley\"",
               lambda folder: _copy("velodyne_vlp16", folder)),
     "platform": (load_platform, PLATFORMS, "platform 'nope' is neither a file nor a known platform (tripod, handheld, "
                                            "backpack); pass a platform TOML file",
@@ -60,7 +63,8 @@ def test_every_kind_of_device_file_is_given_by_a_built_in_name_or_a_file_the_sam
 def test_every_built_in_scanner_file_is_read_once_into_exactly_one_registry():
     files = sorted(p.name.removesuffix(".toml") for p in SCANNER_FOLDER.iterdir() if p.name.endswith(".toml"))
     assert sorted(SCANNER_TABLES) == files  # the folder, read once (the two registries read it twice)
-    assert not set(SCANNERS) & set(LIDARS) and sorted([*SCANNERS, *LIDARS]) == files
+    registries = (SCANNERS, LIDARS, RISLEY_SCANNERS)
+    assert sum(len(r) for r in registries) == len(files) and sorted(name for r in registries for name in r) == files
     assert PLATFORM_NAMES == ("tripod", *PLATFORMS)
 
 

@@ -11,7 +11,8 @@ import pytest
 from bimscan.errors import ConfigError, ScannerSettingsError
 from bimscan.pipeline import load_scene
 from bimscan.scan.device import load_scanner
-from bimscan.scan.multibeam import LIDARS, MultiBeamScanner, load_lidar
+from bimscan.scan.lidars import load_lidar
+from bimscan.scan.multibeam import LIDARS, MultiBeamScanner
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.sensor import EFFECTS, MOBILE_EFFECTS, SensorModel
 from bimscan.scan.virtual_scanner import VirtualScanner
@@ -83,7 +84,7 @@ def test_a_scanner_file_with_beams_missing_a_firing_time_is_refused(tmp_path):
                     'beam_azimuth_offset_deg = [0.0, 0.0]\nfiring_offset_us = [0.0]\n')
     with pytest.raises(ScannerSettingsError, match="one entry per beam"):
         load_lidar(path)
-    with pytest.raises(ConfigError, match="neither a file nor a known multi-beam"):
+    with pytest.raises(ConfigError, match="neither a file nor a known lidar"):
         load_lidar("no_such_lidar")
 
 

@@ -391,7 +391,7 @@ def test_a_dataset_spec_builds_a_mobile_unit_beside_a_tripod_one_and_keeps_its_w
     ('platform = "handheld"\npreset = "exp1"', "no TLS 'preset'"),
     ('preset = "exp1"\ndrift_m = 0.01', "for mobile configurations"),
     ('platform = "segway"', "neither a file nor a known platform"),
-    ('platform = "handheld"\nlidar = "riegl_vz400"', "multi-beam"),
+    ('platform = "handheld"\nlidar = "riegl_vz400"', "rotating-mirror TLS for the tripod"),
 ])
 def test_a_bad_mobile_configuration_is_refused_when_the_spec_is_read(office, tmp_path, config, message):
     from bimscan.dataset.spec import load_spec

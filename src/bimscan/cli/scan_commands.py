@@ -15,7 +15,7 @@ from bimscan.scan.device import DEFAULT_PRESET, DEFAULT_SCANNER, PRESETS, SCANNE
 from bimscan.scan.engine import AUTO_ENGINE, DEFAULT_ENGINE, ENGINES
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.sensor import REALISMS, RETURN_MODES, SensorModel
-from bimscan.scan.multibeam import LIDARS
+from bimscan.scan.lidars import MOBILE_LIDARS
 from bimscan.survey.drift import DriftModel
 from bimscan.survey.platform import PLATFORM_NAMES, TRIPOD
 from bimscan.survey.recipe import AUTO_STATIONS, DEFAULT_MAX_STATION_PULSES, DEFAULT_MAX_WALK_PULSES, ScanRecipe
@@ -50,10 +50,10 @@ if TYPE_CHECKING:
               "IFC file that needed a repair, has a problem or loses an element (see 'bimscan info --help').")
 @click.option("--length-unit", type=click.Choice(list(LENGTH_UNITS)), default=None, help=LENGTH_UNIT_HELP)
 @click.option("--scanner", default=None,
-              help=f"Scanner: a name ({', '.join([*SCANNERS, *LIDARS])}) or a scanner TOML file. Default: "
+              help=f"Scanner: a name ({', '.join([*SCANNERS, *MOBILE_LIDARS])}) or a scanner TOML file. Default: "
                    f"{DEFAULT_SCANNER} on the tripod, the platform's lidar on a mobile platform.")
 @click.option("--platform", default=TRIPOD, show_default=True,
-              help=f"What carries the scanner: {', '.join(PLATFORM_NAMES)} (a person walking with multi-beam lidars), "
+              help=f"What carries the scanner: {', '.join(PLATFORM_NAMES)} (a person walking with lidars), "
                    "or a platform TOML file.")
 @click.option("--trajectory", default=None,
               help="Mobile platforms: 'auto' (a walk planned from the model through the stations of --stations, "
@@ -63,7 +63,8 @@ if TYPE_CHECKING:
                    "drifts alike), pinned to zero at loop closures. "
                    f"Default: {default_of(DriftModel, 'sigma_m'):g} (none).")
 @click.option("--rotation-hz", type=float, default=None,
-              help="Mobile platforms: the lidar's rotation rate. Default: the scanner's (VLP-16: 10 Hz).")
+              help="Mobile platforms: a multi-beam lidar's rotation rate. Default: the scanner's (VLP-16: 10 Hz). "
+                   "Refused for a Risley-prism lidar (its prisms turn at its scanner file's rates).")
 @click.option("--head-speed", "head_deg_per_s", type=float, default=None,
               help="Tripod head rotation in deg/s, overriding the preset (fewer points per station when faster). "
                    "Refused on a mobile platform.")

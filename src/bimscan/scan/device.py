@@ -182,13 +182,17 @@ class ScanSettings(Checked):
 
 
 MULTIBEAM_KIND = "multibeam"  # the ``kind`` of a scanner file that describes a multi-beam lidar
+RISLEY_KIND = "risley"  # ... and of one that describes a Risley-prism lidar (``bimscan.scan.risley``)
+MOBILE_KINDS = (MULTIBEAM_KIND, RISLEY_KIND)  # the lidars a mobile platform carries
 SCANNER_TABLES: dict[str, dict[str, Any]] = read_package_tables("bimscan.scan", "scanners")
 SCANNERS: dict[str, ScannerModel] = {
     name: build_dataclass(ScannerModel, table, where=f"built-in scanner {name}")
-    for name, table in SCANNER_TABLES.items() if table.get("kind") != MULTIBEAM_KIND
+    for name, table in SCANNER_TABLES.items() if table.get("kind") not in MOBILE_KINDS
 }
 
 DEFAULT_SCANNER = "riegl_vz400"
+_LIDAR_KINDS = {MULTIBEAM_KIND: "multi-beam lidar", RISLEY_KIND: "Risley-prism lidar"}
+_PLATFORMS_OF = {MULTIBEAM_KIND: "handheld or backpack", RISLEY_KIND: "handheld or backpack"}
 DEFAULT_PRESET = "exp3"
 
 
@@ -196,16 +200,18 @@ def load_scanner(source: str | Path | None = None) -> ScannerModel:
     """A scanner by registry name, or from a TOML file (same keys as scanners/riegl_vz400.toml)."""
     if source is None:
         return SCANNERS[DEFAULT_SCANNER]
-    if isinstance(source, str) and source not in SCANNERS and SCANNER_TABLES.get(source, {}).get("kind") == MULTIBEAM_KIND:
-        raise ConfigError(f"scanner {source!r} is a multi-beam lidar for mobile scanning; use it with --platform "
-                          "handheld or backpack, or pick a TLS scanner for the tripod: " + ", ".join(SCANNERS))
+    kind = SCANNER_TABLES.get(source, {}).get("kind") if isinstance(source, str) and source not in SCANNERS else None
+    if kind in MOBILE_KINDS:
+        raise ConfigError(f"scanner {source!r} is a {_LIDAR_KINDS[kind]} for mobile scanning; use it with --platform "
+                          f"{_PLATFORMS_OF[kind]}, or pick a TLS scanner for the tripod: " + ", ".join(SCANNERS))
     return load_named(source, SCANNERS, kind="scanner", read=_read_scanner_file)
 
 
 def _read_scanner_file(table: dict[str, Any], path: Path) -> ScannerModel:
-    if table.get("kind") == MULTIBEAM_KIND:
-        raise ConfigError(f"{path}: a multi-beam lidar for mobile scanning; use it with --platform handheld or "
-                          "backpack, or pass a TLS scanner file for the tripod")
+    kind = table.get("kind")
+    if kind in MOBILE_KINDS:
+        raise ConfigError(f"{path}: a {_LIDAR_KINDS[kind]} for mobile scanning; use it with --platform "
+                          f"{_PLATFORMS_OF[kind]}, or pass a TLS scanner file for the tripod")
     return build_dataclass(ScannerModel, table, where=str(path))
 
 

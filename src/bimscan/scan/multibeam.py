@@ -14,7 +14,8 @@ spreads the same pulses over more turns.
 
 ``LIDARS`` maps a name to a ``MultiBeamScanner`` made of the TOML files in ``scan/scanners``
 whose ``kind`` is ``"multibeam"`` (``bimscan.scan.device.SCANNER_TABLES``, which reads the folder;
-the rotating-mirror TLS files are ``bimscan.scan.device.SCANNERS``).
+the rotating-mirror TLS files are ``bimscan.scan.device.SCANNERS``, the Risley-prism lidars
+``bimscan.scan.risley.RISLEY_SCANNERS``; ``bimscan.scan.lidars.load_lidar`` reads any lidar).
 The kernels turn a chunk of pulses into world rays along a trajectory (``moving_rays``) and the
 engine's hits into labelled points with each pulse's beam origin (``finish_moving_hits``); both
 are Numba-parallel over fixed blocks, so outputs do not depend on thread counts or chunking.
@@ -24,18 +25,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 import numba as nb
 import numpy as np
 
 from bimscan.constraints import Checked, Range, setting
-from bimscan.errors import ConfigError, ScannerSettingsError
+from bimscan.errors import ScannerSettingsError
 from bimscan.scan.kernels import _BLOCK, _FAST, _keep, hit_point
 from bimscan.scan.noise import MAX_ANGLE_SIGMA_DEG, MAX_RANGE_SIGMA_M
 from bimscan.scan.device import MULTIBEAM_KIND, SCANNER_TABLES
-from bimscan.toml_files import build_dataclass, load_named
+from bimscan.toml_files import build_dataclass
 
 
 @dataclass(frozen=True)
@@ -119,19 +119,6 @@ LIDARS: dict[str, MultiBeamScanner] = {
 }
 
 
-def load_lidar(source: str | Path) -> MultiBeamScanner:
-    """A multi-beam lidar by registry name or from a TOML file (the keys of scanners/velodyne_vlp16.toml)."""
-    return load_named(source, LIDARS, kind="multi-beam scanner", read=_read_lidar_file,
-                      file='a scanner TOML file with kind = "multibeam"')
-
-
-def _read_lidar_file(table: dict[str, Any], path: Path) -> MultiBeamScanner:
-    if table.get("kind") != MULTIBEAM_KIND:
-        raise ConfigError(f"{path}: a mobile platform needs a multi-beam scanner (kind = \"multibeam\"); this file "
-                          "describes a rotating-mirror TLS: use it with --platform tripod")
-    return build_dataclass(MultiBeamScanner, table, where=str(path))
-
-
 @nb.njit(cache=True, inline="always")
 def _rotation_zyx(yaw: float, pitch: float, roll: float) -> tuple:
     """Rows of R = Rz(yaw) Ry(pitch) Rx(roll) (radians): the platform's body -> world rotation."""
@@ -141,6 +128,64 @@ def _rotation_zyx(yaw: float, pitch: float, roll: float) -> tuple:
     return (cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr,
             sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr,
             -sp, cp * sr, cp * cr)
+
+
+@nb.njit(cache=True, inline="always")
+def sequence_pose(t_seq: float, track_t: np.ndarray, track_ypr: np.ndarray, mount_xyz: np.ndarray,
+                  m: np.ndarray, head_rad_s: float) -> tuple:
+    """The sensor's pose at the start of a firing sequence at ``t_seq``: the trajectory sample k
+    before it, the lever arm (lx, ly, lz) turned into the world, and the rows of the sensor ->
+    world rotation R_platform R_head R_mount (w00 .. w22). The platform's orientation is
+    interpolated linearly between samples (yaw, pitch, roll; see ``moving_rays``)."""
+    k_last = len(track_t) - 1
+    k = np.searchsorted(track_t, t_seq, side="right") - 1
+    k = min(max(k, 0), k_last - 1) if k_last > 0 else 0
+    k1 = min(k + 1, k_last)
+    span = track_t[k1] - track_t[k]
+    w = min(max((t_seq - track_t[k]) / span, 0.0), 1.0) if span > 0 else 0.0
+    r = _rotation_zyx(track_ypr[k, 0] + w * (track_ypr[k1, 0] - track_ypr[k, 0]),
+                      track_ypr[k, 1] + w * (track_ypr[k1, 1] - track_ypr[k, 1]),
+                      track_ypr[k, 2] + w * (track_ypr[k1, 2] - track_ypr[k, 2]))
+    head = head_rad_s * t_seq
+    ch, sh = math.cos(head), math.sin(head)
+    # the lever arm turned by the head, then by the platform
+    ax = ch * mount_xyz[0] - sh * mount_xyz[1]
+    ay = sh * mount_xyz[0] + ch * mount_xyz[1]
+    az_ = mount_xyz[2]
+    lx = r[0] * ax + r[1] * ay + r[2] * az_
+    ly = r[3] * ax + r[4] * ay + r[5] * az_
+    lz = r[6] * ax + r[7] * ay + r[8] * az_
+    # sensor -> world rotation of this sequence: R_platform R_head R_mount
+    a00 = ch * m[0, 0] - sh * m[1, 0]
+    a01 = ch * m[0, 1] - sh * m[1, 1]
+    a02 = ch * m[0, 2] - sh * m[1, 2]
+    a10 = sh * m[0, 0] + ch * m[1, 0]
+    a11 = sh * m[0, 1] + ch * m[1, 1]
+    a12 = sh * m[0, 2] + ch * m[1, 2]
+    a20, a21, a22 = m[2, 0], m[2, 1], m[2, 2]
+    return (k, lx, ly, lz,
+            r[0] * a00 + r[1] * a10 + r[2] * a20, r[0] * a01 + r[1] * a11 + r[2] * a21,
+            r[0] * a02 + r[1] * a12 + r[2] * a22, r[3] * a00 + r[4] * a10 + r[5] * a20,
+            r[3] * a01 + r[4] * a11 + r[5] * a21, r[3] * a02 + r[4] * a12 + r[5] * a22,
+            r[6] * a00 + r[7] * a10 + r[8] * a20, r[6] * a01 + r[7] * a11 + r[8] * a21,
+            r[6] * a02 + r[7] * a12 + r[8] * a22)
+
+
+@nb.njit(cache=True, inline="always")
+def pulse_origin(t: float, k: np.int64, track_t: np.ndarray, track_xyz: np.ndarray, lx: float, ly: float,
+                 lz: float) -> tuple:
+    """A pulse's beam origin at its own time ``t`` (on or after sample k, its sequence's): the
+    platform's position, linear between samples, plus the lever arm of its sequence."""
+    k_last = len(track_t) - 1
+    kk = k
+    while kk < k_last - 1 and track_t[kk + 1] <= t:  # a sample may fall inside the sequence
+        kk += 1
+    kk1 = min(kk + 1, k_last)
+    span = track_t[kk1] - track_t[kk]
+    wt = min(max((t - track_t[kk]) / span, 0.0), 1.0) if span > 0 else 0.0
+    return (track_xyz[kk, 0] + wt * (track_xyz[kk1, 0] - track_xyz[kk, 0]) + lx,
+            track_xyz[kk, 1] + wt * (track_xyz[kk1, 1] - track_xyz[kk, 1]) + ly,
+            track_xyz[kk, 2] + wt * (track_xyz[kk1, 2] - track_xyz[kk, 2]) + lz)
 
 
 @nb.njit(cache=True, parallel=True, fastmath=_FAST)
@@ -162,7 +207,6 @@ def moving_rays(first_pulse: np.int64, n: np.int64, n_beams: np.int64, cycle_s: 
     platform's frame (x forward, y left, z up), turned by ``mount_rotation`` (3, 3), and by a head
     turning about the platform's z at ``head_rad_s`` (0: fixed mount).
     """
-    k_last = len(track_t) - 1
     first_sequence = first_pulse // n_beams
     # each beam's direction in the sensor frame at the start of its sequence's spin (its firing
     # offset's turn and its azimuth offset): a pulse's direction is then that turned by the
@@ -176,41 +220,9 @@ def moving_rays(first_pulse: np.int64, n: np.int64, n_beams: np.int64, cycle_s: 
     for q in nb.prange(n // n_beams):
         s = first_sequence + q
         t_seq = t0 + s * cycle_s
-        k = np.searchsorted(track_t, t_seq, side="right") - 1
-        k = min(max(k, 0), k_last - 1) if k_last > 0 else 0
-        k1 = min(k + 1, k_last)
-        span = track_t[k1] - track_t[k]
-        w = min(max((t_seq - track_t[k]) / span, 0.0), 1.0) if span > 0 else 0.0
-        r = _rotation_zyx(track_ypr[k, 0] + w * (track_ypr[k1, 0] - track_ypr[k, 0]),
-                          track_ypr[k, 1] + w * (track_ypr[k1, 1] - track_ypr[k, 1]),
-                          track_ypr[k, 2] + w * (track_ypr[k1, 2] - track_ypr[k, 2]))
-        head = head_rad_s * t_seq
-        ch, sh = math.cos(head), math.sin(head)
-        m = mount_rotation
-        # the lever arm turned by the head, then by the platform
-        ax = ch * mount_xyz[0] - sh * mount_xyz[1]
-        ay = sh * mount_xyz[0] + ch * mount_xyz[1]
-        az_ = mount_xyz[2]
-        lx = r[0] * ax + r[1] * ay + r[2] * az_
-        ly = r[3] * ax + r[4] * ay + r[5] * az_
-        lz = r[6] * ax + r[7] * ay + r[8] * az_
-        # sensor -> world rotation of this sequence: R_platform R_head R_mount R_spin
-        a00 = ch * m[0, 0] - sh * m[1, 0]
-        a01 = ch * m[0, 1] - sh * m[1, 1]
-        a02 = ch * m[0, 2] - sh * m[1, 2]
-        a10 = sh * m[0, 0] + ch * m[1, 0]
-        a11 = sh * m[0, 1] + ch * m[1, 1]
-        a12 = sh * m[0, 2] + ch * m[1, 2]
-        a20, a21, a22 = m[2, 0], m[2, 1], m[2, 2]
-        w00 = r[0] * a00 + r[1] * a10 + r[2] * a20
-        w01 = r[0] * a01 + r[1] * a11 + r[2] * a21
-        w02 = r[0] * a02 + r[1] * a12 + r[2] * a22
-        w10 = r[3] * a00 + r[4] * a10 + r[5] * a20
-        w11 = r[3] * a01 + r[4] * a11 + r[5] * a21
-        w12 = r[3] * a02 + r[4] * a12 + r[5] * a22
-        w20 = r[6] * a00 + r[7] * a10 + r[8] * a20
-        w21 = r[6] * a01 + r[7] * a11 + r[8] * a21
-        w22 = r[6] * a02 + r[7] * a12 + r[8] * a22
+        k, lx, ly, lz, w00, w01, w02, w10, w11, w12, w20, w21, w22 = sequence_pose(
+            t_seq, track_t, track_ypr, mount_xyz, mount_rotation, head_rad_s)
+        # ... then by the spin (R_spin about the sensor's z)
         spin = rotation_rad_s * (s * cycle_s)
         cs, ss = math.cos(spin), math.sin(spin)
         v00, v01 = w00 * cs + w01 * ss, w01 * cs - w00 * ss
@@ -219,19 +231,11 @@ def moving_rays(first_pulse: np.int64, n: np.int64, n_beams: np.int64, cycle_s: 
         for b in range(n_beams):
             i = q * n_beams + b
             t = t0 + (s * cycle_s + firing_offset_s[b])
-            kk = k
-            while kk < k_last - 1 and track_t[kk + 1] <= t:  # a sample may fall inside the sequence
-                kk += 1
-            kk1 = min(kk + 1, k_last)
-            span = track_t[kk1] - track_t[kk]
-            wt = min(max((t - track_t[kk]) / span, 0.0), 1.0) if span > 0 else 0.0
+            ox, oy, oz = pulse_origin(t, k, track_t, track_xyz, lx, ly, lz)
             # rotations only: the direction stays a unit vector (to 1e-15)
             wx = v00 * beam[b, 0] + v01 * beam[b, 1] + w02 * beam[b, 2]
             wy = v10 * beam[b, 0] + v11 * beam[b, 1] + w12 * beam[b, 2]
             wz = v20 * beam[b, 0] + v21 * beam[b, 1] + w22 * beam[b, 2]
-            ox = track_xyz[kk, 0] + wt * (track_xyz[kk1, 0] - track_xyz[kk, 0]) + lx
-            oy = track_xyz[kk, 1] + wt * (track_xyz[kk1, 1] - track_xyz[kk, 1]) + ly
-            oz = track_xyz[kk, 2] + wt * (track_xyz[kk1, 2] - track_xyz[kk, 2]) + lz
             origin[i, 0] = ox
             origin[i, 1] = oy
             origin[i, 2] = oz

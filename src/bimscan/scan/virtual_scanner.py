@@ -14,7 +14,9 @@ import numpy as np
 from bimscan.scan.asbuilt import Deviations
 from bimscan.scan.engine import FaceTables, HitSettings, RayEngine, make_engine
 from bimscan.scan.kernels import finish_hits, generate_rays, noise_key, station_normals
+from bimscan.scan.lidars import Lidar
 from bimscan.scan.multibeam import finish_moving_hits, moving_rays
+from bimscan.scan.risley import RisleyScanner, risley_rays
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan import waveform
 from bimscan.scan.device import ScannerModel, ScanSettings
@@ -204,25 +206,18 @@ class VirtualScanner:
         n_beams = lidar.n_beams
         noise = recipe.noise
         key = np.uint64(noise_key(recipe.seed, pass_id * MAX_MOUNTS + mount_index, recipe.noise_stream))
-        firing = np.asarray(lidar.firing_offset_us, dtype=np.float64) * 1e-6
-        elevation = np.radians(np.asarray(lidar.beam_elevation_deg, dtype=np.float64))
-        cos_el, sin_el = np.cos(elevation), np.sin(elevation)
-        azimuth_offset = np.radians(np.asarray(lidar.beam_azimuth_offset_deg, dtype=np.float64))
+        fill_rays = _moving_ray_kernel(lidar, mobile.rotation_hz, t, xyz_track, ypr, mount.lever_arm(),
+                                       np.ascontiguousarray(mount.rotation()), 2 * math.pi * mount.head_rotation_hz,
+                                       np.asarray(self.engine.centre, dtype=np.float64))
         ring_of_beam = lidar.ring_of_beam()
-        lever = mount.lever_arm()
-        rotation = np.ascontiguousarray(mount.rotation())
         chunk = max(n_beams, (recipe.chunk_pulses // n_beams) * n_beams)
-        centre = np.asarray(self.engine.centre, dtype=np.float64)
         for first in range(0, total, chunk):
             n = min(chunk, total - first)
             rays = self._work("mobile_rays", (n, 6), np.float32)
             origin = self._work("mobile_origin", (n, 3), np.float64)
             pulse_time = self._work("mobile_time", (n,), np.float64)
             with self.clock.step("rays"):
-                moving_rays(np.int64(first), np.int64(n), np.int64(n_beams), lidar.firing_cycle_us * 1e-6,
-                            float(t[0]), firing, cos_el, sin_el, azimuth_offset, 2 * math.pi * mobile.rotation_hz, t,
-                            xyz_track, ypr, lever, rotation, 2 * math.pi * mount.head_rotation_hz, centre, rays, origin,
-                            pulse_time)
+                fill_rays(first, n, rays, origin, pulse_time)
             t_hit, triangle = self.cast(rays)
             if on_pulses is not None:
                 on_pulses(n)
@@ -524,3 +519,28 @@ class VirtualScanner:
         if reuse:
             self._output_buffers = columns
         return columns
+
+
+def _moving_ray_kernel(lidar: Lidar, rotation_hz: float | None, track_t: np.ndarray, track_xyz: np.ndarray,
+                       track_ypr: np.ndarray, lever: np.ndarray, mount_rotation: np.ndarray, head_rad_s: float,
+                       centre: np.ndarray) -> Callable[[int, int, np.ndarray, np.ndarray, np.ndarray], None]:
+    """fill(first, n, rays, origin, time): the rays of pulses first .. first + n - 1 of a pass along the
+    track, for the lidar's kind (a spinning multi-beam lidar's or a Risley scanner's kernel)."""
+    cycle_s, n_beams, t0 = lidar.firing_cycle_us * 1e-6, np.int64(lidar.n_beams), float(track_t[0])
+    if isinstance(lidar, RisleyScanner):
+        prisms, incident = lidar.prism_table(), lidar.incident()
+
+        def fill(first: int, n: int, rays: np.ndarray, origin: np.ndarray, time: np.ndarray) -> None:
+            risley_rays(np.int64(first), np.int64(n), n_beams, cycle_s, t0, prisms, incident, track_t, track_xyz,
+                        track_ypr, lever, mount_rotation, head_rad_s, centre, rays, origin, time)
+        return fill
+    firing = np.asarray(lidar.firing_offset_us, dtype=np.float64) * 1e-6
+    elevation = np.radians(np.asarray(lidar.beam_elevation_deg, dtype=np.float64))
+    cos_el, sin_el = np.cos(elevation), np.sin(elevation)
+    azimuth_offset = np.radians(np.asarray(lidar.beam_azimuth_offset_deg, dtype=np.float64))
+
+    def fill(first: int, n: int, rays: np.ndarray, origin: np.ndarray, time: np.ndarray) -> None:
+        moving_rays(np.int64(first), np.int64(n), n_beams, cycle_s, t0, firing, cos_el, sin_el, azimuth_offset,
+                    2 * math.pi * rotation_hz, track_t, track_xyz, track_ypr, lever, mount_rotation, head_rad_s,
+                    centre, rays, origin, time)
+    return fill

@@ -1,8 +1,8 @@
-"""What a mobile scan is: a platform carrying multi-beam lidars along a trajectory, with drift.
+"""What a mobile scan is: a platform carrying lidars along a trajectory, with drift.
 
 ``MobileScan`` is the mobile half of a ``ScanRecipe`` (``ScanRecipe.mobile``; None for a tripod
-survey): the platform (``survey.platform``), the lidar on each of its mounts
-(``scan.multibeam``), the lidar's rotation rate, where the trajectory comes from (``"auto"``:
+survey): the platform (``survey.platform``), the lidar on each of its mounts (``scan.lidars``:
+a multi-beam or a Risley-prism lidar), a multi-beam lidar's rotation rate, where the trajectory comes from (``"auto"``:
 planned from the model by ``survey.walk``; else a CSV file, ``survey.trajectory``) and the
 SLAM-like drift (``survey.drift``). ``pass_pulses`` and ``walk_pulses`` count what a pass and a
 walk fire, exactly.
@@ -18,7 +18,8 @@ from typing import Any
 
 from bimscan.constraints import Checked, Range, setting
 from bimscan.errors import ScannerSettingsError
-from bimscan.scan.multibeam import MultiBeamScanner
+from bimscan.scan.lidars import Lidar
+from bimscan.scan.risley import RisleyScanner
 from bimscan.survey.drift import DriftModel
 from bimscan.survey.platform import Platform
 from bimscan.survey.trajectory import Trajectory
@@ -30,10 +31,11 @@ UNUSED_LIDAR_FIELDS = ("beam_divergence_rad", "wavelength_nm")  # recorded facts
 @dataclass(frozen=True)
 class MobileScan(Checked):
     """See the module docs. rotation_hz None: the lidar's default rate (set on construction); a rate
-    outside the lidar's own rates is a warning (``warnings``), an error under ``strict``."""
+    outside the lidar's own rates is a warning (``warnings``), an error under ``strict``. A Risley
+    lidar has no spinning head: its rotation_hz stays None (a rate given is refused)."""
 
     platform: Platform
-    lidar: MultiBeamScanner
+    lidar: Lidar
     rotation_hz: float | None = setting(None, within=Range(0.0, None, low_open=True))
     trajectory_from: str = AUTO_TRAJECTORY
     drift: DriftModel = field(default_factory=DriftModel)
@@ -45,6 +47,11 @@ class MobileScan(Checked):
 
     def refusal(self, problem: str) -> ScannerSettingsError:
         return ScannerSettingsError(problem)
+
+    def check(self) -> None:
+        if isinstance(self.lidar, RisleyScanner) and self.rotation_hz is not None:
+            raise self.refusal(f"{self.lidar.name} is a Risley-prism lidar: its prisms turn at the rates of its "
+                               "scanner file and it has no head rotation rate; leave rotation_hz (--rotation-hz) out")
 
     def warnings(self, *, strict: bool = False) -> list[str]:
         return self.lidar.check_rotation(self.rotation_hz, strict=strict)

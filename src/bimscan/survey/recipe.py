@@ -33,7 +33,7 @@ from bimscan.scan.engine import DEFAULT_ENGINE, resolve_engine
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.sensor import SensorModel
 from bimscan.site.model import SiteModel
-from bimscan.scan.multibeam import load_lidar
+from bimscan.scan.lidars import load_lidar
 from bimscan.survey.drift import DriftModel
 from bimscan.survey.mobile import AUTO_TRAJECTORY, MobileScan
 from bimscan.survey.platform import TRIPOD, load_platform
