@@ -258,11 +258,16 @@ def prestart_worker() -> None:
 
 @atexit.register
 def shutdown_workers() -> None:
-    """End the idle workers (they also end by themselves when this process goes)."""
-    with _LOCK:
-        workers, _IDLE[:] = list(_IDLE), []
-    for worker in workers:
-        worker.kill()
+    """End the idle workers (they also end by themselves when this process goes). A Ctrl-C that lands
+    here, while the process ends, is let go: the workers die with their parent, and the user's line
+    ('error: interrupted; ...') was printed already."""
+    try:
+        with _LOCK:
+            workers, _IDLE[:] = list(_IDLE), []
+        for worker in workers:
+            worker.kill()
+    except KeyboardInterrupt:
+        pass
 
 
 # -- the worker's side --------------------------------------------------------------------------------
