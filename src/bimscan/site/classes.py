@@ -2,8 +2,8 @@
 
 Every added object is a component whose ``ifc_class`` column holds one of ``SITE_CLASSES``:
 ``Clutter.<Kind>`` (furniture and site materials), ``Fixture.<Kind>`` (luminaires and air
-terminals under the ceiling), ``Temporary.<Kind>`` (temporary works and equipment) or
-``Person.<Pose>``. A class's ancestry is itself, its group (``Clutter``, ``Fixture``,
+terminals under the ceiling), ``Temporary.<Kind>`` (temporary works and equipment), ``Person.<Pose>`` or
+``Terrain.Ground`` (the ground around the building, ``site.ground``). A class's ancestry is itself, its group (``Clutter``, ``Fixture``,
 ``Temporary``, ``Person``) and then the IFC class the object would be in a model
 (``IfcFurniture``, ``IfcLightFixture``, ``IfcAirTerminal`` or ``IfcBuildingElementProxy``, with
 their supertypes), so a label-scheme rule can name the exact
@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-GROUPS = ("Clutter", "Fixture", "Temporary", "Person")
+GROUPS = ("Clutter", "Fixture", "Temporary", "Person", "Terrain")
 
 
 @dataclass(frozen=True)
@@ -63,6 +63,7 @@ SITE_CLASSES: dict[str, SiteClass] = {
         SiteClass("Temporary.Prop", "Temporary", _PROXY),
         SiteClass("Person.Standing", "Person", _PROXY),
         SiteClass("Person.Walking", "Person", _PROXY),
+        SiteClass("Terrain.Ground", "Terrain", _PROXY),
     )
 }
 

@@ -134,6 +134,10 @@ def dress_scene_timed(scene: BimScene, site: SiteModel, *, seed: int,
         if openings:  # lay-in fittings: the ceiling tiles are cut where they sit
             staged = dataclasses.replace(staged, mesh=cut_openings(staged.mesh, coverings, openings))
         cut_s = time.perf_counter() - t0
+    if site.ground_margin_m > 0:
+        from bimscan.site.ground import ground_patch
+
+        placed.append(ground_patch(staged, site.ground_margin_m))
     state = SiteState(settings=site_settings(site, seed), removed=dict(sorted(removed.items())),
                       placed=dict(sorted(Counter(p.class_name for p in placed).items())), rooms=rooms_count,
                       free_floor_m2=free_floor)

@@ -119,10 +119,14 @@ class ClutterSettings(Checked):
 
 @dataclass(frozen=True)
 class SiteModel(Checked):
-    """What the site looks like when scanned: the construction stage and the clutter on the floors."""
+    """What the site looks like when scanned: the construction stage, the clutter on the floors and
+    the ground around the building (``ground_margin_m``: a flat terrain patch reaching this far
+    beyond the footprint's bounding rectangle, at the ground floor's level; 0: none; a drone's
+    flight adds its platform's)."""
 
     stage: StageSettings = field(default_factory=StageSettings)
     clutter: ClutterSettings = field(default_factory=ClutterSettings)
+    ground_margin_m: float = setting(0.0, within=Range(0.0, 1000.0), hint="metres around the footprint, 0: none")
 
     def check(self) -> None:
         if self.clutter.kinds and self.clutter.density == 0.0:
@@ -132,7 +136,7 @@ class SiteModel(Checked):
     @property
     def is_bare(self) -> bool:
         """True when dressing changes nothing: the finished model, no clutter."""
-        return self.stage.is_bare and self.clutter.density == 0.0
+        return self.stage.is_bare and self.clutter.density == 0.0 and self.ground_margin_m == 0.0
 
     @property
     def warnings(self) -> tuple[str, ...]:
@@ -147,7 +151,10 @@ class SiteModel(Checked):
         """JSON-able (what clouds and units record; part of the recipe's fingerprint)."""
         stage = dataclasses.asdict(self.stage)
         stage["include"], stage["exclude"] = list(self.stage.include), list(self.stage.exclude)
-        return {"stage": stage, "clutter": {"density": self.clutter.density, "kinds": list(self.clutter.kinds)}}
+        site = {"stage": stage, "clutter": {"density": self.clutter.density, "kinds": list(self.clutter.kinds)}}
+        if self.ground_margin_m:  # only then: a site without ground records what it recorded before
+            site["ground_margin_m"] = self.ground_margin_m
+        return site
 
 
 def iso_date(value: Any) -> str:
