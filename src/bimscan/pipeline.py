@@ -29,6 +29,7 @@ from bimscan.site import DressTimings, dress_scene_timed
 from bimscan.survey.mobile import AUTO_TRAJECTORY
 from bimscan.survey.stations import PlanReport
 from bimscan.survey.trajectory import Trajectory, read_trajectory, trajectory_path, write_trajectory
+from bimscan.survey.flight import FlightReport
 from bimscan.survey.walk import WalkReport
 from bimscan.survey.survey import Survey, cloud_header, prepare_survey, run_survey
 from bimscan.types import BimScene, BuildDates, LabelScheme, PointCloud, Station
@@ -126,7 +127,7 @@ class SiteAndStations:
     plan: PlanReport | None
     timings: DressTimings
     trajectory: Trajectory | None = None
-    walk: WalkReport | None = None
+    walk: WalkReport | FlightReport | None = None
 
 
 def site_and_stations(scene: BimScene, recipe: ScanRecipe, *, progress: bool = False) -> SiteAndStations:
@@ -145,11 +146,11 @@ def site_and_stations(scene: BimScene, recipe: ScanRecipe, *, progress: bool = F
     from bimscan.survey.survey import choose_stations, choose_trajectory, require_tripod_spots
 
     if recipe.mobile is not None:  # a walk instead of stations, planned (or checked) on the dressed scene
-        if recipe.mobile.trajectory_from == AUTO_TRAJECTORY:
+        if recipe.mobile.trajectory_from == AUTO_TRAJECTORY and not recipe.mobile.platform.flies:
             require_tripod_spots(scene, recipe)  # the walk goes where a tripod plan would: fail in seconds
         dressed, timings = (scene, DressTimings()) if recipe.site.is_bare else build_site_timed(scene, recipe,
                                                                                               progress=progress)
-        with step_line("planning the walk", enabled=progress):
+        with step_line("planning the flight" if recipe.mobile.platform.flies else "planning the walk", enabled=progress):
             trajectory, walk = choose_trajectory(dressed, recipe)
         return SiteAndStations(scene=dressed, stations=(), plan=None, timings=timings, trajectory=trajectory, walk=walk)
     from_file = recipe.stations_from != AUTO_STATIONS

@@ -16,7 +16,7 @@ from bimscan.scan.engine import AUTO_ENGINE, DEFAULT_ENGINE, ENGINES
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.sensor import REALISMS, RETURN_MODES, SensorModel
 from bimscan.scan.lidars import MOBILE_LIDARS
-from bimscan.survey.drift import DriftModel
+from bimscan.survey.drift import DriftModel, GnssInsModel
 from bimscan.survey.platform import PLATFORM_NAMES, TRIPOD
 from bimscan.survey.recipe import AUTO_STATIONS, DEFAULT_MAX_STATION_PULSES, DEFAULT_MAX_WALK_PULSES, ScanRecipe
 
@@ -62,6 +62,10 @@ if TYPE_CHECKING:
               help="Mobile platforms: SLAM drift, the position error's sigma after 10 m walked (metres; heading "
                    "drifts alike), pinned to zero at loop closures. "
                    f"Default: {default_of(DriftModel, 'sigma_m'):g} (none).")
+@click.option("--gnss", "gnss_m", type=float, default=None,
+              help="Drones: the GNSS/INS error, its horizontal sigma in metres (vertical 1.5x, heading 0.05 degree per "
+                   "centimetre; a Gauss-Markov process with a 30 s correlation time). 0.01 is an RTK-fixed DJI M350 "
+                   "with a Zenmuse L2. Default: none.")
 @click.option("--rotation-hz", type=float, default=None,
               help="Mobile platforms: a multi-beam lidar's rotation rate. Default: the scanner's (VLP-16: 10 Hz). "
                    "Refused for a Risley-prism lidar (its prisms turn at its scanner file's rates).")
@@ -115,7 +119,7 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
          footprint: bool | None, beam_sample_quality: int | None, detection: bool | None, glass: bool | None,
          color: bool | None, deviations: bool | None, material_table: str | None, threads: int,
          max_station_pulses: int | None, max_walk_pulses: int | None, overwrite: bool, length_unit: str | None,
-         site: SiteModel, platform: str, trajectory: str | None, drift_m: float | None,
+         site: SiteModel, platform: str, trajectory: str | None, drift_m: float | None, gnss_m: float | None,
          rotation_hz: float | None) -> None:
     """Scan MODEL.ifc with a virtual TLS (or a mobile scanner) and write a labelled cloud to OUT.
 
@@ -154,23 +158,31 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
                                 engine=engine, stations_from=stations, strict=strict, threads=threads,
                                 max_station_pulses=max_station_pulses, max_walk_pulses=max_walk_pulses,
                                 sensor=settings, site=site, platform=platform, trajectory=trajectory,
-                                drift=None if drift_m is None else DriftModel(sigma_m=drift_m), rotation_hz=rotation_hz)
+                                drift=_drift(drift_m, gnss_m), rotation_hz=rotation_hz)
     result = scan_model(model, out, recipe, scheme=scheme, overwrite=overwrite, length_unit=length_unit,
                         warn=lambda line: click.echo(f"warning: {line}", err=True))
     extents = result.summary.extents()
     names = result.survey.scene.scheme.names
     walked = result.survey.trajectory
+    moved = "flight" if result.survey.recipe.mobile is not None and result.survey.recipe.mobile.platform.flies else "walk"
     source = (f"{len(result.survey.stations)} stations" if walked is None else
-              f"a {walked.length_m():.0f} m walk of {walked.duration_s():.0f} s in {walked.n_passes} "
+              f"a {walked.length_m():.0f} m {moved} of {walked.duration_s():.0f} s in {walked.n_passes} "
               f"pass{'es' if walked.n_passes > 1 else ''}")
     click.echo(f"{result.path}: {result.points:,} points from {source} in "
                f"{result.seconds:.1f} s ({result.points / max(result.seconds, 1e-9) / 1e6:.2f} Mpts/s)")
     if walked is not None:
         from bimscan.survey.trajectory import trajectory_path
 
+        from bimscan.survey.flight import FlightReport
+
         walk = result.survey.walk
-        rooms = f"; rooms visited: {len(walk.rooms)}, stations of the tripod plan missed: {len(walk.missed)}" if walk else ""
-        click.echo(f"  trajectory: {trajectory_path(result.path)} ({len(walked.closures)} loop closures{rooms})")
+        if isinstance(walk, FlightReport):
+            click.echo(f"  trajectory: {trajectory_path(result.path)}")
+            click.echo(f"  {walk.line()}")
+        else:
+            rooms = (f"; rooms visited: {len(walk.rooms)}, stations of the tripod plan missed: {len(walk.missed)}"
+                     if walk else "")
+            click.echo(f"  trajectory: {trajectory_path(result.path)} ({len(walked.closures)} loop closures{rooms})")
     plan = result.survey.plan
     if plan is not None and plan.stations_per_storey:
         click.echo("  stations per storey: " + ", ".join(f"{k} {v}" for k, v in plan.stations_per_storey.items()))
@@ -206,3 +218,13 @@ def furnish(model: Path, out: Path, seed: int, scheme: str | None, site: SiteMod
 
 
 COMMANDS: list[click.Command] = [scan, furnish]
+
+
+def _drift(drift_m: float | None, gnss_m: float | None) -> DriftModel | GnssInsModel | None:
+    """The mobile scan's registration error from --drift (a walk's SLAM) or --gnss (a drone's GNSS/INS)."""
+    if drift_m is not None and gnss_m is not None:
+        raise click.UsageError("give --drift (a walking platform's SLAM drift) or --gnss (a drone's GNSS/INS error), "
+                               "not both")
+    if gnss_m is not None:
+        return GnssInsModel.rtk(gnss_m)
+    return None if drift_m is None else DriftModel(sigma_m=drift_m)

@@ -20,7 +20,7 @@ from bimscan.constraints import Checked, Range, setting
 from bimscan.errors import ScannerSettingsError
 from bimscan.scan.lidars import Lidar
 from bimscan.scan.risley import RisleyScanner
-from bimscan.survey.drift import DriftModel
+from bimscan.survey.drift import DriftModel, GnssInsModel
 from bimscan.survey.platform import Platform
 from bimscan.survey.trajectory import Trajectory
 
@@ -38,7 +38,7 @@ class MobileScan(Checked):
     lidar: Lidar
     rotation_hz: float | None = setting(None, within=Range(0.0, None, low_open=True))
     trajectory_from: str = AUTO_TRAJECTORY
-    drift: DriftModel = field(default_factory=DriftModel)
+    drift: DriftModel | GnssInsModel = field(default_factory=DriftModel)
 
     def __post_init__(self) -> None:
         if self.rotation_hz is None:
@@ -49,6 +49,15 @@ class MobileScan(Checked):
         return ScannerSettingsError(problem)
 
     def check(self) -> None:
+        if self.platform.flies:
+            from bimscan.survey.flight import lidar_half_extent_deg
+
+            lidar_half_extent_deg(self.lidar)  # a lidar the flight can point, or refused
+            if isinstance(self.drift, DriftModel) and not self.drift.is_off:
+                raise self.refusal("SLAM drift (--drift) is a walking platform's error; a drone's position comes from "
+                                   "GNSS/INS: give --gnss instead")
+        elif isinstance(self.drift, GnssInsModel) and not self.drift.is_off:
+            raise self.refusal("a GNSS/INS error (--gnss) is a drone's; a walking platform's SLAM error is --drift")
         if isinstance(self.lidar, RisleyScanner) and self.rotation_hz is not None:
             raise self.refusal(f"{self.lidar.name} is a Risley-prism lidar: its prisms turn at the rates of its "
                                "scanner file and it has no head rotation rate; leave rotation_hz (--rotation-hz) out")
@@ -73,5 +82,8 @@ class MobileScan(Checked):
         the device facts only the sensor effects use)."""
         trajectory = self.trajectory_from if self.trajectory_from == AUTO_TRAJECTORY else Path(self.trajectory_from).name
         lidar = {k: v for k, v in dataclasses.asdict(self.lidar).items() if k not in UNUSED_LIDAR_FIELDS}
-        return {"platform": dataclasses.asdict(self.platform), "scanner": lidar,
+        platform = dataclasses.asdict(self.platform)
+        if not self.platform.flies:  # what walking platforms recorded before drones flew (their fingerprints)
+            del platform["kind"], platform["flight"]
+        return {"platform": platform, "scanner": lidar,
                 "rotation_hz": self.rotation_hz, "trajectory_from": trajectory, "drift": self.drift.to_json()}

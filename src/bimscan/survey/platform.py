@@ -1,12 +1,16 @@
-"""Mobile platforms as data: where a walking operator carries the lidars, and how they walk.
+"""Mobile platforms as data: where a walking operator or a drone carries the lidars, and how they move.
 
-``PLATFORMS`` maps a name (``handheld``, ``backpack``) to a ``Platform`` read from
+``PLATFORMS`` maps a name (``handheld``, ``backpack``, ``drone``) to a ``Platform`` read from
 ``survey/platforms.toml``; users pass their own file with ``load_platform(path)`` (one table of
 the same keys). ``TRIPOD`` names the static platform of TLS stations, which is not a
 ``Platform``: a tripod scan has stations, a mobile scan a trajectory.
 
-Frames: the platform's origin is on the floor under the operator; x points along the walk, y to
-the left, z up. A trajectory gives the origin's position and the platform's yaw, pitch and roll
+A walking platform (``kind = "walking"``) follows a walk planned through the building
+(``survey.walk``); a flying one (``kind = "flying"``) a flight planned around and over it
+(``survey.flight``, its settings the platform's ``flight`` table).
+
+Frames: the platform's origin is on the floor under the operator (a drone's: its gimbal-stabilised
+payload, see ``survey.flight``); x points along the walk, y to the left, z up. A trajectory gives the origin's position and the platform's yaw, pitch and roll
 over time. A mount places one lidar: at (forward_m, lateral_m, height_m), its spin axis tilted
 ``tilt_deg`` from the vertical towards the front (a rotation about y), then turned ``yaw_deg``
 about z; a motor-driven head turns the mount about the platform's z at ``head_rotation_hz``.
@@ -15,15 +19,16 @@ about z; a motor-driven head turns the mount about the platform's z at ``head_ro
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
 from bimscan.constraints import Checked, Range, setting
 from bimscan.errors import ConfigError
 from bimscan.scan.virtual_scanner import MAX_MOUNTS
+from bimscan.survey.flight import FlightSettings
 from bimscan.toml_files import build_dataclass, load_named, read_package_tables
 
 TRIPOD = "tripod"
@@ -57,16 +62,18 @@ class Mount(Checked):
 
 @dataclass(frozen=True)
 class Platform(Checked):
-    """A walking operator with one to four lidars.
+    """A walking operator or a drone with one to four lidars.
 
     mounts: where each lidar sits (no default: a platform without a lidar placed is refused).
-    default_scanner: the multi-beam lidar used unless one is given. walking_speed_m_s,
-    stair_speed_m_s, max_turn_deg_per_s: how a planned walk moves (``survey.walk``).
-    body_radius_m, headroom_m: the free space the operator needs (a planned walk keeps to it).
+    kind: ``walking`` or ``flying`` (see the module docs). default_scanner: the lidar used unless
+    one is given. walking_speed_m_s, stair_speed_m_s, max_turn_deg_per_s: how a planned walk moves
+    (``survey.walk``). body_radius_m, headroom_m: the free space the operator needs (a planned walk
+    keeps to it). flight: how a flying platform's flight is planned (``survey.flight``).
     """
 
     name: str
     mounts: tuple[Mount, ...]
+    kind: Literal["walking", "flying"] = "walking"
     description: str = ""
     default_scanner: str = "velodyne_vlp16"
     walking_speed_m_s: float = setting(1.0, within=Range(0.05, 5.0))
@@ -74,6 +81,7 @@ class Platform(Checked):
     max_turn_deg_per_s: float = setting(60.0, within=Range(1.0, 720.0))
     body_radius_m: float = setting(0.25, within=Range(0.05, 1.0))
     headroom_m: float = setting(1.9, within=Range(0.5, 4.0))
+    flight: FlightSettings = field(default_factory=FlightSettings)
 
     def refusal(self, problem: str) -> ConfigError:
         return ConfigError(f"platform {self.name!r}: {problem}")
@@ -81,6 +89,13 @@ class Platform(Checked):
     def check(self) -> None:
         if not 1 <= len(self.mounts) <= MAX_MOUNTS:
             raise self.refusal(f"give 1..{MAX_MOUNTS} mounts, got {len(self.mounts)}")
+        if self.kind == "walking" and self.flight != FlightSettings():
+            raise self.refusal("a [flight] table plans a drone's flight; a walking platform walks: give kind = "
+                               "\"flying\" or leave the table out")
+
+    @property
+    def flies(self) -> bool:
+        return self.kind == "flying"
 
 
 PLATFORMS: dict[str, Platform] = {

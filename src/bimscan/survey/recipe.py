@@ -185,6 +185,13 @@ class ScanRecipe(Checked):
             fields["mobile"] = MobileScan(platform=chosen, lidar=load_lidar(lidar or chosen.default_scanner),
                                           rotation_hz=rotation_hz, trajectory_from=trajectory or AUTO_TRAJECTORY,
                                           drift=drift or DriftModel())
+            if chosen.flies:
+                if stations_from != AUTO_STATIONS:
+                    raise ConfigError(f"stations from {Path(stations_from).name!r} (--stations): a drone has none; it "
+                                      "flies the flight planned around the model, or a trajectory file (--trajectory)")
+                site = fields.get("site") or SiteModel()
+                if site.ground_margin_m == 0.0 and chosen.flight.ground_margin_m > 0.0:  # a site, not a floating building
+                    fields["site"] = dataclasses.replace(site, ground_margin_m=chosen.flight.ground_margin_m)
             if max_walk_pulses is not None:
                 fields["max_walk_pulses"] = max_walk_pulses
         else:

@@ -25,11 +25,15 @@ from bimscan.scan.pattern import PulsePattern
 from bimscan.scan.probe import Prober
 from bimscan.survey.recipe import AUTO_STATIONS, ScanRecipe
 from bimscan.scan.virtual_scanner import VirtualScanner
-from bimscan.survey.mobile import AUTO_TRAJECTORY
+from bimscan.survey.mobile import AUTO_TRAJECTORY, MobileScan
 from bimscan.survey.stations import PlanReport, plan_stations, read_stations, station_spots
 from bimscan.survey.trajectory import Trajectory, read_trajectory
+from bimscan.survey.flight import FlightReport, lidar_half_extent_deg, plan_flight
 from bimscan.survey.walk import WalkReport, plan_walk
 from bimscan.types import BimScene, CloudHeader, PointCloud, Station
+
+TERRAIN_CLASSES = ("Terrain.Ground",)  # what a flight does not fly around (site.ground)
+FLIGHT_MARGIN_M = 500.0  # a flight file may reach this far beyond the model (a walk's: 5 m)
 
 
 @dataclass(frozen=True)
@@ -43,7 +47,7 @@ class Survey:
     stations: tuple[Station, ...]
     plan: PlanReport | None = None
     trajectory: Trajectory | None = None
-    walk: WalkReport | None = None
+    walk: WalkReport | FlightReport | None = None
 
     def pulses(self) -> int:
         """Emitted pulses of the whole survey (for progress bars and size estimates)."""
@@ -72,11 +76,18 @@ def choose_stations(scene: BimScene, recipe: ScanRecipe, *, prober: Prober | Non
 
 
 def choose_trajectory(scene: BimScene, recipe: ScanRecipe, *, prober: Prober | None = None,
-                      stations: tuple[Station, ...] | None = None) -> tuple[Trajectory, WalkReport | None]:
+                      stations: tuple[Station, ...] | None = None) -> tuple[Trajectory, WalkReport | FlightReport | None]:
     """The trajectory of a mobile recipe: planned from the scene (``survey.walk``) through
-    ``stations`` (when not given: the recipe's stations, planned or read from its station file) or
-    read from its CSV file and checked against the scene."""
+    ``stations`` (when not given: the recipe's stations, planned or read from its station file), a
+    drone's flight planned around and over it (``survey.flight``), or read from its CSV file and
+    checked against the scene (a flight within ``FLIGHT_MARGIN_M`` of the model)."""
     mobile = recipe.mobile
+    if mobile.platform.flies:  # a flight around and over the model, or the user's
+        if mobile.trajectory_from == AUTO_TRAJECTORY:
+            return plan_scene_flight(scene, mobile)
+        trajectory = read_trajectory(mobile.trajectory_from)
+        check_trajectory(trajectory, scene, mobile.trajectory_from, margin_m=FLIGHT_MARGIN_M)
+        return trajectory, None
     prober = prober or Prober(scene.mesh, threads=recipe.threads)
     if mobile.trajectory_from == AUTO_TRAJECTORY:
         if not stations:  # the waypoints: the stations a tripod survey would scan from (planned or read)
@@ -87,15 +98,28 @@ def choose_trajectory(scene: BimScene, recipe: ScanRecipe, *, prober: Prober | N
     return trajectory, None
 
 
-def check_trajectory(trajectory: Trajectory, scene: BimScene, source: str | Path) -> None:
-    """Raise StationError when a trajectory leaves the model's bounds by more than 5 m (a file in
-    another coordinate system or unit). Its pulses are the recipe's to check (``ScanRecipe.check_walk``)."""
+def plan_scene_flight(scene: BimScene, mobile: MobileScan) -> tuple[Trajectory, FlightReport]:
+    """The flight a drone's recipe plans around and over ``scene`` (``survey.flight``)."""
+    mesh = scene.mesh
+    building = ~np.isin(scene.components.ifc_class, TERRAIN_CLASSES)[mesh.face_component]  # not the ground
+    vertices = mesh.vertices[np.unique(mesh.faces[building])]
+    if len(vertices) == 0:
+        raise StationError(f"{scene.source}: nothing but ground to fly around; a flight needs a building")
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    return plan_flight(vertices[:, :2], (float(lo[2]), float(hi[2])),
+                       tuple(s.elevation_m for s in scene.storeys), mobile.platform.flight,
+                       lidar_half_extent_deg(mobile.lidar))
+
+
+def check_trajectory(trajectory: Trajectory, scene: BimScene, source: str | Path, *, margin_m: float = 5.0) -> None:
+    """Raise StationError when a trajectory leaves the model's bounds by more than ``margin_m`` (a file
+    in another coordinate system or unit). Its pulses are the recipe's to check (``ScanRecipe.check_walk``)."""
     lo, hi = scene.mesh.bounds()
-    outside = np.any((trajectory.xyz < lo - 5.0) | (trajectory.xyz > hi + 5.0), axis=1)
+    outside = np.any((trajectory.xyz < lo - margin_m) | (trajectory.xyz > hi + margin_m), axis=1)
     if outside.any():
         k = int(np.flatnonzero(outside)[0])
         raise StationError(f"{source}: pose {k} (t = {trajectory.t[k]:g} s) at "
-                           f"{', '.join(number(v) for v in trajectory.xyz[k])} lies more than 5 m outside the model "
+                           f"{', '.join(number(v) for v in trajectory.xyz[k])} lies more than {margin_m:g} m outside the model "
                            f"(x {number(lo[0], 1)}..{number(hi[0], 1)}, y {number(lo[1], 1)}..{number(hi[1], 1)}, "
                            f"z {number(lo[2], 1)}..{number(hi[2], 1)}); give "
                            "the trajectory in the model's coordinates, in metres")
@@ -151,7 +175,7 @@ def check_site(scene: BimScene, recipe: ScanRecipe) -> None:
 
 def prepare_survey(scene: BimScene, recipe: ScanRecipe, *, scanner: VirtualScanner | None = None,
                    stations: tuple[Station, ...] | None = None, plan: PlanReport | None = None,
-                   trajectory: Trajectory | None = None, walk: WalkReport | None = None) -> Survey:
+                   trajectory: Trajectory | None = None, walk: WalkReport | FlightReport | None = None) -> Survey:
     """Place the scanner in the scene and fix the stations (``recipe.stations_from``).
 
     ``scanner``: reuse a VirtualScanner already built over this scene with the recipe's model.
@@ -258,7 +282,9 @@ def survey_metadata(survey: Survey) -> dict[str, Any]:
                                   "length_m": round(trajectory.length_m(), 6),
                                   "duration_s": round(trajectory.duration_s(), 6),
                                   "loop_closures_s": [round(float(t), 6) for t in trajectory.closures]}
-        if survey.walk is not None:
+        if isinstance(survey.walk, FlightReport):
+            metadata["trajectory"]["flight"] = survey.walk.to_json()
+        elif survey.walk is not None:
             metadata["trajectory"]["rooms"] = list(survey.walk.rooms)
     return metadata
 

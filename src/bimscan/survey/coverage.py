@@ -1,0 +1,123 @@
+"""How well a scan from outside covers a building's outer surface, element by element (the check of
+a drone's flight: every roof and facade element seen at a density, or listed with why not).
+
+The outer surface: the model's triangles (the ground and other site objects left out) sampled
+about every ``SAMPLE_M`` (area-weighted, seeded); a sample is outer when a ray leaving it along
+its face's normal, or tilted ``OPEN_TILT_DEG`` from it towards any of four sides, escapes the
+building (meets nothing): so a facade under an overhang still counts, a face against another
+element or inside the building does not. A sample is covered when the scan's points within
+``radius_m`` of it give at least ``density_per_m2`` points per square metre (count / (pi r^2)).
+An element's coverage is its covered share of its outer samples; elements with fewer than
+``MIN_OUTER_SAMPLES`` outer samples are too small to judge and left out.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from bimscan.scan.probe import Prober
+from bimscan.types import BimScene, SceneMesh
+
+SAMPLE_M = 0.25
+OPEN_TILT_DEG = 60.0
+MIN_OUTER_SAMPLES = 4
+ESCAPE_OFFSET_M = 1e-3
+SITE_PREFIXES = ("Terrain.", "Clutter.", "Fixture.", "Temporary.", "Person.")
+
+
+@dataclass(frozen=True)
+class ElementCoverage:
+    """One element's outer surface and how much of it the scan covers (``covered_share`` in [0, 1]);
+    ``facing``: where most of its outer surface faces (``up``, ``side`` or ``down``); ``buried``: the
+    share of its outer surface below the ground (``Terrain.Ground``), which no scan from outside sees."""
+
+    component: int
+    global_id: str
+    ifc_class: str
+    name: str
+    outer_m2: float
+    covered_share: float
+    facing: str
+    buried: float = 0.0
+
+    def why_not(self) -> str:
+        """Why a poorly covered element is: below the ground, facing down (a soffit), or not reached."""
+        if self.buried > 0.5:
+            return "below the ground"
+        if self.facing == "down":
+            return "faces down (a soffit, seen from below only)"
+        return "not reached at the density by the scan's poses"
+
+
+def outer_samples(scene: BimScene, *, sample_m: float = SAMPLE_M, seed: int = 0,
+                  threads: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Samples of the building's outer surface (see the module docs): positions (S, 3), their faces'
+    unit normals (S, 3) and components (S,) int64."""
+    table, mesh = scene.components, scene.mesh
+    building = np.array([not str(c).startswith(SITE_PREFIXES) for c in table.ifc_class], dtype=bool)
+    faces_kept = building[mesh.face_component]
+    solid = SceneMesh(vertices=mesh.vertices, faces=mesh.faces[faces_kept],
+                      face_component=mesh.face_component[faces_kept])
+    tri = mesh.vertices[solid.faces]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area = np.linalg.norm(cross, axis=1) / 2
+    normal = cross / np.maximum(2 * area, 1e-12)[:, None]
+    rng = np.random.default_rng([seed, 0x636F76])  # "cov"
+    counts = rng.poisson(area / sample_m**2)
+    face = np.repeat(np.arange(len(area)), counts)
+    u, v = rng.random(len(face)), rng.random(len(face))
+    flip = u + v > 1
+    u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
+    points = tri[face, 0] + u[:, None] * (tri[face, 1] - tri[face, 0]) + v[:, None] * (tri[face, 2] - tri[face, 0])
+    normals = normal[face]
+    prober = Prober(solid, threads=threads)
+    outer = np.zeros(len(face), dtype=bool)
+    for direction in _open_directions(normals):
+        remaining = np.flatnonzero(~outer)
+        if len(remaining) == 0:
+            break
+        t, _ = prober.cast(points[remaining] + ESCAPE_OFFSET_M * direction[remaining], direction[remaining])
+        outer[remaining[~np.isfinite(t)]] = True
+    return points[outer], normals[outer], solid.face_component[face[outer]].astype(np.int64)
+
+
+def _open_directions(normals: np.ndarray) -> list[np.ndarray]:
+    """The normal, then the normal tilted ``OPEN_TILT_DEG`` towards four sides (unit vectors)."""
+    helper = np.where(np.abs(normals[:, 2:3]) < 0.9, np.array([[0.0, 0.0, 1.0]]), np.array([[1.0, 0.0, 0.0]]))
+    a = np.cross(normals, helper)
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    b = np.cross(normals, a)
+    c, s = math.cos(math.radians(OPEN_TILT_DEG)), math.sin(math.radians(OPEN_TILT_DEG))
+    return [normals] + [c * normals + s * side for side in (a, -a, b, -b)]
+
+
+def element_coverage(scene: BimScene, points: np.ndarray, *, density_per_m2: float = 100.0, radius_m: float = 0.15,
+                     sample_m: float = SAMPLE_M, threads: int = 0) -> list[ElementCoverage]:
+    """Each outer element's covered share (see the module docs) by the scan's ``points`` (N, 3) world
+    metres, sorted by share (least covered first)."""
+    xyz, normals, component = outer_samples(scene, sample_m=sample_m, threads=threads)
+    tree = cKDTree(np.asarray(points, dtype=np.float64))
+    near = tree.query_ball_point(xyz, radius_m, return_length=True, workers=-1)
+    covered = near / (math.pi * radius_m**2) >= density_per_m2
+    table = scene.components
+    terrain = np.flatnonzero(table.ifc_class == "Terrain.Ground")
+    if len(terrain):
+        ground_z = float(np.median(scene.mesh.vertices[scene.mesh.faces[scene.mesh.face_component == terrain[0]], 2]))
+    else:
+        ground_z = -math.inf
+    out = []
+    for c in np.unique(component):
+        mine = component == c
+        if mine.sum() < MIN_OUTER_SAMPLES:
+            continue
+        nz = float(np.median(normals[mine, 2]))
+        facing = "up" if nz > 0.5 else "down" if nz < -0.5 else "side"
+        out.append(ElementCoverage(component=int(c), global_id=str(table.global_id[c]), ifc_class=str(table.ifc_class[c]),
+                                   name=str(table.name[c]), outer_m2=float(mine.sum() * sample_m**2),
+                                   covered_share=float(covered[mine].mean()), facing=facing,
+                                   buried=float((xyz[mine, 2] < ground_z).mean())))
+    return sorted(out, key=lambda e: (e.covered_share, e.global_id))

@@ -1,0 +1,185 @@
+"""Drone flights: the planned flight's geometry (clearance, heights, grid, take-off), the ground
+around the building, the GNSS/INS error, a drone scan end to end, and what a drone refuses."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from matplotlib.path import Path as PolygonPath
+
+from bimscan.errors import ConfigError, ScannerSettingsError
+from bimscan.io import read_cloud, read_cloud_header
+from bimscan.pipeline import load_scene, scan_model
+from bimscan.scan.risley import RISLEY_SCANNERS
+from bimscan.site.model import SiteModel
+from bimscan.survey.drift import GnssInsModel, drift_track, gauss_markov
+from bimscan.survey.flight import FlightSettings, footprint_hull, lidar_half_extent_deg, plan_flight
+from bimscan.survey.platform import PLATFORMS, load_platform
+from bimscan.survey.recipe import ScanRecipe
+from bimscan.survey.trajectory import Trajectory
+
+L2 = RISLEY_SCANNERS["dji_zenmuse_l2"]
+# an L-shaped building 30 x 20 m, 12 m high, its ground floor at z = 0
+PLAN = np.array([[0, 0], [30, 0], [30, 8], [12, 8], [12, 20], [0, 20]], dtype=float)
+
+
+def distance_to_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """Plan distance of each point to a closed polygon's edges."""
+    a, b = polygon, np.roll(polygon, -1, axis=0)
+    ab = b - a
+    t = np.clip(((points[:, None, :] - a) * ab).sum(-1) / (ab * ab).sum(-1), 0, 1)
+    nearest = a + t[..., None] * ab
+    return np.linalg.norm(points[:, None, :] - nearest, axis=-1).min(axis=1)
+
+
+@pytest.fixture(scope="module")
+def flight():
+    settings = FlightSettings()
+    trajectory, report = plan_flight(PLAN, (-0.3, 12.0), (0.0, 4.0, 8.0), settings, lidar_half_extent_deg(L2))
+    return settings, trajectory, report
+
+
+def test_orbits_keep_their_clearance_and_face_the_building(flight):
+    settings, trajectory, report = flight
+    hull = footprint_hull(PLAN)
+    on_orbit = np.isin(np.round(trajectory.xyz[:, 2], 6), np.round(report.orbit_heights, 6))
+    xy = trajectory.xyz[on_orbit, :2]
+    assert on_orbit.sum() > 50
+    inside = PolygonPath(hull).contains_points(xy)
+    assert not inside.any()
+    assert distance_to_polygon(xy, hull).min() >= settings.orbit_clearance_m - 0.05
+    # facing the building: the yaw points towards the hull's centre (a convex hull: its inward normal)
+    towards = hull.mean(axis=0) - xy
+    facing = np.column_stack([np.cos(trajectory.yaw[on_orbit]), np.sin(trajectory.yaw[on_orbit])])
+    assert ((towards * facing).sum(axis=1) > 0).all()
+    np.testing.assert_allclose(trajectory.pitch[on_orbit], math.radians(settings.orbit_pitch_deg), atol=1e-9)
+
+
+def test_orbit_heights_cover_the_facade_and_the_grid_flies_over_the_top(flight):
+    settings, trajectory, report = flight
+    band = 2 * settings.orbit_clearance_m * math.tan(math.radians(lidar_half_extent_deg(L2)[0]))
+    heights = np.array(report.orbit_heights)
+    assert heights.min() >= 3.0 - 0.05 - 1e-9 and heights.max() <= 12.0
+    assert heights.min() - band / 2 <= -0.05 and heights.max() + band / 2 >= 12.0  # every storey in a band
+    assert report.grid_z == pytest.approx(12.0 + settings.grid_height_m)
+    swath = 2 * settings.grid_height_m * math.tan(math.radians(lidar_half_extent_deg(L2)[1]))
+    assert report.grid_spacing_m <= swath * (1 - settings.side_overlap) + 1e-9
+    on_grid = np.isclose(trajectory.xyz[:, 2], report.grid_z) & np.isclose(trajectory.pitch, math.pi / 2)
+    assert on_grid.sum() > 50 and trajectory.xyz[:, 2].max() == pytest.approx(report.grid_z)
+
+
+def test_the_flight_takes_off_and_lands_outside_at_the_ground_within_its_limits(flight):
+    settings, trajectory, report = flight
+    start, end = trajectory.xyz[0], trajectory.xyz[-1]
+    np.testing.assert_allclose(start, end)
+    assert start[2] == pytest.approx(-0.05 + 0.3)  # the ground floor's 0 less 5 cm, plus the standing height
+    assert distance_to_polygon(start[None, :2], footprint_hull(PLAN))[0] >= settings.orbit_clearance_m
+    dt = np.diff(trajectory.t)
+    assert (dt > 0).all()
+    horizontal = np.linalg.norm(np.diff(trajectory.xyz[:, :2], axis=0), axis=1) / dt
+    vertical = np.abs(np.diff(trajectory.xyz[:, 2])) / dt
+    turn = np.abs(np.diff(np.unwrap(trajectory.yaw))) / dt
+    assert horizontal.max() <= settings.speed_m_s * (1 + 1e-9)
+    assert vertical.max() <= max(settings.speed_m_s, settings.climb_speed_m_s) * (1 + 1e-9)
+    assert np.degrees(turn.max()) <= settings.max_turn_deg_per_s * (1 + 1e-6)
+    assert report.duration_s == pytest.approx(trajectory.duration_s())
+
+
+def test_gauss_markov_error_has_its_sigma_and_correlation():
+    rng = np.random.default_rng(0)
+    x = gauss_markov(rng, 200_000, 0.5, 10.0, np.array([0.02, 0.5]))
+    assert x[:, 0].std() == pytest.approx(0.02, rel=0.05) and x[:, 1].std() == pytest.approx(0.5, rel=0.05)
+    lag = 20  # 10 s: one correlation time
+    r = np.corrcoef(x[:-lag, 0], x[lag:, 0])[0, 1]
+    assert r == pytest.approx(math.exp(-1.0), abs=0.03)
+
+
+def test_a_gnss_track_is_reproducible_and_off_by_default(flight):
+    _, trajectory, _ = flight
+    model = GnssInsModel.rtk(0.01)
+    a, b = drift_track(trajectory, model, 3), drift_track(trajectory, model, 3)
+    assert np.array_equal(a.offset, b.offset) and np.array_equal(a.yaw, b.yaw)
+    assert 0 < np.abs(a.offset[:, :2]).max() < 5 * 0.01 and 0 < np.abs(a.offset[:, 2]).max() < 5 * 0.015
+    assert 0 < np.degrees(np.abs(a.yaw)).max() < 5 * 0.05
+    assert GnssInsModel().is_off and not model.is_off
+    assert model.vertical_sigma_m == pytest.approx(0.015) and model.heading_sigma_deg == pytest.approx(0.05)
+
+
+def test_what_a_drone_refuses():
+    with pytest.raises(ConfigError, match="multi-beam lidar"):
+        ScanRecipe.resolve(platform="drone", lidar="velodyne_vlp16")
+    with pytest.raises(ConfigError, match="a drone has none"):
+        ScanRecipe.resolve(platform="drone", stations_from="stations.csv")
+    with pytest.raises(ConfigError, match="no TLS 'preset'"):
+        ScanRecipe.resolve(platform="drone", preset="exp1")
+    with pytest.raises(ScannerSettingsError, match="no head rotation rate"):
+        ScanRecipe.resolve(platform="drone", rotation_hz=10.0)
+    with pytest.raises(ScannerSettingsError, match="give --gnss instead"):
+        from bimscan.survey.drift import DriftModel
+
+        ScanRecipe.resolve(platform="drone", drift=DriftModel(sigma_m=0.01))
+    with pytest.raises(ScannerSettingsError, match="a GNSS/INS error"):
+        ScanRecipe.resolve(platform="handheld", drift=GnssInsModel.rtk(0.01))
+
+
+def test_a_walking_platform_file_with_a_flight_table_is_refused(tmp_path):
+    path = tmp_path / "walker.toml"
+    path.write_text("[[mounts]]\nheight_m = 1.2\n[flight]\nspeed_m_s = 3.0\n")
+    with pytest.raises(ConfigError, match="a walking platform walks"):
+        load_platform(path)
+
+
+def test_a_drone_recipe_adds_the_ground_and_records_it_only_then():
+    recipe = ScanRecipe.resolve(platform="drone")
+    assert recipe.site.ground_margin_m == PLATFORMS["drone"].flight.ground_margin_m
+    assert "ground_margin_m" in recipe.site.to_json()
+    assert "ground_margin_m" not in SiteModel().to_json()  # a site without ground records what it did before
+    assert "kind" not in ScanRecipe.resolve(platform="handheld").mobile.to_json()["platform"]
+
+
+@pytest.fixture(scope="module")
+def drone_scan(box_room_ifc, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("drone")
+    platform = folder / "quick_drone.toml"
+    platform.write_text('kind = "flying"\ndefault_scanner = "livox_mid70"\n[[mounts]]\nheight_m = 0.0\ntilt_deg = 90.0\n'
+                        "[flight]\nspeed_m_s = 8.0\nclimb_speed_m_s = 5.0\ngrid_height_m = 8.0\n"
+                        "orbit_clearance_m = 4.0\nground_margin_m = 10.0\nmax_turn_deg_per_s = 90.0\n")
+    recipe = ScanRecipe.resolve(platform=str(platform), seed=5)
+    result = scan_model(box_room_ifc, folder / "drone.laz", recipe, progress=False)
+    return result, read_cloud(result.path)
+
+
+def test_a_drone_scan_sees_the_ground_roof_and_walls_from_outside(drone_scan, box_room_ifc):
+    result, cloud = drone_scan
+    table = result.survey.scene.components
+    ground = np.flatnonzero(table.ifc_class == "Terrain.Ground")
+    assert len(ground) == 1
+    names = result.survey.scene.scheme.names
+    counts = {names[k]: int(v) for k, v in enumerate(np.bincount(cloud.label, minlength=len(names)))}
+    on_ground = cloud.component == ground[0]
+    assert on_ground.sum() > 0.2 * len(cloud) and counts["Others"] >= on_ground.sum()
+    assert counts["Slab"] > 1000 and counts["Wall&Column"] > 1000  # the roof from above, the walls from the orbit
+    # nothing from inside the closed room: every point lies on the outer faces or the ground
+    inside = ((cloud.xyz[:, 0] > 0.01) & (cloud.xyz[:, 0] < 7.99) & (cloud.xyz[:, 1] > 0.01) & (cloud.xyz[:, 1] < 5.99)
+              & (cloud.xyz[:, 2] > 0.01) & (cloud.xyz[:, 2] < 3.49))
+    assert not inside.any()
+    ground_z = cloud.xyz[on_ground, 2]
+    assert np.median(ground_z) == pytest.approx(-0.05, abs=0.1)
+    recorded = read_cloud_header(result.path).metadata["trajectory"]["flight"]
+    assert recorded["grid_lines"] == result.survey.walk.grid_lines >= 1
+
+
+def test_a_tripod_scan_of_a_site_with_ground_never_sees_the_ground_indoors(box_room_ifc):
+    from bimscan.pipeline import site_and_stations
+    from bimscan.survey.survey import prepare_survey, run_survey
+
+    scene = load_scene(box_room_ifc)
+    recipe = dataclasses.replace(ScanRecipe(), site=SiteModel(ground_margin_m=20.0))
+    chosen = site_and_stations(scene, recipe)
+    ground = np.flatnonzero(chosen.scene.components.ifc_class == "Terrain.Ground")[0]
+    survey = prepare_survey(chosen.scene, recipe, stations=chosen.stations)
+    hits = sum(int((chunk.component == ground).sum()) for chunk in run_survey(survey))
+    assert hits == 0
