@@ -74,8 +74,9 @@ HELIOS_HELP = ("Also write HELIOS++ inputs: helios/scene.xml (one <part> per com
 @click.option("--head-speed", "head_deg_per_s", type=float, default=None,
               help="With --helios: head rotation in deg/s, overriding the preset.")
 @click.option("--platform", default=None,
-              help="With --helios: a mobile platform (handheld, backpack or a platform file): the survey follows "
-                   "its trajectory on HELIOS++'s interpolated platform, one survey per lidar.")
+              help="With --helios: a mobile platform (handheld, backpack, drone or a platform file): the survey "
+                   "follows its trajectory on HELIOS++'s interpolated platform, one survey per lidar (a Risley lidar's "
+                   "definition written beside it).")
 @click.option("--trajectory", default=None,
               help="With --helios and --platform: 'auto' (planned as 'bimscan scan' plans it; the default) or a "
                    "trajectory CSV file.")
@@ -114,12 +115,13 @@ def export_obj_command(model: Path, out_dir: Path, helios: bool, stations: str |
                                 lidar=scanner if mobile else None, trajectory=trajectory)
     if helios:
         from bimscan.io.helios import HELIOS_LIDARS, helios_scanner
+        from bimscan.scan.risley import RisleyScanner
 
         if recipe.mobile is None:
             helios_scanner(recipe.scanner)  # a scanner HELIOS++ has a definition of
-        elif recipe.mobile.lidar.name not in HELIOS_LIDARS:
+        elif recipe.mobile.lidar.name not in HELIOS_LIDARS and not isinstance(recipe.mobile.lidar, RisleyScanner):
             raise click.UsageError(f"HELIOS++ has a definition of {', '.join(HELIOS_LIDARS)} only, not of "
-                                   f"{recipe.mobile.lidar.name}; pass --scanner velodyne_vlp16")
+                                   f"{recipe.mobile.lidar.name}; pass --scanner velodyne_vlp16 or a Risley lidar")
         for warning in recipe.warnings:
             click.echo(f"warning: {warning}", err=True)
     scene = load_scene(model, scheme=scheme, strict=strict, length_unit=length_unit)
@@ -149,7 +151,7 @@ def export_obj_command(model: Path, out_dir: Path, helios: bool, stations: str |
     click.echo(f"{result.out_dir}: {len(result.component_files)} component files, {result.n_triangles:,} triangles; "
                f"index {result.index_csv.name}" + (f"; HELIOS++ scene {result.helios_scene}" if result.helios_scene else ""))
     if result.helios_survey is not None:
-        more = [name for name in (mobile_files or {}) if name.endswith(".xml") and Path(name).name != "survey.xml"]
+        more = [name for name in (mobile_files or {}) if Path(name).name.startswith("survey_mount")]
         click.echo(f"HELIOS++ survey {result.helios_survey} ({n_legs} legs)"
                    + (f" and {', '.join(more)} (one survey per lidar)" if more else "") + "; run it with:\n"
                    f"  cd {shlex.quote(str(result.out_dir))} && helios++ "

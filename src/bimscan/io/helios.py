@@ -44,6 +44,7 @@ folder: ``cd OUT_DIR && helios++ helios/survey.xml --assets .``.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -239,6 +240,48 @@ def helios_survey_xml(stations: Sequence[Station], settings: ScanSettings, scann
 HELIOS_LIDARS: dict[str, str] = {"velodyne_vlp16": "data/scanners_tls.xml#vlp16"}
 INTERPOLATED_BASE_PLATFORM = "data/platforms.xml#tripod"  # an interpolated platform needs a base; the survey's mount replaces its own
 HEAD_SAMPLE_S = 0.05  # trajectory samples of a turning mount (its head turn folded into the yaw)
+RISLEY_SCANNERS_FILE = "helios/scanners.xml"  # a Risley lidar's definition, written with its survey
+# HELIOS++'s Risley beam leaves along its scanner's +Y, bimscan's along the sensor's +z: the sensor
+# frame is HELIOS++'s turned 90 degrees about x (bimscan (x, y, z) = HELIOS++ (x, -z, y))
+RISLEY_FRAME_X_DEG = 90.0
+HELIOS_MAX_PRISMS = 3  # HELIOS++ reads angle1..3_deg
+
+
+def helios_risley_scanner_xml(lidar: object) -> bytes:
+    """A HELIOS++ scanner definition (``optics="risley"``) of a bimscan Risley lidar: the same prisms
+    (``angleK_deg`` positive for an inclined entrance face, negative for an inclined exit face;
+    ``rotorFreqK_Hz``; ``refrIndexK``), the same channels (``incidentBeam``, in HELIOS++'s frame:
+    ``RISLEY_FRAME_X_DEG``), pulse rate, accuracy, divergence, minimum range and wavelength.
+    HELIOS++ starts every prism with its inclined face's normal at -90 degrees (entrance) or +90
+    degrees (exit) in bimscan's frame; ConfigError for a lidar whose prisms start elsewhere, or
+    with more than three prisms."""
+    prisms = lidar.prisms
+    if len(prisms) > HELIOS_MAX_PRISMS:
+        raise ConfigError(f"HELIOS++ models at most {HELIOS_MAX_PRISMS} prisms; {lidar.name} has {len(prisms)}")
+    attributes = {"id": lidar.name, "name": lidar.description or lidar.name, "optics": "risley",
+                  "accuracy_m": _number(lidar.range_accuracy_m), "beamDivergence_rad": _number(lidar.beam_divergence_rad),
+                  "pulseFreqs_Hz": str(int(round(lidar.pulse_rate_hz))), "pulseLength_ns": "4",
+                  "rangeMin_m": _number(lidar.min_range_m), "wavelength_nm": _number(lidar.wavelength_nm),
+                  "maxNOR": "1", "refrIndex_air": "1.0"}
+    for k, prism in enumerate(prisms, start=1):
+        entrance = prism.inclined_face == "entrance"
+        if abs(prism.start_deg - (-90.0 if entrance else 90.0)) > 1e-9:
+            raise ConfigError(f"HELIOS++ starts a prism whose {prism.inclined_face} face is inclined at "
+                              f"{-90 if entrance else 90} degrees; {lidar.name}'s prism {k} starts at "
+                              f"{prism.start_deg:g}")
+        attributes[f"rotorFreq{k}_Hz"] = _number(prism.rotation_hz)
+        attributes[f"angle{k}_deg"] = _number(prism.wedge_deg if entrance else -prism.wedge_deg)
+        attributes[f"refrIndex{k}"] = _number(prism.refractive_index)
+    incident = lidar.incident()
+    channels = "".join(f'                <channel id="{c}">\n                    <incidentBeam x="{d[0]:.9f}" '
+                       f'y="{d[2]:.9f}" z="{-d[1] + 0.0:.9f}" />\n                </channel>\n'
+                       for c, d in enumerate(incident))
+    lines = ['<?xml version="1.0" encoding="UTF-8"?>', "<document>",
+             "    " + _comment(f"bimscan {__version__}: {lidar.name} as HELIOS++'s Risley optics"),
+             "    <scanner " + " ".join(f"{key}={quoteattr(v)}" for key, v in attributes.items()) + ">",
+             '        <beamOrigin x="0" y="0" z="0" />', "        <channels>",
+             channels.rstrip("\n"), "        </channels>", "    </scanner>", "</document>"]
+    return ("\n".join(lines) + "\n").encode("utf-8")
 
 
 def helios_mobile_files(trajectory: Trajectory, mobile: MobileScan, *, scene_file: str = SCENE_FILE, scene_id: str,
@@ -267,13 +310,21 @@ def helios_mobile_files(trajectory: Trajectory, mobile: MobileScan, *, scene_fil
     import numpy as np
     from scipy.spatial.transform import Rotation
 
+    from bimscan.scan.risley import RisleyScanner
+
     lidar = mobile.lidar
-    asset = HELIOS_LIDARS.get(lidar.name)
+    risley = isinstance(lidar, RisleyScanner)
+    files: dict[str, bytes] = {}
+    if risley:  # written beside the survey: HELIOS++'s risley optics with bimscan's prisms
+        files[RISLEY_SCANNERS_FILE] = helios_risley_scanner_xml(lidar)
+        asset = f"{RISLEY_SCANNERS_FILE}#{lidar.name}"
+    else:
+        asset = HELIOS_LIDARS.get(lidar.name)
     if asset is None:
         raise ConfigError(f"HELIOS++ survey: bimscan knows HELIOS++'s definition of {', '.join(HELIOS_LIDARS)} only, "
-                          f"not of {lidar.name!r}; export a mobile survey with --scanner velodyne_vlp16")
+                          f"not of {lidar.name!r}; export a mobile survey with --scanner velodyne_vlp16 or a Risley "
+                          "lidar")
     pulse_hz = int(round(1e6 / lidar.firing_cycle_us))
-    files: dict[str, bytes] = {}
     for k, mount in enumerate(mobile.platform.mounts):
         times, rows = [], []
         for part in trajectory.pass_slices():
@@ -285,8 +336,10 @@ def helios_mobile_files(trajectory: Trajectory, mobile: MobileScan, *, scene_fil
             head = 2 * math.pi * mount.head_rotation_hz * grid
             attitude = (Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll]))
                         * Rotation.from_euler("z", head[:, None]))
-            angles = attitude.as_euler("XYZ", degrees=True)  # CANONICAL: Rx(roll) Ry(pitch) Rz(yaw)
-            angles[:, 2] = np.degrees(np.unwrap(np.radians(angles[:, 2])))
+            with warnings.catch_warnings():  # a drone's gimbal straight down is pitch 90: scipy's gimbal lock
+                warnings.simplefilter("ignore", UserWarning)  # (its angles still give the same attitude)
+                angles = attitude.as_euler("XYZ", degrees=True)  # CANONICAL: Rx(roll) Ry(pitch) Rz(yaw)
+            angles = np.degrees(np.unwrap(np.radians(angles), axis=0))
             xyz = np.column_stack([np.interp(grid, t, trajectory.xyz[part][:, axis]) for axis in range(3)])
             times.append((float(grid[0]), float(grid[-1])))
             rows += [f"{g:.6f},{a[0]:.6f},{a[1]:.6f},{a[2]:.6f},{p[0]:.6f},{p[1]:.6f},{p[2]:.6f}"
@@ -301,14 +354,17 @@ def helios_mobile_files(trajectory: Trajectory, mobile: MobileScan, *, scene_fil
             '<?xml version="1.0" encoding="UTF-8"?>',
             "<document>",
             "    " + _comment(f"bimscan {__version__}: the mobile scan of bimscan scan with platform "
-                              f"{mobile.platform.name}, {lidar.name} at {mobile.rotation_hz:g} Hz, lidar {k + 1} of "
+                              f"{mobile.platform.name}, {lidar.name}"
+                              f"{'' if risley else f' at {mobile.rotation_hz:g} Hz'}, lidar {k + 1} of "
                               f"{len(mobile.platform.mounts)}, {trajectory.n_passes} passes (one leg each). Run HELIOS++ "
                               "on this file from inside the export folder with --assets . (it opens the trajectory "
                               "file from the current folder)."),
             "    " + _comment(f"HELIOS++ fires the {lidar.n_beams} channels at once {pulse_hz} times a second; bimscan "
-                              f"fires them one after another within each {lidar.firing_cycle_us:g} us sequence."),
+                              + ("too." if risley else f"fires them one after another within each "
+                                                       f"{lidar.firing_cycle_us:g} us sequence.")),
             "    <survey " + " ".join(f"{key}={quoteattr(v)}" for key, v in survey.items()) + ">",
             "        <scannerMount " + " ".join(f"{key}={quoteattr(v)}" for key, v in mount_xyz.items()) + ">",
+            *([f'            <rot axis="x" angle_deg="{_number(RISLEY_FRAME_X_DEG)}" />'] if risley else []),
             f'            <rot axis="y" angle_deg="{_number(mount.tilt_deg)}" />',
             f'            <rot axis="z" angle_deg="{_number(mount.yaw_deg)}" />',
             "        </scannerMount>",
@@ -321,11 +377,16 @@ def helios_mobile_files(trajectory: Trajectory, mobile: MobileScan, *, scene_fil
             if index:  # the indices are given once per trajectory file
                 for key in ("tIndex", "rollIndex", "pitchIndex", "yawIndex", "xIndex", "yIndex", "zIndex"):
                     del platform[key]
-            turn = 360.0 * mobile.rotation_hz
-            scanner = {"active": "true", "pulseFreq_hz": str(pulse_hz), "scanFreq_hz": "0",
-                       "headRotatePerSec_deg": _number(turn), "headRotateStart_deg": _number(-HEAD_ZERO_AZIMUTH_DEG),
-                       "headRotateStop_deg": _number(-HEAD_ZERO_AZIMUTH_DEG + turn * (stop - start)),
-                       "trajectoryTimeInterval_s": _number(HEAD_SAMPLE_S)}
+            if risley:  # no head: the prisms turn at the scanner file's rates
+                scanner = {"active": "true", "pulseFreq_hz": str(pulse_hz), "headRotatePerSec_deg": "0",
+                           "trajectoryTimeInterval_s": _number(HEAD_SAMPLE_S)}
+            else:
+                turn = 360.0 * mobile.rotation_hz
+                scanner = {"active": "true", "pulseFreq_hz": str(pulse_hz), "scanFreq_hz": "0",
+                           "headRotatePerSec_deg": _number(turn),
+                           "headRotateStart_deg": _number(-HEAD_ZERO_AZIMUTH_DEG),
+                           "headRotateStop_deg": _number(-HEAD_ZERO_AZIMUTH_DEG + turn * (stop - start)),
+                           "trajectoryTimeInterval_s": _number(HEAD_SAMPLE_S)}
             lines += [
                 "        " + _comment(f"pass {index}: t {start:.3f} to {stop:.3f} s"),
                 "        <leg>",
