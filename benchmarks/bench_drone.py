@@ -35,7 +35,7 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 SHARED = HERE.parent.parent / "shared" / "data" / "ifc"
-BIMSCAN = [sys.executable, "-m", "bimscan"]
+BIMSCAN = [str(Path(sys.executable).with_name("bimscan"))]  # the console script beside this Python
 # Livox wiki, "Livox scanning pattern" (its Mid-40 FOV coverage curve, read off the figure, +-3 points)
 LIVOX_MID40_COVERAGE = {0.1: 0.20, 0.2: 0.37, 0.5: 0.68, 1.0: 0.92, 1.4: 0.98}
 DATASHEET_FOV = {"livox_mid40": "38.4 (circular)", "livox_mid70": "70.4 (circular)", "livox_avia": "70.4 x 77.2",
@@ -159,11 +159,93 @@ def helios_optics(helios: Path, assets: Path, work: Path) -> None:
               f"median {np.median(best):.2e}, largest {best.max():.2e} degrees")
 
 
+def read_helios_las(folder: Path) -> dict[str, np.ndarray]:
+    """Every LAS file HELIOS++ wrote under ``folder`` (``--lasOutput``): xyz, classification and the hit
+    object (its ``hitObjectId`` extra bytes: the part id, bimscan's component)."""
+    import laspy
+
+    parts = []
+    for path in sorted(folder.rglob("*.las")):
+        las = laspy.read(path)
+        parts.append((np.column_stack([las.x, las.y, las.z]), np.asarray(las.classification, dtype=np.int64),
+                      np.asarray(las["hitObjectId"], dtype=np.int64)))
+    return {"xyz": np.concatenate([p[0] for p in parts]), "label": np.concatenate([p[1] for p in parts]),
+            "component": np.concatenate([p[2] for p in parts])}
+
+
+def helios_flight(helios: Path, assets: Path, work: Path, model: Path, seconds: float | None) -> None:
+    """The same flight in both simulators: counts, labels of nearest pairs, 1 m density maps, times."""
+    from scipy.spatial import cKDTree
+
+    from bimscan.io import read_cloud
+
+    span = "the whole planned flight" if seconds is None else f"the first {seconds:g} s of the planned flight"
+    print(f"3b. The same flight in bimscan and HELIOS++: {model.name}, {span} (Zenmuse L2), whole processes")
+    flight = None
+    if seconds is not None:  # the planned flight's first seconds, as a trajectory file
+        from bimscan.pipeline import build_site, load_scene
+        from bimscan.survey.recipe import ScanRecipe
+        from bimscan.survey.survey import plan_scene_flight
+        from bimscan.survey.trajectory import Trajectory, write_trajectory
+
+        recipe = ScanRecipe.resolve(platform="drone", seed=1)
+        planned, _ = plan_scene_flight(build_site(load_scene(model), recipe), recipe.mobile)
+        keep = planned.t <= seconds
+        flight = write_trajectory(work / "flight.csv", Trajectory(
+            t=planned.t[keep], xyz=planned.xyz[keep], roll=planned.roll[keep], pitch=planned.pitch[keep],
+            yaw=planned.yaw[keep], pass_id=planned.pass_id[keep]))
+    options = ["--platform", "drone"] + (["--trajectory", str(flight)] if flight else [])
+    out = work / "bimscan.laz"
+    start = time.perf_counter()
+    done = subprocess.run([*BIMSCAN, "scan", str(model), str(out), "--seed", "1", "--overwrite", *options],
+                          capture_output=True, text=True)
+    bimscan_s = time.perf_counter() - start
+    if done.returncode:
+        print(f"   bimscan failed: {done.stderr.strip().splitlines()[-1]}")
+        return
+    export = work / "helios-export"
+    subprocess.run([*BIMSCAN, "export-obj", str(model), str(export), "--helios", "--overwrite", *options],
+                   capture_output=True, text=True, check=True)
+    start = time.perf_counter()
+    ran = subprocess.run([str(helios), "helios/survey.xml", "--assets", ".", "--assets", str(assets / "python/pyhelios"),
+                          "--assets", str(assets / "python/pyhelios/data"), "-j", "2", "--seed", "1", "--lasOutput",
+                          "--output", "out"], cwd=export, capture_output=True, text=True)
+    helios_s = time.perf_counter() - start
+    if ran.returncode:
+        print(f"   HELIOS++ failed ({ran.returncode}): {(ran.stderr or ran.stdout).strip().splitlines()[-1]}")
+        return
+    theirs = read_helios_las(export / "out")
+    mine = read_cloud(out)
+    n_mine, n_theirs = len(mine.xyz), len(theirs["xyz"])
+    print(f"   points: bimscan {n_mine:,}, HELIOS++ {n_theirs:,} ({100 * (n_theirs / n_mine - 1):+.2f} %)")
+    rng = np.random.default_rng(0)
+    sample = rng.choice(n_theirs, size=min(n_theirs, 1_000_000), replace=False)
+    tree = cKDTree(mine.xyz)
+    distance, nearest = tree.query(theirs["xyz"][sample], workers=-1)
+    same_label = mine.label[nearest] == theirs["label"][sample]
+    same_component = mine.component[nearest] == theirs["component"][sample]
+    print(f"   nearest pairs (1M of HELIOS++'s points): median distance {1000 * np.median(distance):.1f} mm; labels agree "
+          f"on {100 * same_label.mean():.2f} %, components on {100 * same_component.mean():.2f} %")
+    lo = np.minimum(mine.xyz.min(axis=0), theirs["xyz"].min(axis=0))[:2]
+    hi = np.maximum(mine.xyz.max(axis=0), theirs["xyz"].max(axis=0))[:2]
+    bins = [np.arange(lo[a], hi[a] + 1.0, 1.0) for a in range(2)]
+    a = np.histogram2d(mine.xyz[:, 0], mine.xyz[:, 1], bins=bins)[0]
+    b = np.histogram2d(theirs["xyz"][:, 0], theirs["xyz"][:, 1], bins=bins)[0]
+    dense = (a >= 100) | (b >= 100)
+    ratio = b[dense] / np.maximum(a[dense], 1)
+    print(f"   1 m density maps: {dense.sum():,} cells with >= 100 points; correlation {np.corrcoef(a.ravel(), b.ravel())[0, 1]:.4f}; "
+          f"HELIOS++ / bimscan per cell: median {np.median(ratio):.3f}, {100 * np.mean(np.abs(ratio - 1) <= 0.1):.1f} % "
+          "of cells within 10 %")
+    print(f"   whole processes: bimscan {bimscan_s:.1f} s, HELIOS++ {helios_s:.1f} s (-j 2): {helios_s / bimscan_s:.1f}x")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--helios", type=Path, default=None, help="the helios++ executable (section 3)")
     parser.add_argument("--helios-assets", type=Path, default=None, help="HELIOS++'s source tree (its python/pyhelios)")
-    parser.add_argument("--skip-flights", action="store_true")
+    parser.add_argument("--skip-flights", action="store_true", help="skip section 2")
+    parser.add_argument("--flight-seconds", type=float, default=None,
+                        help="3b: the first seconds of the duplex's planned flight (default: the whole flight)")
     args = parser.parse_args()
     patterns()
     with tempfile.TemporaryDirectory(prefix="bench-drone-") as tmp:
@@ -175,6 +257,11 @@ def main() -> None:
             print("3. HELIOS++: skipped (give --helios PATH and --helios-assets SOURCE_TREE)")
             return
         helios_optics(helios, args.helios_assets, work)
+        duplex = SHARED / "duplex.ifc"
+        if duplex.exists():
+            helios_flight(helios, args.helios_assets, work, duplex, args.flight_seconds)
+        else:
+            print(f"3b. skipped: no {duplex}")
 
 
 if __name__ == "__main__":

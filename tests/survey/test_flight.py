@@ -183,3 +183,27 @@ def test_a_tripod_scan_of_a_site_with_ground_never_sees_the_ground_indoors(box_r
     survey = prepare_survey(chosen.scene, recipe, stations=chosen.stations)
     hits = sum(int((chunk.component == ground).sum()) for chunk in run_survey(survey))
     assert hits == 0
+
+
+QUICK_DRONE = ('kind = "flying"\ndefault_scanner = "livox_mid70"\n[[mounts]]\nheight_m = 0.0\ntilt_deg = 90.0\n'
+               "[flight]\nspeed_m_s = 8.0\nclimb_speed_m_s = 5.0\ngrid_height_m = 8.0\norbit_clearance_m = 4.0\n"
+               "ground_margin_m = 10.0\nmax_turn_deg_per_s = 90.0\n")
+
+
+def test_a_dataset_spec_builds_a_drone_unit_with_its_flight_and_ground(box_room_ifc, tmp_path):
+    from bimscan.dataset.build import build_dataset
+    from bimscan.dataset.layout import DatasetFolder
+    from bimscan.dataset.spec import load_spec
+    from bimscan.survey.trajectory import read_trajectory
+
+    (tmp_path / "quick_drone.toml").write_text(QUICK_DRONE)
+    spec_path = tmp_path / "spec.toml"
+    spec_path.write_text(f'name = "d"\nformats = ["npy"]\n[[scenes]]\nname = "box"\nifc = "{box_room_ifc}"\n'
+                         '[[configs]]\nname = "fly"\nplatform = "quick_drone.toml"\n')
+    report = build_dataset(load_spec(spec_path), tmp_path / "ds", executor="serial", progress=False)
+    assert [e.status for e in report.entries] == ["done"] and report.failed == 0
+    unit = DatasetFolder(tmp_path / "ds").unit_dir("box__fly")
+    flight = read_trajectory(unit / "trajectory.csv")
+    assert flight.xyz[:, 2].max() == pytest.approx(3.8 + 8.0, abs=0.01)  # the grid over the roof's top
+    cloud = read_cloud(unit / "cloud")
+    assert cloud.ring is not None and (cloud.label == 4).sum() > 0.2 * len(cloud)  # Others: the ground, mostly

@@ -214,6 +214,9 @@ def render_cloud(path: str | Path, out: str | Path, *, color: str = "label", max
     panel_w, panel_h = panel_size(width, height, panels=2)
     panels = []
     walk_pixels = 0
+    metadata = sample.header.metadata if sample.header is not None else {}
+    flown = ((metadata.get("mobile") or {}).get("platform") or {}).get("kind") == "flying"
+    path_name = "flight" if flown else "walk"  # a drone's trajectory is a flight
     for title, (azimuth, elevation), mask in (("top view", TOP, top_mask), ("oblique view", OBLIQUE, oblique_mask)):
         is_top = title == "top view"
         xyz = cloud.xyz[mask]
@@ -234,12 +237,12 @@ def render_cloud(path: str | Path, out: str | Path, *, color: str = "label", max
                         walk_pixels += draw_path(image, trajectory.xyz[run], camera, _ramp(0.15 + 0.85 * progress),
                                                  mark_start=bool(run[0] == part.start))
             if walk_pixels:
-                title += ", walk drawn over it"
+                title += f", {path_name} drawn over it"
         panels.append(Panel(title=title, image=image))
     if walk_pixels:
         ends = _ramp(np.array([0.15, 1.0]))
-        legend = [*legend, ("walk: start (black square)", tuple(int(v) for v in ends[0])),
-                  ("walk: end", tuple(int(v) for v in ends[1]))]
+        legend = [*legend, (f"{path_name}: start (black square)", tuple(int(v) for v in ends[0])),
+                  (f"{path_name}: end", tuple(int(v) for v in ends[1]))]
     title = f"{Path(path).name}: {sample.total:,} points ({len(cloud):,} sampled), coloured by {color}"
     compose_png(panels, legend=legend, title=title, out=out, width=width, height=height)
     return RenderResult(path=Path(out), total_points=sample.total, drawn_points=len(cloud), color=color,
