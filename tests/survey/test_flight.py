@@ -207,3 +207,29 @@ def test_a_dataset_spec_builds_a_drone_unit_with_its_flight_and_ground(box_room_
     assert flight.xyz[:, 2].max() == pytest.approx(3.8 + 8.0, abs=0.01)  # the grid over the roof's top
     cloud = read_cloud(unit / "cloud")
     assert cloud.ring is not None and (cloud.label == 4).sum() > 0.2 * len(cloud)  # Others: the ground, mostly
+
+
+def test_yard_objects_stand_on_the_ground_outside_the_footprint_apart_and_reproducibly(box_room_ifc):
+    from bimscan.site.ground import YARD_CLEARANCE_M, yard_objects
+    from bimscan.survey.flight import footprint_hull
+
+    scene = load_scene(box_room_ifc)
+    objects = yard_objects(scene, 20.0, 2.0, seed=3)
+    again = yard_objects(scene, 20.0, 2.0, seed=3)
+    area = (8.5 + 40) * (6.5 + 40) - (8.5 + 2 * YARD_CLEARANCE_M) * (6.5 + 2 * YARD_CLEARANCE_M)
+    assert 0.8 * 2.0 * area / 100 <= len(objects) <= 2.0 * area / 100 + 1  # a few may find no free spot
+    assert [o.kind for o in objects] == [o.kind for o in again]
+    assert all(np.array_equal(a.vertices, b.vertices) for a, b in zip(objects, again))
+    hull = footprint_hull(scene.mesh.vertices[:, :2])
+    for obj in objects:
+        assert obj.vertices[:, 2].min() == pytest.approx(-0.05, abs=1e-9)  # on the ground
+        assert distance_to_polygon(obj.vertices[:, :2], hull).min() >= YARD_CLEARANCE_M - 1e-6
+        assert not PolygonPath(hull).contains_points(obj.vertices[:, :2]).any()
+    centres = np.array([o.vertices[:, :2].mean(axis=0) for o in objects])
+    assert len({o.kind for o in objects}) >= 4 and len(centres) == len(np.unique(np.round(centres, 3), axis=0))
+
+
+def test_a_yard_needs_the_ground():
+    with pytest.raises(ConfigError, match="yard objects"):
+        ScanRecipe.resolve(site=SiteModel(yard_density=1.0))
+    assert ScanRecipe.resolve(platform="drone", site=SiteModel(yard_density=1.0)).site.yard_density == 1.0

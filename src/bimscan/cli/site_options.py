@@ -38,17 +38,20 @@ def site_options(command: Callable[..., Any]) -> Callable[..., Any]:
                      help="Fraction of the rooms with steel props on a 1.5 m grid under the slab."),
         click.option("--at", "at", default=None,
                      help="A date (YYYY-MM-DD): keep what the model's work schedule has built by then."),
+        click.option("--yard", "yard", type=float, default=SiteModel.yard_density, show_default=True,
+                     help="Site objects (containers, stacks, pallets, bins, drums, scaffold towers) per 100 m2 of the "
+                          "ground around the building; needs the ground (a drone's flight adds it)."),
     ]
 
     @functools.wraps(command)
     def wrapper(*args: Any, clutter: float, clutter_kinds: str | None, stage: str, stage_include: str | None,
                 stage_exclude: str | None, walls_missing: float, ceilings_open: float, props: float, at: str | None,
-                **kwargs: Any) -> Any:
+                yard: float, **kwargs: Any) -> Any:
         site = SiteModel(
             stage=StageSettings(name=stage, include=_names(stage_include), exclude=_names(stage_exclude),
                                 walls_missing_fraction=walls_missing, ceilings_open_fraction=ceilings_open,
                                 props_fraction=props, at=at),
-            clutter=ClutterSettings(density=clutter, kinds=_names(clutter_kinds)))
+            clutter=ClutterSettings(density=clutter, kinds=_names(clutter_kinds)), yard_density=yard)
         return command(*args, site=site, **kwargs)
 
     for option in reversed(options):

@@ -61,6 +61,7 @@ SITE_CLASSES: dict[str, SiteClass] = {
         SiteClass("Temporary.Trestle", "Temporary", _PROXY),
         SiteClass("Temporary.ScaffoldTower", "Temporary", _PROXY),
         SiteClass("Temporary.Prop", "Temporary", _PROXY),
+        SiteClass("Temporary.Container", "Temporary", _PROXY),
         SiteClass("Person.Standing", "Person", _PROXY),
         SiteClass("Person.Walking", "Person", _PROXY),
         SiteClass("Terrain.Ground", "Terrain", _PROXY),

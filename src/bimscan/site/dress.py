@@ -135,9 +135,11 @@ def dress_scene_timed(scene: BimScene, site: SiteModel, *, seed: int,
             staged = dataclasses.replace(staged, mesh=cut_openings(staged.mesh, coverings, openings))
         cut_s = time.perf_counter() - t0
     if site.ground_margin_m > 0:
-        from bimscan.site.ground import ground_patch
+        from bimscan.site.ground import ground_patch, yard_objects
 
         placed.append(ground_patch(staged, site.ground_margin_m))
+        if site.yard_density > 0:
+            placed += yard_objects(staged, site.ground_margin_m, site.yard_density, seed)
     state = SiteState(settings=site_settings(site, seed), removed=dict(sorted(removed.items())),
                       placed=dict(sorted(Counter(p.class_name for p in placed).items())), rooms=rooms_count,
                       free_floor_m2=free_floor)

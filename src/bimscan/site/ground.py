@@ -7,18 +7,32 @@ margin, at ``survey.flight.ground_level``: the ground floor's elevation less 5 c
 patch runs inside the ground floor's slab and no scan from indoors sees it. It is one component
 of class ``Terrain.Ground`` (an IfcBuildingElementProxy by its IFC class; labelled Others by the
 SPC scheme).
+
+The yard (``yard_objects``): site objects standing on that ground around the building, as a
+contractor's yard has them: site containers (ISO 668, 10 and 20 ft), material stacks, pallets,
+waste bins, cable drums and scaffold towers (the clutter library's objects and sizes), drawn by
+the weights of ``YARD_KINDS``, ``density`` objects per 100 m2 of ground outside the building's
+footprint grown by ``YARD_CLEARANCE_M``, each at a random spot and heading where it overlaps no
+other (a spot tried ``YARD_TRIES`` times at most), seeded by the scene and the seed.
 """
 
 from __future__ import annotations
 
 import math
+import zlib
 
 import numpy as np
+from matplotlib.path import Path as PolygonPath
 
 from bimscan.site.placement import PlacedObject
 from bimscan.types import BimScene
 
 GROUND_CELL_M = 5.0
+YARD_CLEARANCE_M = 2.0  # objects keep this far from the footprint (a path around the building)
+YARD_TRIES = 30
+# kind -> weight among the yard's objects (the library's kinds, and the site container)
+YARD_KINDS = {"container": 0.4, "material_stack": 2.0, "pallet": 1.0, "waste_bin": 0.7, "cable_drum": 0.5,
+              "scaffold_tower": 0.5}
 
 
 def ground_patch(scene: BimScene, margin_m: float) -> PlacedObject:
@@ -43,3 +57,55 @@ def ground_patch(scene: BimScene, margin_m: float) -> PlacedObject:
                                  [-length / 2, width / 2]]) @ np.vstack([u, v])
     return PlacedObject(kind="ground", class_name="Terrain.Ground", room="site", room_key="site", storey="",
                         vertices=grid, faces=faces, footprint=corners, base_z=float(z))
+
+
+def yard_objects(scene: BimScene, margin_m: float, density: float, seed: int) -> list[PlacedObject]:
+    """Site objects on the ground around the building (see the module docs), as placed objects."""
+    from bimscan.site.library import CLUTTER_KINDS, make_site_container
+    from bimscan.survey.flight import footprint_hull, grown_ring, ground_level, min_area_rectangle
+
+    vertices = scene.mesh.vertices
+    z = ground_level(float(vertices[:, 2].min()), tuple(s.elevation_m for s in scene.storeys))
+    hull = footprint_hull(vertices[:, :2])
+    keep_out = PolygonPath(grown_ring(hull, YARD_CLEARANCE_M))
+    centre, u, extents = min_area_rectangle(hull)
+    v = np.array([-u[1], u[0]])
+    length, width = extents + 2 * margin_m
+    area = length * width - abs(_polygon_area(keep_out.vertices))
+    count = int(round(density * max(area, 0.0) / 100.0))
+    rng = np.random.default_rng(np.random.SeedSequence([seed, zlib.crc32(scene.file_sha256.encode()), 0x79617264]))
+    names = list(YARD_KINDS)
+    weights = np.array([YARD_KINDS[name] for name in names])
+    placed: list[PlacedObject] = []
+    discs: list[tuple[float, float, float]] = []  # x, y, radius of what stands already
+    for _ in range(count):
+        name = names[int(rng.choice(len(names), p=weights / weights.sum()))]
+        made = make_site_container(rng, 10.0, False) if name == "container" else CLUTTER_KINDS[name].make(rng, 10.0, False)
+        if made is None:
+            continue
+        radius = math.hypot(made.size_m[0], made.size_m[1]) / 2
+        for _try in range(YARD_TRIES):
+            a = rng.uniform(-length / 2 + radius, length / 2 - radius)
+            b = rng.uniform(-width / 2 + radius, width / 2 - radius)
+            x, y = centre + a * u + b * v
+            yaw = rng.uniform(0.0, 2 * math.pi)
+            c, s_ = math.cos(yaw), math.sin(yaw)
+            w, d = made.size_m[0] / 2, made.size_m[1] / 2
+            corners = np.array([[x + c * px - s_ * py, y + s_ * px + c * py] for px, py in ((-w, -d), (w, -d), (w, d), (-w, d))])
+            if keep_out.contains_points(corners).any() or keep_out.contains_point((x, y)):
+                continue
+            if any(math.hypot(x - ox, y - oy) < radius + orad for ox, oy, orad in discs):
+                continue
+            local = made.vertices
+            world = np.column_stack([x + c * local[:, 0] - s_ * local[:, 1], y + s_ * local[:, 0] + c * local[:, 1],
+                                     z + local[:, 2]])
+            placed.append(PlacedObject(kind=name, class_name=made.class_name, room="yard", room_key="yard", storey="",
+                                       vertices=world, faces=made.faces, footprint=corners, base_z=float(z)))
+            discs.append((float(x), float(y), radius))
+            break
+    return placed
+
+
+def _polygon_area(points: np.ndarray) -> float:
+    x, y = points[:, 0], points[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))

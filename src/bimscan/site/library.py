@@ -612,6 +612,17 @@ def make_person(rng: np.random.Generator, headroom_m: float, against_wall: bool)
     return _finish(b, "Person.Walking" if walking else "Person.Standing")
 
 
+def make_site_container(rng: np.random.Generator, headroom_m: float, against_wall: bool) -> ClutterObject | None:
+    """A site container (ISO 668 series 1: 2.438 m wide, 2.591 m high; 10 ft = 2.991 m or 20 ft =
+    6.058 m long), a closed box on two 0.1 m bearers. Stands outside only (``site.ground``)."""
+    length = 2.991 if rng.random() < 0.4 else 6.058
+    b = MeshBuilder()
+    b.box((0.0, 0.0, 0.1), (length, 2.438, 2.591))
+    for x in (0.3, length - 0.5):  # bearers under the corner castings
+        b.box((x, 0.0, 0.0), (x + 0.2, 2.438, 0.1))
+    return _finish(b, "Temporary.Container")
+
+
 CLUTTER_KINDS: dict[str, ClutterKind] = {k.name: k for k in (
     ClutterKind("desk", "office", ("Clutter.Desk",), 3.0, 0.7, False, ((1.2, 1.8), (0.7, 0.9), (0.72, 1.22)),
                 make_desk),

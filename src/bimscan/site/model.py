@@ -122,11 +122,13 @@ class SiteModel(Checked):
     """What the site looks like when scanned: the construction stage, the clutter on the floors and
     the ground around the building (``ground_margin_m``: a flat terrain patch reaching this far
     beyond the footprint's bounding rectangle, at the ground floor's level; 0: none; a drone's
-    flight adds its platform's)."""
+    flight adds its platform's) with site objects on it (``yard_density``: containers, stacks,
+    pallets, bins, drums, scaffold towers per 100 m2 of it; ``site.ground``)."""
 
     stage: StageSettings = field(default_factory=StageSettings)
     clutter: ClutterSettings = field(default_factory=ClutterSettings)
     ground_margin_m: float = setting(0.0, within=Range(0.0, 1000.0), hint="metres around the footprint, 0: none")
+    yard_density: float = setting(0.0, within=Range(0.0, 20.0), hint="objects per 100 m2 of ground, 0: none")
 
     def check(self) -> None:
         if self.clutter.kinds and self.clutter.density == 0.0:
@@ -136,7 +138,8 @@ class SiteModel(Checked):
     @property
     def is_bare(self) -> bool:
         """True when dressing changes nothing: the finished model, no clutter."""
-        return self.stage.is_bare and self.clutter.density == 0.0 and self.ground_margin_m == 0.0
+        return (self.stage.is_bare and self.clutter.density == 0.0 and self.ground_margin_m == 0.0
+                and self.yard_density == 0.0)
 
     @property
     def warnings(self) -> tuple[str, ...]:
@@ -154,6 +157,8 @@ class SiteModel(Checked):
         site = {"stage": stage, "clutter": {"density": self.clutter.density, "kinds": list(self.clutter.kinds)}}
         if self.ground_margin_m:  # only then: a site without ground records what it recorded before
             site["ground_margin_m"] = self.ground_margin_m
+        if self.yard_density:
+            site["yard_density"] = self.yard_density
         return site
 
 

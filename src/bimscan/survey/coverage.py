@@ -1,7 +1,7 @@
 """How well a scan from outside covers a building's outer surface, element by element (the check of
 a drone's flight: every roof and facade element seen at a density, or listed with why not).
 
-The outer surface: the model's triangles (the ground and other site objects left out) sampled
+The outer surface: the model's triangles (the ground and the site's objects left out) sampled
 about every ``SAMPLE_M`` (area-weighted, seeded); a sample is outer when a ray leaving it along
 its face's normal, or tilted ``OPEN_TILT_DEG`` from it towards any of four sides, escapes the
 building (meets nothing): so a facade under an overhang still counts, a face against another
@@ -20,13 +20,13 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from bimscan.scan.probe import Prober
+from bimscan.site.classes import SITE_CLASSES
 from bimscan.types import BimScene, SceneMesh
 
 SAMPLE_M = 0.25
 OPEN_TILT_DEG = 60.0
 MIN_OUTER_SAMPLES = 4
 ESCAPE_OFFSET_M = 1e-3
-SITE_PREFIXES = ("Terrain.", "Clutter.", "Fixture.", "Temporary.", "Person.")
 
 
 @dataclass(frozen=True)
@@ -58,7 +58,7 @@ def outer_samples(scene: BimScene, *, sample_m: float = SAMPLE_M, seed: int = 0,
     """Samples of the building's outer surface (see the module docs): positions (S, 3), their faces'
     unit normals (S, 3) and components (S,) int64."""
     table, mesh = scene.components, scene.mesh
-    building = np.array([not str(c).startswith(SITE_PREFIXES) for c in table.ifc_class], dtype=bool)
+    building = ~np.isin(table.ifc_class, list(SITE_CLASSES))
     faces_kept = building[mesh.face_component]
     solid = SceneMesh(vertices=mesh.vertices, faces=mesh.faces[faces_kept],
                       face_component=mesh.face_component[faces_kept])

@@ -111,6 +111,9 @@ class ScanRecipe(Checked):
         object.__setattr__(self, "engine", resolve_engine(self.engine))
 
     def check(self) -> None:
+        if self.site.yard_density > 0 and self.site.ground_margin_m == 0:
+            raise ConfigError("yard objects (--yard) stand on the ground around the building, and this scan has "
+                              "none: fly a drone (--platform drone adds the ground) or leave --yard out")
         if self.mobile is not None:
             if self.noise.registers_with_error:
                 raise ConfigError("a mobile scan has no stations to register: give its registration error as --drift "

@@ -28,11 +28,12 @@ from bimscan.scan.virtual_scanner import VirtualScanner
 from bimscan.survey.mobile import AUTO_TRAJECTORY, MobileScan
 from bimscan.survey.stations import PlanReport, plan_stations, read_stations, station_spots
 from bimscan.survey.trajectory import Trajectory, read_trajectory
+from bimscan.site.classes import SITE_CLASSES
 from bimscan.survey.flight import FlightReport, lidar_half_extent_deg, plan_flight
 from bimscan.survey.walk import WalkReport, plan_walk
 from bimscan.types import BimScene, CloudHeader, PointCloud, Station
 
-TERRAIN_CLASSES = ("Terrain.Ground",)  # what a flight does not fly around (site.ground)
+SITE_OBJECT_CLASSES = tuple(SITE_CLASSES)  # what a flight does not fly around: the ground, the yard, clutter
 FLIGHT_MARGIN_M = 500.0  # a flight file may reach this far beyond the model (a walk's: 5 m)
 
 
@@ -101,10 +102,10 @@ def choose_trajectory(scene: BimScene, recipe: ScanRecipe, *, prober: Prober | N
 def plan_scene_flight(scene: BimScene, mobile: MobileScan) -> tuple[Trajectory, FlightReport]:
     """The flight a drone's recipe plans around and over ``scene`` (``survey.flight``)."""
     mesh = scene.mesh
-    building = ~np.isin(scene.components.ifc_class, TERRAIN_CLASSES)[mesh.face_component]  # not the ground
+    building = ~np.isin(scene.components.ifc_class, SITE_OBJECT_CLASSES)[mesh.face_component]  # not the ground, yard
     vertices = mesh.vertices[np.unique(mesh.faces[building])]
     if len(vertices) == 0:
-        raise StationError(f"{scene.source}: nothing but ground to fly around; a flight needs a building")
+        raise StationError(f"{scene.source}: nothing but site objects to fly around; a flight needs a building")
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
     return plan_flight(vertices[:, :2], (float(lo[2]), float(hi[2])),
                        tuple(s.elevation_m for s in scene.storeys), mobile.platform.flight,
