@@ -33,7 +33,7 @@ KINDS = {
                                          "livox_mid70); pass a scanner TOML file with kind = \"multibeam\" or \"risley\"",
               lambda folder: _copy("velodyne_vlp16", folder)),
     "platform": (load_platform, PLATFORMS, "platform 'nope' is neither a file nor a known platform (tripod, handheld, "
-                                           "backpack); pass a platform TOML file",
+                                           "backpack, drone); pass a platform TOML file",
                  lambda folder: _write(folder / "pole.toml", "walking_speed_m_s = 0.8\n[[mounts]]\nheight_m = 2.5\n")),
     "preset": (load_settings, PRESETS, "preset 'nope' is neither a file nor a known preset (exp1, exp2, exp3, exp4, "
                                        "exp5, exp6); pass a settings TOML file",

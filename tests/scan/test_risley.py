@@ -168,3 +168,30 @@ def test_a_risley_scan_is_the_same_bytes_in_any_chunking(box):
     assert len(whole) > 20000
     for column in ("xyz", "time", "ring", "label", "intensity"):
         assert np.array_equal(getattr(whole, column), getattr(pieces, column))
+
+
+def test_a_turned_mount_on_a_turned_platform_points_the_pattern_and_the_prisms_start_at_the_trajectory(box):
+    """A mount tilted and turned on a platform turned and pitched, on a clock starting at 100 s: each
+    point lies along R_platform R_mount d(t - 100), d the sensor-frame direction of its channel."""
+    from scipy.spatial.transform import Rotation
+
+    _, scanner = box
+    lidar = RISLEY_SCANNERS["livox_avia"]
+    mount = Mount(height_m=1.0, forward_m=0.3, tilt_deg=70.0, yaw_deg=20.0)
+    recipe = ScanRecipe(noise=NoiseModel.off(), mobile=MobileScan(platform=Platform(name="p", mounts=(mount,)),
+                                                                 lidar=lidar))
+    t = np.array([100.0, 100.02])
+    yaw, pitch = math.radians(30.0), math.radians(10.0)
+    still = Trajectory(t=t, xyz=np.array([[4.0, 3.0, 0.5]] * 2), roll=np.zeros(2), pitch=np.full(2, pitch),
+                       yaw=np.full(2, yaw), pass_id=np.zeros(2, dtype=np.int32))
+    cloud = PointCloud.concatenate(list(scanner.scan_pass(still, slice(None), 0, 0, recipe)))
+    assert len(cloud) == recipe.mobile.pass_pulses(0.02)
+    turn = Rotation.from_euler("ZYX", [yaw, pitch, 0.0]).as_matrix() @ mount.rotation()
+    ray = cloud.xyz - cloud.sensor_xyz
+    ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+    for channel in range(lidar.n_beams):
+        mine = cloud.ring == channel
+        expected = lidar.directions(cloud.time[mine] - 100.0, channel) @ turn.T
+        np.testing.assert_allclose(ray[mine], expected, atol=2e-5)
+    np.testing.assert_allclose(cloud.sensor_xyz[0], [4.0, 3.0, 0.5] + turn @ [0, 0, 0] + Rotation.from_euler(
+        "ZYX", [yaw, pitch, 0.0]).as_matrix() @ mount.lever_arm(), atol=1e-9)

@@ -9,7 +9,7 @@ from typing import Any
 
 import click
 
-from bimscan.cli.site_options import site_options
+from bimscan.cli.site_options import site_options, yard_option
 from bimscan.scan.device import DEFAULT_PRESET, DEFAULT_SCANNER, PRESETS
 from bimscan.ifc.units import LENGTH_UNITS
 
@@ -70,7 +70,9 @@ HELIOS_HELP = ("Also write HELIOS++ inputs: helios/scene.xml (one <part> per com
 @click.option("--preset", default=None, help=f"With --helios: scan settings {', '.join(PRESETS)} or a settings TOML "
                                              f"file (default: {DEFAULT_PRESET}, as 'bimscan scan').")
 @click.option("--scanner", default=None, help=f"With --helios: {DEFAULT_SCANNER} (default) or a scanner TOML file that "
-                                              "keeps that name (HELIOS++ has its own definition of the device).")
+                                              "keeps that name (HELIOS++ has its own definition of the device); with "
+                                              "--platform, the platform's lidar: velodyne_vlp16 or a Risley lidar "
+                                              "(written beside the survey as HELIOS++'s risley optics).")
 @click.option("--head-speed", "head_deg_per_s", type=float, default=None,
               help="With --helios: head rotation in deg/s, overriding the preset.")
 @click.option("--platform", default=None,
@@ -86,6 +88,7 @@ HELIOS_HELP = ("Also write HELIOS++ inputs: helios/scene.xml (one <part> per com
                    "there is refused, never removed.")
 @click.option("--seed", default=0, show_default=True, type=int, help="Placement seed of the site flags' clutter.")
 @site_options
+@yard_option
 @ifc_options
 def export_obj_command(model: Path, out_dir: Path, helios: bool, stations: str | None, preset: str | None,
                        scanner: str | None, head_deg_per_s: float | None, platform: str | None, trajectory: str | None,

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 import click
 
 from bimscan.cli.ifc_commands import LENGTH_UNIT_HELP, SCHEME_HELP
-from bimscan.cli.site_options import describe_site, site_options
+from bimscan.cli.site_options import describe_site, site_options, yard_option
 from bimscan.constraints import default_of
 from bimscan.ifc.units import LENGTH_UNITS
 from bimscan.scan.device import DEFAULT_PRESET, DEFAULT_SCANNER, PRESETS, SCANNERS
@@ -16,7 +16,8 @@ from bimscan.scan.engine import AUTO_ENGINE, DEFAULT_ENGINE, ENGINES
 from bimscan.scan.noise import NoiseModel
 from bimscan.scan.sensor import REALISMS, RETURN_MODES, SensorModel
 from bimscan.scan.lidars import MOBILE_LIDARS
-from bimscan.survey.drift import DriftModel, GnssInsModel
+from bimscan.survey.drift import (RTK_HEADING_DEG_PER_M, RTK_VERTICAL_RATIO, DriftModel, GnssInsModel,
+                                  registration_drift)
 from bimscan.survey.platform import PLATFORM_NAMES, TRIPOD
 from bimscan.survey.recipe import AUTO_STATIONS, DEFAULT_MAX_STATION_PULSES, DEFAULT_MAX_WALK_PULSES, ScanRecipe
 
@@ -53,18 +54,20 @@ if TYPE_CHECKING:
               help=f"Scanner: a name ({', '.join([*SCANNERS, *MOBILE_LIDARS])}) or a scanner TOML file. Default: "
                    f"{DEFAULT_SCANNER} on the tripod, the platform's lidar on a mobile platform.")
 @click.option("--platform", default=TRIPOD, show_default=True,
-              help=f"What carries the scanner: {', '.join(PLATFORM_NAMES)} (a person walking with lidars), "
-                   "or a platform TOML file.")
+              help=f"What carries the scanner: {', '.join(PLATFORM_NAMES)} (a person walking with lidars, or a drone "
+                   "with a Risley lidar), or a platform TOML file.")
 @click.option("--trajectory", default=None,
               help="Mobile platforms: 'auto' (a walk planned from the model through the stations of --stations, "
-                   "back to its start; the default) or a CSV file t,x,y,z,roll,pitch,yaw (degrees).")
+                   "back to its start; a drone's flight planned around and over it; the default) or a CSV file "
+                   "t,x,y,z,roll,pitch,yaw (degrees).")
 @click.option("--drift", "drift_m", type=float, default=None,
-              help="Mobile platforms: SLAM drift, the position error's sigma after 10 m walked (metres; heading "
+              help="Walking platforms: SLAM drift, the position error's sigma after 10 m walked (metres; heading "
                    "drifts alike), pinned to zero at loop closures. "
                    f"Default: {default_of(DriftModel, 'sigma_m'):g} (none).")
 @click.option("--gnss", "gnss_m", type=float, default=None,
-              help="Drones: the GNSS/INS error, its horizontal sigma in metres (vertical 1.5x, heading 0.05 degree per "
-                   "centimetre; a Gauss-Markov process with a 30 s correlation time). 0.01 is an RTK-fixed DJI M350 "
+              help=f"Drones: the GNSS/INS error, its horizontal sigma in metres (vertical {RTK_VERTICAL_RATIO:g}x, heading "
+                   f"{RTK_HEADING_DEG_PER_M / 100:g} degree per centimetre; a Gauss-Markov process with a "
+                   f"{default_of(GnssInsModel, 'correlation_s'):g} s correlation time). 0.01 is an RTK-fixed DJI M350 "
                    "with a Zenmuse L2. Default: none.")
 @click.option("--rotation-hz", type=float, default=None,
               help="Mobile platforms: a multi-beam lidar's rotation rate. Default: the scanner's (VLP-16: 10 Hz). "
@@ -112,6 +115,7 @@ if TYPE_CHECKING:
                    "wrote it: a cloud file in OUT's format or a bimscan NumPy folder. Anything else there is refused, "
                    "never removed.")
 @site_options
+@yard_option
 def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, no_noise: bool,
          range_sigma_m: float | None, angle_sigma_deg: float | None, registration_sigma_m: float,
          registration_sigma_deg: float, strict: bool, scanner: str | None, head_deg_per_s: float | None,
@@ -158,7 +162,7 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
                                 engine=engine, stations_from=stations, strict=strict, threads=threads,
                                 max_station_pulses=max_station_pulses, max_walk_pulses=max_walk_pulses,
                                 sensor=settings, site=site, platform=platform, trajectory=trajectory,
-                                drift=_drift(drift_m, gnss_m), rotation_hz=rotation_hz)
+                                drift=registration_drift(drift_m, gnss_m), rotation_hz=rotation_hz)
     result = scan_model(model, out, recipe, scheme=scheme, overwrite=overwrite, length_unit=length_unit,
                         warn=lambda line: click.echo(f"warning: {line}", err=True))
     extents = result.summary.extents()
@@ -218,13 +222,3 @@ def furnish(model: Path, out: Path, seed: int, scheme: str | None, site: SiteMod
 
 
 COMMANDS: list[click.Command] = [scan, furnish]
-
-
-def _drift(drift_m: float | None, gnss_m: float | None) -> DriftModel | GnssInsModel | None:
-    """The mobile scan's registration error from --drift (a walk's SLAM) or --gnss (a drone's GNSS/INS)."""
-    if drift_m is not None and gnss_m is not None:
-        raise click.UsageError("give --drift (a walking platform's SLAM drift) or --gnss (a drone's GNSS/INS error), "
-                               "not both")
-    if gnss_m is not None:
-        return GnssInsModel.rtk(gnss_m)
-    return None if drift_m is None else DriftModel(sigma_m=drift_m)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable
 from typing import Any
@@ -38,25 +39,36 @@ def site_options(command: Callable[..., Any]) -> Callable[..., Any]:
                      help="Fraction of the rooms with steel props on a 1.5 m grid under the slab."),
         click.option("--at", "at", default=None,
                      help="A date (YYYY-MM-DD): keep what the model's work schedule has built by then."),
-        click.option("--yard", "yard", type=float, default=SiteModel.yard_density, show_default=True,
-                     help="Site objects (containers, stacks, pallets, bins, drums, scaffold towers) per 100 m2 of the "
-                          "ground around the building; needs the ground (a drone's flight adds it)."),
     ]
 
     @functools.wraps(command)
     def wrapper(*args: Any, clutter: float, clutter_kinds: str | None, stage: str, stage_include: str | None,
                 stage_exclude: str | None, walls_missing: float, ceilings_open: float, props: float, at: str | None,
-                yard: float, **kwargs: Any) -> Any:
+                **kwargs: Any) -> Any:
         site = SiteModel(
             stage=StageSettings(name=stage, include=_names(stage_include), exclude=_names(stage_exclude),
                                 walls_missing_fraction=walls_missing, ceilings_open_fraction=ceilings_open,
                                 props_fraction=props, at=at),
-            clutter=ClutterSettings(density=clutter, kinds=_names(clutter_kinds)), yard_density=yard)
+            clutter=ClutterSettings(density=clutter, kinds=_names(clutter_kinds)))
         return command(*args, site=site, **kwargs)
 
     for option in reversed(options):
         wrapper = option(wrapper)
     return wrapper
+
+
+def yard_option(command: Callable[..., Any]) -> Callable[..., Any]:
+    """Add --yard to a command that can fly a drone (the yard stands on the ground a flight adds); put it
+    under ``site_options``: the command receives the site with its ``yard_density``."""
+
+    @functools.wraps(command)
+    def wrapper(*args: Any, yard: float, site: SiteModel, **kwargs: Any) -> Any:
+        return command(*args, site=dataclasses.replace(site, yard_density=yard), **kwargs)
+
+    return click.option("--yard", "yard", type=float, default=SiteModel.yard_density, show_default=True,
+                        help="Site objects (containers, stacks, pallets, bins, drums, scaffold towers) per 100 m2 of "
+                             "the ground around the building; needs the ground, which a drone's flight adds "
+                             "(--platform drone).")(wrapper)
 
 
 def describe_site(state: Any) -> str | None:

@@ -52,6 +52,7 @@ A spec is one TOML file (paths inside it are relative to the file)::
     lidar = "velodyne_vlp16"      # optional: the multi-beam lidar (default: the platform's)
     rotation_hz = 10.0            # optional: its rotation rate
     drift_m = 0.01                # optional: SLAM drift, metres per 10 m walked (bimscan.survey.drift)
+    # platform = "drone" flies instead (a Risley lidar); gnss_m = 0.01: its GNSS/INS error (as --gnss)
 
 A spec can start from another: ``base = "other.toml"`` (relative to this file) takes every
 top-level key of that spec (its scenes and configurations too) that this file does not set; a
@@ -94,7 +95,7 @@ from bimscan.process.subsample import VOXEL_SIZE_HINT, VOXEL_SIZE_M
 from bimscan.scan.device import DEFAULT_SCANNER, ScanSettings
 from bimscan.scan.engine import DEFAULT_ENGINE
 from bimscan.scan.noise import NoiseModel
-from bimscan.survey.drift import DriftModel
+from bimscan.survey.drift import registration_drift
 from bimscan.survey.mobile import AUTO_TRAJECTORY
 from bimscan.survey.platform import TRIPOD
 from bimscan.survey.recipe import AUTO_STATIONS, DEFAULT_MAX_STATION_PULSES, DEFAULT_MAX_WALK_PULSES, ScanRecipe
@@ -145,6 +146,7 @@ class ConfigSpec:
     lidar: str | None = None
     rotation_hz: float | None = None
     drift_m: float | None = None
+    gnss_m: float | None = None
 
     @property
     def is_mobile(self) -> bool:
@@ -208,16 +210,17 @@ class DatasetSpec(Checked):
         if config.is_mobile:  # a preset, settings or head speed is refused by ScanRecipe.resolve, as on the CLI
             mobile = {"platform": config.platform, "lidar": config.lidar, "rotation_hz": config.rotation_hz,
                       "trajectory": scene.trajectory, "max_walk_pulses": self.max_walk_pulses,
-                      "drift": None if config.drift_m is None else DriftModel(sigma_m=config.drift_m)}
+                      "drift": registration_drift(config.drift_m, config.gnss_m)}
             if scene.trajectory != AUTO_TRAJECTORY:  # the scene's stations serve its tripod configurations
                 stations_from = AUTO_STATIONS
         else:
             if (config.preset is None) == (config.settings is None):
                 raise ConfigError(f"give exactly one of 'preset' (exp1..exp6 or a settings file) or 'settings' (a "
                                   f"table), not {'both' if config.preset else 'neither'}")
-            if config.lidar is not None or config.rotation_hz is not None or config.drift_m is not None:
-                raise ConfigError("'lidar', 'rotation_hz' and 'drift_m' are for mobile configurations; give "
-                                  "platform = \"handheld\" or \"backpack\", or leave them out")
+            if config.lidar is not None or config.rotation_hz is not None or config.drift_m is not None or \
+                    config.gnss_m is not None:
+                raise ConfigError("'lidar', 'rotation_hz', 'drift_m' and 'gnss_m' are for mobile configurations; give "
+                                  "platform = \"handheld\", \"backpack\" or \"drone\", or leave them out")
             mobile = {"max_station_pulses": self.max_station_pulses}
         return ScanRecipe.resolve(preset=config.preset, settings=config.settings, scanner=self.scanner, **mobile,
                                   head_deg_per_s=config.head_deg_per_s, noise=self.noise, seed=self.seed,

@@ -57,6 +57,7 @@ from bimscan.types import Station
 
 if TYPE_CHECKING:  # the scanner stage's data types, for annotations only
     from bimscan.scan.device import ScannerModel, ScanSettings
+    from bimscan.scan.risley import RisleyScanner
     from bimscan.survey.mobile import MobileScan
     from bimscan.survey.trajectory import Trajectory
 
@@ -247,7 +248,7 @@ RISLEY_FRAME_X_DEG = 90.0
 HELIOS_MAX_PRISMS = 3  # HELIOS++ reads angle1..3_deg
 
 
-def helios_risley_scanner_xml(lidar: object) -> bytes:
+def helios_risley_scanner_xml(lidar: RisleyScanner) -> bytes:
     """A HELIOS++ scanner definition (``optics="risley"``) of a bimscan Risley lidar: the same prisms
     (``angleK_deg`` positive for an inclined entrance face, negative for an inclined exit face;
     ``rotorFreqK_Hz``; ``refrIndexK``), the same channels (``incidentBeam``, in HELIOS++'s frame:
@@ -339,7 +340,10 @@ def helios_mobile_files(trajectory: Trajectory, mobile: MobileScan, *, scene_fil
             with warnings.catch_warnings():  # a drone's gimbal straight down is pitch 90: scipy's gimbal lock
                 warnings.simplefilter("ignore", UserWarning)  # (its angles still give the same attitude)
                 angles = attitude.as_euler("XYZ", degrees=True)  # CANONICAL: Rx(roll) Ry(pitch) Rz(yaw)
-            angles = np.degrees(np.unwrap(np.radians(angles), axis=0))
+            if risley:  # a drone's gimbal straight down leaves every angle free to jump: all unwrapped
+                angles = np.degrees(np.unwrap(np.radians(angles), axis=0))
+            else:
+                angles[:, 2] = np.degrees(np.unwrap(np.radians(angles[:, 2])))
             xyz = np.column_stack([np.interp(grid, t, trajectory.xyz[part][:, axis]) for axis in range(3)])
             times.append((float(grid[0]), float(grid[-1])))
             rows += [f"{g:.6f},{a[0]:.6f},{a[1]:.6f},{a[2]:.6f},{p[0]:.6f},{p[1]:.6f},{p[2]:.6f}"

@@ -192,7 +192,7 @@ SCANNERS: dict[str, ScannerModel] = {
 
 DEFAULT_SCANNER = "riegl_vz400"
 _LIDAR_KINDS = {MULTIBEAM_KIND: "multi-beam lidar", RISLEY_KIND: "Risley-prism lidar"}
-_PLATFORMS_OF = {MULTIBEAM_KIND: "handheld or backpack", RISLEY_KIND: "handheld or backpack"}
+_PLATFORMS_OF = {MULTIBEAM_KIND: "handheld or backpack", RISLEY_KIND: "drone, handheld or backpack"}
 DEFAULT_PRESET = "exp3"
 
 

@@ -53,6 +53,7 @@ MAX_CHANNELS = 64
 # Prism angles sampled per prism when a scanner is checked for total internal reflection and its
 # field of view measured (a full turn each; every combination of the prisms' angles).
 CHECK_STEPS = 72
+CHECK_INDEX_MARGIN = 0.01
 
 
 @dataclass(frozen=True)
@@ -108,14 +109,21 @@ class RisleyScanner(Checked):
                                f"{len(self.channel_x_deg)} and {len(self.channel_y_deg)}")
         if not self.min_range_m < self.max_range_m:
             raise self.refusal(f"need min_range_m < max_range_m, got {self.min_range_m} and {self.max_range_m}")
-        angles = np.radians(np.arange(CHECK_STEPS) * (360.0 / CHECK_STEPS))
+        # every combination of the prisms' angles on a grid (coarser for more prisms: about 2e5 in all),
+        # checked with each index CHECK_INDEX_MARGIN higher, so that no angle between the grid's comes
+        # near total reflection either
+        steps = min(CHECK_STEPS, max(8, int(round(2e5 ** (1 / len(self.prisms))))))
+        angles = np.radians(np.arange(steps) * (360.0 / steps))
         grid = np.stack(np.meshgrid(*[angles] * len(self.prisms), indexing="ij"), axis=-1).reshape(-1, len(self.prisms))
+        steeper = self.prism_table()
+        steeper[:, 1] *= 1 + CHECK_INDEX_MARGIN
+        incident = self.incident()
         for channel in range(self.n_beams):
-            directions = refract_through(self, grid, channel)
-            if not np.isfinite(directions).all():
-                raise self.refusal(f"channel {channel}'s beam is totally reflected inside a prism at some prism angles "
-                                   "(wedge angles too steep for the refractive index)")
-            if (directions[:, 2] <= 0.0).any():
+            if not np.isfinite(_refracted(steeper, incident[channel], grid)).all():
+                raise self.refusal(f"channel {channel}'s beam is totally reflected inside a prism at some prism angles, "
+                                   f"or comes within {CHECK_INDEX_MARGIN:.0%} of it (wedge angles too steep for the "
+                                   "refractive index)")
+            if (refract_through(self, grid, channel)[:, 2] <= 0.0).any():
                 raise self.refusal(f"channel {channel}'s beam turns 90 degrees or more off the optical axis")
 
     @property
@@ -214,10 +222,12 @@ def fov_coverage(directions: np.ndarray, fov_deg: float, spot_deg: float, *, cel
 def refract_through(scanner: RisleyScanner, phi: np.ndarray, channel: int) -> np.ndarray:
     """(N, 3) ``channel``'s beam after the prisms turned to angles ``phi`` (N, P) radians (the inclined
     faces' azimuths); NaN rows where a face reflects it totally."""
-    table = scanner.prism_table()
-    phi = np.asarray(phi, dtype=np.float64)
+    return _refracted(scanner.prism_table(), scanner.incident()[channel], phi)
+
+
+def _refracted(table: np.ndarray, incident: np.ndarray, phi: np.ndarray) -> np.ndarray:
     out = np.empty((len(phi), 3))
-    _refract_many(np.ascontiguousarray(phi), table, scanner.incident()[channel], out)
+    _refract_many(np.ascontiguousarray(phi, dtype=np.float64), table, incident, out)
     return out
 
 
@@ -263,15 +273,17 @@ def _refract_many(phi: np.ndarray, table: np.ndarray, incident: np.ndarray, out:
 
 
 @nb.njit(cache=True, parallel=True, fastmath=_FAST)
-def risley_rays(first_pulse: np.int64, n: np.int64, n_beams: np.int64, cycle_s: float, t0: float, prisms: np.ndarray,
-                incident: np.ndarray, track_t: np.ndarray, track_xyz: np.ndarray, track_ypr: np.ndarray,
+def risley_rays(first_pulse: np.int64, n: np.int64, n_beams: np.int64, cycle_s: float, t0: float, clock_origin: float,
+                prisms: np.ndarray, incident: np.ndarray, track_t: np.ndarray, track_xyz: np.ndarray, track_ypr: np.ndarray,
                 mount_xyz: np.ndarray, mount_rotation: np.ndarray, head_rad_s: float, centre: np.ndarray,
                 rays: np.ndarray, origin: np.ndarray, time: np.ndarray) -> None:
     """``multibeam.moving_rays`` for a Risley scanner: pulses first_pulse .. first_pulse + n - 1 of a
     pass starting at ``t0`` (whole firing sequences: one pulse of each of the ``n_beams`` channels
     every ``cycle_s``). Each sequence's direction is its channels' ``incident`` beams (C, 3) through
-    the ``prisms`` (``RisleyScanner.prism_table``) turned to their angles at the sequence's time on
-    the trajectory's clock (the prisms keep turning between passes), then by the sequence's pose."""
+    the ``prisms`` (``RisleyScanner.prism_table``) turned to their angles at the sequence's time since
+    ``clock_origin`` (the trajectory's first time: the prisms start there at ``start_deg`` and keep
+    turning between passes; seconds since it keep the angles exact whatever the clock's epoch),
+    then by the sequence's pose."""
     first_sequence = first_pulse // n_beams
     n_sequences = n // n_beams
     n_prisms = prisms.shape[0]
@@ -280,7 +292,7 @@ def risley_rays(first_pulse: np.int64, n: np.int64, n_beams: np.int64, cycle_s: 
         s = first_sequence + q
         t = t0 + s * cycle_s
         for p in range(n_prisms):
-            angle = prisms[p, 3] + prisms[p, 2] * t
+            angle = prisms[p, 3] + prisms[p, 2] * (t - clock_origin)
             phase[q, 0, p] = math.cos(angle)
             phase[q, 1, p] = math.sin(angle)
         k, lx, ly, lz, w00, w01, w02, w10, w11, w12, w20, w21, w22 = sequence_pose(

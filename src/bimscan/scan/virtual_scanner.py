@@ -206,7 +206,8 @@ class VirtualScanner:
         n_beams = lidar.n_beams
         noise = recipe.noise
         key = np.uint64(noise_key(recipe.seed, pass_id * MAX_MOUNTS + mount_index, recipe.noise_stream))
-        fill_rays = _moving_ray_kernel(lidar, mobile.rotation_hz, t, xyz_track, ypr, mount.lever_arm(),
+        fill_rays = _moving_ray_kernel(lidar, mobile.rotation_hz, float(trajectory.t[0]), t, xyz_track, ypr,
+                                       mount.lever_arm(),
                                        np.ascontiguousarray(mount.rotation()), 2 * math.pi * mount.head_rotation_hz,
                                        np.asarray(self.engine.centre, dtype=np.float64))
         ring_of_beam = lidar.ring_of_beam()
@@ -521,18 +522,19 @@ class VirtualScanner:
         return columns
 
 
-def _moving_ray_kernel(lidar: Lidar, rotation_hz: float | None, track_t: np.ndarray, track_xyz: np.ndarray,
-                       track_ypr: np.ndarray, lever: np.ndarray, mount_rotation: np.ndarray, head_rad_s: float,
-                       centre: np.ndarray) -> Callable[[int, int, np.ndarray, np.ndarray, np.ndarray], None]:
+def _moving_ray_kernel(lidar: Lidar, rotation_hz: float | None, clock_origin: float, track_t: np.ndarray,
+                       track_xyz: np.ndarray, track_ypr: np.ndarray, lever: np.ndarray, mount_rotation: np.ndarray,
+                       head_rad_s: float, centre: np.ndarray) -> Callable[[int, int, np.ndarray, np.ndarray, np.ndarray], None]:
     """fill(first, n, rays, origin, time): the rays of pulses first .. first + n - 1 of a pass along the
-    track, for the lidar's kind (a spinning multi-beam lidar's or a Risley scanner's kernel)."""
+    track, for the lidar's kind (a spinning multi-beam lidar's or a Risley scanner's kernel, its
+    prisms' clock starting at ``clock_origin``, the trajectory's first time)."""
     cycle_s, n_beams, t0 = lidar.firing_cycle_us * 1e-6, np.int64(lidar.n_beams), float(track_t[0])
     if isinstance(lidar, RisleyScanner):
         prisms, incident = lidar.prism_table(), lidar.incident()
 
         def fill(first: int, n: int, rays: np.ndarray, origin: np.ndarray, time: np.ndarray) -> None:
-            risley_rays(np.int64(first), np.int64(n), n_beams, cycle_s, t0, prisms, incident, track_t, track_xyz,
-                        track_ypr, lever, mount_rotation, head_rad_s, centre, rays, origin, time)
+            risley_rays(np.int64(first), np.int64(n), n_beams, cycle_s, t0, clock_origin, prisms, incident, track_t,
+                        track_xyz, track_ypr, lever, mount_rotation, head_rad_s, centre, rays, origin, time)
         return fill
     firing = np.asarray(lidar.firing_offset_us, dtype=np.float64) * 1e-6
     elevation = np.radians(np.asarray(lidar.beam_elevation_deg, dtype=np.float64))

@@ -56,6 +56,9 @@ from bimscan.survey.trajectory import Trajectory
 REFERENCE_PATH_M = 10.0
 KNOT_M = 1.0
 GNSS_KNOT_S = 0.5
+RTK_VERTICAL_RATIO = 1.5  # DJI RTK: 1.5 cm vertically for 1 cm horizontally
+RTK_HEADING_DEG_PER_M = 5.0  # the L2's 0.05 degree of yaw for 1 cm of position
+MAX_RTK_SIGMA_M = 2.0  # where the heading reaches GnssInsModel's 10 degrees
 
 
 @dataclass(frozen=True)
@@ -124,19 +127,35 @@ class GnssInsModel(Checked):
 
     @staticmethod
     def rtk(horizontal_sigma_m: float) -> GnssInsModel:
-        """The DJI RTK figures scaled to ``horizontal_sigma_m`` (vertical 1.5 x; heading 0.05 degree
-        per centimetre), as ``--gnss`` gives them."""
-        return GnssInsModel(horizontal_sigma_m=horizontal_sigma_m, vertical_sigma_m=1.5 * horizontal_sigma_m,
-                            heading_sigma_deg=5.0 * horizontal_sigma_m)
+        """The DJI RTK figures scaled to ``horizontal_sigma_m`` (vertical ``RTK_VERTICAL_RATIO`` x;
+        heading ``RTK_HEADING_DEG_PER_M`` degrees per metre, 0.05 per centimetre), as ``--gnss`` gives
+        them; ConfigError, naming --gnss, beyond ``MAX_RTK_SIGMA_M``."""
+        if not 0.0 <= horizontal_sigma_m <= MAX_RTK_SIGMA_M:
+            raise ConfigError(f"--gnss (gnss_m) must be a horizontal sigma in [0, {MAX_RTK_SIGMA_M:g}] metres (0.01: an "
+                              f"RTK-fixed drone), got {horizontal_sigma_m:g}")
+        return GnssInsModel(horizontal_sigma_m=horizontal_sigma_m,
+                            vertical_sigma_m=RTK_VERTICAL_RATIO * horizontal_sigma_m,
+                            heading_sigma_deg=RTK_HEADING_DEG_PER_M * horizontal_sigma_m)
 
     @property
     def is_off(self) -> bool:
         return self.horizontal_sigma_m == 0.0 and self.vertical_sigma_m == 0.0 and self.heading_sigma_deg == 0.0
 
-    def to_json(self) -> dict[str, float]:
+    def to_json(self) -> dict[str, float | str]:
         return {"kind": "gnss_ins", "horizontal_sigma_m": self.horizontal_sigma_m,
                 "vertical_sigma_m": self.vertical_sigma_m, "heading_sigma_deg": self.heading_sigma_deg,
                 "correlation_s": self.correlation_s}
+
+
+def registration_drift(drift_m: float | None, gnss_m: float | None) -> DriftModel | GnssInsModel | None:
+    """A mobile scan's registration error from ``drift_m`` (a walk's SLAM drift, ``--drift``) or
+    ``gnss_m`` (a drone's GNSS/INS error, ``--gnss``); ConfigError when both are given."""
+    if drift_m is not None and gnss_m is not None:
+        raise ConfigError("give --drift / drift_m (a walking platform's SLAM drift) or --gnss / gnss_m (a drone's "
+                          "GNSS/INS error), not both")
+    if gnss_m is not None:
+        return GnssInsModel.rtk(gnss_m)
+    return None if drift_m is None else DriftModel(sigma_m=drift_m)
 
 
 def gauss_markov(rng: np.random.Generator, n: int, dt: float, correlation_s: float, sigmas: np.ndarray) -> np.ndarray:

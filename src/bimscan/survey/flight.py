@@ -13,7 +13,8 @@ The plan (``plan_flight``), every length from ``FlightSettings``:
   ring the orbits fly is that hull grown by ``orbit_clearance_m`` (its corners rounded), so the
   drone keeps that distance from every part of the building's outline.
 - **Orbits** at heights spread evenly over the building's height, each facing the building
-  (yaw along the ring's inward normal, pitch ``orbit_pitch_deg``), flown counter-clockwise. How
+  (each side of the ring flown along its inward normal, turning at its end; pitch
+  ``orbit_pitch_deg``), flown counter-clockwise. How
   many: the facade band one orbit covers is ``2 d tan(h)`` at the clearance d for the lidar's
   half-extent h along its sensor x axis (vertical when facing a facade), overlapping by
   ``orbit_overlap``; heights below ``MIN_HEIGHT_M`` above the ground are raised to it.
@@ -22,9 +23,10 @@ The plan (``plan_flight``), every length from ``FlightSettings``:
   (``grid_pitch_deg``); the lines lie along the rectangle's long side, ``2 g tan(h) (1 -
   side_overlap)`` apart for the lidar's half-extent h across the track at g = ``grid_height_m``
   (the swath on the roof).
-- **Take-off and landing** at one point ``takeoff_offset_m`` outside the ring, on the ground: a
-  vertical climb to the first orbit, climbs between orbits at the ring's first point, a climb to
-  the grid's height, the grid, then back over the take-off point and down.
+- **Take-off and landing** at one point ``takeoff_offset_m`` outside the ring, on the ground (the
+  first around the ring clear of the yard's objects): a vertical climb to the first orbit, climbs
+  between orbits at the ring's first point, a climb to the grid's height, the grid, then back over
+  the take-off point and down. Orbits pass over the yard's objects near their ring.
 
 Speeds: ``speed_m_s`` along the orbits and the grid, ``climb_speed_m_s`` up and down; the yaw
 turns at most ``max_turn_deg_per_s`` (a leg that must turn further takes longer). The
@@ -38,16 +40,21 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import ConvexHull
+from scipy.spatial import ConvexHull, QhullError
 
 from bimscan.constraints import Checked, Range, setting
 from bimscan.errors import ConfigError, StationError
+from bimscan.scan.lidars import Lidar
+from bimscan.scan.risley import RisleyScanner
 from bimscan.survey.trajectory import Trajectory
 
 MIN_HEIGHT_M = 3.0  # no orbit flies lower above the ground
 RING_ARC_STEPS = 12  # points per quarter turn of the ring's rounded corners
 GROUND_BELOW_FLOOR_M = 0.05  # the ground lies this far below the ground floor (inside its slab)
 TAKEOFF_HEIGHT_M = 0.3  # the payload's height above the ground when the drone stands
+OBSTACLE_BAND_M = 3.0  # what stands this close to an orbit's ring (or the take-off point) is in the way
+OBSTACLE_CLEARANCE_M = 1.5  # an orbit passes this far over what stands under it
+GROUND_FLOOR_NEAR_ZERO_M = 1.5  # a storey this close to elevation 0 is the ground floor
 
 
 @dataclass(frozen=True)
@@ -100,13 +107,14 @@ class FlightReport:
 
 
 def ground_level(vertices_z_min: float, storey_elevations: tuple[float, ...]) -> float:
-    """The ground's height: the ground floor's elevation (the storey nearest to 0 among those at or
-    above the model's lowest point; the lowest point when there is no storey) less
-    ``GROUND_BELOW_FLOOR_M``, so that the ground lies inside the ground floor's slab."""
+    """The ground's height, ``GROUND_BELOW_FLOOR_M`` below the ground floor so that the ground lies
+    inside its slab: the ground floor is the storey nearest elevation 0 when one lies within
+    ``GROUND_FLOOR_NEAR_ZERO_M`` of it (a basement's storey is below), else the lowest storey at or
+    above the model's lowest point (a model placed at its absolute height), else that lowest point."""
     candidates = [e for e in storey_elevations if e >= vertices_z_min - 1e-6]
-    if not candidates:
-        return vertices_z_min
-    return min(candidates, key=abs) - GROUND_BELOW_FLOOR_M
+    near_zero = [e for e in candidates if abs(e) <= GROUND_FLOOR_NEAR_ZERO_M]
+    floor = min(near_zero, key=abs) if near_zero else min(candidates) if candidates else vertices_z_min
+    return floor - GROUND_BELOW_FLOOR_M
 
 
 def footprint_hull(xy: np.ndarray) -> np.ndarray:
@@ -116,7 +124,7 @@ def footprint_hull(xy: np.ndarray) -> np.ndarray:
         raise StationError("the model has no footprint to fly around (fewer than three distinct plan points)")
     try:
         hull = ConvexHull(points)
-    except Exception as exc:  # noqa: BLE001 - qhull: all points on a line
+    except QhullError as exc:  # all points on a line
         raise StationError("the model's plan is a line, not a footprint; a flight needs a building with an area") from exc
     return points[hull.vertices]  # qhull gives 2-D hulls counter-clockwise
 
@@ -202,37 +210,53 @@ class _Path:
 
 
 def plan_flight(plan_xy: np.ndarray, z_range: tuple[float, float], storey_elevations: tuple[float, ...],
-                settings: FlightSettings, half_extent_deg: tuple[float, float]) -> tuple[Trajectory, FlightReport]:
+                settings: FlightSettings, half_extent_deg: tuple[float, float],
+                obstacles: np.ndarray | None = None) -> tuple[Trajectory, FlightReport]:
     """The flight over a building (see the module docs). plan_xy: (N, 2) the model's vertices in plan;
     z_range: its lowest and highest point; half_extent_deg: the lidar's half-extent along its sensor
-    x and y axes (degrees; ``lidar_half_extent_deg``)."""
+    x and y axes (degrees; ``lidar_half_extent_deg``); obstacles: (M, 3) vertices of what stands
+    around the building (the yard's objects): orbits pass ``OBSTACLE_CLEARANCE_M`` over those
+    within ``OBSTACLE_BAND_M`` of their ring, and the take-off point is the first around the ring
+    with none within ``OBSTACLE_BAND_M``."""
     ground = ground_level(z_range[0], storey_elevations)
     top = z_range[1]
     hull = footprint_hull(plan_xy)
     ring = grown_ring(hull, settings.orbit_clearance_m)
     half_x, half_y = (math.radians(min(a, 80.0)) for a in half_extent_deg)
-    # orbits: evenly over the facade's height, each covering its band with the overlap
+    obstacles = np.zeros((0, 3)) if obstacles is None else np.asarray(obstacles, dtype=np.float64)
+    # orbits: evenly over the facade's height, each covering its band with the overlap, none lower than
+    # MIN_HEIGHT_M above the ground or OBSTACLE_CLEARANCE_M above what stands under the ring
+    near_ring = _distance_to_ring(obstacles[:, :2], ring) <= OBSTACLE_BAND_M
+    lowest = max(ground + MIN_HEIGHT_M, float(obstacles[near_ring, 2].max()) + OBSTACLE_CLEARANCE_M
+                 if near_ring.any() else -math.inf)
     height = max(top - ground, 0.0)
     band = 2 * settings.orbit_clearance_m * math.tan(half_x) * (1 - settings.orbit_overlap)
     count = max(1, int(math.ceil(height / max(band, 1e-3))))
-    heights = tuple(max(ground + height * (k + 0.5) / count, ground + MIN_HEIGHT_M) for k in range(count))
-    # the ring starts at its point nearest to the take-off side (its first vertex); normals point in
-    nxt = np.roll(ring, -1, axis=0)
-    tangent = nxt - ring
+    heights = tuple(float(z) for z in np.unique(np.round(
+        [max(ground + height * (k + 0.5) / count, lowest) for k in range(count)], 6)))
+    # the ring's normals point in (the left normal of a counter-clockwise ring); it starts at the first
+    # vertex whose take-off point, outside it, is clear of obstacles
+    tangent = np.roll(ring, -1, axis=0) - ring
     tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
-    inward_yaw = np.arctan2(tangent[:, 0], -tangent[:, 1])  # the left normal of a counter-clockwise ring
-    centre_xy = hull.mean(axis=0)
-    outward = ring[0] - centre_xy
-    outward /= max(float(np.linalg.norm(outward)), 1e-9)
-    takeoff = np.array([*(ring[0] + outward * settings.takeoff_offset_m), ground + TAKEOFF_HEIGHT_M])
+    outward_all = np.column_stack([tangent[:, 1], -tangent[:, 0]])
+    start = 0
+    for k in range(len(ring)):
+        spot = ring[k] + outward_all[k] * settings.takeoff_offset_m
+        if not len(obstacles) or np.hypot(*(obstacles[:, :2] - spot).T).min() > OBSTACLE_BAND_M:
+            start = k
+            break
+    ring, tangent, outward_all = (np.roll(a, -start, axis=0) for a in (ring, tangent, outward_all))
+    inward_yaw = np.arctan2(-outward_all[:, 1], -outward_all[:, 0])
+    takeoff = np.array([*(ring[0] + outward_all[0] * settings.takeoff_offset_m), ground + TAKEOFF_HEIGHT_M])
     orbit_pitch, grid_pitch = math.radians(settings.orbit_pitch_deg), math.radians(settings.grid_pitch_deg)
     path = _Path(takeoff, float(inward_yaw[0]), orbit_pitch, settings)
     path.go(np.array([takeoff[0], takeoff[1], heights[0]]), float(inward_yaw[0]), orbit_pitch, vertical=True)
     for index, z in enumerate(heights):  # to the ring from the take-off point, then up the ring's first point
         path.go(np.array([ring[0, 0], ring[0, 1], z]), float(inward_yaw[0]), orbit_pitch, vertical=index > 0)
-        for k in range(1, len(ring) + 1):
+        for k in range(1, len(ring) + 1):  # each side flown facing its own normal, turning at its end
             i = k % len(ring)
-            path.go(np.array([ring[i, 0], ring[i, 1], z]), float(inward_yaw[i]), orbit_pitch)
+            path.go(np.array([ring[i, 0], ring[i, 1], z]), float(inward_yaw[k - 1]), orbit_pitch)
+            path.turn(float(inward_yaw[i]), orbit_pitch)
     # the grid, over the rectangle grown by the clearance
     grid_z = top + settings.grid_height_m
     centre, u, extents = min_area_rectangle(hull)
@@ -259,12 +283,20 @@ def plan_flight(plan_xy: np.ndarray, z_range: tuple[float, float], storey_elevat
     return trajectory, report
 
 
-def lidar_half_extent_deg(lidar: object) -> tuple[float, float]:
+def _distance_to_ring(points: np.ndarray, ring: np.ndarray) -> np.ndarray:
+    """(N,) plan distance of each point to the closed polygon ``ring``'s edges."""
+    if len(points) == 0:
+        return np.zeros(0)
+    a, b = ring, np.roll(ring, -1, axis=0)
+    ab = b - a
+    t = np.clip(((points[:, None, :] - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-12), 0.0, 1.0)
+    return np.linalg.norm(points[:, None, :] - (a + t[..., None] * ab), axis=-1).min(axis=1)
+
+
+def lidar_half_extent_deg(lidar: Lidar) -> tuple[float, float]:
     """A Risley lidar's pattern half-extents along its sensor x and y axes (degrees); ConfigError for a
     lidar a flight cannot point (a spinning multi-beam lidar: the drone's gimbal points an optical
     axis)."""
-    from bimscan.scan.risley import RisleyScanner
-
     if not isinstance(lidar, RisleyScanner):
         raise ConfigError(f"a drone flight points a Risley-prism lidar's optical axis; {getattr(lidar, 'name', lidar)} "
                           "is a spinning multi-beam lidar: give --scanner dji_zenmuse_l2, livox_avia, livox_mid70 or "

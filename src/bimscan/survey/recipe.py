@@ -113,7 +113,8 @@ class ScanRecipe(Checked):
     def check(self) -> None:
         if self.site.yard_density > 0 and self.site.ground_margin_m == 0:
             raise ConfigError("yard objects (--yard) stand on the ground around the building, and this scan has "
-                              "none: fly a drone (--platform drone adds the ground) or leave --yard out")
+                              "none: fly a drone whose platform keeps its ground (ground_margin_m > 0; --platform "
+                              "drone does) or leave --yard out")
         if self.mobile is not None:
             if self.noise.registers_with_error:
                 raise ConfigError("a mobile scan has no stations to register: give its registration error as --drift "
@@ -151,9 +152,11 @@ class ScanRecipe(Checked):
         "full", and ``sensor``: a SensorModel, a table of its keys or a TOML file of them; an
         explicit ``realism`` wins over the table's); ``fields`` are the other ScanRecipe fields.
         A mobile ``platform`` (a ``survey.platform.PLATFORMS`` name or file; None or "tripod": TLS
-        stations) makes a mobile scan: its multi-beam ``lidar`` (a ``scan.multibeam.LIDARS`` name
-        or file; default: the platform's) walked along ``trajectory`` ("auto" or a CSV file) with
-        ``drift`` at ``rotation_hz`` (default: the lidar's). ``scanner`` stays the TLS whose
+        stations) makes a mobile scan: its ``lidar`` (a ``scan.lidars.MOBILE_LIDARS`` name or file,
+        multi-beam or Risley; default: the platform's) along ``trajectory`` ("auto": a planned walk or,
+        for a drone, flight; or a CSV file) with ``drift`` (SLAM drift, or a drone's GNSS/INS error) at
+        ``rotation_hz`` (default: the lidar's; none for a Risley lidar). A drone adds the ground
+        around the building to the site (its flight's ``ground_margin_m``). ``scanner`` stays the TLS whose
         tripod plan the walk visits. ``max_station_pulses`` budgets a tripod station,
         ``max_walk_pulses`` a mobile walk (None: the default).
 
@@ -200,8 +203,8 @@ class ScanRecipe(Checked):
         else:
             if trajectory not in (None, AUTO_TRAJECTORY) or (drift is not None and not drift.is_off) or \
                     rotation_hz is not None or lidar is not None:
-                raise ConfigError("a multi-beam lidar, trajectory, drift or rotation rate needs a mobile platform "
-                                  "(--platform handheld or backpack); a tripod scan has stations")
+                raise ConfigError("a lidar, trajectory, drift, GNSS/INS error or rotation rate needs a mobile platform "
+                                  "(--platform handheld, backpack or drone); a tripod scan has stations")
             if max_walk_pulses is not None:
                 raise ConfigError("'max_walk_pulses' (--max-walk-pulses) budgets a mobile platform's walk; a tripod "
                                   "scan's budget is per station (--max-station-pulses): leave it out")

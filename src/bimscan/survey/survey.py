@@ -34,6 +34,7 @@ from bimscan.survey.walk import WalkReport, plan_walk
 from bimscan.types import BimScene, CloudHeader, PointCloud, Station
 
 SITE_OBJECT_CLASSES = tuple(SITE_CLASSES)  # what a flight does not fly around: the ground, the yard, clutter
+YARD_CLASSES = tuple(c for c in SITE_CLASSES if c != "Terrain.Ground")  # what a flight keeps clear of
 FLIGHT_MARGIN_M = 500.0  # a flight file may reach this far beyond the model (a walk's: 5 m)
 
 
@@ -107,9 +108,11 @@ def plan_scene_flight(scene: BimScene, mobile: MobileScan) -> tuple[Trajectory, 
     if len(vertices) == 0:
         raise StationError(f"{scene.source}: nothing but site objects to fly around; a flight needs a building")
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    yard = np.isin(scene.components.ifc_class, YARD_CLASSES)[mesh.face_component]  # what stands outside
+    obstacles = mesh.vertices[np.unique(mesh.faces[yard])]
     return plan_flight(vertices[:, :2], (float(lo[2]), float(hi[2])),
                        tuple(s.elevation_m for s in scene.storeys), mobile.platform.flight,
-                       lidar_half_extent_deg(mobile.lidar))
+                       lidar_half_extent_deg(mobile.lidar), obstacles=obstacles)
 
 
 def check_trajectory(trajectory: Trajectory, scene: BimScene, source: str | Path, *, margin_m: float = 5.0) -> None:
