@@ -302,3 +302,18 @@ def test_gnss_error_moves_a_drone_scans_points_by_about_its_sigma(drone_scan, bo
     assert len(moved) == len(clean)  # the same pulses hit: the error moves points after the scan
     shift = np.linalg.norm(moved.xyz - clean.xyz, axis=1)
     assert 0.01 < np.median(shift) < 0.5 and np.isfinite(shift).all()
+
+
+def test_a_dataset_spec_gives_a_drones_gnss_error_and_refuses_it_on_a_tripod(box_room_ifc, tmp_path):
+    from bimscan.dataset.spec import load_spec
+
+    spec_path = tmp_path / "spec.toml"
+    spec_path.write_text(f'name = "d"\n[[scenes]]\nname = "box"\nifc = "{box_room_ifc}"\n'
+                         '[[configs]]\nname = "fly"\nplatform = "drone"\ngnss_m = 0.02\n')
+    spec = load_spec(spec_path)
+    drift = spec.recipe(spec.scenes[0], spec.configs[0]).mobile.drift
+    assert isinstance(drift, GnssInsModel) and drift.horizontal_sigma_m == 0.02 and drift.vertical_sigma_m == 0.03
+    spec_path.write_text(f'name = "d"\n[[scenes]]\nname = "box"\nifc = "{box_room_ifc}"\n'
+                         '[[configs]]\nname = "tls"\npreset = "exp1"\ngnss_m = 0.02\n')
+    with pytest.raises(ConfigError, match="'gnss_m' are for mobile configurations"):
+        load_spec(spec_path)
