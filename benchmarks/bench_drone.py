@@ -65,7 +65,7 @@ def models() -> list[Path]:
 
 
 def flights(work: Path) -> None:
-    from bimscan.io import read_cloud
+    from bimscan.io import iter_cloud_chunks
     from bimscan.pipeline import build_site, load_scene
     from bimscan.survey.coverage import element_coverage
     from bimscan.survey.recipe import ScanRecipe
@@ -86,8 +86,7 @@ def flights(work: Path) -> None:
         flight = next((line.strip() for line in done.stdout.splitlines() if line.strip().startswith("flight:")), "")
         points = done.stdout.split(" points")[0].split(": ")[-1]
         scene = build_site(load_scene(model), ScanRecipe.resolve(platform="drone", seed=1))
-        cloud = read_cloud(out)
-        coverage = element_coverage(scene, cloud.xyz)
+        coverage = element_coverage(scene, (chunk.xyz for chunk in iter_cloud_chunks(out, labels=False)))
         low = [e for e in coverage if e.covered_share < 0.8]
         reachable = [e for e in coverage if e.buried <= 0.5]
         print(f"   {model.name}: {points} points in {seconds:.1f} s (whole process); {flight}")

@@ -317,3 +317,23 @@ def test_a_dataset_spec_gives_a_drones_gnss_error_and_refuses_it_on_a_tripod(box
                          '[[configs]]\nname = "tls"\npreset = "exp1"\ngnss_m = 0.02\n')
     with pytest.raises(ConfigError, match="'gnss_m' are for mobile configurations"):
         load_spec(spec_path)
+
+
+def test_the_coverage_command_writes_every_outer_element_and_refuses_to_replace_without_overwrite(
+        drone_scan, box_room_ifc, tmp_path, capsys):
+    import csv
+
+    from bimscan.cli.main import main
+
+    result, _ = drone_scan
+    out = tmp_path / "coverage.csv"
+    assert main(["coverage", str(box_room_ifc), str(result.path), str(out)]) == 0
+    rows = {row["ifc_class"] + " " + row["name"]: row for row in csv.DictReader(out.open())}
+    walls = [row for key, row in rows.items() if key.startswith("IfcWall")]
+    assert len(walls) == 4 and all(row["status"] == "covered" and float(row["covered_share"]) >= 0.8 for row in walls)
+    assert rows["IfcSlab roof"]["status"] == "covered" and rows["IfcSlab roof"]["facing"] == "up"
+    assert rows["IfcSlab floor"]["status"] == "below the ground"  # its sides and underside: under the ground
+    assert "5 of the 5 above the ground covered on >= 80% at 100 points/m2" in capsys.readouterr().out
+    assert main(["coverage", str(box_room_ifc), str(result.path), str(out)]) == 2  # there: refused
+    assert "pass --overwrite" in capsys.readouterr().err
+    assert main(["coverage", str(box_room_ifc), str(result.path), str(out), "--share", "1.5"]) == 2

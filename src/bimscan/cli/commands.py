@@ -16,11 +16,11 @@ from bimscan.cli import (
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(__version__, prog_name="bimscan")
 def cli() -> None:
-    """Labelled synthetic laser scans from BIM (IFC) models: tripod (TLS) and mobile (handheld,
-    backpack), on the site as it stands, at dataset scale.
+    """Labelled synthetic laser scans from BIM (IFC) models: tripod (TLS), mobile (handheld,
+    backpack) and flying (drone), on the site as it stands, at dataset scale.
 
     \b
-    IFC -> labelled components -> site as scanned -> planned survey (tripod stations or a walk)
+    IFC -> labelled components -> site as scanned -> planned survey (stations, a walk or a flight)
         -> virtual scanner -> labelled clouds -> datasets (local or on Ray) -> statistics
         -> segmentation: train, evaluate on real scans, adapt to your own, predict.
     A site scan against its model: align it, then say per element what is built (progress).

@@ -17,6 +17,7 @@ from bimscan.errors import ConfigError
 from bimscan.ifc.units import LENGTH_UNITS
 from bimscan.scan.device import DEFAULT_PRESET, DEFAULT_SCANNER, PRESETS, SCANNERS
 from bimscan.survey.planning.config import DEFAULT_CLASSES, PlanConfig, setting_text
+from bimscan.survey.coverage import COVERED_SHARE, DENSITY_PER_M2, RADIUS_M
 from bimscan.survey.recipe import ScanRecipe
 
 if TYPE_CHECKING:
@@ -202,4 +203,49 @@ def plan(model: Path, out: Path, classes: str | None, coverage: str | None, dens
     click.echo("  seconds: " + ", ".join(f"{step} {seconds:.1f}" for step, seconds in run.steps.items()))
 
 
-COMMANDS: list[click.Command] = [plan]
+@click.command("coverage")
+@click.argument("model", type=click.Path(path_type=Path))
+@click.argument("cloud", type=click.Path(path_type=Path))
+@click.argument("out", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--density", "density_pts_m2", type=float, default=DENSITY_PER_M2, show_default=True,
+              help="Points per square metre that count a spot of an element's outer surface as covered.")
+@click.option("--radius", "radius_m", type=float, default=RADIUS_M, show_default=True,
+              help="Metres around each spot the density is counted over.")
+@click.option("--share", type=float, default=COVERED_SHARE, show_default=True,
+              help="The share of an element's outer surface that must be covered.")
+@click.option("--length-unit", type=click.Choice(list(LENGTH_UNITS)), default=None, help=LENGTH_UNIT_HELP)
+@click.option("--overwrite", is_flag=True, help="Replace OUT if it is there.")
+def coverage(model: Path, cloud: Path, out: Path, density_pts_m2: float, radius_m: float, share: float,
+             length_unit: str | None, overwrite: bool) -> None:
+    """Say how much of each element's outer surface CLOUD covers and write OUT.csv: every element of
+    MODEL.ifc seen from outside (roofs, facades, what stands out of the ground), its outer area, the
+    share covered at --density within --radius, the share below the ground, and 'covered' or why not
+    (below the ground, facing down, not reached). For a drone's flight, or any scan in the model's
+    coordinates (align a site scan first: 'bimscan align'). The cloud is read in chunks."""
+    from bimscan.files import check_replaceable, write_atomic
+    from bimscan.io import iter_cloud_chunks
+    from bimscan.pipeline import load_scene
+    from bimscan.survey.coverage import coverage_csv, element_coverage
+
+    for name, value, low, high in (("--density", density_pts_m2, 0.0, 1e6), ("--radius", radius_m, 0.0, 10.0),
+                                   ("--share", share, 0.0, 1.0)):
+        if not low < value <= high:
+            raise click.UsageError(f"{name} must be in ({low:g}, {high:g}], got {value:g}")
+    if out.exists() or out.is_symlink():
+        if not overwrite:
+            raise click.UsageError(f"{out} is there; pass --overwrite to replace it")
+        check_replaceable(out)
+    scene = load_scene(model, length_unit=length_unit)
+    chunks = (chunk.xyz for chunk in iter_cloud_chunks(cloud, labels=False))
+    elements = element_coverage(scene, chunks, density_per_m2=density_pts_m2, radius_m=radius_m)
+    write_atomic(out, coverage_csv(elements, share=share))
+    short = [e for e in elements if e.covered_share < share]
+    reachable = [e for e in elements if e.buried <= 0.5]
+    click.echo(f"{out}: {len(elements)} elements with an outer surface; {sum(e.covered_share >= share for e in reachable)} "
+               f"of the {len(reachable)} above the ground covered on >= {share:.0%} at {density_pts_m2:g} points/m2")
+    for e in short:
+        click.echo(f"  {e.ifc_class} {e.name or '(no name)'} ({e.global_id}): {e.covered_share:.0%} of "
+                   f"{e.outer_m2:.1f} m2, {e.why_not()}")
+
+
+COMMANDS: list[click.Command] = [plan, coverage]

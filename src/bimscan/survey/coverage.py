@@ -8,12 +8,16 @@ building (meets nothing): so a facade under an overhang still counts, a face aga
 element or inside the building does not. A sample is covered when the scan's points within
 ``radius_m`` of it give at least ``density_per_m2`` points per square metre (count / (pi r^2)).
 An element's coverage is its covered share of its outer samples; elements with fewer than
-``MIN_OUTER_SAMPLES`` outer samples are too small to judge and left out.
+``MIN_OUTER_SAMPLES`` outer samples are too small to judge and left out. ``bimscan coverage``
+writes the table (``coverage_csv``).
 """
 
 from __future__ import annotations
 
+import csv
+import io
 import math
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,9 +25,13 @@ from scipy.spatial import cKDTree
 
 from bimscan.scan.probe import Prober
 from bimscan.site.classes import SITE_CLASSES
+from bimscan.survey.flight import ground_level
 from bimscan.types import BimScene, SceneMesh
 
 SAMPLE_M = 0.25
+DENSITY_PER_M2 = 100.0
+RADIUS_M = 0.15
+COVERED_SHARE = 0.8  # an element is covered when this share of its outer surface is
 OPEN_TILT_DEG = 60.0
 MIN_OUTER_SAMPLES = 4
 ESCAPE_OFFSET_M = 1e-3
@@ -95,20 +103,24 @@ def _open_directions(normals: np.ndarray) -> list[np.ndarray]:
     return [normals] + [c * normals + s * side for side in (a, -a, b, -b)]
 
 
-def element_coverage(scene: BimScene, points: np.ndarray, *, density_per_m2: float = 100.0, radius_m: float = 0.15,
-                     sample_m: float = SAMPLE_M, threads: int = 0) -> list[ElementCoverage]:
-    """Each outer element's covered share (see the module docs) by the scan's ``points`` (N, 3) world
-    metres, sorted by share (least covered first)."""
+def element_coverage(scene: BimScene, chunks: Iterable[np.ndarray], *, density_per_m2: float = DENSITY_PER_M2,
+                     radius_m: float = RADIUS_M, sample_m: float = SAMPLE_M, threads: int = 0) -> list[ElementCoverage]:
+    """Each outer element's covered share (see the module docs) by a scan's points, given as chunks of
+    (N, 3) world metres (one array, or a stream: the counts add up chunk by chunk, so memory stays
+    that of one chunk), sorted by share (least covered first)."""
     xyz, normals, component = outer_samples(scene, sample_m=sample_m, threads=threads)
-    tree = cKDTree(np.asarray(points, dtype=np.float64))
-    near = tree.query_ball_point(xyz, radius_m, return_length=True, workers=-1)
+    near = np.zeros(len(xyz), dtype=np.int64)
+    for points in ([chunks] if isinstance(chunks, np.ndarray) else chunks):
+        if len(points):
+            near += cKDTree(np.asarray(points, dtype=np.float64)).query_ball_point(
+                xyz, radius_m, return_length=True, workers=-1)
     covered = near / (math.pi * radius_m**2) >= density_per_m2
     table = scene.components
     terrain = np.flatnonzero(table.ifc_class == "Terrain.Ground")
     if len(terrain):
         ground_z = float(np.median(scene.mesh.vertices[scene.mesh.faces[scene.mesh.face_component == terrain[0]], 2]))
-    else:
-        ground_z = -math.inf
+    else:  # the model without its dressing: where a drone's ground would lie
+        ground_z = ground_level(float(scene.mesh.vertices[:, 2].min()), tuple(s.elevation_m for s in scene.storeys))
     out = []
     for c in np.unique(component):
         mine = component == c
@@ -121,3 +133,16 @@ def element_coverage(scene: BimScene, points: np.ndarray, *, density_per_m2: flo
                                    covered_share=float(covered[mine].mean()), facing=facing,
                                    buried=float((xyz[mine, 2] < ground_z).mean())))
     return sorted(out, key=lambda e: (e.covered_share, e.global_id))
+
+
+def coverage_csv(elements: Sequence[ElementCoverage], *, share: float) -> bytes:
+    """The elements as CSV: GlobalId, IFC class, name, facing, outer area, covered share, share below
+    the ground, and whether it is covered (at ``share``) or why not."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(["global_id", "ifc_class", "name", "facing", "outer_m2", "covered_share", "below_ground_share",
+                     "status"])
+    for e in elements:
+        writer.writerow([e.global_id, e.ifc_class, e.name, e.facing, f"{e.outer_m2:.2f}", f"{e.covered_share:.4f}",
+                         f"{e.buried:.4f}", "covered" if e.covered_share >= share else e.why_not()])
+    return out.getvalue().encode("utf-8")
