@@ -233,7 +233,7 @@ def coverage(model: Path, cloud: Path, out: Path, density_pts_m2: float, radius_
             raise click.UsageError(f"{name} must be in ({low:g}, {high:g}], got {value:g}")
     if out.exists() or out.is_symlink():
         if not overwrite:
-            raise click.UsageError(f"{out} is there; pass --overwrite to replace it")
+            raise click.UsageError(f"{out} already exists; pass --overwrite to replace it or choose another path")
         check_replaceable(out)
     scene = load_scene(model, length_unit=length_unit)
     chunks = (chunk.xyz for chunk in iter_cloud_chunks(cloud, labels=False))
