@@ -54,6 +54,7 @@ MAX_CHANNELS = 64
 # field of view measured (a full turn each; every combination of the prisms' angles).
 CHECK_STEPS = 72
 CHECK_INDEX_MARGIN = 0.01
+CHECK_COMBINATIONS = 1e5  # prism angle combinations checked per channel (a grid of about this many)
 
 
 @dataclass(frozen=True)
@@ -109,22 +110,24 @@ class RisleyScanner(Checked):
                                f"{len(self.channel_x_deg)} and {len(self.channel_y_deg)}")
         if not self.min_range_m < self.max_range_m:
             raise self.refusal(f"need min_range_m < max_range_m, got {self.min_range_m} and {self.max_range_m}")
-        # every combination of the prisms' angles on a grid (coarser for more prisms: about 2e5 in all),
-        # checked with each index CHECK_INDEX_MARGIN higher, so that no angle between the grid's comes
-        # near total reflection either
-        steps = min(CHECK_STEPS, max(8, int(round(2e5 ** (1 / len(self.prisms))))))
+        # every combination of the prisms' angles on a grid (coarser for more prisms: about
+        # CHECK_COMBINATIONS in all), each index CHECK_INDEX_MARGIN higher, so that no angle between
+        # the grid's comes near total reflection either (and none turns the beam further than that)
+        steps = min(CHECK_STEPS, max(8, int(round(CHECK_COMBINATIONS ** (1 / len(self.prisms))))))
         angles = np.radians(np.arange(steps) * (360.0 / steps))
         grid = np.stack(np.meshgrid(*[angles] * len(self.prisms), indexing="ij"), axis=-1).reshape(-1, len(self.prisms))
         steeper = self.prism_table()
         steeper[:, 1] *= 1 + CHECK_INDEX_MARGIN
         incident = self.incident()
         for channel in range(self.n_beams):
-            if not np.isfinite(_refracted(steeper, incident[channel], grid)).all():
+            directions = _refracted(steeper, incident[channel], grid)
+            if not np.isfinite(directions).all():
                 raise self.refusal(f"channel {channel}'s beam is totally reflected inside a prism at some prism angles, "
                                    f"or comes within {CHECK_INDEX_MARGIN:.0%} of it (wedge angles too steep for the "
                                    "refractive index)")
-            if (refract_through(self, grid, channel)[:, 2] <= 0.0).any():
-                raise self.refusal(f"channel {channel}'s beam turns 90 degrees or more off the optical axis")
+            if (directions[:, 2] <= 0.0).any():
+                raise self.refusal(f"channel {channel}'s beam turns 90 degrees or more off the optical axis (or "
+                                   f"would with {CHECK_INDEX_MARGIN:.0%} more refractive index)")
 
     @property
     def n_beams(self) -> int:
@@ -158,10 +161,12 @@ class RisleyScanner(Checked):
         return []
 
     def prism_table(self) -> np.ndarray:
-        """(P, 5) float64 per prism: wedge (rad), refractive index, rotation (rad/s), start (rad), 1 when the
-        exit face is the inclined one: what the kernels read."""
+        """(P, 7) float64 per prism: wedge (rad), refractive index, rotation (rad/s), start (rad), 1 when the
+        exit face is the inclined one, and the wedge's sine and cosine (not taken per pulse): what the
+        kernels read."""
         return np.array([[math.radians(p.wedge_deg), p.refractive_index, 2 * math.pi * p.rotation_hz,
-                          math.radians(p.start_deg), 1.0 if p.inclined_face == "exit" else 0.0]
+                          math.radians(p.start_deg), 1.0 if p.inclined_face == "exit" else 0.0,
+                          math.sin(math.radians(p.wedge_deg)), math.cos(math.radians(p.wedge_deg))]
                          for p in self.prisms], dtype=np.float64)
 
     def incident(self) -> np.ndarray:
@@ -227,7 +232,8 @@ def refract_through(scanner: RisleyScanner, phi: np.ndarray, channel: int) -> np
 
 def _refracted(table: np.ndarray, incident: np.ndarray, phi: np.ndarray) -> np.ndarray:
     out = np.empty((len(phi), 3))
-    _refract_many(np.ascontiguousarray(phi, dtype=np.float64), table, incident, out)
+    phi = np.asarray(phi, dtype=np.float64)
+    _refract_many(np.ascontiguousarray(np.cos(phi)), np.ascontiguousarray(np.sin(phi)), table, incident, out)
     return out
 
 
@@ -251,7 +257,7 @@ def _through_prisms(dx: float, dy: float, dz: float, table: np.ndarray, cos_phi:
     """A direction through every prism of ``table`` (``RisleyScanner.prism_table``), each turned to
     the azimuth whose cosine and sine are given."""
     for p in range(table.shape[0]):
-        sw, cw, index = math.sin(table[p, 0]), math.cos(table[p, 0]), table[p, 1]
+        sw, cw, index = table[p, 5], table[p, 6], table[p, 1]
         tilted = (sw * cos_phi[p], sw * sin_phi[p], -cw)
         if table[p, 4] == 0.0:  # the entrance face inclined, the exit face flat
             dx, dy, dz = _refract(dx, dy, dz, tilted[0], tilted[1], tilted[2], 1.0 / index)
@@ -262,14 +268,12 @@ def _through_prisms(dx: float, dy: float, dz: float, table: np.ndarray, cos_phi:
     return dx, dy, dz
 
 
-@nb.njit(cache=True)
-def _refract_many(phi: np.ndarray, table: np.ndarray, incident: np.ndarray, out: np.ndarray) -> None:
-    cos_phi, sin_phi = np.empty(table.shape[0]), np.empty(table.shape[0])
-    for i in range(phi.shape[0]):
-        for p in range(table.shape[0]):
-            cos_phi[p], sin_phi[p] = math.cos(phi[i, p]), math.sin(phi[i, p])
-        out[i, 0], out[i, 1], out[i, 2] = _through_prisms(incident[0], incident[1], incident[2], table, cos_phi,
-                                                          sin_phi)
+@nb.njit(cache=True, parallel=True)
+def _refract_many(cos_phi: np.ndarray, sin_phi: np.ndarray, table: np.ndarray, incident: np.ndarray,
+                  out: np.ndarray) -> None:
+    for i in nb.prange(cos_phi.shape[0]):
+        out[i, 0], out[i, 1], out[i, 2] = _through_prisms(incident[0], incident[1], incident[2], table, cos_phi[i],
+                                                          sin_phi[i])
 
 
 @nb.njit(cache=True, parallel=True, fastmath=_FAST)

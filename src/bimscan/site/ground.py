@@ -23,6 +23,7 @@ import zlib
 
 import numpy as np
 from matplotlib.path import Path as PolygonPath
+from scipy.spatial import ConvexHull
 
 from bimscan.site.placement import PlacedObject
 from bimscan.types import BimScene
@@ -35,13 +36,20 @@ YARD_KINDS = {"container": 0.4, "material_stack": 2.0, "pallet": 1.0, "waste_bin
               "scaffold_tower": 0.5}
 
 
-def ground_patch(scene: BimScene, margin_m: float) -> PlacedObject:
-    """The terrain patch of ``scene`` reaching ``margin_m`` beyond its footprint (see the module docs)."""
+def _site_plan(scene: BimScene) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The ground's height, the footprint's hull and its minimum-area rectangle (centre, long axis,
+    extents) of the (undressed) building ``scene``."""
     from bimscan.survey.flight import footprint_hull, ground_level, min_area_rectangle
 
     vertices = scene.mesh.vertices
     z = ground_level(float(vertices[:, 2].min()), tuple(s.elevation_m for s in scene.storeys))
-    centre, u, extents = min_area_rectangle(footprint_hull(vertices[:, :2]))
+    hull = footprint_hull(vertices[:, :2])
+    return (z, hull, *min_area_rectangle(hull))
+
+
+def ground_patch(scene: BimScene, margin_m: float) -> PlacedObject:
+    """The terrain patch of ``scene`` reaching ``margin_m`` beyond its footprint (see the module docs)."""
+    z, _, centre, u, extents = _site_plan(scene)
     v = np.array([-u[1], u[0]])
     length, width = extents + 2 * margin_m
     nu, nv = max(1, math.ceil(length / GROUND_CELL_M)), max(1, math.ceil(width / GROUND_CELL_M))
@@ -62,16 +70,14 @@ def ground_patch(scene: BimScene, margin_m: float) -> PlacedObject:
 def yard_objects(scene: BimScene, margin_m: float, density: float, seed: int) -> list[PlacedObject]:
     """Site objects on the ground around the building (see the module docs), as placed objects."""
     from bimscan.site.library import CLUTTER_KINDS, make_site_container
-    from bimscan.survey.flight import footprint_hull, grown_ring, ground_level, min_area_rectangle
+    from bimscan.survey.flight import grown_ring
 
-    vertices = scene.mesh.vertices
-    z = ground_level(float(vertices[:, 2].min()), tuple(s.elevation_m for s in scene.storeys))
-    hull = footprint_hull(vertices[:, :2])
-    keep_out = PolygonPath(grown_ring(hull, YARD_CLEARANCE_M))
-    centre, u, extents = min_area_rectangle(hull)
+    z, hull, centre, u, extents = _site_plan(scene)
+    ring = grown_ring(hull, YARD_CLEARANCE_M)
+    keep_out = PolygonPath(ring)
     v = np.array([-u[1], u[0]])
     length, width = extents + 2 * margin_m
-    area = length * width - abs(_polygon_area(keep_out.vertices))
+    area = length * width - ConvexHull(ring).volume  # a 2-D hull's volume is its area
     count = int(round(density * max(area, 0.0) / 100.0))
     rng = np.random.default_rng(np.random.SeedSequence([seed, zlib.crc32(scene.file_sha256.encode()), 0x79617264]))
     names = list(YARD_KINDS)
@@ -104,8 +110,3 @@ def yard_objects(scene: BimScene, margin_m: float, density: float, seed: int) ->
             discs.append((float(x), float(y), radius))
             break
     return placed
-
-
-def _polygon_area(points: np.ndarray) -> float:
-    x, y = points[:, 0], points[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))

@@ -1,13 +1,14 @@
 """How well a scan from outside covers a building's outer surface, element by element (the check of
 a drone's flight: every roof and facade element seen at a density, or listed with why not).
 
-The outer surface: the model's triangles (the ground and the site's objects left out) sampled
-about every ``SAMPLE_M`` (area-weighted, seeded); a sample is outer when a ray leaving it along
-its face's normal, or tilted ``OPEN_TILT_DEG`` from it towards any of four sides, escapes the
-building (meets nothing): so a facade under an overhang still counts, a face against another
+The outer surface: the model's triangles (the ground and the site's objects left out) sampled as
+the survey planner samples them (``planning.surface.sample_surfaces``, one sample per
+``SAMPLE_M`` squared, seeded); a sample is outer when a ray leaving it along its face's normal
+(either side: a face's winding does not matter), or tilted ``OPEN_TILT_DEG`` from it towards any
+of four sides, escapes the building (meets nothing): so a facade under an overhang still counts, a face against another
 element or inside the building does not. A sample is covered when the scan's points within
 ``radius_m`` of it give at least ``density_per_m2`` points per square metre (count / (pi r^2)).
-An element's coverage is its covered share of its outer samples; elements with fewer than
+An element's coverage is the covered share of its outer samples' area; elements with fewer than
 ``MIN_OUTER_SAMPLES`` outer samples are too small to judge and left out. ``bimscan coverage``
 writes the table (``coverage_csv``).
 """
@@ -26,6 +27,7 @@ from scipy.spatial import cKDTree
 from bimscan.scan.probe import Prober
 from bimscan.site.classes import SITE_CLASSES
 from bimscan.survey.flight import ground_level
+from bimscan.survey.planning.surface import SurfaceSamples, sample_surfaces
 from bimscan.types import BimScene, SceneMesh
 
 SAMPLE_M = 0.25
@@ -62,35 +64,28 @@ class ElementCoverage:
 
 
 def outer_samples(scene: BimScene, *, sample_m: float = SAMPLE_M, seed: int = 0,
-                  threads: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Samples of the building's outer surface (see the module docs): positions (S, 3), their faces'
-    unit normals (S, 3) and components (S,) int64."""
+                  threads: int = 0) -> tuple[SurfaceSamples, np.ndarray]:
+    """Samples of the building's outer surface (see the module docs): the planner's surface samples
+    (``planning.surface.sample_surfaces``, one per ``sample_m`` squared) that are outer, and (S, 3)
+    their outward unit normals (the side whose rays escape: faces wound either way are judged alike)."""
     table, mesh = scene.components, scene.mesh
     building = ~np.isin(table.ifc_class, list(SITE_CLASSES))
+    samples = sample_surfaces(mesh, building, samples_per_m2=1.0 / sample_m**2, min_samples=1, seed=seed)
     faces_kept = building[mesh.face_component]
-    solid = SceneMesh(vertices=mesh.vertices, faces=mesh.faces[faces_kept],
-                      face_component=mesh.face_component[faces_kept])
-    tri = mesh.vertices[solid.faces]
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    area = np.linalg.norm(cross, axis=1) / 2
-    normal = cross / np.maximum(2 * area, 1e-12)[:, None]
-    rng = np.random.default_rng([seed, 0x636F76])  # "cov"
-    counts = rng.poisson(area / sample_m**2)
-    face = np.repeat(np.arange(len(area)), counts)
-    u, v = rng.random(len(face)), rng.random(len(face))
-    flip = u + v > 1
-    u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
-    points = tri[face, 0] + u[:, None] * (tri[face, 1] - tri[face, 0]) + v[:, None] * (tri[face, 2] - tri[face, 0])
-    normals = normal[face]
-    prober = Prober(solid, threads=threads)
-    outer = np.zeros(len(face), dtype=bool)
-    for direction in _open_directions(normals):
-        remaining = np.flatnonzero(~outer)
-        if len(remaining) == 0:
-            break
-        t, _ = prober.cast(points[remaining] + ESCAPE_OFFSET_M * direction[remaining], direction[remaining])
-        outer[remaining[~np.isfinite(t)]] = True
-    return points[outer], normals[outer], solid.face_component[face[outer]].astype(np.int64)
+    prober = Prober(SceneMesh(vertices=mesh.vertices, faces=mesh.faces[faces_kept],
+                              face_component=mesh.face_component[faces_kept]), threads=threads)
+    outward = samples.normal.copy()
+    outer = np.zeros(len(samples), dtype=bool)
+    for side in (1.0, -1.0):
+        for direction in _open_directions(side * samples.normal):
+            remaining = np.flatnonzero(~outer)
+            if len(remaining) == 0:
+                break
+            t, _ = prober.cast(samples.xyz[remaining] + ESCAPE_OFFSET_M * direction[remaining], direction[remaining])
+            escaped = remaining[~np.isfinite(t)]
+            outer[escaped] = True
+            outward[escaped] = side * samples.normal[escaped]
+    return samples.take(np.flatnonzero(outer)), outward[outer]
 
 
 def _open_directions(normals: np.ndarray) -> list[np.ndarray]:
@@ -108,7 +103,8 @@ def element_coverage(scene: BimScene, chunks: Iterable[np.ndarray], *, density_p
     """Each outer element's covered share (see the module docs) by a scan's points, given as chunks of
     (N, 3) world metres (one array, or a stream: the counts add up chunk by chunk, so memory stays
     that of one chunk), sorted by share (least covered first)."""
-    xyz, normals, component = outer_samples(scene, sample_m=sample_m, threads=threads)
+    samples, normals = outer_samples(scene, sample_m=sample_m, threads=threads)
+    xyz, component, area = samples.xyz, samples.component, samples.area_m2
     near = np.zeros(len(xyz), dtype=np.int64)
     for points in ([chunks] if isinstance(chunks, np.ndarray) else chunks):
         if len(points):
@@ -129,9 +125,9 @@ def element_coverage(scene: BimScene, chunks: Iterable[np.ndarray], *, density_p
         nz = float(np.median(normals[mine, 2]))
         facing = "up" if nz > 0.5 else "down" if nz < -0.5 else "side"
         out.append(ElementCoverage(component=int(c), global_id=str(table.global_id[c]), ifc_class=str(table.ifc_class[c]),
-                                   name=str(table.name[c]), outer_m2=float(mine.sum() * sample_m**2),
-                                   covered_share=float(covered[mine].mean()), facing=facing,
-                                   buried=float((xyz[mine, 2] < ground_z).mean())))
+                                   name=str(table.name[c]), outer_m2=float(area[mine].sum()),
+                                   covered_share=float(np.average(covered[mine], weights=area[mine])), facing=facing,
+                                   buried=float(np.average(xyz[mine, 2] < ground_z, weights=area[mine]))))
     return sorted(out, key=lambda e: (e.covered_share, e.global_id))
 
 

@@ -36,6 +36,7 @@ linear, as for any trajectory.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -293,13 +294,19 @@ def _distance_to_ring(points: np.ndarray, ring: np.ndarray) -> np.ndarray:
     return np.linalg.norm(points[:, None, :] - (a + t[..., None] * ab), axis=-1).min(axis=1)
 
 
-def lidar_half_extent_deg(lidar: Lidar) -> tuple[float, float]:
-    """A Risley lidar's pattern half-extents along its sensor x and y axes (degrees); ConfigError for a
-    lidar a flight cannot point (a spinning multi-beam lidar: the drone's gimbal points an optical
-    axis)."""
+def check_pointable(lidar: Lidar) -> RisleyScanner:
+    """The lidar, when a flight can point it; ConfigError for a spinning multi-beam lidar (the drone's
+    gimbal points an optical axis)."""
     if not isinstance(lidar, RisleyScanner):
         raise ConfigError(f"a drone flight points a Risley-prism lidar's optical axis; {getattr(lidar, 'name', lidar)} "
                           "is a spinning multi-beam lidar: give --scanner dji_zenmuse_l2, livox_avia, livox_mid70 or "
                           "another Risley lidar")
-    x, y = lidar.pattern_extent_deg()
+    return lidar
+
+
+@functools.lru_cache(maxsize=16)
+def lidar_half_extent_deg(lidar: Lidar) -> tuple[float, float]:
+    """A Risley lidar's pattern half-extents along its sensor x and y axes (degrees; measured once per
+    lidar: a second of its pulses); ConfigError as ``check_pointable``."""
+    x, y = check_pointable(lidar).pattern_extent_deg()
     return x / 2, y / 2

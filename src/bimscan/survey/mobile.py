@@ -50,9 +50,9 @@ class MobileScan(Checked):
 
     def check(self) -> None:
         if self.platform.flies:
-            from bimscan.survey.flight import lidar_half_extent_deg
+            from bimscan.survey.flight import check_pointable
 
-            lidar_half_extent_deg(self.lidar)  # a lidar the flight can point, or refused
+            check_pointable(self.lidar)
             if isinstance(self.drift, DriftModel) and not self.drift.is_off:
                 raise self.refusal("SLAM drift (--drift) is a walking platform's error; a drone's position comes from "
                                    "GNSS/INS: give --gnss instead")
