@@ -222,7 +222,7 @@ def coverage(model: Path, cloud: Path, out: Path, density_pts_m2: float, radius_
     share covered at --density within --radius, the share below the ground, and 'covered' or why not
     (below the ground, facing down, not reached). For a drone's flight, or any scan in the model's
     coordinates (align a site scan first: 'bimscan align'). The cloud is read in chunks."""
-    from bimscan.files import check_replaceable, write_atomic
+    from bimscan.files import check_input_file, check_replaceable, write_atomic
     from bimscan.io import iter_cloud_chunks
     from bimscan.pipeline import load_scene
     from bimscan.survey.coverage import coverage_csv, element_coverage
@@ -231,7 +231,8 @@ def coverage(model: Path, cloud: Path, out: Path, density_pts_m2: float, radius_
                                    ("--share", share, 0.0, 1.0)):
         if not low < value <= high:
             raise click.UsageError(f"{name} must be in ({low:g}, {high:g}], got {value:g}")
-    if out.exists() or out.is_symlink():
+    check_input_file(cloud, what="a point cloud (LAS/LAZ, E57, PLY, text or a NumPy folder)", folders=True)
+    if out.exists() or out.is_symlink():  # both before the (slow) model
         if not overwrite:
             raise click.UsageError(f"{out} already exists; pass --overwrite to replace it or choose another path")
         check_replaceable(out)
