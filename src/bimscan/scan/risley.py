@@ -268,10 +268,12 @@ def _through_prisms(dx: float, dy: float, dz: float, table: np.ndarray, cos_phi:
     return dx, dy, dz
 
 
-@nb.njit(cache=True, parallel=True)
+# Serial on purpose: it runs when the presets are read (at import), and a parallel Numba launch
+# there changed the numbers of PyTorch training later in the same process (its threading layer).
+@nb.njit(cache=True)
 def _refract_many(cos_phi: np.ndarray, sin_phi: np.ndarray, table: np.ndarray, incident: np.ndarray,
                   out: np.ndarray) -> None:
-    for i in nb.prange(cos_phi.shape[0]):
+    for i in range(cos_phi.shape[0]):
         out[i, 0], out[i, 1], out[i, 2] = _through_prisms(incident[0], incident[1], incident[2], table, cos_phi[i],
                                                           sin_phi[i])
 
