@@ -282,3 +282,48 @@ def test_progress_refuses_bad_asks_in_one_line(building_ifc, partial_scan, tmp_p
         error = capsys.readouterr().err
         assert error.count("\n") == 1 and words in error, error
         assert not (tmp_path / "out").exists()
+
+
+def test_each_element_keeps_the_same_lowest_priority_points_however_the_file_is_chunked():
+    from bimscan.compare.progress import _ElementSample, _offer
+
+    # the priority is splitmix64 of the point's place in the file (the reference, step by step in NumPy)
+    place = np.array([0, 1, 2, 12_345, 99_999_999, 2**40], dtype=np.int64)
+    with np.errstate(over="ignore"):  # splitmix64 multiplies modulo 2**64
+        z = place.astype(np.uint64) + np.uint64(0x9E3779B97F4A7C15) * np.uint64(3 + 1)
+        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        reference = z ^ (z >> np.uint64(31))
+    cut = np.array([np.uint64(2**63)], dtype=np.uint64)
+    offered = [_offer(int(p), np.array([0]), np.zeros(1, dtype=np.int64), cut, 3) for p in place.tolist()]
+    priority = np.concatenate([p for p, _ in offered])
+    keep = np.concatenate([k for _, k in offered])
+    assert np.array_equal(priority, reference)
+    assert np.array_equal(keep, reference < np.uint64(2**63))
+
+    rng = np.random.default_rng(5)
+    n = 60_000
+    xyz = rng.normal(size=(n, 3))
+    component = rng.integers(0, 4, n)
+    component[component == 3] = -1  # beyond the band: offered to nobody
+    signed = rng.normal(size=n)
+    kept = []
+    for step in (n, 7_001):
+        sample = _ElementSample(3, per_element=500, seed=3)
+        for first in range(0, n, step):
+            part = slice(first, first + step)
+            index = np.flatnonzero(component[part] >= 0)
+            sample.add(first, index, xyz[part], component[part], signed[part])
+        kept.append(sample.result())
+    (xyz_a, component_a, signed_a), (xyz_b, component_b, signed_b) = kept
+    assert np.bincount(component_a).tolist() == [500, 500, 500]
+    order_a, order_b = np.lexsort((signed_a, component_a)), np.lexsort((signed_b, component_b))
+    assert np.array_equal(component_a[order_a], component_b[order_b])
+    assert np.array_equal(xyz_a[order_a], xyz_b[order_b])
+    # and they are each element's 500 points of lowest priority over the whole file
+    everything = _offer(0, np.arange(n), np.maximum(component, 0), np.full(3, np.iinfo(np.uint64).max,
+                                                                          dtype=np.uint64), 3)[0]
+    for c in range(3):
+        mine = np.flatnonzero(component == c)
+        lowest = np.sort(mine[np.argsort(everything[mine])[:500]])
+        assert np.array_equal(np.sort(signed_a[component_a == c]), np.sort(signed[lowest]))

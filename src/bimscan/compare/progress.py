@@ -481,8 +481,7 @@ class _ElementSample:
     def add(self, first: int, index: np.ndarray, xyz: np.ndarray, component: np.ndarray, signed: np.ndarray) -> None:
         """Offer the rows ``index`` (K,) of a chunk whose first point is the file's ``first``: xyz (N, 3),
         component (N,), signed distance (N,)."""
-        priority = _priority(first + index, self.seed)
-        keep = priority < self.cut[component[index]]
+        priority, keep = _offer(first, index, component, self.cut, self.seed)
         rows = index[keep]
         self.parts.append((xyz[rows], component[rows], priority[keep], signed[rows]))
         self.held += len(rows)
@@ -521,12 +520,24 @@ class _ElementSample:
         return xyz[order], component[order], signed[order]
 
 
-def _priority(index: np.ndarray, seed: int) -> np.ndarray:
-    """A reproducible pseudo-random priority (uint64) of each point by its place in the file (splitmix64)."""
-    z = index.astype(np.uint64) + np.uint64(0x9E3779B97F4A7C15) * np.uint64(seed + 1)
-    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-    return z ^ (z >> np.uint64(31))
+@nb.njit(cache=True, parallel=True)
+def _offer(first: int, index: np.ndarray, component: np.ndarray, cut: np.ndarray,
+           seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """The priority (K,) uint64 of the rows ``index`` (K,) of a chunk whose first point is the file's
+    ``first`` (a reproducible pseudo-random number of the point's place in the file: splitmix64), and
+    whether it is below its element's ``cut`` (K,) bool. One pass, no temporaries: 100M points stream by."""
+    n = index.shape[0]
+    priority = np.empty(n, dtype=np.uint64)
+    keep = np.empty(n, dtype=np.bool_)
+    mix = np.uint64(0x9E3779B97F4A7C15) * np.uint64(seed + 1)
+    for i in nb.prange(n):
+        z = np.uint64(first + index[i]) + mix  # uint64 constants throughout: Numba turns uint64-int64 into floats
+        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        z = z ^ (z >> np.uint64(31))
+        priority[i] = z
+        keep[i] = z < cut[component[index[i]]]
+    return priority, keep
 
 
 def summary(result: ProgressResult, scene: BimScene) -> dict[str, Any]:
