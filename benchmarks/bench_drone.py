@@ -39,16 +39,19 @@ BIMSCAN = [str(Path(sys.executable).with_name("bimscan"))]  # the console script
 # Livox wiki, "Livox scanning pattern" (its Mid-40 FOV coverage curve, read off the figure, +-3 points)
 LIVOX_MID40_COVERAGE = {0.1: 0.20, 0.2: 0.37, 0.5: 0.68, 1.0: 0.92, 1.4: 0.98}
 DATASHEET_FOV = {"livox_mid40": "38.4 (circular)", "livox_mid70": "70.4 (circular)", "livox_avia": "70.4 x 77.2",
-                 "dji_zenmuse_l2": "70 x 75", "dji_zenmuse_l2_repetitive": "70 x 3"}
+                 "dji_zenmuse_l2": "70 x 75", "dji_zenmuse_l2_repetitive": "70 x 3",
+                 "livox_mid360": "360 x 59 (-7 to 52)"}
 
 
 def patterns() -> None:
     from bimscan.scan.risley import RISLEY_SCANNERS, fov_coverage
 
-    print("1. Patterns: field of view over 1 s against the datasheet (degrees, sensor x by y)")
+    print("1. Patterns: field of view over 1 s against the datasheet (degrees, sensor x by y; a spinning head's:")
+    print("   azimuth by elevation)")
     for name, lidar in RISLEY_SCANNERS.items():
         x, y = lidar.pattern_extent_deg()
-        print(f"   {name:26s} {x:6.1f} x {y:5.1f}   datasheet {DATASHEET_FOV.get(name, '?')}")
+        band = " (elevation {:.1f} to {:.1f})".format(*lidar.elevation_range_deg()) if lidar.spinning else ""
+        print(f"   {name:26s} {x:6.1f} x {y:5.1f}{band}   datasheet {DATASHEET_FOV.get(name, '?')}")
     mid40 = RISLEY_SCANNERS["livox_mid40"]
     spot = math.degrees(mid40.beam_divergence_rad)
     print(f"   Livox Mid-40 FOV coverage (spots {spot:.2f} degrees across) against Livox's curve:")
@@ -120,6 +123,9 @@ def helios_optics(helios: Path, assets: Path, work: Path) -> None:
     print("    (HELIOS++'s static tripod: the beam leaves 1.5 m above the leg, along its scanner frame's +Y: bimscan's")
     print("    sensor direction (x, y, z) is HELIOS++'s (x, z, -y); its pulse k fires at (k + 1) / rate)")
     for name, lidar in RISLEY_SCANNERS.items():
+        if lidar.spinning:
+            print(f"    {name}: not compared (HELIOS++'s Risley optics do not spin)")
+            continue
         folder = work / f"optics-{name}"
         folder.mkdir(parents=True, exist_ok=True)
         cube_obj(folder / "cube.obj", 100.0)

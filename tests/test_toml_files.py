@@ -29,8 +29,8 @@ KINDS = {
     "scanner": (load_scanner, SCANNERS, "scanner 'nope' is neither a file nor a known scanner (riegl_vz400); pass a "
                                         "scanner TOML file", lambda folder: _copy("riegl_vz400", folder)),
     "lidar": (load_lidar, MOBILE_LIDARS, "lidar 'nope' is neither a file nor a known lidar (hesai_xt32, velodyne_vlp16, "
-                                         "dji_zenmuse_l2, dji_zenmuse_l2_repetitive, livox_avia, livox_mid40, "
-                                         "livox_mid70); pass a scanner TOML file with kind = \"multibeam\" or \"risley\"",
+                                         "dji_zenmuse_l2, dji_zenmuse_l2_repetitive, livox_avia, livox_mid360, "
+                                         "livox_mid40, livox_mid70); pass a scanner TOML file with kind = \"multibeam\" or \"risley\"",
               lambda folder: _copy("velodyne_vlp16", folder)),
     "platform": (load_platform, PLATFORMS, "platform 'nope' is neither a file nor a known platform (tripod, handheld, "
                                            "backpack, drone); pass a platform TOML file",

@@ -64,7 +64,8 @@ def test_wedges_that_reflect_the_beam_totally_are_refused():
 @pytest.mark.parametrize("name", sorted(RISLEY_SCANNERS))
 def test_every_built_in_risley_pattern_spans_its_datasheet_field_of_view(name):
     scanner = RISLEY_SCANNERS[name]
-    wide = max(scanner.pattern_extent_deg())
+    across, along = scanner.pattern_extent_deg()
+    wide = along if scanner.spinning else max(across, along)  # a spinning head: 360 by its vertical FOV
     assert wide == pytest.approx(scanner.fov_deg, abs=1.0)
     with pytest.raises(ConfigError, match="Risley-prism lidar for mobile scanning"):
         load_scanner(name)
@@ -77,6 +78,55 @@ def test_the_datasheets_two_axis_fields_of_view():
     assert sorted([avia_x, avia_y]) == pytest.approx([70.4, 77.2], abs=0.5)
     line_x, line_y = RISLEY_SCANNERS["dji_zenmuse_l2_repetitive"].pattern_extent_deg()  # "70 x 3 degrees"
     assert line_y == pytest.approx(70.0, abs=0.5) and line_x < 6.0
+
+
+def test_the_mid360_like_head_scans_360_degrees_by_its_datasheet_band_at_200k_points_a_second():
+    """Livox Mid-360: "FOV 360 degrees horizontal, -7 to 52 degrees vertical", 200,000 points/s,
+    four lasers; the head's optics are assumed (its scanner file), the figures are Livox's."""
+    mid360 = RISLEY_SCANNERS["livox_mid360"]
+    assert mid360.spinning and mid360.n_beams == 4 and mid360.total_pulse_rate_hz == 200_000
+    low, high = mid360.elevation_range_deg(0.1)  # every frame (10 Hz) reaches both edges of the band
+    assert low == pytest.approx(-7.0, abs=0.05) and high == pytest.approx(52.0, abs=0.05)
+    azimuth_extent, _ = mid360.pattern_extent_deg(0.1)
+    assert azimuth_extent > 359.5
+    # the four lasers' bands abut: every degree of the band is reached within a second
+    t = np.arange(50_000) / mid360.pulse_rate_hz
+    elevation = np.degrees(np.arcsin(np.concatenate([mid360.directions(t, c)[:, 2] for c in range(4)])))
+    counts = np.histogram(elevation, bins=59, range=(-7.0, 52.0))[0]
+    assert counts.min() > 0.2 * counts.mean()
+    # non-repetitive: a frame does not retrace the last one
+    first, later = mid360.directions(t[:20000], 1), mid360.directions(t[:20000] + 0.1, 1)
+    assert np.degrees(np.arccos(np.clip((first * later).sum(axis=1), -1, 1))).mean() > 1.0
+
+
+def test_a_spinning_head_turns_the_optics_about_the_sensor_z_axis():
+    """The head's formula (scan.risley's docs) against the rotation it describes: the optics' frame
+    raised by the axis elevation, then turned by 360 spin_hz t about z."""
+    from scipy.spatial.transform import Rotation
+
+    head = RisleyScanner(name="head", prisms=(Prism(wedge_deg=8.0, rotation_hz=37.0),), channel_x_deg=(5.0,),
+                         channel_y_deg=(-3.0,), spin_hz=4.0, axis_elevation_deg=20.0)
+    still = dataclasses.replace(head, spin_hz=0.0, axis_elevation_deg=0.0)
+    t = np.linspace(0.0, 0.3, 11)
+    optics = still.directions(t)
+    # optics frame (x up-across, y, z along the axis) -> sensor frame at spin 0 and elevation 0: z -> x, x -> z
+    to_sensor = np.array([[0.0, 0.0, 1.0], [0.0, -1.0, 0.0], [1.0, 0.0, 0.0]])
+    for k, time in enumerate(t.tolist()):
+        turn = Rotation.from_euler("yz", [-20.0, 360.0 * 4.0 * time], degrees=True)  # about y, then about z
+        np.testing.assert_allclose(head.directions(np.array([time]))[0], turn.apply(to_sensor @ optics[k]), atol=1e-12)
+    with pytest.raises(ScannerSettingsError, match="axis_elevation_deg places a spinning head"):
+        dataclasses.replace(head, spin_hz=0.0)
+
+
+def test_a_spinning_head_is_refused_where_its_optics_cannot_go(tmp_path):
+    from bimscan.io.helios import helios_risley_scanner_xml
+    from bimscan.survey.flight import check_pointable
+
+    mid360 = RISLEY_SCANNERS["livox_mid360"]
+    with pytest.raises(ConfigError, match="do not spin"):
+        helios_risley_scanner_xml(mid360)
+    with pytest.raises(ConfigError, match="spinning head"):
+        check_pointable(mid360)
 
 
 def test_the_non_repetitive_pattern_does_not_repeat_and_the_repetitive_one_does():
@@ -152,6 +202,27 @@ def test_a_standing_risley_scan_in_a_closed_room_returns_every_pulse_along_the_o
         mine = cloud.ring == channel
         np.testing.assert_allclose(ray[mine], lidar.directions(cloud.time[mine], channel), atol=2e-5)
     np.testing.assert_allclose(cloud.sensor_xyz, [[4.0, 3.0, 1.5]] * len(cloud), atol=1e-9)
+
+
+def test_a_standing_mid360_scan_returns_every_pulse_along_its_spinning_optics(box):
+    _, scanner = box
+    lidar = RISLEY_SCANNERS["livox_mid360"]
+    platform = Platform(name="p", mounts=(Mount(height_m=1.2, tilt_deg=0.0),))  # upright: its head turns about z
+    recipe = ScanRecipe(noise=NoiseModel.off(), mobile=MobileScan(platform=platform, lidar=lidar))
+    t = np.array([0.0, 0.1])
+    still = Trajectory(t=t, xyz=np.array([[4.0, 3.0, 0.0]] * 2), roll=np.zeros(2), pitch=np.zeros(2),
+                       yaw=np.zeros(2), pass_id=np.zeros(2, dtype=np.int32))
+    cloud = PointCloud.concatenate(list(scanner.scan_pass(still, slice(None), 0, 0, recipe)))
+    assert len(cloud) == recipe.mobile.pass_pulses(0.1) == 4 * int(0.1 * 50000)  # a closed room: all return
+    ray = cloud.xyz - cloud.sensor_xyz
+    ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+    for channel in range(4):
+        mine = cloud.ring == channel
+        np.testing.assert_allclose(ray[mine], lidar.directions(cloud.time[mine], channel), atol=2e-5)
+    elevation = np.degrees(np.arcsin(np.clip(ray[:, 2], -1, 1)))
+    assert elevation.min() == pytest.approx(-7.0, abs=0.1) and elevation.max() == pytest.approx(52.0, abs=0.1)
+    azimuth = np.sort(np.degrees(np.arctan2(ray[:, 1], ray[:, 0])))
+    assert np.diff(np.r_[azimuth, azimuth[0] + 360]).max() < 1.0  # one turn of the head: all round
 
 
 def test_a_risley_scan_is_the_same_bytes_in_any_chunking(box):

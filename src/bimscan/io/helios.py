@@ -254,9 +254,12 @@ def helios_risley_scanner_xml(lidar: RisleyScanner) -> bytes:
     ``rotorFreqK_Hz``; ``refrIndexK``), the same channels (``incidentBeam``, in HELIOS++'s frame:
     ``RISLEY_FRAME_X_DEG``), pulse rate, accuracy, divergence, minimum range and wavelength.
     HELIOS++ starts every prism with its inclined face's normal at -90 degrees (entrance) or +90
-    degrees (exit) in bimscan's frame; ConfigError for a lidar whose prisms start elsewhere, or
-    with more than three prisms."""
+    degrees (exit) in bimscan's frame; ConfigError for a lidar whose prisms start elsewhere, with
+    more than three prisms, or on a spinning head (HELIOS++'s Risley optics do not spin)."""
     prisms = lidar.prisms
+    if lidar.spinning:
+        raise ConfigError(f"HELIOS++'s risley optics do not spin; {lidar.name}'s head turns at {lidar.spin_hz:g} Hz: "
+                          "export it with a Risley lidar without a spinning head, or with --scanner velodyne_vlp16")
     if len(prisms) > HELIOS_MAX_PRISMS:
         raise ConfigError(f"HELIOS++ models at most {HELIOS_MAX_PRISMS} prisms; {lidar.name} has {len(prisms)}")
     attributes = {"id": lidar.name, "name": lidar.description or lidar.name, "optics": "risley",

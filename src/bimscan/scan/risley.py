@@ -22,6 +22,14 @@ these keys with ``risley_from_helios`` (its forward +y is our +z; a positive ``a
 inclines the entrance face, a negative one the exit face; its prism angle at time 0 is our
 start_deg - 90 or + 90 degrees).
 
+A spinning head (``spin_hz`` not 0; the Livox Mid-360's 360-degree design): the prisms and lasers
+sit in a head that turns about the sensor's z axis. The optics above then live in the head's
+frame: its optical axis at elevation ``axis_elevation_deg`` above the sensor's xy plane, at
+azimuth psi = 360 spin_hz t, its x across the axis and upwards (a laser tilted towards +x looks
+higher), its y = z x x; a direction (dx, dy, dz) of the optics is, in the sensor frame,
+
+    dx (-sin e cos psi, -sin e sin psi, cos e) + dy (sin psi, -cos psi, 0) + dz (cos e cos psi, cos e sin psi, sin e).
+
 Firing: every channel fires ``pulse_rate_hz`` pulses a second, all channels at once, so pulse
 ``i`` of a pass is channel ``i mod C`` at ``t = (i div C) / pulse_rate_hz``; the scan kernels of
 the multi-beam lidars (``scan.multibeam``) read that as a firing sequence of ``C`` beams with
@@ -98,9 +106,23 @@ class RisleyScanner(Checked):
     max_range_m: float = setting(260.0, within=Range(0.0, 1e5, low_open=True))
     beam_divergence_rad: float = setting(0.0005, within=Range(0.0, 0.1))
     wavelength_nm: float = setting(905.0, within=Range(0.0, 1e5, low_open=True))
+    spin_hz: float = setting(0.0, within=Range(-1e3, 1e3), hint="turns per second of a spinning head; 0: none")
+    axis_elevation_deg: float = setting(0.0, within=Range(-90.0, 90.0), hint="degrees, a spinning head's optical axis")
 
     def refusal(self, problem: str) -> ScannerSettingsError:
         return ScannerSettingsError(f"scanner {self.name!r}: {problem}; fix the scanner file")
+
+    @property
+    def spinning(self) -> bool:
+        """The optics turn on a spinning head (a 360-degree field of view about the sensor's z)."""
+        return self.spin_hz != 0.0
+
+    def spin_table(self) -> np.ndarray:
+        """(4,) float64 what the kernels read of the head: 1 when it spins, its rate (rad/s), and the
+        cosine and sine of its optical axis's elevation."""
+        elevation = math.radians(self.axis_elevation_deg)
+        return np.array([1.0 if self.spinning else 0.0, 2 * math.pi * self.spin_hz, math.cos(elevation),
+                         math.sin(elevation)], dtype=np.float64)
 
     def check(self) -> None:
         if not 1 <= len(self.prisms) <= MAX_PRISMS:
@@ -110,6 +132,8 @@ class RisleyScanner(Checked):
                                f"{len(self.channel_x_deg)} and {len(self.channel_y_deg)}")
         if not self.min_range_m < self.max_range_m:
             raise self.refusal(f"need min_range_m < max_range_m, got {self.min_range_m} and {self.max_range_m}")
+        if self.axis_elevation_deg != 0.0 and not self.spinning:
+            raise self.refusal("axis_elevation_deg places a spinning head's optical axis; give spin_hz too, or leave it out")
         # every combination of the prisms' angles on a grid (coarser for more prisms: about
         # CHECK_COMBINATIONS in all), each index CHECK_INDEX_MARGIN higher, so that no angle between
         # the grid's comes near total reflection either (and none turns the beam further than that)
@@ -176,19 +200,39 @@ class RisleyScanner(Checked):
         return d / np.linalg.norm(d, axis=1, keepdims=True)
 
     def directions(self, t: np.ndarray, channel: int = 0) -> np.ndarray:
-        """(N, 3) the unit beam directions of ``channel`` at times t (seconds), in the sensor frame."""
+        """(N, 3) the unit beam directions of ``channel`` at times t (seconds), in the sensor frame
+        (a spinning head's turned by its spin)."""
         table = self.prism_table()
-        phi = table[:, 3][None, :] + np.asarray(t, dtype=np.float64)[:, None] * table[:, 2][None, :]
-        return refract_through(self, phi, channel)
+        t = np.asarray(t, dtype=np.float64)
+        optics = refract_through(self, table[:, 3][None, :] + t[:, None] * table[:, 2][None, :], channel)
+        if not self.spinning:
+            return optics
+        out = np.empty_like(optics)
+        _spin_many(optics, t, self.spin_table(), out)
+        return out
 
     def pattern_extent_deg(self, seconds: float = 1.0) -> tuple[float, float]:
-        """The pattern's full extent across the optical axis, towards x and towards y (degrees, as the
-        angle of the beam's projection on the xz and yz planes), over the pulses of every channel in
-        ``seconds``: the datasheet's "FOV a x b"."""
+        """The pattern's full extent over the pulses of every channel in ``seconds`` (degrees): the
+        datasheet's "FOV a x b". Across the optical axis, towards x and towards y (the angle of the
+        beam's projection on the xz and yz planes); a spinning head's: in azimuth about z, and in
+        elevation."""
         t = np.arange(int(seconds * self.pulse_rate_hz)) / self.pulse_rate_hz
         d = np.concatenate([self.directions(t, channel) for channel in range(self.n_beams)])
+        if self.spinning:
+            low, high = self.elevation_range_deg(seconds)
+            azimuth = np.sort(np.degrees(np.arctan2(d[:, 1], d[:, 0])))
+            widest_gap = float(np.diff(np.r_[azimuth, azimuth[0] + 360.0]).max())
+            return 360.0 - widest_gap, high - low
         x, y = np.degrees(np.arctan2(d[:, 0], d[:, 2])), np.degrees(np.arctan2(d[:, 1], d[:, 2]))
         return float(x.max() - x.min()), float(y.max() - y.min())
+
+    def elevation_range_deg(self, seconds: float = 1.0) -> tuple[float, float]:
+        """The lowest and highest elevation above the sensor's xy plane of every channel's pulses in
+        ``seconds`` (degrees): a spinning head's datasheet "vertical FOV -7 to 52 degrees"."""
+        t = np.arange(int(seconds * self.pulse_rate_hz)) / self.pulse_rate_hz
+        d = np.concatenate([self.directions(t, channel) for channel in range(self.n_beams)])
+        elevation = np.degrees(np.arcsin(np.clip(d[:, 2], -1.0, 1.0)))
+        return float(elevation.min()), float(elevation.max())
 
 
 def fov_coverage(directions: np.ndarray, fov_deg: float, spot_deg: float, *, cell_deg: float = 0.02) -> float:
@@ -278,17 +322,35 @@ def _refract_many(cos_phi: np.ndarray, sin_phi: np.ndarray, table: np.ndarray, i
                                                           sin_phi[i])
 
 
+@nb.njit(cache=True, inline="always")
+def _spun(dx: float, dy: float, dz: float, cos_psi: float, sin_psi: float, spin: np.ndarray) -> tuple:
+    """A direction of the optics in the sensor frame of a head turned to azimuth psi (module docs)."""
+    ce, se = spin[2], spin[3]
+    return (-dx * se * cos_psi + dy * sin_psi + dz * ce * cos_psi,
+            -dx * se * sin_psi - dy * cos_psi + dz * ce * sin_psi,
+            dx * ce + dz * se)
+
+
+@nb.njit(cache=True)
+def _spin_many(optics: np.ndarray, t: np.ndarray, spin: np.ndarray, out: np.ndarray) -> None:
+    for i in range(optics.shape[0]):
+        psi = spin[1] * t[i]
+        out[i, 0], out[i, 1], out[i, 2] = _spun(optics[i, 0], optics[i, 1], optics[i, 2], math.cos(psi),
+                                                math.sin(psi), spin)
+
+
 @nb.njit(cache=True, parallel=True, fastmath=_FAST)
 def risley_rays(first_pulse: np.int64, n: np.int64, n_beams: np.int64, cycle_s: float, t0: float, clock_origin: float,
-                prisms: np.ndarray, incident: np.ndarray, track_t: np.ndarray, track_xyz: np.ndarray, track_ypr: np.ndarray,
-                mount_xyz: np.ndarray, mount_rotation: np.ndarray, head_rad_s: float, centre: np.ndarray,
-                rays: np.ndarray, origin: np.ndarray, time: np.ndarray) -> None:
+                prisms: np.ndarray, spin: np.ndarray, incident: np.ndarray, track_t: np.ndarray, track_xyz: np.ndarray,
+                track_ypr: np.ndarray, mount_xyz: np.ndarray, mount_rotation: np.ndarray, head_rad_s: float,
+                centre: np.ndarray, rays: np.ndarray, origin: np.ndarray, time: np.ndarray) -> None:
     """``multibeam.moving_rays`` for a Risley scanner: pulses first_pulse .. first_pulse + n - 1 of a
     pass starting at ``t0`` (whole firing sequences: one pulse of each of the ``n_beams`` channels
     every ``cycle_s``). Each sequence's direction is its channels' ``incident`` beams (C, 3) through
     the ``prisms`` (``RisleyScanner.prism_table``) turned to their angles at the sequence's time since
     ``clock_origin`` (the trajectory's first time: the prisms start there at ``start_deg`` and keep
     turning between passes; seconds since it keep the angles exact whatever the clock's epoch),
+    turned by the spinning head (``RisleyScanner.spin_table``; on the same clock) when it spins,
     then by the sequence's pose."""
     first_sequence = first_pulse // n_beams
     n_sequences = n // n_beams
@@ -304,10 +366,14 @@ def risley_rays(first_pulse: np.int64, n: np.int64, n_beams: np.int64, cycle_s: 
         k, lx, ly, lz, w00, w01, w02, w10, w11, w12, w20, w21, w22 = sequence_pose(
             t, track_t, track_ypr, mount_xyz, mount_rotation, head_rad_s)
         ox, oy, oz = pulse_origin(t, k, track_t, track_xyz, lx, ly, lz)
+        psi = spin[1] * (t - clock_origin)
+        cos_psi, sin_psi = math.cos(psi), math.sin(psi)
         for b in range(n_beams):
             i = q * n_beams + b
             dx, dy, dz = _through_prisms(incident[b, 0], incident[b, 1], incident[b, 2], prisms, phase[q, 0],
                                          phase[q, 1])
+            if spin[0] != 0.0:
+                dx, dy, dz = _spun(dx, dy, dz, cos_psi, sin_psi, spin)
             origin[i, 0] = ox
             origin[i, 1] = oy
             origin[i, 2] = oz

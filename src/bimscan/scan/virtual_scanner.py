@@ -530,11 +530,11 @@ def _moving_ray_kernel(lidar: Lidar, rotation_hz: float | None, clock_origin: fl
     prisms' clock starting at ``clock_origin``, the trajectory's first time)."""
     cycle_s, n_beams, t0 = lidar.firing_cycle_us * 1e-6, np.int64(lidar.n_beams), float(track_t[0])
     if isinstance(lidar, RisleyScanner):
-        prisms, incident = lidar.prism_table(), lidar.incident()
+        prisms, spin, incident = lidar.prism_table(), lidar.spin_table(), lidar.incident()
 
         def fill(first: int, n: int, rays: np.ndarray, origin: np.ndarray, time: np.ndarray) -> None:
-            risley_rays(np.int64(first), np.int64(n), n_beams, cycle_s, t0, clock_origin, prisms, incident, track_t,
-                        track_xyz, track_ypr, lever, mount_rotation, head_rad_s, centre, rays, origin, time)
+            risley_rays(np.int64(first), np.int64(n), n_beams, cycle_s, t0, clock_origin, prisms, spin, incident,
+                        track_t, track_xyz, track_ypr, lever, mount_rotation, head_rad_s, centre, rays, origin, time)
         return fill
     firing = np.asarray(lidar.firing_offset_us, dtype=np.float64) * 1e-6
     elevation = np.radians(np.asarray(lidar.beam_elevation_deg, dtype=np.float64))

@@ -296,11 +296,11 @@ def _distance_to_ring(points: np.ndarray, ring: np.ndarray) -> np.ndarray:
 
 def check_pointable(lidar: Lidar) -> RisleyScanner:
     """The lidar, when a flight can point it; ConfigError for a spinning multi-beam lidar (the drone's
-    gimbal points an optical axis)."""
-    if not isinstance(lidar, RisleyScanner):
+    gimbal points an optical axis), or a Risley lidar on a spinning head (the Livox Mid-360's)."""
+    if not isinstance(lidar, RisleyScanner) or lidar.spinning:
+        what = "a spinning multi-beam lidar" if not isinstance(lidar, RisleyScanner) else "a Risley lidar on a spinning head"
         raise ConfigError(f"a drone flight points a Risley-prism lidar's optical axis; {getattr(lidar, 'name', lidar)} "
-                          "is a spinning multi-beam lidar: give --scanner dji_zenmuse_l2, livox_avia, livox_mid70 or "
-                          "another Risley lidar")
+                          f"is {what}: give --scanner dji_zenmuse_l2, livox_avia, livox_mid70 or another Risley lidar")
     return lidar
 
 
