@@ -291,6 +291,38 @@ def json_marker(data: bytes | None, key: str, value: object = None) -> bool:
 _REPLACE_ADVICE = "bimscan replaces only what it wrote: choose another output or remove it yourself"
 
 
+# An IFC file names who wrote it in its header (FILE_NAME's author list): bimscan's IFC outputs add
+# an author starting with this (make-building's building, furnish's and progress's copies), so that a
+# user's own model, which an IFC's first bytes cannot tell from bimscan's, is never replaced.
+IFC_AUTHOR_PREFIX = "bimscan "
+_IFC_HEADER_BYTES = 1 << 16
+
+
+def ifc_authors(path: str | Path) -> tuple[str, ...] | None:
+    """The author list of the FILE_NAME of the IFC (STEP) file at ``path``'s header, or None when
+    its first 64 KiB hold no readable FILE_NAME."""
+    head = file_head(Path(path), _IFC_HEADER_BYTES)
+    if head is None:
+        return None
+    text = head.decode("latin-1")
+    end = text.find("ENDSEC;")
+    match = re.search(r"FILE_NAME\s*\(\s*'(?:[^']|'')*'\s*,\s*'(?:[^']|'')*'\s*,\s*\(([^)]*)\)",
+                      text[: end if end >= 0 else len(text)])
+    if match is None:
+        return None
+    return tuple(item.replace("''", "'") for item in re.findall(r"'((?:[^']|'')*)'", match.group(1)))
+
+
+def mark_ifc_written_by(model: Any, command: str) -> None:
+    """Add the author "bimscan COMMAND" to the FILE_NAME of an IfcOpenShell ``model``'s header,
+    after the model's own authors (``IFC_AUTHOR_PREFIX``: what lets bimscan replace it later)."""
+    header = model.header.file_name
+    mine = IFC_AUTHOR_PREFIX + command
+    authors = tuple(a for a in header.author if a)
+    if mine not in authors:
+        header.author = authors + (mine,)
+
+
 def _file_problem(path: Path) -> str | None:
     """Why the regular file at ``path`` is not an output bimscan may replace, or None."""
     found = file_signatures(path)
@@ -302,9 +334,11 @@ def _file_problem(path: Path) -> str | None:
             head = handle.read(max(len(s) for s in signatures))
     except OSError as exc:
         return f"cannot be read ({exc.strerror or exc})"
-    if any(head.startswith(s) for s in signatures):
-        return None
-    return f"is a file not in the format of a {ending} file" + (" (it is empty)" if not head else "")
+    if not any(head.startswith(s) for s in signatures):
+        return f"is a file not in the format of a {ending} file" + (" (it is empty)" if not head else "")
+    if ending == ".ifc" and not any(a.startswith(IFC_AUTHOR_PREFIX) for a in ifc_authors(path) or ()):
+        return "is an IFC model bimscan did not write (no author in its header's FILE_NAME is bimscan)"
+    return None
 
 
 def replace_problem(path: str | Path, *, kind: str | None = None) -> str | None:

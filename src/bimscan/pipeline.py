@@ -170,14 +170,15 @@ def site_and_stations(scene: BimScene, recipe: ScanRecipe, *, progress: bool = F
 
 
 def furnish_model(model: str | Path, out: str | Path, recipe: ScanRecipe, *,
-                  scheme: str | Path | LabelScheme | None = None) -> BimScene:
+                  scheme: str | Path | LabelScheme | None = None, overwrite: bool = False) -> BimScene:
     """Write a copy of the IFC ``model`` dressed as the recipe's site (``bimscan furnish``): the
     placed objects as IfcFurniture / IfcBuildingElementProxy, the elements the stage leaves out
-    removed. Returns the dressed scene."""
+    removed. An existing ``out`` is replaced only with ``overwrite``, and only when bimscan wrote it.
+    Returns the dressed scene."""
     from bimscan.ifc.furnish import FurnishObject, check_furnished_output, write_furnished
     from bimscan.site import SITE_CLASSES
 
-    check_furnished_output(out)  # before the (slow) parse and dressing
+    check_furnished_output(out, source=model, overwrite=overwrite)  # before the (slow) parse and dressing
     scene = load_scene(model, scheme=scheme, threads=recipe.threads or None)
     dressed = build_site(scene, recipe)
     table, mesh = dressed.components, dressed.mesh
@@ -194,7 +195,7 @@ def furnish_model(model: str | Path, out: str | Path, recipe: ScanRecipe, *,
                                      object_type=cls, name=str(table.name[c]), storey=str(table.storey[c]),
                                      vertices=mesh.vertices[used], faces=inverse.reshape(-1, 3).astype(np.int32)))
     removed = set(scene.components.global_id.tolist()) - set(table.global_id.tolist())
-    write_furnished(model, out, objects, removed)
+    write_furnished(model, out, objects, removed, overwrite=overwrite)
     return dressed
 
 

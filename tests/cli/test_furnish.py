@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from bimscan.cli.main import main
+from bimscan.files import ifc_authors
 from bimscan.pipeline import build_site, load_scene
 from bimscan.survey.recipe import ScanRecipe
 from bimscan.site import ClutterSettings, SiteModel, StageSettings
@@ -82,3 +83,29 @@ def test_furnish_without_a_site_is_a_usage_error(box_room_ifc, tmp_path, capsys)
     assert main(["furnish", str(box_room_ifc), str(tmp_path / "same.ifc")]) != 0
     assert "nothing to furnish" in capsys.readouterr().err
     assert not (tmp_path / "same.ifc").exists()
+
+
+def test_furnish_never_replaces_the_model_or_a_model_bimscan_did_not_write(tmp_path, capsys):
+    from tests.conftest import build_box_room
+
+    theirs = build_box_room(tmp_path / "theirs.ifc", schema="IFC4")  # a model another tool wrote
+    assert not any(a.startswith("bimscan") for a in ifc_authors(theirs) or ())
+    before = theirs.read_bytes()
+    # the model itself, even with --overwrite
+    assert main(["furnish", str(theirs), str(theirs), "--clutter", "0.3", "--overwrite"]) == 1
+    assert "theirs.ifc is the model being furnished; write the copy to another file" in capsys.readouterr().err
+    # another of the user's models: kept without --overwrite, refused with it
+    from bimscan.ifc.generate import make_building
+
+    source = make_building(tmp_path / "office.ifc", seed=3, storeys=1).path
+    assert main(["furnish", str(source), str(theirs), "--clutter", "0.3"]) == 1
+    assert "theirs.ifc already exists; pass --overwrite" in capsys.readouterr().err
+    assert main(["furnish", str(source), str(theirs), "--clutter", "0.3", "--overwrite"]) == 1
+    assert "theirs.ifc is an IFC model bimscan did not write" in capsys.readouterr().err
+    assert theirs.read_bytes() == before
+    # its own copy: replaced when asked, its header naming bimscan after the model's authors
+    out = tmp_path / "furnished.ifc"
+    assert main(["furnish", str(source), str(out), "--clutter", "0.3"]) == 0
+    assert main(["furnish", str(source), str(out), "--clutter", "0.6", "--overwrite"]) == 0
+    assert ifc_authors(out) == ("bimscan make-building", "bimscan furnish")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["furnished.ifc", "office.ifc", "theirs.ifc"]

@@ -32,19 +32,38 @@ def test_make_building_with_the_same_seed_twice_gives_the_same_bytes(tmp_path: P
     assert (tmp_path / "a.ifc").read_bytes() == (tmp_path / "b.ifc").read_bytes()
 
 
-def test_make_building_replaces_an_existing_ifc_file_without_leaving_temporary_files(tmp_path: Path) -> None:
+def test_make_building_replaces_a_building_it_wrote_only_when_asked_and_leaves_no_temporary_files(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / "demo.ifc"
     assert main(["make-building", str(out), "--storeys", "1", "--seed", "1"]) == 0
     first = out.read_bytes()
-    assert main(["make-building", str(out), "--storeys", "1", "--seed", "2"]) == 0
+    assert main(["make-building", str(out), "--storeys", "1", "--seed", "2"]) == 1
+    assert capsys.readouterr().err.endswith("demo.ifc already exists; pass --overwrite to replace it or choose "
+                                            "another path\n")
+    assert out.read_bytes() == first
+    assert main(["make-building", str(out), "--storeys", "1", "--seed", "2", "--overwrite"]) == 0
     assert out.read_text().startswith("ISO-10303-21;") and out.read_bytes() != first
     assert [p.name for p in tmp_path.iterdir()] == ["demo.ifc"]
+
+
+def test_make_building_never_replaces_a_model_bimscan_did_not_write(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "theirs.ifc"
+    assert main(["make-building", str(out), "--storeys", "1", "--seed", "1"]) == 0
+    theirs = out.read_text().replace("('bimscan make-building')", "('Architect')")  # another tool's header
+    out.write_text(theirs)
+    assert main(["make-building", str(out), "--storeys", "1", "--seed", "2", "--overwrite"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "theirs.ifc is an IFC model bimscan did not write" in err
+    assert out.read_text() == theirs and [p.name for p in tmp_path.iterdir()] == ["theirs.ifc"]
 
 
 def test_make_building_never_replaces_a_file_that_is_not_ifc(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "demo.ifc"
     out.write_text("old content")  # a user's file that happens to end in .ifc
-    assert main(["make-building", str(out), "--storeys", "1"]) == 1
+    assert main(["make-building", str(out), "--storeys", "1", "--overwrite"]) == 1
     assert "demo.ifc is a file not in the format of a .ifc file; bimscan replaces only" in capsys.readouterr().err
     assert out.read_text() == "old content" and [p.name for p in tmp_path.iterdir()] == ["demo.ifc"]
 

@@ -40,7 +40,11 @@ from bimscan.ifc.generate.styles import DEFAULT_STYLE, MAX_STOREYS, MIN_STOREYS,
     "top storey's structure; working days (Monday to Friday) drawn from the seed. Every element is built "
     "by one task, so --at DATE keeps what stands that day.",
 )
-def make_building_command(out: Path, seed: int, storeys: int, style: str, schedule_start: str | None) -> None:
+@click.option("--overwrite", is_flag=True,
+              help="Replace OUT if bimscan wrote it (an IFC whose header names a bimscan author); a model of yours "
+                   "is refused, never replaced.")
+def make_building_command(out: Path, seed: int, storeys: int, style: str, schedule_start: str | None,
+                          overwrite: bool) -> None:
     """Write a procedural building to OUT (an .ifc file, IFC4).
 
     A seeded corridor block of the chosen style, rectangular or L, U, T shaped or notched:
@@ -48,9 +52,15 @@ def make_building_command(out: Path, seed: int, storeys: int, style: str, schedu
     beams, floor/roof slabs, ceilings, a stair, furniture, one IfcSpace per room; most
     rectangular residential buildings get an attic under a gable roof, and some buildings of two
     storeys or more a double-height hall. With --schedule, the IFC work schedule of its construction.
-    OUT is replaced if it exists; it is written atomically.
+    An existing OUT is kept unless --overwrite; OUT is written atomically.
     """
+    import os
+
+    from bimscan.errors import OutputError
     from bimscan.ifc.generate import make_building
+
+    if os.path.lexists(out) and not overwrite:
+        raise OutputError(f"{out} already exists; pass --overwrite to replace it or choose another path")
 
     building = make_building(out, seed=seed, storeys=storeys, style=style, schedule_start=schedule_start)
     plan = building.plan

@@ -204,8 +204,11 @@ def scan(model: Path, out: Path, preset: str | None, stations: str, seed: int, n
 @click.option("--seed", default=ScanRecipe.seed, show_default=True, type=int,
               help="Placement seed; same seed, same objects.")
 @click.option("--scheme", default=None, help=SCHEME_HELP)
+@click.option("--overwrite", is_flag=True,
+              help="Replace OUT if bimscan wrote it (an IFC whose header names a bimscan author); a model of "
+                   "yours is refused, never replaced, and so is MODEL itself.")
 @site_options
-def furnish(model: Path, out: Path, seed: int, scheme: str | None, site: SiteModel) -> None:
+def furnish(model: Path, out: Path, seed: int, scheme: str | None, overwrite: bool, site: SiteModel) -> None:
     """Write OUT.ifc: a copy of MODEL.ifc with the site's clutter as IfcFurniture and
     IfcBuildingElementProxy elements (ObjectType = bimscan's class, e.g. Clutter.Chair) and the
     elements the stage leaves out removed: the scene 'bimscan scan' with the same flags and
@@ -214,7 +217,7 @@ def furnish(model: Path, out: Path, seed: int, scheme: str | None, site: SiteMod
 
     if site.is_bare:
         raise click.UsageError("nothing to furnish: give --clutter DENSITY and/or --stage")
-    dressed = furnish_model(model, out, ScanRecipe(seed=seed, site=site), scheme=scheme)
+    dressed = furnish_model(model, out, ScanRecipe(seed=seed, site=site), scheme=scheme, overwrite=overwrite)
     click.echo(f"wrote {out}")
     line = describe_site(dressed.site)
     if line:

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.errors import OutputError
-from bimscan.files import atomic_output, check_replaceable
+from bimscan.files import atomic_output, check_replaceable, mark_ifc_written_by
 from bimscan.ifc.guid import derived_global_id, is_global_id
 from bimscan.ifc.schedule import open_model
 
@@ -88,6 +88,7 @@ def write_property_sets(source: str | Path, out: str | Path,
     source = Path(source)
     out = check_annotated_output(out, source=source, overwrite=overwrite)
     model = open_model(source)
+    mark_ifc_written_by(model, "annotate")
     elements = cleared = 0
     missing: set[int] = set()
     repaired = _set_global_ids(model, {int(k): v for k, v in (global_ids or {}).items()}, missing)

@@ -11,6 +11,7 @@ length unit. Partly opened ceilings stay whole in the copy (only their panels ar
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.errors import OutputError
-from bimscan.files import atomic_output, check_replaceable
+from bimscan.files import atomic_output, check_replaceable, mark_ifc_written_by
 from bimscan.ifc.schedule import open_model
 
 
@@ -37,28 +38,37 @@ class FurnishObject:
     faces: np.ndarray
 
 
-def check_furnished_output(out: str | Path) -> Path:
+def check_furnished_output(out: str | Path, *, source: str | Path | None = None, overwrite: bool = False) -> Path:
     """``out`` as a Path, or an OutputError now for a furnished copy that cannot be written there: not
-    ``.ifc``, a missing folder, or something there bimscan may not replace (``check_replaceable``)."""
+    ``.ifc``, a missing folder, the model ``source`` itself, something there without ``overwrite``, or
+    something there bimscan may not replace (``check_replaceable``: an IFC bimscan wrote)."""
     out = Path(out)
     if out.suffix.lower() != ".ifc":
         raise OutputError(f"output file must end in .ifc, got {str(out)!r}; name it like furnished.ifc")
     if not out.parent.is_dir():
         raise OutputError(f"output folder {str(out.parent)!r} does not exist; create it first")
-    check_replaceable(out)
+    if os.path.lexists(out):
+        if source is not None and Path(source).exists() and out.exists() and os.path.samefile(out, source):
+            raise OutputError(f"{out} is the model being furnished; write the copy to another file")
+        if not overwrite:
+            raise OutputError(f"{out} already exists; pass --overwrite to replace it or choose another path")
+        check_replaceable(out)
     return out
 
 
 def write_furnished(source: str | Path, out: str | Path, objects: Sequence[FurnishObject],
-                    removed: Iterable[str] = ()) -> int:
-    """Write the furnished copy of ``source`` to ``out`` (atomically); returns the elements added."""
+                    removed: Iterable[str] = (), *, overwrite: bool = False) -> int:
+    """Write the furnished copy of ``source`` to ``out`` (atomically; an existing ``out`` only with
+    ``overwrite``, and only an IFC bimscan wrote); returns the elements added. The copy's header adds
+    the author "bimscan furnish" to the model's own."""
     import ifcopenshell.api
     import ifcopenshell.api.geometry  # noqa: F401  (registers the geometry api)
     import ifcopenshell.util.representation
     import ifcopenshell.util.unit
 
-    source, out = Path(source), check_furnished_output(out)
+    source, out = Path(source), check_furnished_output(out, source=source, overwrite=overwrite)
     model = open_model(source)
+    mark_ifc_written_by(model, "furnish")
     run = ifcopenshell.api.run
     scale = ifcopenshell.util.unit.calculate_unit_scale(model)  # project units -> metres
     gone = set(removed)

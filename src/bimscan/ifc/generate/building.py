@@ -227,7 +227,7 @@ def _check_output_path(target: Path) -> None:
     folder = target.parent if str(target.parent) else Path(".")
     if not folder.is_dir():
         raise OutputError(f"output folder {str(folder)!r} does not exist; create it first or choose another path")
-    check_replaceable(target)  # an existing IFC file is replaced; a folder, a link or another file is not
+    check_replaceable(target)  # an existing IFC bimscan wrote is replaced; a user's model, a folder, a link are not
 
 
 def _write_atomically(target: Path, text: str) -> None:
