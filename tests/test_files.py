@@ -302,3 +302,43 @@ def test_a_users_files_in_an_output_folder_are_never_modified_or_removed(written
             assert users_files(placed) == kept
             if run == 0:
                 placed |= place(after)
+
+
+def test_an_ifc_model_or_a_picture_bimscan_did_not_write_is_never_replaced_one_it_wrote_is(tmp_path):
+    """An IFC's and a PNG's first bytes cannot tell a user's file from bimscan's: the IFC header's
+    FILE_NAME authors and the PNG's Software text can."""
+    from bimscan.files import check_replaceable, ifc_authors, png_software, record_output, replace_problem
+
+    def ifc(name: str, authors: str) -> Path:
+        path = tmp_path / name
+        path.write_text("ISO-10303-21;\nHEADER;\nFILE_DESCRIPTION(('ViewDefinition [CoordinationView]'),'2;1');\n"
+                        f"FILE_NAME('m.ifc','2020-01-01T00:00:00',({authors}),('Office (Main)'),'x','y','');\n"
+                        "FILE_SCHEMA(('IFC4'));\nENDSEC;\nDATA;\nENDSEC;\nEND-ISO-10303-21;\n")
+        return path
+
+    theirs = ifc("theirs.ifc", "'Architect','O''Brien'")
+    ours = ifc("ours.ifc", "'Architect','bimscan furnish'")
+    assert ifc_authors(theirs) == ("Architect", "O'Brien") and ifc_authors(ours) == ("Architect", "bimscan furnish")
+    assert "is an IFC model bimscan did not write" in replace_problem(theirs)
+    assert replace_problem(ours) is None
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    photo, picture = tmp_path / "photo.png", tmp_path / "picture.png"
+    Figure(figsize=(1, 1)).savefig(photo, format="png")  # matplotlib's own Software text
+    Figure(figsize=(1, 1)).savefig(picture, format="png", metadata={"Software": "bimscan"})
+    assert png_software(picture) == "bimscan" and png_software(photo).startswith("Matplotlib")
+    assert "is a picture bimscan did not write" in replace_problem(photo)
+    assert replace_problem(picture) is None
+    with pytest.raises(OutputError, match="bimscan replaces only what it wrote"):
+        check_replaceable(photo)
+
+    # in a folder bimscan made, a file its record lists is bimscan's whatever its header says
+    folder = prepare_output_folder(tmp_path / "run")
+    listed = folder / "curves.png"
+    Figure(figsize=(1, 1)).savefig(listed, format="png")
+    record_output(listed)
+    assert replace_problem(listed) is None

@@ -323,8 +323,32 @@ def mark_ifc_written_by(model: Any, command: str) -> None:
         header.author = authors + (mine,)
 
 
-def _file_problem(path: Path) -> str | None:
-    """Why the regular file at ``path`` is not an output bimscan may replace, or None."""
+# A PNG bimscan writes says so in a tEXt chunk (matplotlib's metadata), fixed so that the same
+# picture gives the same bytes: a user's picture, which a PNG's first bytes cannot tell from
+# bimscan's, is never replaced.
+PNG_SOFTWARE = "bimscan"
+
+
+def png_software(path: str | Path) -> str | None:
+    """The ``Software`` text of the PNG at ``path`` (a tEXt chunk before its image data), or None."""
+    head = file_head(Path(path), _IFC_HEADER_BYTES)
+    if head is None or not head.startswith(b"\x89PNG\r\n\x1a\n"):
+        return None
+    at = 8
+    while at + 8 <= len(head):
+        length, kind = int.from_bytes(head[at:at + 4], "big"), head[at + 4:at + 8]
+        if kind in (b"IDAT", b"IEND"):
+            return None
+        data = head[at + 8:at + 8 + length]
+        if kind == b"tEXt" and data.startswith(b"Software\0"):
+            return data[len(b"Software\0"):].decode("latin-1")
+        at += 12 + length
+    return None
+
+
+def _file_problem(path: Path, *, recorded: bool = False) -> str | None:
+    """Why the regular file at ``path`` is not an output bimscan may replace, or None. ``recorded``:
+    its folder's record lists it (bimscan wrote it there), so an IFC's or a PNG's mark is not asked for."""
     found = file_signatures(path)
     if found is None:
         return None
@@ -336,8 +360,12 @@ def _file_problem(path: Path) -> str | None:
         return f"cannot be read ({exc.strerror or exc})"
     if not any(head.startswith(s) for s in signatures):
         return f"is a file not in the format of a {ending} file" + (" (it is empty)" if not head else "")
+    if recorded:
+        return None
     if ending == ".ifc" and not any(a.startswith(IFC_AUTHOR_PREFIX) for a in ifc_authors(path) or ()):
         return "is an IFC model bimscan did not write (no author in its header's FILE_NAME is bimscan)"
+    if ending == ".png" and png_software(path) != PNG_SOFTWARE:
+        return "is a picture bimscan did not write (its PNG names no bimscan software)"
     return None
 
 
@@ -365,7 +393,7 @@ def replace_problem(path: str | Path, *, kind: str | None = None) -> str | None:
     if what is None:  # a regular file
         if wanted is not None:
             return f"is a file, not {wanted.what}"
-        return _file_problem(path)
+        return _file_problem(path, recorded=listed is not None and path.name in listed)
     if what != "a folder":
         return f"is {what}"
     try:

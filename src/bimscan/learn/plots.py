@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from bimscan.files import atomic_output, write_atomic
+from bimscan.files import PNG_SOFTWARE, atomic_output, write_atomic
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -138,6 +138,6 @@ def _figure(size_in: tuple[float, float], *, layout: str) -> Figure:
 
 
 def save_figure(figure: Figure, path: Path) -> None:
-    """Write a figure as PNG atomically (no software tag: same bytes for the same figure)."""
+    """Write a figure as PNG atomically (bimscan's fixed software tag, not matplotlib's version: same bytes for the same figure)."""
     with atomic_output(path) as temp:
-        figure.savefig(temp, format="png", dpi=110, metadata={"Software": None})
+        figure.savefig(temp, format="png", dpi=110, metadata={"Software": PNG_SOFTWARE})

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.errors import OutputError
-from bimscan.files import check_replaceable, write_atomic
+from bimscan.files import PNG_SOFTWARE, check_replaceable, write_atomic
 from bimscan.types import LabelScheme
 
 TITLE_PX = 46
@@ -63,7 +63,7 @@ def check_png_output(out: str | Path) -> Path:
         raise OutputError(f"{out}: pictures are written as PNG; give a path ending in .png")
     if not out.parent.is_dir():
         raise OutputError(f"output folder {out.parent} does not exist; create it first or choose another path")
-    check_replaceable(out)  # an existing PNG is replaced; a folder, a link or another file is not
+    check_replaceable(out)  # a PNG bimscan wrote is replaced; a user's picture, a folder, a link are not
     return out
 
 
@@ -94,7 +94,7 @@ def compose_png(panels: list[Panel], *, legend: list[tuple[str, tuple[int, int, 
         figure.legend(handles=handles, loc="lower center", ncols=min(len(handles), 8), frameon=False, fontsize=9,
                       bbox_to_anchor=(0.5, 2 / height), handlelength=1.2, columnspacing=1.2)
     buffer = io.BytesIO()
-    figure.savefig(buffer, format="png", dpi=DPI, metadata={"Software": "bimscan"})
+    figure.savefig(buffer, format="png", dpi=DPI, metadata={"Software": PNG_SOFTWARE})
     try:
         write_atomic(out, buffer.getvalue())
     except OSError as exc:

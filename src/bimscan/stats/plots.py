@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from bimscan.files import PNG_SOFTWARE
 from bimscan.stats.summary import AXES, DatasetStats
 
 if TYPE_CHECKING:
@@ -28,7 +29,7 @@ def _figure(width_in: float, height_in: float) -> Figure:
 def _png(figure: Figure) -> bytes:
     buffer = io.BytesIO()
     # Fixed metadata: the same statistics give the same bytes.
-    figure.savefig(buffer, format="png", metadata={"Software": "bimscan"})
+    figure.savefig(buffer, format="png", metadata={"Software": PNG_SOFTWARE})
     return buffer.getvalue()
 
 
