@@ -431,3 +431,65 @@ def test_a_dense_scene_too_wide_for_metres_is_labelled_with_a_warning(
 
     assert np.array_equal(np.sort(index), np.arange(len(xyz)))
     assert len(warned) == 1 and "it looks like centimetres" in warned[0]
+
+
+def _plane_scene() -> tuple[np.ndarray, np.ndarray]:
+    """Representatives 0.1 m apart of a wall (x = 0, 4 m x 2.5 m) and a floor (z = 0, 3 m x 3 m),
+    and their normals."""
+    y, z = np.meshgrid(np.arange(0.0, 4.0, 0.1), np.arange(0.0, 2.5, 0.1), indexing="ij")
+    wall = np.column_stack([np.zeros(y.size), y.ravel(), z.ravel()])
+    x, y = np.meshgrid(np.arange(0.5, 3.5, 0.1), np.arange(0.0, 3.0, 0.1), indexing="ij")
+    floor = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+    from bimscan.learn.regions import normals
+
+    xyz = np.concatenate([wall, floor])
+    return xyz, normals(xyz)
+
+
+def test_a_vertical_plane_gives_its_walls_and_others_the_class_most_of_it_has() -> None:
+    from bimscan.learn.regions import MIN_REGION, plane_votes
+
+    xyz, normal = _plane_scene()
+    wall = np.flatnonzero(xyz[:, 0] == 0.0)
+    floor = np.flatnonzero(xyz[:, 0] != 0.0)
+    assert np.abs(normal[wall, 0]).min() > 0.99 and np.abs(normal[floor, 2]).min() > 0.99
+    wc, beam, covering, slab, others = range(5)
+    votes = np.zeros((len(xyz), 5), dtype=np.float32)
+    votes[wall, wc] = 0.7
+    votes[wall, others] = 0.2
+    behind_desk = wall[(xyz[wall, 2] < 0.8) & (xyz[wall, 1] < 1.5)]  # the network said Others there
+    votes[behind_desk, wc], votes[behind_desk, others] = 0.3, 0.6
+    a_beam = wall[(xyz[wall, 2] > 2.35) & (xyz[wall, 1] > 3.5)]  # another class: left alone
+    votes[a_beam, beam] = 2.0
+    votes[floor, others] = 0.6  # a horizontal plane does not vote
+    votes[floor, slab] = 0.3
+    mine = np.arange(len(xyz))
+    after = plane_votes(xyz, normal, votes, mine, wc, others)
+    assert set(after[behind_desk].argmax(axis=1).tolist()) == {wc}
+    np.testing.assert_allclose(after[behind_desk, wc], 0.9, rtol=1e-6)  # the two classes' votes, summed on it
+    assert set(after[a_beam].argmax(axis=1).tolist()) == {beam}
+    np.testing.assert_array_equal(after[floor], votes[floor])
+    # only the representatives asked for come back, computed over all of them (the stripes around)
+    part = wall[::7]
+    np.testing.assert_array_equal(plane_votes(xyz, normal, votes, part, wc, others), after[part])
+    # a region too small to vote is left as it is
+    few = behind_desk[: MIN_REGION - 1]
+    np.testing.assert_array_equal(plane_votes(xyz[few], normal[few], votes[few], np.arange(len(few)), wc, others),
+                                  votes[few])
+
+
+def test_plane_votes_in_a_streamed_scene_do_not_depend_on_its_chunks_and_need_the_two_classes(
+    scene: tuple[Path, PointCloud], model: torch.nn.Module,
+) -> None:
+    path, _ = scene
+    evaluation = EvalConfig(plane_votes=True)
+    inputs = InputConfig(grid_m=0.25, features=("xyz",))
+    first = _label(model, path, evaluation=evaluation, inputs=inputs, chunk_points=10_000)
+    second = _label(model, path, evaluation=evaluation, inputs=inputs, chunk_points=333)
+    ordered = [np.empty(len(f[0]), np.uint8) for f in (first, second)]
+    for out, (index, prediction, _) in zip(ordered, (first, second)):
+        out[index] = prediction
+    np.testing.assert_array_equal(ordered[0], ordered[1])
+    with pytest.raises(LearnError, match="plane_votes: the model has no class 'Wall&Column'"):
+        label_scene(model, list_scenes([path])[0], class_names=("a", "b", "c", "d", "e"), blocks=BLOCKS,
+                    evaluation=evaluation, on_labels=lambda index, prediction: None)

@@ -18,8 +18,8 @@ F = TypeVar("F", bound=Callable[..., object])
 
 def inference_options(command: F) -> F:
     """The options evaluate and predict share: --device, --ensemble and how to label (--stride, --votes,
-    --label-neighbours, --batch-size, --max-passes, --weights, --seed: the checkpoint's [eval]
-    unless given)."""
+    --label-neighbours, --batch-size, --max-passes, --weights, --seed, --plane-votes: the checkpoint's
+    [eval] unless given)."""
     options = [
         click.option("--device", type=DEVICES, default=default_of(TrainConfig, "device"), show_default=True),
         click.option("--ensemble", "ensemble", multiple=True, type=click.Path(path_type=Path, dir_okay=False),
@@ -43,6 +43,9 @@ def inference_options(command: F) -> F:
         click.option("--seed", type=click.IntRange(min=0), default=None,
                      help="Seed of the shuffles that cut blocks into groups. Default: the checkpoint's [eval] seed, "
                           "else its training seed (as sim2real scores)."),
+        click.option("--plane-votes/--no-plane-votes", "plane_votes", default=None,
+                     help="Each vertical planar region gives its Wall&Column and Others points the one of the two "
+                          "most of them got. Default: the checkpoint's [eval] plane_votes (off)."),
     ]
     for option in reversed(options):  # decorators apply bottom-up: keep the listed order in --help
         command = option(command)
@@ -104,7 +107,7 @@ def train(config: Path, resume: bool, out_dir: Path | None, init: Path | None) -
 def evaluate(
     checkpoint: Path, scenes: tuple[Path, ...], out_dir: Path | None, label_field: str | None, mapping: Path | None,
     device: str, ensemble: tuple[Path, ...], stride_m: float | None, votes: int | None, label_neighbours: int | None,
-    batch_size: int | None, max_passes: int | None, weights: str | None, seed: int | None,
+    batch_size: int | None, max_passes: int | None, weights: str | None, seed: int | None, plane_votes: bool | None,
 ) -> None:
     """Score CHECKPOINT on labelled SCENE... (every point): OA, mIoU, mAcc, FWIoU, kappa per scene.
 
@@ -122,7 +125,8 @@ def evaluate(
         check_evaluation_output(out_dir)  # before the checkpoint and scenes are read
     label_mapping = None if mapping is None else load_label_mapping(mapping)
     evaluation = evaluation_settings(checkpoint, stride_m=stride_m, votes=votes, label_neighbours=label_neighbours,
-                                     batch_size=batch_size, max_passes=max_passes, weights=weights, seed=seed)
+                                     batch_size=batch_size, max_passes=max_passes, weights=weights, seed=seed,
+                                     plane_votes=plane_votes)
     results = evaluate_checkpoint(
         checkpoint, scenes, label_field=label_field, mapping=label_mapping, device=device, evaluation=evaluation,
         warn=lambda line: click.echo(f"warning: {line}", err=True), ensemble=ensemble,
@@ -147,7 +151,7 @@ def evaluate(
 def predict(
     checkpoint: Path, in_path: Path, out_path: Path, overwrite: bool, device: str, ensemble: tuple[Path, ...],
     stride_m: float | None, votes: int | None, label_neighbours: int | None, batch_size: int | None, max_passes: int | None,
-    weights: str | None, seed: int | None,
+    weights: str | None, seed: int | None, plane_votes: bool | None,
 ) -> None:
     """Label every point of the scan IN with CHECKPOINT and write OUT (.laz/.las/.ply/.e57 or a folder;
     a text cloud's own suffix for a text IN).
@@ -164,7 +168,8 @@ def predict(
 
     check_prediction_output(in_path, out_path, overwrite=overwrite)  # before the checkpoint is read
     evaluation = evaluation_settings(checkpoint, stride_m=stride_m, votes=votes, label_neighbours=label_neighbours,
-                                     batch_size=batch_size, max_passes=max_passes, weights=weights, seed=seed)
+                                     batch_size=batch_size, max_passes=max_passes, weights=weights, seed=seed,
+                                     plane_votes=plane_votes)
     result = predict_cloud(
         checkpoint, in_path, out_path, device=device, evaluation=evaluation, overwrite=overwrite,
         warn=lambda line: click.echo(f"warning: {line}", err=True), ensemble=ensemble,

@@ -56,12 +56,14 @@ from bimscan.learn.features import extra_features
 from bimscan.learn.floors import TILE_M, FloorMap, FloorMapBuilder, storey_of
 from bimscan.learn.metrics import compute_confusion
 from bimscan.learn.model import autocast_context, check_finite_outputs, flush_denormals
+from bimscan.learn.regions import normals, plane_votes
 from bimscan.learn.train_config import IGNORE_LABEL, BlockConfig, EvalConfig, InputConfig
 from bimscan.progress import progress_bar
 
 SPREAD_CHUNK = 262_144  # points interpolated at a time (see spread_votes)
 SPREAD_CELLS = 1.5  # voxels per cell of the vote-spreading grid (bimscan.learn.neighbours)
 RECORD = np.dtype([("xyz", "<f8", (3,)), ("label", "u1"), ("index", "<i8")])
+PLANE_CLASSES = ("Wall&Column", "Others")  # the classes a vertical plane's votes settle ([eval] plane_votes)
 
 
 def stripe_record(*, components: bool, colour: bool) -> np.dtype:
@@ -201,6 +203,7 @@ class _Stripe:
     height: np.ndarray  # (R,) metres above the floor under each representative
     storey: np.ndarray  # (R,) int64 storey of each representative (blocks are cut per storey)
     cy: np.ndarray  # (R,) int64 row cell of each representative
+    normal: np.ndarray | None = None  # (R, 3) each representative's plane normal (plane votes only)
 
 
 @dataclass
@@ -234,6 +237,14 @@ class _Labeller:
         if self.elements > 0:
             self.element_counts = np.zeros((self.elements + 1, classes), dtype=np.int64)
         self.record = stripe_record(components=self.elements > 0, colour="rgb" in self.inputs.features)
+        self.plane_classes: tuple[int, int] | None = None
+        if self.evaluation.plane_votes:
+            missing = [name for name in PLANE_CLASSES if name not in self.class_names]
+            if missing:
+                raise LearnError(f"[eval] plane_votes: the model has no class {missing[0]!r} (its classes: "
+                                 f"{', '.join(self.class_names)}); label without --plane-votes")
+            self.plane_classes = (list(self.class_names).index(PLANE_CLASSES[0]),
+                                  list(self.class_names).index(PLANE_CLASSES[1]))
         self.stride = self.evaluation.stride_for(self.blocks.size_m)
         self.k = int(round(self.blocks.size_m / self.stride))
         self.runner = BlockRunner(self.model, device=self.device, batch_size=self.evaluation.batch_size, amp=self.amp,
@@ -342,7 +353,8 @@ class _Labeller:
         cy = np.floor((rep_xyz[:, 1] - self.origin[1]) / self.stride).astype(np.int64)
         self.network_points += len(reps)
         return _Stripe(records=records, reps=reps, rep_of=rep_of, votes=np.zeros((len(reps), len(self.class_names)),
-                       dtype=np.float32), height=height, storey=storey, cy=cy)
+                       dtype=np.float32), height=height, storey=storey, cy=cy,
+                       normal=normals(rep_xyz) if self.plane_classes is not None else None)
 
     def _label_stripes(self, counts: dict[int, int]) -> None:
         k = self.k
@@ -429,6 +441,12 @@ class _Labeller:
         nearest representatives'; the caller gets them and the confusion counts them."""
         records = stripe.records
         xyz = records["xyz"]
+        if self.plane_classes is not None:  # the regions over every representative in memory
+            around = [stripe, *neighbours]
+            stripe.votes = plane_votes(np.concatenate([s.records["xyz"][s.reps] for s in around]),
+                                       np.concatenate([s.normal for s in around]),  # type: ignore[misc]
+                                       np.concatenate([s.votes for s in around]), np.arange(len(stripe.reps)),
+                                       *self.plane_classes)
         pool = [(s.records["xyz"][s.reps], s.votes) for s in neighbours]
         votes = spread_votes(stripe.votes, xyz, stripe.reps, stripe.rep_of, self.evaluation.label_neighbours,
                              others=pool, cell_m=SPREAD_CELLS * self.inputs.grid_m)

@@ -298,7 +298,12 @@ class EvalConfig(Checked):
     ``batch_size``: blocks per forward pass (speed and memory only). ``max_passes`` > 0 caps the
     groups per block (points left out take their nearest voted neighbour's class; 0: every point
     seen). ``weights``: the EMA weights (Table 2) or the live ones. ``seed``: the shuffles'
-    (None: the training run's ``[train] seed``, the one ``sim2real`` scores with).
+    (None: the training run's ``[train] seed``, the one ``sim2real`` scores with). ``plane_votes``:
+    before a stripe's labels are final, each vertical planar region of the scene (its voxel
+    representatives grown through neighbours within ``PLANE_REACH_M`` whose normals differ by at
+    most ``PLANE_ANGLE_DEG``, the stripes in memory around it included) gives all its Wall&Column and
+    Others representatives the one of the two most of them got: a wall behind furniture takes the
+    class of the wall above it (:func:`bimscan.learn.regions.plane_votes`).
 
     A training run stores its ``[eval]`` with its checkpoint as that model's evaluation; commands
     that evaluate or predict use it unless told otherwise, and record what they used.
@@ -311,6 +316,7 @@ class EvalConfig(Checked):
     max_passes: int = setting(0, within=Range(0, 1 << 20), effect="scores")
     weights: Literal["ema", "live"] = setting("ema", effect="scores")
     seed: int | None = setting(None, within=Range(0, 2**63 - 1), effect="scores")
+    plane_votes: bool = setting(False, effect="scores")
 
     def with_seed(self, training_seed: int) -> EvalConfig:
         """This evaluation with its seed decided: its own, else the training run's."""
