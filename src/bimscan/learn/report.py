@@ -93,7 +93,8 @@ def format_report(experiment: Experiment, results: Sequence[VariantResult]) -> s
         lines.append(f"- **{r.variant}**:{text} {trained}; scored on {scored} real scene(s)"
                      f"{excluded}{folds}. {cost} {r.train_seconds / 60:.1f} min. Evaluation: columns every "
                      f"{r.evaluation['stride_m']} m, {r.evaluation['votes']} vote(s), label neighbours "
-                     f"{r.evaluation['label_neighbours']}. Confusion: `variants/{r.variant}/.../eval/confusion.png`.")
+                     f"{r.evaluation['label_neighbours']}{', plane votes' if r.evaluation.get('plane_votes') else ''}. "
+                     f"Confusion: `variants/{r.variant}/.../eval/confusion.png`.")
     scenes = sorted({s for r in results for s in r.scenes})
     lines += ["", "Per real scene (mIoU / κ, percent; - where a variant trained on it):", "",
               "| Scene | " + " | ".join(r.variant for r in results) + " |", "|---|" + "---:|" * len(results)]

@@ -19,6 +19,7 @@ from bimscan.render.survey_plan import frame_plan_view, storey_bands, storey_slu
 STATUS_COLORS = {"built": "#2ca02c", "built out of tolerance": "#ff7f0e", "not built": "#d62728",
                  "not visible": "#c7c7c7"}
 MAX_DOTS = 200_000  # per panel: a picture is for the eye
+DOT_PT = 1.4  # a surface sample's square, points across
 
 
 def _slug(prefix: str, index: int, name: str) -> str:
@@ -78,10 +79,12 @@ def _draw_status(path: Path, title: str, xyz: np.ndarray, status: np.ndarray, be
     for axis, members, heading in ((axes[0], below, "walls and floor (seen from above)"),
                                    (axes[1], above, "ceiling (seen from below)")):
         index = _thin(np.flatnonzero(members))
-        # not visible at the bottom, what is wrong on top: what needs attention shows
-        index = index[np.argsort([order.get(s, 0) for s in status[index]], kind="stable")]
-        colors = [STATUS_COLORS.get(s, "#000000") for s in status[index]]
-        axis.scatter(xyz[index, 0], xyz[index, 1], s=2.0, c=colors, linewidths=0, antialiased=False, rasterized=True)
+        # one marker set per status, not visible at the bottom, what is wrong on top: what needs
+        # attention shows (a set of one colour draws several times faster than dots coloured one by one)
+        for name in sorted(set(status[index].tolist()), key=lambda s: order.get(s, 0)):
+            mine = index[status[index] == name]
+            axis.plot(xyz[mine, 0], xyz[mine, 1], linestyle="", marker="s", markersize=DOT_PT, markeredgewidth=0,
+                      color=STATUS_COLORS.get(name, "#000000"), antialiased=False, rasterized=True)
         if len(views):
             axis.scatter(views[:, 0], views[:, 1], s=14, facecolors="white", edgecolors="black", linewidths=0.8)
         frame_plan_view(axis, heading, lo, hi)
