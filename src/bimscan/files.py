@@ -295,13 +295,13 @@ _REPLACE_ADVICE = "bimscan replaces only what it wrote: choose another output or
 # an author starting with this (make-building's building, furnish's and progress's copies), so that a
 # user's own model, which an IFC's first bytes cannot tell from bimscan's, is never replaced.
 IFC_AUTHOR_PREFIX = "bimscan "
-_IFC_HEADER_BYTES = 1 << 16
+_HEADER_BYTES = 1 << 16
 
 
 def ifc_authors(path: str | Path) -> tuple[str, ...] | None:
     """The author list of the FILE_NAME of the IFC (STEP) file at ``path``'s header, or None when
     its first 64 KiB hold no readable FILE_NAME."""
-    head = file_head(Path(path), _IFC_HEADER_BYTES)
+    head = file_head(Path(path), _HEADER_BYTES)
     if head is None:
         return None
     text = head.decode("latin-1")
@@ -331,7 +331,7 @@ PNG_SOFTWARE = "bimscan"
 
 def png_software(path: str | Path) -> str | None:
     """The ``Software`` text of the PNG at ``path`` (a tEXt chunk before its image data), or None."""
-    head = file_head(Path(path), _IFC_HEADER_BYTES)
+    head = file_head(Path(path), _HEADER_BYTES)
     if head is None or not head.startswith(b"\x89PNG\r\n\x1a\n"):
         return None
     at = 8
