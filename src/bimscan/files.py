@@ -329,6 +329,14 @@ def mark_ifc_written_by(model: Any, command: str) -> None:
 PNG_SOFTWARE = "bimscan"
 
 
+def save_png(figure: Any, path: str | Path, *, dpi: float) -> None:
+    """Write a matplotlib ``figure`` as a PNG at ``path``, atomically, with the fixed Software text
+    ``PNG_SOFTWARE`` (not matplotlib's version: the same figure gives the same bytes, and bimscan may
+    replace the file later)."""
+    with atomic_output(path) as temp:
+        figure.savefig(temp, format="png", dpi=dpi, metadata={"Software": PNG_SOFTWARE})
+
+
 def png_software(path: str | Path) -> str | None:
     """The ``Software`` text of the PNG at ``path`` (a tEXt chunk before its image data), or None."""
     head = file_head(Path(path), _HEADER_BYTES)

@@ -440,10 +440,11 @@ def _plane_scene() -> tuple[np.ndarray, np.ndarray]:
     wall = np.column_stack([np.zeros(y.size), y.ravel(), z.ravel()])
     x, y = np.meshgrid(np.arange(0.5, 3.5, 0.1), np.arange(0.0, 3.0, 0.1), indexing="ij")
     floor = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
-    from bimscan.learn.regions import normals
+    from bimscan.learn.features import estimate_normals
+    from bimscan.learn.regions import NORMAL_NEIGHBOURS
 
     xyz = np.concatenate([wall, floor])
-    return xyz, normals(xyz)
+    return xyz, estimate_normals(xyz, neighbours=NORMAL_NEIGHBOURS)
 
 
 def test_a_vertical_plane_gives_its_walls_and_others_the_class_most_of_it_has() -> None:

@@ -54,15 +54,10 @@ def make_building_command(out: Path, seed: int, storeys: int, style: str, schedu
     storeys or more a double-height hall. With --schedule, the IFC work schedule of its construction.
     An existing OUT is kept unless --overwrite; OUT is written atomically.
     """
-    import os
-
-    from bimscan.errors import OutputError
     from bimscan.ifc.generate import make_building
 
-    if os.path.lexists(out) and not overwrite:
-        raise OutputError(f"{out} already exists; pass --overwrite to replace it or choose another path")
-
-    building = make_building(out, seed=seed, storeys=storeys, style=style, schedule_start=schedule_start)
+    building = make_building(out, seed=seed, storeys=storeys, style=style, schedule_start=schedule_start,
+                             overwrite=overwrite)
     plan = building.plan
     x0, y0, x1, y1 = building.footprint_m
     rooms = "+".join(str(n) for n in building.rooms_per_storey)

@@ -214,7 +214,8 @@ def plan(model: Path, out: Path, classes: str | None, coverage: str | None, dens
 @click.option("--share", type=float, default=COVERED_SHARE, show_default=True,
               help="The share of an element's outer surface that must be covered.")
 @click.option("--length-unit", type=click.Choice(list(LENGTH_UNITS)), default=None, help=LENGTH_UNIT_HELP)
-@click.option("--overwrite", is_flag=True, help="Replace OUT if it is there.")
+@click.option("--overwrite", is_flag=True, help="Replace OUT if it is a file of its kind (a CSV); anything else "
+              "there is refused, never removed.")
 def coverage(model: Path, cloud: Path, out: Path, density_pts_m2: float, radius_m: float, share: float,
              length_unit: str | None, overwrite: bool) -> None:
     """Say how much of each element's outer surface CLOUD covers and write OUT.csv: every element of
@@ -222,8 +223,8 @@ def coverage(model: Path, cloud: Path, out: Path, density_pts_m2: float, radius_
     share covered at --density within --radius, the share below the ground, and 'covered' or why not
     (below the ground, facing down, not reached). For a drone's flight, or any scan in the model's
     coordinates (align a site scan first: 'bimscan align'). The cloud is read in chunks."""
-    from bimscan.files import check_input_file, check_replaceable, write_atomic
-    from bimscan.io import iter_cloud_chunks
+    from bimscan.files import check_input_file, write_atomic
+    from bimscan.io import check_output_path, iter_cloud_chunks
     from bimscan.pipeline import load_scene
     from bimscan.survey.coverage import coverage_csv, element_coverage
 
@@ -232,10 +233,7 @@ def coverage(model: Path, cloud: Path, out: Path, density_pts_m2: float, radius_
         if not low < value <= high:
             raise click.UsageError(f"{name} must be in ({low:g}, {high:g}], got {value:g}")
     check_input_file(cloud, what="a point cloud (LAS/LAZ, E57, PLY, text or a NumPy folder)", folders=True)
-    if out.exists() or out.is_symlink():  # both before the (slow) model
-        if not overwrite:
-            raise click.UsageError(f"{out} already exists; pass --overwrite to replace it or choose another path")
-        check_replaceable(out)
+    check_output_path(out, overwrite=overwrite)  # both before the (slow) model
     scene = load_scene(model, length_unit=length_unit)
     chunks = (chunk.xyz for chunk in iter_cloud_chunks(cloud, labels=False))
     elements = element_coverage(scene, chunks, density_per_m2=density_pts_m2, radius_m=radius_m)

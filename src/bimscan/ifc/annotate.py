@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import math
 import numbers
-import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,8 +30,9 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.errors import OutputError
-from bimscan.files import atomic_output, check_replaceable, mark_ifc_written_by
+from bimscan.files import atomic_output, mark_ifc_written_by
 from bimscan.ifc.guid import derived_global_id, is_global_id
+from bimscan.ifc.output import check_ifc_output
 from bimscan.ifc.schedule import open_model
 
 PropertyValue = str | float | int | bool | None
@@ -55,21 +55,11 @@ class Annotated:
 
 
 def check_annotated_output(out: str | Path, *, source: str | Path, overwrite: bool = False) -> Path:
-    """``out`` as a Path, or an OutputError now for an annotated copy that cannot be written there:
-    not ``.ifc``, a missing folder, the model itself, something there without ``overwrite``, or
-    something there bimscan may not replace (``check_replaceable``)."""
-    out = Path(out)
-    if out.suffix.lower() != ".ifc":
-        raise OutputError(f"output file must end in .ifc, got {str(out)!r}; name it like annotated.ifc")
-    if not out.parent.is_dir():
-        raise OutputError(f"output folder {str(out.parent)!r} does not exist; create it first")
-    if os.path.lexists(out):
-        if Path(source).exists() and out.exists() and os.path.samefile(out, source):
-            raise OutputError(f"{out} is the model being annotated; write the copy to another file")
-        if not overwrite:
-            raise OutputError(f"{out} already exists; pass --overwrite to replace it or choose another path")
-        check_replaceable(out)
-    return out
+    """``out`` as a Path, or an OutputError now for an annotated copy that cannot be written there
+    (``bimscan.ifc.output.check_ifc_output``: not ``.ifc``, the model itself, a missing folder,
+    something there without ``overwrite`` or that bimscan may not replace)."""
+    return check_ifc_output(out, overwrite=overwrite, source=source, like="annotated.ifc",
+                            role="the model being annotated")
 
 
 def write_property_sets(source: str | Path, out: str | Path,

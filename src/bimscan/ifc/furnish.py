@@ -11,7 +11,6 @@ length unit. Partly opened ceilings stay whole in the copy (only their panels ar
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,7 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from bimscan.errors import OutputError
-from bimscan.files import atomic_output, check_replaceable, mark_ifc_written_by
+from bimscan.files import atomic_output, mark_ifc_written_by
+from bimscan.ifc.output import check_ifc_output
 from bimscan.ifc.schedule import open_model
 
 
@@ -39,21 +39,11 @@ class FurnishObject:
 
 
 def check_furnished_output(out: str | Path, *, source: str | Path | None = None, overwrite: bool = False) -> Path:
-    """``out`` as a Path, or an OutputError now for a furnished copy that cannot be written there: not
-    ``.ifc``, a missing folder, the model ``source`` itself, something there without ``overwrite``, or
-    something there bimscan may not replace (``check_replaceable``: an IFC bimscan wrote)."""
-    out = Path(out)
-    if out.suffix.lower() != ".ifc":
-        raise OutputError(f"output file must end in .ifc, got {str(out)!r}; name it like furnished.ifc")
-    if not out.parent.is_dir():
-        raise OutputError(f"output folder {str(out.parent)!r} does not exist; create it first")
-    if os.path.lexists(out):
-        if source is not None and Path(source).exists() and out.exists() and os.path.samefile(out, source):
-            raise OutputError(f"{out} is the model being furnished; write the copy to another file")
-        if not overwrite:
-            raise OutputError(f"{out} already exists; pass --overwrite to replace it or choose another path")
-        check_replaceable(out)
-    return out
+    """``out`` as a Path, or an OutputError now for a furnished copy that cannot be written there
+    (``bimscan.ifc.output.check_ifc_output``: not ``.ifc``, the model ``source`` itself, a missing
+    folder, something there without ``overwrite`` or that bimscan may not replace)."""
+    return check_ifc_output(out, overwrite=overwrite, source=source, like="furnished.ifc",
+                            role="the model being furnished")
 
 
 def write_furnished(source: str | Path, out: str | Path, objects: Sequence[FurnishObject],

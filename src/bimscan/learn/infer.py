@@ -52,11 +52,11 @@ from bimscan.learn.data import (
     iter_raw_chunks, iter_scene_chunks, likely_unit, unit_refusal,
 )
 from bimscan.learn.density import voxel_representatives
-from bimscan.learn.features import extra_features
+from bimscan.learn.features import estimate_normals, extra_features
 from bimscan.learn.floors import TILE_M, FloorMap, FloorMapBuilder, storey_of
 from bimscan.learn.metrics import compute_confusion
 from bimscan.learn.model import autocast_context, check_finite_outputs, flush_denormals
-from bimscan.learn.regions import normals, plane_votes
+from bimscan.learn.regions import NORMAL_NEIGHBOURS, plane_votes
 from bimscan.learn.train_config import IGNORE_LABEL, BlockConfig, EvalConfig, InputConfig
 from bimscan.progress import progress_bar
 
@@ -354,7 +354,8 @@ class _Labeller:
         self.network_points += len(reps)
         return _Stripe(records=records, reps=reps, rep_of=rep_of, votes=np.zeros((len(reps), len(self.class_names)),
                        dtype=np.float32), height=height, storey=storey, cy=cy,
-                       normal=normals(rep_xyz) if self.plane_classes is not None else None)
+                       normal=estimate_normals(rep_xyz, neighbours=NORMAL_NEIGHBOURS)
+                       if self.plane_classes is not None else None)
 
     def _label_stripes(self, counts: dict[int, int]) -> None:
         k = self.k

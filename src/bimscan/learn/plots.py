@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from bimscan.files import PNG_SOFTWARE, atomic_output, write_atomic
+from bimscan.files import save_png, write_atomic
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -138,6 +138,5 @@ def _figure(size_in: tuple[float, float], *, layout: str) -> Figure:
 
 
 def save_figure(figure: Figure, path: Path) -> None:
-    """Write a figure as PNG atomically (bimscan's fixed software tag, not matplotlib's version: same bytes for the same figure)."""
-    with atomic_output(path) as temp:
-        figure.savefig(temp, format="png", dpi=110, metadata={"Software": PNG_SOFTWARE})
+    """Write a figure as PNG (``bimscan.files.save_png``) at the learning pictures' resolution."""
+    save_png(figure, path, dpi=110)

@@ -26,22 +26,7 @@ PLANE_REACH_M = 0.2  # representatives this close are neighbours in a region (tw
 PLANE_ANGLE_DEG = 15.0  # ... when their normals differ by at most this
 VERTICAL_DEG = 15.0  # a representative of a vertical plane: its normal within this of horizontal
 MIN_REGION = 30  # representatives in a region that votes (0.3 m2 at 0.1 m voxels)
-NORMAL_NEIGHBOURS = 12  # representatives a normal is fitted to
-
-
-def normals(xyz: np.ndarray, neighbours: int = NORMAL_NEIGHBOURS) -> np.ndarray:
-    """(N, 3) unit normals of ``xyz`` (N, 3): the least-variance direction of each point's
-    ``neighbours`` nearest (a plane fitted by PCA); sign arbitrary."""
-    from scipy.spatial import cKDTree
-
-    n = len(xyz)
-    if n < 3:
-        return np.tile([0.0, 0.0, 1.0], (n, 1))
-    k = min(neighbours, n)
-    _, index = cKDTree(xyz).query(xyz, k=k)
-    local = xyz[index] - xyz[index].mean(axis=1, keepdims=True)  # (N, k, 3)
-    _, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))
-    return vectors[:, :, 0]
+NORMAL_NEIGHBOURS = 12  # representatives a normal is fitted to (learn.features.estimate_normals)
 
 
 def plane_votes(xyz: np.ndarray, normal: np.ndarray, votes: np.ndarray, mine: np.ndarray, wall: int,

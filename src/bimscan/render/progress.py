@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bimscan.files import PNG_SOFTWARE, atomic_output
+from bimscan.files import save_png
 from bimscan.render.survey_plan import frame_plan_view, storey_bands, storey_slug
 
 STATUS_COLORS = {"built": "#2ca02c", "built out of tolerance": "#ff7f0e", "not built": "#d62728",
@@ -64,8 +64,7 @@ def _thin(index: np.ndarray) -> np.ndarray:
 
 
 def _save(figure: object, path: Path) -> None:
-    with atomic_output(path) as temp:  # a fixed software tag (not matplotlib's version): the same comparison, the same bytes
-        figure.savefig(temp, format="png", dpi=100, metadata={"Software": PNG_SOFTWARE})  # type: ignore[attr-defined]
+    save_png(figure, path, dpi=100)
 
 
 def _draw_status(path: Path, title: str, xyz: np.ndarray, status: np.ndarray, below: np.ndarray, above: np.ndarray,

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from bimscan.files import PNG_SOFTWARE, atomic_output
+from bimscan.files import save_png
 
 if TYPE_CHECKING:
     from bimscan.survey.planning.plan import PlanEvaluation, SurveyPlan
@@ -132,8 +132,7 @@ def _draw_storey(plan: SurveyPlan, evaluation: PlanEvaluation, states: np.ndarra
                 Line2D([], [], color="#555555", linewidth=0.8, label="registers with")]
     figure.legend(handles=handles, loc="outside lower center", ncols=len(handles), frameon=False, fontsize=9)
     figure.suptitle(title, fontsize=11)
-    with atomic_output(path) as temp:  # a fixed software tag (not matplotlib's version): the same plan, the same bytes
-        figure.savefig(temp, format="png", dpi=100, metadata={"Software": PNG_SOFTWARE})
+    save_png(figure, path, dpi=100)
 
 
 def frame_plan_view(axis, heading: str, lo: np.ndarray, hi: np.ndarray) -> None:  # type: ignore[no-untyped-def]

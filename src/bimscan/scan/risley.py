@@ -219,10 +219,10 @@ class RisleyScanner(Checked):
         t = np.arange(int(seconds * self.pulse_rate_hz)) / self.pulse_rate_hz
         d = np.concatenate([self.directions(t, channel) for channel in range(self.n_beams)])
         if self.spinning:
-            low, high = self.elevation_range_deg(seconds)
+            elevation = np.degrees(np.arcsin(np.clip(d[:, 2], -1.0, 1.0)))
             azimuth = np.sort(np.degrees(np.arctan2(d[:, 1], d[:, 0])))
             widest_gap = float(np.diff(np.r_[azimuth, azimuth[0] + 360.0]).max())
-            return 360.0 - widest_gap, high - low
+            return 360.0 - widest_gap, float(elevation.max() - elevation.min())
         x, y = np.degrees(np.arctan2(d[:, 0], d[:, 2])), np.degrees(np.arctan2(d[:, 1], d[:, 2]))
         return float(x.max() - x.min()), float(y.max() - y.min())
 

@@ -48,7 +48,7 @@ import ifcopenshell.guid
 import numpy as np
 from ifcopenshell.util.shape_builder import ShapeBuilder
 
-from bimscan.files import atomic_output, check_replaceable
+from bimscan.files import atomic_output
 from bimscan.errors import ConfigError, OutputError
 from bimscan.ifc.generate.floor_plan import (
     ATTIC_NAME,
@@ -83,6 +83,7 @@ from bimscan.ifc.generate.styles import (
     WINDOW_PANEL_M,
 )
 from bimscan.ifc.generate.work_schedule import BuildTask, add_work_schedule, schedule_start_date
+from bimscan.ifc.output import check_ifc_output
 
 # Fixed header fields: the file's bytes must not depend on when or where it was made.
 HEADER_TIMESTAMP = "2024-01-01T00:00:00"
@@ -150,6 +151,7 @@ def make_building(
     storeys: int = 2,
     style: str = DEFAULT_STYLE,
     schedule_start: str | None = None,
+    overwrite: bool = True,
 ) -> GeneratedBuilding:
     """Generate a seeded building of ``style``; write it as IFC4 to ``path`` when given.
 
@@ -161,12 +163,14 @@ def make_building(
     bytes.
 
     Raises ConfigError for a bad seed, storey count, style or start, OutputError when ``path``'s
-    folder is missing, ``path`` does not end in ``.ifc``, or the file cannot be written.
+    folder is missing, ``path`` does not end in ``.ifc``, something is there (without ``overwrite``;
+    with it, anything but an IFC bimscan wrote: ``bimscan.ifc.output.check_ifc_output``), or the
+    file cannot be written.
     """
     check_building_options(seed=seed, storeys=storeys, style=style, schedule_start=schedule_start)
     target = Path(path) if path is not None else None
     if target is not None:
-        _check_output_path(target)
+        check_ifc_output(target, overwrite=overwrite, like="building.ifc")
     model, building = build_building_model(seed=seed, storeys=storeys, style=style, schedule_start=schedule_start)
     if target is None:
         return building
@@ -219,15 +223,6 @@ def _no_owner_history() -> Iterator[None]:
         yield
     finally:
         owner.get_user, owner.get_application = saved
-
-
-def _check_output_path(target: Path) -> None:
-    if target.suffix.lower() != ".ifc":
-        raise OutputError(f"output file must end in .ifc, got {str(target)!r}; name it like building.ifc")
-    folder = target.parent if str(target.parent) else Path(".")
-    if not folder.is_dir():
-        raise OutputError(f"output folder {str(folder)!r} does not exist; create it first or choose another path")
-    check_replaceable(target)  # an existing IFC bimscan wrote is replaced; a user's model, a folder, a link are not
 
 
 def _write_atomically(target: Path, text: str) -> None:
